@@ -1,0 +1,126 @@
+"""The strict collision map in the space frame (SPEC §1; paper eq. (update)), written once for any dimension n.
+
+State at contact: centre velocity ``v`` (n), angular velocity ``W`` (n×n antisymmetric, space frame; 2D ``W = ωJ``,
+3D ``Wx = ω×x``), unit wall normal ``nu`` pointing into the free region, ball radius ``R``, ``kappa = 2λ/R²``.
+
+    r    = −R ν                         contact point seen from the centre
+    u    = v + W r                      velocity of the touching material point
+    u_t  = u − (u·ν) ν                  its tangential part (the slip velocity)
+    Δv_t = −2α P u_t,  α = κ/(1+κ)      P: projector onto the roughness subspace (rank k)
+    v'   = v − 2(v·ν)ν + Δv_t
+    W'   = W + (r ∧ Δv_t)/(2λ),         (a ∧ b) = b aᵀ − a bᵀ   (3D: ω' = ω + r×Δv_t/(2λ))
+
+The roughness subspace is given by ``rank`` and, when ``0 < rank < n−1``, an orthonormal ``basis`` whose first
+``rank`` rows span it; rank 0 is specular reflection and rank n−1 the completely rough (no-slip) map, for which
+no basis is needed (P is the tangent projector at whatever point of the wall was hit).
+"""
+import numpy as np
+
+from ._jit import jit
+
+#: κ = 2λ/R² of named mass distributions; 'uniform' depends on the dimension: 2/(n+2)
+INERTIA_KAPPA = {"shell": {2: 1.0, 3: 2.0 / 3.0}, "ring": {2: 1.0}}
+
+
+def kappa_of(inertia, n):
+    """κ of a named mass distribution in dimension n, or the number itself (validated by the config loader)."""
+    if isinstance(inertia, str):
+        if inertia == "uniform":
+            return 2.0 / (n + 2)
+        return INERTIA_KAPPA[inertia][n]
+    return float(inertia)
+
+
+@jit
+def collide(v, W, nu, R, kappa, rank, basis, work):
+    """Apply the strict collision map in place: (v, W) <- (v', W'); returns nothing.  SPEC §1, paper eq. (update).
+
+    The normal velocity is reversed exactly (``v·ν`` changes sign), so the next flight leaves the wall.
+    ``work`` is scratch space of shape (3, n), so that the event loop allocates nothing per collision.
+    """
+    n = v.shape[0]
+    vn = 0.0
+    for i in range(n):
+        vn += v[i] * nu[i]
+    if rank == 0:
+        for i in range(n):
+            v[i] -= 2.0 * vn * nu[i]
+        return
+    # u = v + W r with r = −Rν; its normal part is v·ν because W is antisymmetric (r·W r = 0)
+    u = work[0]
+    for i in range(n):
+        s = 0.0
+        for j in range(n):
+            s -= W[i, j] * nu[j]
+        u[i] = v[i] + R * s
+    # slip velocity u_t, then its projection P u_t onto the roughness subspace
+    dv = work[1]
+    for i in range(n):
+        dv[i] = u[i] - vn * nu[i]
+    if rank < n - 1:
+        pu = work[2]
+        pu[:] = 0.0
+        for q in range(rank):
+            c = 0.0
+            for i in range(n):
+                c += dv[i] * basis[q, i]
+            for i in range(n):
+                pu[i] += c * basis[q, i]
+        for i in range(n):
+            dv[i] = pu[i]
+    alpha2 = 2.0 * kappa / (1.0 + kappa)
+    for i in range(n):
+        dv[i] *= -alpha2
+        v[i] += dv[i] - 2.0 * vn * nu[i]
+    # W += (Δv rᵀ − r Δvᵀ)/(2λ) with r = −Rν and 2λ = κR²
+    scale = 1.0 / (kappa * R)
+    for i in range(n):
+        for j in range(n):
+            W[i, j] += scale * (nu[i] * dv[j] - dv[i] * nu[j])
+
+
+def collision_map(v, W, nu, R, kappa, rank, basis=None):
+    """Pure form of :func:`collide` -> (v', W') as new arrays; ``W`` may also be a 2D scalar ω or a 3D vector ω."""
+    v = np.array(v, dtype=float)
+    n = v.shape[0]
+    Wm = spin_matrix(W, n)
+    b = np.zeros((max(n - 1, 1), n)) if basis is None else np.asarray(basis, dtype=float)
+    collide(v, Wm, np.asarray(nu, dtype=float), float(R), float(kappa), int(rank), b, np.empty((3, n)))
+    return v, Wm
+
+
+def spin_matrix(w, n):
+    """Angular velocity as the antisymmetric n×n matrix W (2D: ω J; 3D: W x = ω × x; else already a matrix)."""
+    w = np.asarray(w, dtype=float)
+    if w.ndim == 2:
+        return w.copy()
+    if n == 2:
+        return np.array([[0.0, -float(w)], [float(w), 0.0]])
+    if n == 3:
+        return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+    raise ValueError("give the angular velocity as an n×n antisymmetric matrix for n > 3")
+
+
+def spin_vector(W):
+    """Inverse of :func:`spin_matrix`: 2D scalar ω, 3D vector ω."""
+    W = np.asarray(W)
+    if W.shape[-1] == 2:
+        return W[..., 1, 0]
+    return np.stack([W[..., 2, 1], W[..., 0, 2], W[..., 1, 0]], axis=-1)
+
+
+def energy(v, W, R, kappa):
+    """Kinetic energy per unit mass ½(|v|² + 2λ|ω|²) = ½|v|² + ¼κR²·tr(WᵀW)."""
+    v = np.asarray(v, dtype=float)
+    W = np.asarray(W, dtype=float)
+    return 0.5 * np.sum(v * v, axis=-1) + 0.25 * kappa * R * R * np.sum(W * W, axis=(-2, -1))
+
+
+def rotation_from_vector(rv):
+    """Rotation matrix exp([rv]×) of a 3D rotation vector (Rodrigues)."""
+    rv = np.asarray(rv, dtype=float)
+    th = float(np.linalg.norm(rv))
+    K = spin_matrix(rv, 3)
+    if th < 1e-12:
+        return np.eye(3) + K
+    return np.eye(3) + np.sin(th) / th * K + (1.0 - np.cos(th)) / th**2 * K @ K

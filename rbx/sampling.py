@@ -1,0 +1,120 @@
+"""Initial states drawn from the billiard measure (paper §2.7; SPEC §4).
+
+On a wall: position uniform on the wall as seen by the centre (the shrunk wall), orientation uniform, and the
+velocity in the metric-orthonormal coordinates ``(v, R√κ·ω)`` (dimension ``d = n + n(n−1)/2``) with density
+∝ cos φ on the unit hemisphere around the inward normal. Projected on the plane orthogonal to the normal that
+density is uniform on the unit (d−1)-ball, which is how it is drawn. Along an infinite direction (strip, plates)
+the position is 0: the dynamics are invariant under that translation. Without a wall, the wall (and the patch
+of a wall: a polygon edge and its reflex-vertex arc) is drawn with probability proportional to its measure.
+
+Each trajectory j uses its own stream (seed, j, PURPOSE_INITIAL), so the draw does not depend on how many
+trajectories are run or in which order.
+"""
+import numpy as np
+
+from .physics import rotation_from_vector
+from .rng import PURPOSE_INITIAL, uniform_table
+
+NDRAWS = 32
+
+
+def _patch_measure(patch):
+    if patch[0] == "flat":
+        return float(np.prod([length for _, length in patch[3] if np.isfinite(length)]))
+    _, _, rho, a0, a1, _ = patch
+    return rho * (a1 - a0)
+
+
+def wall_patches(geom, wall):
+    """[(patch, weight)] for one wall index or all walls (None), weights normalised."""
+    walls = range(len(geom.wall_list)) if wall is None else [wall]
+    items = [(p, _patch_measure(p)) for w in walls for p in geom.wall_list[w].patches]
+    items = [(p, m) for p, m in items if m > 0]
+    total = sum(m for _, m in items)
+    return [(p, m / total) for p, m in items]
+
+
+def sample_billiard(geom, kappa, R, seed, wall, first, count):
+    """Draw ``count`` states for trajectories first … -> dict of arrays position (M, n), velocity (M, n),
+    angular_velocity (M,) or (M, 3), orientation (M,) angle or (M, 3, 3) matrix, and the wall normal (M, n)."""
+    n = geom.dimension
+    d = n + n * (n - 1) // 2
+    U = uniform_table(seed, first, count, PURPOSE_INITIAL, NDRAWS)
+    patches = wall_patches(geom, wall)
+    cum = np.cumsum([w for _, w in patches])
+    cum[-1] = np.inf
+    which = np.searchsorted(cum, U[:, 0], side="right")
+    pos = np.zeros((count, n))
+    nu = np.zeros((count, n))
+    for k, (patch, _) in enumerate(patches):
+        sel = which == k
+        if patch[0] == "flat":
+            _, origin, normal, axes = patch
+            pos[sel] = origin
+            for i, (axis, length) in enumerate(axes):
+                if np.isfinite(length):
+                    pos[sel] += np.outer(U[sel, 1 + i] * length, axis)
+            nu[sel] = normal
+        else:
+            _, centre, rho, a0, a1, sign = patch
+            ang = a0 + (a1 - a0) * U[sel, 1]
+            radial = np.stack([np.cos(ang), np.sin(ang)], axis=1)
+            pos[sel] = centre + rho * radial
+            nu[sel] = sign * radial
+    # velocity: uniform in the unit (d−1)-ball of the tangent space, normal part sqrt(1 − |x|²)
+    g = _normals(U[:, 4:4 + 2 * ((d - 1 + 1) // 2)])[:, :d - 1]
+    radius = U[:, 3] ** (1.0 / (d - 1))
+    x = g / np.linalg.norm(g, axis=1, keepdims=True) * radius[:, None]
+    normal_part = np.sqrt(np.maximum(0.0, 1.0 - np.sum(x * x, axis=1)))
+    tang = _tangent_basis(nu)                                   # (M, n−1, n)
+    vel = normal_part[:, None] * nu + np.einsum("mk,mkn->mn", x[:, :n - 1], tang)
+    spin_scaled = x[:, n - 1:]                                  # R√κ·ω
+    spin = spin_scaled / (R * np.sqrt(kappa))
+    o = U[:, 16:]
+    if n == 2:
+        orient = 2 * np.pi * o[:, 0]
+        spin = spin[:, 0]
+    else:
+        orient = np.array([_uniform_rotation(o[m, :3]) for m in range(count)])
+    return {"position": pos, "velocity": vel, "angular_velocity": spin, "orientation": orient, "normal": nu}
+
+
+def _normals(U):
+    """Standard normal pairs from uniform pairs (Box–Muller)."""
+    u1, u2 = U[:, 0::2], U[:, 1::2]
+    r = np.sqrt(-2.0 * np.log1p(-u1))
+    return np.concatenate([r * np.cos(2 * np.pi * u2), r * np.sin(2 * np.pi * u2)], axis=1)
+
+
+def _tangent_basis(nu):
+    """An orthonormal basis of ν⊥ for each row -> (M, n−1, n)."""
+    M, n = nu.shape
+    if n == 2:
+        return np.stack([-nu[:, 1], nu[:, 0]], axis=1)[:, None, :]
+    helper = np.where(np.abs(nu[:, :1]) < 0.9, np.array([[1.0, 0, 0]]), np.array([[0, 1.0, 0]]))
+    t1 = helper - np.sum(helper * nu, axis=1, keepdims=True) * nu
+    t1 /= np.linalg.norm(t1, axis=1, keepdims=True)
+    t2 = np.cross(nu, t1)
+    return np.stack([t1, t2], axis=1)
+
+
+def _uniform_rotation(u):
+    """A uniformly distributed rotation matrix from three uniforms (Shoemake's quaternion method)."""
+    a, b, c = u
+    q = np.array([np.sqrt(1 - a) * np.sin(2 * np.pi * b), np.sqrt(1 - a) * np.cos(2 * np.pi * b),
+                  np.sqrt(a) * np.sin(2 * np.pi * c), np.sqrt(a) * np.cos(2 * np.pi * c)])
+    x, y, z, w = q
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def explicit_states(states, dimension, count):
+    """Explicit initial states from the config (one state repeated, or one per trajectory) -> dict of arrays."""
+    reps = [states[j % len(states)] for j in range(count)]
+    out = {k: np.array([s[k] for s in reps], dtype=float) for k in ("position", "velocity", "angular_velocity")}
+    if dimension == 2:
+        out["orientation"] = np.array([s["orientation"] for s in reps], dtype=float)
+    else:
+        out["orientation"] = np.array([rotation_from_vector(s["orientation"]) for s in reps])
+    return out

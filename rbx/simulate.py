@@ -1,0 +1,192 @@
+"""Python tier of the event loop: allocate the state, run :func:`rbx.engine.advance_all` block by block and hand
+each block of records to a sink (the HDF5 writer, or memory for the API and tests).
+
+Memory stays flat: a block holds at most a few million values whatever the run's length.
+"""
+import numpy as np
+
+from . import engine
+from .geometry import END_TOLERANCE
+from .rng import PURPOSE_RULES, stream_key
+from .rules import compile_rules
+from .sampling import explicit_states, sample_billiard
+
+#: collisions per block summed over trajectories: ~0.1 s of work, so progress and Ctrl-C stay responsive
+BLOCK_WORK = 2_000_000
+#: values (float64) held in the record buffers of one block
+BLOCK_VALUES = 4_000_000
+
+
+def field_shapes(n):
+    """Trailing shape of each recorded field in dimension n (SPEC §5)."""
+    return {"time": (), "position": (n,), "velocity": (n,), "angular_velocity": () if n == 2 else (3,),
+            "orientation": () if n == 2 else (3, 3), "wall": (), "rank": ()}
+
+
+FIELD_DTYPES = {"wall": np.int32, "rank": np.int32}
+
+
+class Simulation:
+    """The state of M trajectories of one validated config, advanced block by block."""
+
+    def __init__(self, cfg, state=None):
+        self.cfg = cfg
+        self.geom = cfg.geometry()
+        self.rules = compile_rules(cfg.wall_rules, self.geom)
+        n = self.n = cfg.dimension
+        M = self.M = cfg.run.trajectories
+        self.record = cfg.output.record
+        self.mask = sum(engine.FIELD_BITS[f] for f in self.record)
+        # the orientation is followed only when a hemisphere rule or the recorded field needs it (SPEC §7)
+        self.follow_orientation = self.rules.uses_orientation or "orientation" in self.record
+        self.keys = np.array([stream_key(cfg.run.seed, j, PURPOSE_RULES) for j in range(M)], dtype=np.uint64)
+        if state is None:
+            state = self._initial_state()
+        self.pos = np.ascontiguousarray(state["position"], dtype=float).reshape(M, n)
+        self.vel = np.ascontiguousarray(state["velocity"], dtype=float).reshape(M, n)
+        self.W = np.array([_spin_matrix(w, n) for w in np.asarray(state["angular_velocity"], float)]).reshape(M, n, n)
+        orient = np.asarray(state["orientation"], float)
+        self.theta = orient.reshape(M).copy() if n == 2 else np.zeros(M)
+        self.A = orient.reshape(M, 3, 3).copy() if n == 3 else np.zeros((M, 3, 3))
+        self.time = np.asarray(state.get("time", np.zeros(M)), float).copy()
+        self.ncoll = np.asarray(state.get("collisions", np.zeros(M)), np.int64).copy()
+        self.draws = np.asarray(state.get("draws", np.zeros(M)), np.int64).copy()
+        self.alive = np.asarray(state.get("alive", np.ones(M)), np.bool_).copy()
+        self.last_wall = np.asarray(state.get("last_wall", -np.ones(M)), np.int64).copy()
+        self.last_rank = np.asarray(state.get("last_rank", np.zeros(M)), np.int64).copy()
+        self.tol = END_TOLERANCE * self.geom.size
+
+    def _initial_state(self):
+        cfg = self.cfg
+        if cfg.initial[0] == "sample":
+            return sample_billiard(self.geom, cfg.ball.kappa, cfg.ball.radius, cfg.run.seed, cfg.initial[1], 0,
+                                   self.M)
+        return explicit_states(cfg.initial, self.n, self.M)
+
+    # -- records ------------------------------------------------------------------------------------------------
+    def current_record(self):
+        """The present state of every trajectory as one record: dict field -> (M, 1, …)."""
+        M = self.M
+        values = {"time": self.time, "position": self.pos, "velocity": self.vel,
+                  "angular_velocity": self.W[:, 1, 0] if self.n == 2 else
+                  np.stack([self.W[:, 2, 1], self.W[:, 0, 2], self.W[:, 1, 0]], axis=1),
+                  "orientation": self.theta if self.n == 2 else self.A,
+                  "wall": self.last_wall, "rank": self.last_rank}
+        return {f: np.asarray(values[f]).reshape((M, 1) + field_shapes(self.n)[f]).astype(FIELD_DTYPES.get(f, float))
+                for f in self.record}
+
+    def final_state(self):
+        spin = self.W[:, 1, 0] if self.n == 2 else np.stack([self.W[:, 2, 1], self.W[:, 0, 2], self.W[:, 1, 0]], 1)
+        return {"time": self.time, "position": self.pos, "velocity": self.vel, "angular_velocity": spin,
+                "orientation": self.theta if self.n == 2 else self.A, "collisions": self.ncoll,
+                "draws": self.draws, "alive": self.alive, "last_wall": self.last_wall, "last_rank": self.last_rank}
+
+    def block_buffers(self, records):
+        """Record buffers for a block of ``records`` records per trajectory (zero-size for fields not recorded)."""
+        M, n = self.M, self.n
+        flat = {"time": 1, "position": n, "velocity": n, "angular_velocity": 1 if n == 2 else 3,
+                "orientation": 1 if n == 2 else 9, "wall": 1, "rank": 1}
+        bufs = {}
+        for f in ("time", "position", "velocity", "angular_velocity", "orientation", "wall", "rank"):
+            size = records if f in self.record else 0
+            dtype = FIELD_DTYPES.get(f, float)
+            bufs[f] = np.empty((M, size) if f in ("time", "wall", "rank") else (M, size, flat[f]), dtype=dtype)
+        return bufs
+
+    def records_per_block(self):
+        every = self.cfg.output.every
+        per_record = 1 + sum(int(np.prod(field_shapes(self.n)[f] or (1,))) for f in self.record)
+        by_memory = max(1, BLOCK_VALUES // (self.M * per_record))
+        by_work = max(1, BLOCK_WORK // (self.M * every))
+        return min(by_memory, by_work)
+
+    # -- running ------------------------------------------------------------------------------------------------
+    def advance(self, stop, bufs):
+        """Advance every live trajectory to ``stop`` collisions in all -> records written per trajectory (M,)."""
+        r = self.rules
+        stops = np.full(self.M, stop, np.int64)
+        return engine.advance_all(
+            stops, self.cfg.output.every, self.mask, self.follow_orientation,
+            self.geom.codes, self.geom.walls, self.geom.params, self.tol, self.cfg.ball.radius, self.cfg.ball.kappa,
+            r.root, r.kind, r.rank, r.first, r.children, r.cumprob, r.axis, r.basis,
+            self.pos, self.vel, self.W, self.theta, self.A, self.time, self.ncoll, self.draws, self.alive,
+            self.keys, self.last_wall, self.last_rank,
+            bufs["time"], bufs["position"], bufs["velocity"], bufs["angular_velocity"], bufs["orientation"],
+            bufs["wall"], bufs["rank"])
+
+    def run(self, sink, progress=None, should_stop=None):
+        """Run to ``run.collisions`` collisions, streaming records to ``sink`` -> True if complete.
+
+        ``sink.write(block, nrec)`` gets dicts field -> (M, b, …) with rows past ``nrec[j]`` filled with NaN / −1;
+        ``sink.checkpoint(sim)`` follows each block. ``should_stop()`` is polled between blocks.
+        """
+        total = self.cfg.run.collisions
+        every = self.cfg.output.every
+        if self.record and np.all(self.ncoll == 0):
+            sink.write(self.current_record(), np.ones(self.M, np.int64))
+        if self.record:
+            per = self.records_per_block()
+            bufs = self.block_buffers(per)
+            step = per * every
+        else:
+            bufs = self.block_buffers(0)
+            step = max(1, BLOCK_WORK // self.M)
+        done = int(self.ncoll[self.alive].min()) if self.alive.any() else total
+        while done < total and self.alive.any():
+            stop = min(total, (done // step + 1) * step) if self.record else min(total, done + step)
+            nrec = self.advance(stop, bufs)
+            if self.record:
+                b = int(nrec.max())
+                shapes = field_shapes(self.n)
+                block = {f: bufs[f][:, :b].reshape((self.M, b) + shapes[f]) for f in self.record}
+                _blank_tails(block, nrec, b)
+                sink.write(block, nrec)
+            sink.checkpoint(self)
+            done = stop
+            if progress is not None:
+                progress(done, total)
+            if should_stop is not None and should_stop():
+                return False
+        sink.checkpoint(self)
+        return True
+
+
+def _blank_tails(block, nrec, b):
+    short = np.nonzero(nrec < b)[0]
+    for j in short:
+        for f, arr in block.items():
+            arr[j, nrec[j]:] = -1 if arr.dtype.kind == "i" else np.nan
+
+
+def _spin_matrix(w, n):
+    if n == 2:
+        return np.array([[0.0, -w], [w, 0.0]])
+    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+
+
+class MemorySink:
+    """Collects the records of a run in memory: ``records[field]`` (M, T, …), ``count`` (M,)."""
+
+    def __init__(self):
+        self.blocks, self.count, self.final = [], None, None
+
+    def write(self, block, nrec):
+        self.blocks.append({f: a.copy() for f, a in block.items()})
+        self.count = nrec.copy() if self.count is None else self.count + nrec
+
+    def checkpoint(self, sim):
+        self.final = {k: np.array(v, copy=True) for k, v in sim.final_state().items()}
+
+    @property
+    def records(self):
+        if not self.blocks:
+            return {}
+        return {f: np.concatenate([b[f] for b in self.blocks], axis=1) for f in self.blocks[0]}
+
+
+def run_in_memory(cfg):
+    """Run a validated config without writing files -> (records dict, count, final state). For the API and tests."""
+    sim = Simulation(cfg)
+    sink = MemorySink()
+    sim.run(sink)
+    return sink.records, sink.count, sink.final

@@ -1,0 +1,505 @@
+"""Slow, obviously-correct reference event loop for rough billiards.
+
+Pure Python + numpy (+ scipy.linalg.expm), independent of the ``rbx`` package: it reads a config mapping
+shaped like the cases of ``tests/data/trajectories.json`` and follows SPEC.md §1–3 and docs/conventions.md as
+literally as possible, for any dimension n with the angular velocity held as an n×n antisymmetric matrix ``W``.
+
+    reference_run(config, uniforms=None) -> list[dict]
+
+Record 0 is the initial state (wall −1, rank 0), record i the state just after collision i. Each record has
+``time, position, velocity, angular_velocity, orientation, wall, rank``; 2D angular velocity / orientation are
+floats (ω, continuous angle θ), 3D ones a length-3 list (ω) and a 3×3 nested list (A, body → space).
+The run stops early (fewer records) when no wall lies ahead (escape).
+
+Collision map (SPEC §1, the paper's eq. (update) in the space frame), at a wall with unit normal ν pointing into
+the free region:
+    r = −Rν,  u = v + W r,  u_t = u − (u·ν)ν,  Δv_t = −2α P u_t,
+    v' = v − 2(v·ν)ν + Δv_t,  W' = W + (Δv_t rᵀ − r Δv_tᵀ)/(2λ),  2λ = κR²,  α = κ/(1+κ),
+with P the orthogonal projector onto the roughness subspace (rank 0: 0; rank n−1: I − ννᵀ; 3D rank 1: ddᵀ).
+
+Collision times: the centre moves in the table shrunk by R. Every wall contributes primitives of that shrunk
+table (offset lines/planes with an extent, the circle of radius r − R, and for each reflex polygon vertex an arc
+of radius R around it, attributed to the edge leaving that vertex). For each primitive we solve for the time the
+centre line a + t·v meets it while moving into it (v·ν < 0 at the hit point), keep it if the hit point lies on
+the primitive's extent, and take the smallest time, exact ties going to the lower wall index. A point that
+rounding left a hair outside a primitive it is moving into is hit at time 0 (conventions: corners, grazing).
+"""
+
+import math
+
+import numpy as np
+from scipy.linalg import expm
+
+# A point at most this far (relative to the scene's length scale) on the wrong side of a wall it moves into is
+# hit at flight time 0; anything further is a wall behind us (non-convex tables) and is ignored.
+DISTANCE_TOLERANCE = 1e-10
+# Slack on the extent of a primitive (relative to the scene's length scale): only decides which of two
+# primitives meeting tangentially (segment end / reflex arc) reports a hit at their junction.
+EXTENT_TOLERANCE = 1e-12
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# small linear-algebra helpers
+
+
+def hat(omega):
+    """3-vector ω -> antisymmetric W with W x = ω × x."""
+    wx, wy, wz = omega
+    return np.array([[0.0, -wz, wy], [wz, 0.0, -wx], [-wy, wx, 0.0]])
+
+
+def vee(W):
+    """Antisymmetric 3×3 W -> ω (inverse of hat)."""
+    return np.array([W[2, 1], W[0, 2], W[1, 0]])
+
+
+def angular_velocity_matrix(omega, n):
+    """Space-frame angular velocity as an n×n antisymmetric matrix (2D: ω·J, J the +90° rotation)."""
+    if n == 2:
+        w = float(omega)
+        return np.array([[0.0, -w], [w, 0.0]])
+    return hat(np.asarray(omega, dtype=float))
+
+
+def rodrigues(rotation_vector):
+    """Rotation vector -> rotation matrix, by Rodrigues' formula."""
+    rv = np.asarray(rotation_vector, dtype=float)
+    angle = float(np.linalg.norm(rv))
+    if angle == 0.0:
+        return np.eye(3)
+    K = hat(rv / angle)
+    return np.eye(3) + math.sin(angle) * K + (1.0 - math.cos(angle)) * (K @ K)
+
+
+def rotation_2d(angle):
+    c, s = math.cos(angle), math.sin(angle)
+    return np.array([[c, -s], [s, c]])
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# the shrunk table: walls and their primitives
+
+
+class Segment:
+    """Offset of a straight wall: the line {x : ν·x = ν·base + R} with hit points restricted to
+    s = (x − base)·direction in [s_min, s_max] (±inf for unbounded walls). Normal ν (into the free region)."""
+
+    def __init__(self, wall, base, direction, normal, s_min, s_max):
+        self.wall = wall
+        self.base = np.asarray(base, dtype=float)
+        self.direction = np.asarray(direction, dtype=float)
+        self.normal = np.asarray(normal, dtype=float)
+        self.s_min = s_min
+        self.s_max = s_max
+
+
+class Plane:
+    """Offset of a flat wall in 3D: {x : ν·x = ν·base + R}; hit points must satisfy lo ≤ x ≤ hi coordinatewise
+    (bounds given with ±inf where unbounded)."""
+
+    def __init__(self, wall, base, normal, lo, hi):
+        self.wall = wall
+        self.base = np.asarray(base, dtype=float)
+        self.normal = np.asarray(normal, dtype=float)
+        self.lo = np.asarray(lo, dtype=float)
+        self.hi = np.asarray(hi, dtype=float)
+
+
+class Rim:
+    """Circular wall of a round table for the centre: the circle |x − centre| = radius (already shrunk),
+    the centre stays inside, the normal points inward: ν = (centre − x)/|x − centre|."""
+
+    def __init__(self, wall, centre, radius):
+        self.wall = wall
+        self.centre = np.asarray(centre, dtype=float)
+        self.radius = float(radius)
+
+
+class ReflexArc:
+    """Arc of radius R around a reflex polygon vertex (the Minkowski-rounded corner), the centre stays outside,
+    normal ν = (x − vertex)/R. Extent: the fan where the vertex is the nearest point of both edges, i.e.
+    (x − vertex)·e_in ≥ 0 and (x − vertex)·e_out ≤ 0 (e_in, e_out the unit directions of the edges arriving at
+    and leaving the vertex)."""
+
+    def __init__(self, wall, vertex, radius, e_in, e_out):
+        self.wall = wall
+        self.vertex = np.asarray(vertex, dtype=float)
+        self.radius = float(radius)
+        self.e_in = np.asarray(e_in, dtype=float)
+        self.e_out = np.asarray(e_out, dtype=float)
+
+
+def left_normal(e):
+    """Unit direction e rotated by +90°: the inward normal of a CCW polygon edge."""
+    return np.array([-e[1], e[0]])
+
+
+def polygon_primitives(vertices, R):
+    """Offset segments of every edge (full length, untrimmed: at convex corners the other offset line is always
+    reached first) plus one arc per reflex vertex, attributed to the edge leaving it."""
+    V = [np.asarray(p, dtype=float) for p in vertices]
+    m = len(V)
+    area2 = sum(V[i][0] * V[(i + 1) % m][1] - V[(i + 1) % m][0] * V[i][1] for i in range(m))
+    if not area2 > 0:
+        raise ValueError("polygon vertices must be counter-clockwise (positive area)")
+    prims = []
+    for i in range(m):
+        edge = V[(i + 1) % m] - V[i]
+        length = float(np.linalg.norm(edge))
+        e = edge / length
+        prims.append(Segment(i, V[i], e, left_normal(e), 0.0, length))
+    for i in range(m):
+        e_in = V[i] - V[i - 1]
+        e_out = V[(i + 1) % m] - V[i]
+        cross = e_in[0] * e_out[1] - e_in[1] * e_out[0]
+        if cross < 0:  # clockwise turn of a CCW boundary: interior angle > 180°, a reflex vertex
+            prims.append(ReflexArc(i, V[i], R, e_in / np.linalg.norm(e_in), e_out / np.linalg.norm(e_out)))
+    return prims
+
+
+class Table:
+    """The table seen by the ball's centre: dimension, wall names (SPEC §2 order), primitives, tangent axes."""
+
+    def __init__(self, spec, R):
+        kind = spec["kind"]
+        self.kind = kind
+        self.R = R
+        inf = math.inf
+        self.tangent_axes = {}
+        if kind == "strip":
+            w = float(spec["width"])
+            self.dim = 2
+            self.names = ["bottom", "top"]
+            self.primitives = [
+                Segment(0, [0.0, 0.0], [1.0, 0.0], [0.0, 1.0], -inf, inf),
+                Segment(1, [0.0, w], [1.0, 0.0], [0.0, -1.0], -inf, inf),
+            ]
+            self.scale = w
+        elif kind == "circle":
+            r = float(spec["radius"])
+            self.dim = 2
+            self.names = ["rim"]
+            self.primitives = [Rim(0, [0.0, 0.0], r - R)]
+            self.scale = r
+        elif kind == "wedge":
+            phi = math.radians(float(spec["angle_deg"]))
+            self.dim = 2
+            self.names = ["wall0", "wall1"]
+            e1 = np.array([math.cos(phi), math.sin(phi)])
+            self.primitives = [
+                Segment(0, [0.0, 0.0], [1.0, 0.0], [0.0, 1.0], 0.0, inf),
+                # wall1 is traversed towards the vertex by a CCW boundary, so its inward normal is left_normal(-e1)
+                Segment(1, [0.0, 0.0], e1, left_normal(-e1), 0.0, inf),
+            ]
+            self.scale = 1.0
+        elif kind == "rectangle":
+            w, h = float(spec["width"]), float(spec["height"])
+            self.dim = 2
+            self.names = ["bottom", "right", "top", "left"]
+            self.primitives = polygon_primitives([[0, 0], [w, 0], [w, h], [0, h]], R)
+            self.scale = max(w, h)
+        elif kind == "polygon":
+            verts = spec["vertices"]
+            self.dim = 2
+            self.names = ["edge%d" % i for i in range(len(verts))]
+            self.primitives = polygon_primitives(verts, R)
+            self.vertices = [np.asarray(p, dtype=float) for p in verts]
+            self.scale = max(float(np.linalg.norm(p)) for p in self.vertices)
+        elif kind == "plates":
+            g = float(spec["gap"])
+            self.dim = 3
+            self.names = ["bottom", "top"]
+            lo, hi = [-inf] * 3, [inf] * 3
+            self.primitives = [
+                Plane(0, [0, 0, 0], [0, 0, 1], lo, hi),
+                Plane(1, [0, 0, g], [0, 0, -1], lo, hi),
+            ]
+            x, y = np.eye(3)[0], np.eye(3)[1]
+            self.tangent_axes = {0: (x, y), 1: (x, y)}
+            self.scale = g
+        elif kind == "box":
+            size = [float(s) for s in spec["size"]]
+            self.dim = 3
+            self.names = ["left", "right", "front", "back", "bottom", "top"]
+            lo = [R, R, R]
+            hi = [s - R for s in size]
+            E = np.eye(3)
+            self.primitives = []
+            for axis in range(3):
+                for side in range(2):
+                    base = np.zeros(3)
+                    base[axis] = 0.0 if side == 0 else size[axis]
+                    normal = E[axis] * (1.0 if side == 0 else -1.0)
+                    plo, phi_ = list(lo), list(hi)
+                    plo[axis], phi_[axis] = -inf, inf  # the normal coordinate is fixed by the plane itself
+                    self.primitives.append(Plane(2 * axis + side, base, normal, plo, phi_))
+            others = {0: (1, 2), 1: (0, 2), 2: (0, 1)}
+            for axis in range(3):
+                t1, t2 = others[axis]
+                for side in range(2):
+                    self.tangent_axes[2 * axis + side] = (E[t1], E[t2])
+            self.scale = max(size)
+        else:
+            raise ValueError("unknown table kind %r" % kind)
+        self.scale = max(1.0, self.scale)
+
+
+def collision_time(prim, a, v, R, scale):
+    """Flight time until the centre a + t v meets primitive `prim` while moving into it, or inf.
+
+    Returns (t, q) with q the hit point (None when there is no hit)."""
+    dist_tol = DISTANCE_TOLERANCE * scale
+    ext_tol = EXTENT_TOLERANCE * scale
+    if isinstance(prim, (Segment, Plane)):
+        nu = prim.normal
+        vn = float(nu @ v)
+        if not vn < 0.0:  # parallel or moving away: never touches (grazing rule)
+            return math.inf, None
+        d = float(nu @ a) - (float(nu @ prim.base) + R)  # signed distance to the offset line, > 0 inside
+        if d < -dist_tol:  # well behind the wall: a wall of the other side of a non-convex table
+            return math.inf, None
+        t = max(0.0, d / -vn)
+        q = a + t * v
+        if isinstance(prim, Segment):
+            s = float((q - prim.base) @ prim.direction)
+            if not (prim.s_min - ext_tol <= s <= prim.s_max + ext_tol):
+                return math.inf, None
+        else:
+            if np.any(q < prim.lo - ext_tol) or np.any(q > prim.hi + ext_tol):
+                return math.inf, None
+        return t, q
+    if isinstance(prim, Rim):
+        p = a - prim.centre
+        vv = float(v @ v)
+        b = float(p @ v)
+        C = float(p @ p) - prim.radius**2
+        if vv == 0.0:
+            return math.inf, None
+        dist = prim.radius - math.sqrt(float(p @ p))  # > 0 inside
+        if dist < 0.0:
+            if dist < -dist_tol:
+                return math.inf, None
+            if b > 0.0:  # a hair outside and moving out
+                return 0.0, a.copy()
+        disc = b * b - vv * C
+        if disc <= 0.0:
+            return math.inf, None
+        s = math.sqrt(disc)
+        # larger root of vv t² + 2 b t + C = 0, in a cancellation-free form
+        t = (-b + s) / vv if b <= 0.0 else -C / (b + s)
+        if t < 0.0:
+            t = 0.0
+        q = a + t * v
+        if not float((q - prim.centre) @ v) > 0.0:
+            return math.inf, None
+        return t, q
+    if isinstance(prim, ReflexArc):
+        p = a - prim.vertex
+        vv = float(v @ v)
+        b = float(p @ v)
+        if vv == 0.0 or not b < 0.0:  # moving away from the vertex: never reaches its arc
+            return math.inf, None
+        C = float(p @ p) - prim.radius**2
+        dist = math.sqrt(float(p @ p)) - prim.radius  # > 0 outside the arc's circle (free side)
+        if dist < 0.0:
+            if dist < -dist_tol:
+                return math.inf, None
+            t = 0.0
+        else:
+            disc = b * b - vv * C
+            if disc <= 0.0:
+                return math.inf, None
+            s = math.sqrt(disc)
+            t = C / (-b + s)  # smaller root, cancellation-free (b < 0)
+        q = a + t * v
+        rel = q - prim.vertex
+        if not float(rel @ v) < 0.0:
+            return math.inf, None
+        if float(rel @ prim.e_in) < -ext_tol or float(rel @ prim.e_out) > ext_tol:
+            return math.inf, None
+        return t, q
+    raise TypeError(prim)
+
+
+def wall_normal(prim, q):
+    """Unit normal into the free region at hit point q."""
+    if isinstance(prim, (Segment, Plane)):
+        return prim.normal.copy()
+    if isinstance(prim, Rim):
+        x = prim.centre - q
+        return x / np.linalg.norm(x)
+    x = q - prim.vertex
+    return x / np.linalg.norm(x)
+
+
+def next_collision(table, a, v):
+    """(t, wall, primitive, hit point) of the next collision, or (inf, -1, None, None) if none lies ahead."""
+    best = (math.inf, -1, None, None)
+    for prim in table.primitives:
+        t, q = collision_time(prim, a, v, table.R, table.scale)
+        if t == math.inf:
+            continue
+        if (t, prim.wall) < (best[0], best[1]):
+            best = (t, prim.wall, prim, q)
+    return best
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# boundary rules
+
+
+def kappa_of(inertia, n):
+    if isinstance(inertia, (int, float)) and not isinstance(inertia, bool):
+        return float(inertia)
+    if inertia == "uniform":
+        return 2.0 / (n + 2)
+    if inertia == "shell":
+        return 1.0 if n == 2 else 2.0 / 3.0
+    if inertia == "ring":
+        if n != 2:
+            raise ValueError("inertia 'ring' is a 2D mass distribution")
+        return 1.0
+    raise ValueError("unknown inertia %r" % (inertia,))
+
+
+def resolve_rule(rule, nu, A, n, uniforms):
+    """Walk a rule tree to a `constant` leaf. Each `random` node consumes one uniform draw; `hemisphere` tests
+    b = Aᵀ(−ν) (contact point in the body frame) against its axis: rough if b·axis > 0."""
+    while True:
+        kind = rule["rule"]
+        if kind == "constant":
+            return rule
+        if kind == "hemisphere":
+            b = A.T @ (-nu)
+            axis = np.asarray(rule["axis"], dtype=float)
+            rule = rule["rough"] if float(b @ axis) > 0.0 else rule["smooth"]
+        elif kind == "random":
+            if uniforms is None:
+                raise ValueError("a random rule needs a stream of uniforms")
+            u = float(next(uniforms))
+            probs = rule["probabilities"]
+            choices = rule["choices"]
+            chosen = choices[-1]  # if rounding leaves the cumulative sum just below 1
+            total = 0.0
+            for p, c in zip(probs, choices):
+                total += float(p)
+                if u < total:
+                    chosen = c
+                    break
+            rule = chosen
+        else:
+            raise ValueError("unknown rule %r" % kind)
+
+
+def rough_projector(leaf, nu, n, tangent_axes):
+    """Orthogonal projector P onto the roughness subspace of the tangent plane ν⊥, and the rank."""
+    k = int(leaf["rank"])
+    if k == 0:
+        return np.zeros((n, n)), 0
+    if k == n - 1:
+        return np.eye(n) - np.outer(nu, nu), k
+    if n == 3 and k == 1:
+        if "direction_deg" in leaf:
+            if tangent_axes is None:
+                raise ValueError("direction_deg needs a wall with tangent axes")
+            t1, t2 = tangent_axes
+            th = math.radians(float(leaf["direction_deg"]))
+            d = math.cos(th) * t1 + math.sin(th) * t2
+        elif "direction" in leaf:
+            d = np.asarray(leaf["direction"], dtype=float)
+        else:
+            raise ValueError("3D rank 1 needs direction_deg or direction")
+        d = d - float(d @ nu) * nu
+        norm = float(np.linalg.norm(d))
+        if norm == 0.0:
+            raise ValueError("roughness direction is normal to the wall")
+        d = d / norm
+        return np.outer(d, d), 1
+    raise ValueError("rank %d not supported in dimension %d" % (k, n))
+
+
+def collide(v, W, nu, P, R, kappa):
+    """SPEC §1 collision map (paper eq. (update), space frame). Returns (v', W')."""
+    two_lambda = kappa * R * R
+    alpha = kappa / (1.0 + kappa)
+    r = -R * nu
+    u = v + W @ r
+    u_t = u - float(u @ nu) * nu
+    dv = -2.0 * alpha * (P @ u_t)
+    v_new = v - 2.0 * float(v @ nu) * nu + dv
+    W_new = W + (np.outer(dv, r) - np.outer(r, dv)) / two_lambda
+    return v_new, W_new
+
+
+# ---------------------------------------------------------------------------------------------------------------
+# the event loop
+
+
+def _record(n, time, a, v, W, A, theta, wall, rank):
+    if n == 2:
+        omega = float(W[1, 0])
+        orientation = float(theta)
+    else:
+        omega = [float(x) for x in vee(W)]
+        orientation = [[float(x) for x in row] for row in A]
+    return {
+        "time": float(time),
+        "position": [float(x) for x in a],
+        "velocity": [float(x) for x in v],
+        "angular_velocity": omega,
+        "orientation": orientation,
+        "wall": int(wall),
+        "rank": int(rank),
+    }
+
+
+def reference_run(config, uniforms=None):
+    """Follow one trajectory for config['run']['collisions'] collisions; see the module docstring."""
+    ball = config["ball"]
+    R = float(ball["radius"])
+    table = Table(config["table"], R)
+    n = table.dim
+    kappa = kappa_of(ball.get("inertia", "uniform"), n)
+    boundary = config["boundary"]
+    per_wall = boundary.get("walls", {}) or {}
+    for name in per_wall:
+        if name not in table.names:
+            raise ValueError("unknown wall %r" % name)
+    rules = [per_wall.get(name, boundary.get("default")) for name in table.names]
+    if any(rule is None for rule in rules):
+        raise ValueError("a wall has no rule and there is no default")
+    if uniforms is not None:
+        uniforms = iter(uniforms)
+
+    init = config["initial"]
+    a = np.asarray(init["position"], dtype=float)
+    v = np.asarray(init["velocity"], dtype=float)
+    W = angular_velocity_matrix(init.get("angular_velocity", 0.0 if n == 2 else [0.0, 0.0, 0.0]), n)
+    if n == 2:
+        theta = float(init.get("orientation", 0.0))
+        A = None
+    else:
+        theta = None
+        A = rodrigues(init.get("orientation", [0.0, 0.0, 0.0]))
+    time = 0.0
+    records = [_record(n, time, a, v, W, A, theta, -1, 0)]
+    for _ in range(int(config["run"]["collisions"])):
+        tau, wall, prim, q = next_collision(table, a, v)
+        if tau == math.inf:
+            break  # escape: nothing ahead
+        # free flight
+        time += tau
+        a = q
+        if n == 2:
+            theta = theta + tau * float(W[1, 0])
+            A_now = rotation_2d(theta)
+        else:
+            A = expm(tau * W) @ A
+            A_now = A
+        # collision
+        nu = wall_normal(prim, q)
+        leaf = resolve_rule(rules[wall], nu, A_now, n, uniforms)
+        P, rank = rough_projector(leaf, nu, n, table.tangent_axes.get(wall))
+        v, W = collide(v, W, nu, P, R, kappa)
+        records.append(_record(n, time, a, v, W, A, theta, wall, rank))
+    return records
