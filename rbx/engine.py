@@ -89,11 +89,14 @@ def write_record(j, r, mask, t, a, v, W, theta, A, wall, rank, o_time, o_pos, o_
 
 
 @jit
-def advance(j, stop, every, mask, follow_orientation, codes, prim_wall, params, tol, R, kappa,
+def advance(j, stop, stop_wall, every, mask, follow_orientation, codes, prim_wall, params, tol, R, kappa,
             root, kind, rank, first, children, cumprob, axis, basis,
             pos, vel, W, theta, A, time, ncoll, draws, alive, keys, last_wall, last_rank,
             o_time, o_pos, o_vel, o_spin, o_orient, o_wall, o_rank):
-    """Run trajectory j until it has made ``stop`` collisions in all (or escapes) -> records written to row j."""
+    """Run trajectory j until it has made ``stop`` collisions in all -> records written to row j.
+
+    It ends early (``alive[j] = False``) when no wall lies ahead (an escape) or, if ``stop_wall ≥ 0``, right
+    after a collision with that wall (the return loop of the invariant-measure experiment)."""
     a = pos[j]
     v = vel[j]
     Wj = W[j]
@@ -134,6 +137,9 @@ def advance(j, stop, every, mask, follow_orientation, codes, prim_wall, params, 
             write_record(j, nrec, mask, t, a, v, Wj, th, Aj, w, rk, o_time, o_pos, o_vel, o_spin, o_orient, o_wall,
                          o_rank)
             nrec += 1
+        if w == stop_wall:
+            alive[j] = False
+            break
     theta[j] = th
     time[j] = t
     ncoll[j] = c
@@ -144,7 +150,7 @@ def advance(j, stop, every, mask, follow_orientation, codes, prim_wall, params, 
 
 
 @jit_parallel
-def advance_all(stop, every, mask, follow_orientation, codes, prim_wall, params, tol, R, kappa,
+def advance_all(stop, stop_wall, every, mask, follow_orientation, codes, prim_wall, params, tol, R, kappa,
                 root, kind, rank, first, children, cumprob, axis, basis,
                 pos, vel, W, theta, A, time, ncoll, draws, alive, keys, last_wall, last_rank,
                 o_time, o_pos, o_vel, o_spin, o_orient, o_wall, o_rank):
@@ -153,7 +159,7 @@ def advance_all(stop, every, mask, follow_orientation, codes, prim_wall, params,
     nrec = np.zeros(N, np.int64)
     for j in prange(N):
         if alive[j]:
-            nrec[j] = advance(j, stop[j], every, mask, follow_orientation, codes, prim_wall, params, tol, R, kappa,
+            nrec[j] = advance(j, stop[j], stop_wall, every, mask, follow_orientation, codes, prim_wall, params, tol, R, kappa,
                               root, kind, rank, first, children, cumprob, axis, basis,
                               pos, vel, W, theta, A, time, ncoll, draws, alive, keys, last_wall, last_rank,
                               o_time, o_pos, o_vel, o_spin, o_orient, o_wall, o_rank)

@@ -55,6 +55,8 @@ class Simulation:
         self.last_wall = np.asarray(state.get("last_wall", -np.ones(M)), np.int64).copy()
         self.last_rank = np.asarray(state.get("last_rank", np.zeros(M)), np.int64).copy()
         self.tol = END_TOLERANCE * self.geom.size
+        #: stop a trajectory right after it hits this wall (−1: never); used by the return-angle experiment
+        self.stop_wall = -1
 
     def _initial_state(self):
         cfg = self.cfg
@@ -106,7 +108,7 @@ class Simulation:
         r = self.rules
         stops = np.full(self.M, stop, np.int64)
         return engine.advance_all(
-            stops, self.cfg.output.every, self.mask, self.follow_orientation,
+            stops, self.stop_wall, self.cfg.output.every, self.mask, self.follow_orientation,
             self.geom.codes, self.geom.walls, self.geom.params, self.tol, self.cfg.ball.radius, self.cfg.ball.kappa,
             r.root, r.kind, r.rank, r.first, r.children, r.cumprob, r.axis, r.basis,
             self.pos, self.vel, self.W, self.theta, self.A, self.time, self.ncoll, self.draws, self.alive,

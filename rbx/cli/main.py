@@ -1,0 +1,19 @@
+"""``rbx``: the command-line entry point (SPEC §4)."""
+import click
+
+from .. import __version__
+from .simulate import simulate
+
+
+@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.version_option(__version__, prog_name="rbx")
+def cli():
+    """Simulate non-standard (rough) billiards: a spinning disc or ball in a table, with the strict collision
+    maps of Cox, Feres and Ward."""
+
+
+cli.add_command(simulate)
+
+
+def main():
+    cli(prog_name="rbx")
