@@ -162,7 +162,8 @@ def _polygon(p, R, kind="polygon", names=None):
     L = np.linalg.norm(E, axis=1)
     T = E / L[:, None]
     N = np.stack([-T[:, 1], T[:, 0]], axis=1)            # inward normal of a CCW polygon
-    turn = np.cross(np.roll(E, 1, axis=0), E)            # vertex i: from edge i-1 to edge i; > 0 convex
+    Ep = np.roll(E, 1, axis=0)
+    turn = Ep[:, 0] * E[:, 1] - Ep[:, 1] * E[:, 0]            # vertex i: from edge i-1 to edge i; > 0 convex
     size = float(np.max(np.ptp(V, axis=0)))
     reflex = turn < -1e-14 * size * size
 
