@@ -35,7 +35,7 @@ def stream_key(seed, trajectory, purpose):
 @jit
 def uniform(key, counter):
     """Draw number ``counter`` of the stream ``key`` -> float in [0, 1) with 53 random bits."""
-    x = _mix(key + (np.uint64(counter) + np.uint64(1)) * _GOLDEN)
+    x = _mix(np.uint64(key) + (np.uint64(counter) + np.uint64(1)) * _GOLDEN)
     return np.float64(x >> np.uint64(11)) * (1.0 / 9007199254740992.0)
 
 
