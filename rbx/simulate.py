@@ -55,6 +55,11 @@ class Simulation:
         self.last_wall = np.asarray(state.get("last_wall", -np.ones(M)), np.int64).copy()
         self.last_rank = np.asarray(state.get("last_rank", np.zeros(M)), np.int64).copy()
         self.tol = END_TOLERANCE * self.geom.size
+        kap, R = cfg.ball.kappa, cfg.ball.radius
+        self.energy0 = np.asarray(state.get("energy", 0.5 * np.sum(self.vel ** 2, axis=1)
+                                            + 0.25 * kap * R * R * np.sum(self.W ** 2, axis=(1, 2))), float).copy()
+        #: project back onto the initial energy after each rough collision (see engine.rescale_energy)
+        self.renormalize = True
         #: stop a trajectory right after it hits this wall (−1: never); used by the return-angle experiment
         self.stop_wall = -1
 
@@ -81,7 +86,8 @@ class Simulation:
         spin = self.W[:, 1, 0] if self.n == 2 else np.stack([self.W[:, 2, 1], self.W[:, 0, 2], self.W[:, 1, 0]], 1)
         return {"time": self.time, "position": self.pos, "velocity": self.vel, "angular_velocity": spin,
                 "orientation": self.theta if self.n == 2 else self.A, "collisions": self.ncoll,
-                "draws": self.draws, "alive": self.alive, "last_wall": self.last_wall, "last_rank": self.last_rank}
+                "draws": self.draws, "alive": self.alive, "last_wall": self.last_wall, "last_rank": self.last_rank,
+                "energy": self.energy0}
 
     def block_buffers(self, records):
         """Record buffers for a block of ``records`` records per trajectory (zero-size for fields not recorded)."""
@@ -108,11 +114,11 @@ class Simulation:
         r = self.rules
         stops = np.full(self.M, stop, np.int64)
         return engine.advance_all(
-            stops, self.stop_wall, self.cfg.output.every, self.mask, self.follow_orientation,
+            stops, self.stop_wall, self.cfg.output.every, self.mask, self.follow_orientation, self.renormalize,
             self.geom.codes, self.geom.walls, self.geom.params, self.tol, self.cfg.ball.radius, self.cfg.ball.kappa,
             r.root, r.kind, r.rank, r.first, r.children, r.cumprob, r.axis, r.basis,
             self.pos, self.vel, self.W, self.theta, self.A, self.time, self.ncoll, self.draws, self.alive,
-            self.keys, self.last_wall, self.last_rank,
+            self.keys, self.last_wall, self.last_rank, self.energy0,
             bufs["time"], bufs["position"], bufs["velocity"], bufs["angular_velocity"], bufs["orientation"],
             bufs["wall"], bufs["rank"])
 
