@@ -17,7 +17,7 @@ Per collision (ARCHITECTURE.md, "The event loop"):
 import numpy as np
 from numba import prange
 
-from ._jit import jit, jit_parallel
+from ._jit import jit, jit_hot, jit_loop, jit_parallel
 from .geometry import contact_normal, next_collision
 from .physics import collide
 from .rules import choose
@@ -28,7 +28,7 @@ FIELD_BITS = {"time": F_TIME, "position": F_POSITION, "velocity": F_VELOCITY, "a
               "orientation": F_ORIENTATION, "wall": F_WALL, "rank": F_RANK}
 
 
-@jit
+@jit_hot
 def rotate(A, W, tau, E, tmp):
     """A ← exp(τW)·A for 3D (Rodrigues' formula with ω = (W₂₁, W₀₂, W₁₀))."""
     wx, wy, wz = W[2, 1], W[0, 2], W[1, 0]
@@ -55,7 +55,7 @@ def rotate(A, W, tau, E, tmp):
             A[i, j] = tmp[i, j]
 
 
-@jit
+@jit_hot
 def rescale_energy(v, W, R, kappa, e0):
     """Scale (v, W) so the kinetic energy is exactly the trajectory's initial energy ``e0`` again.
 
@@ -78,7 +78,7 @@ def rescale_energy(v, W, R, kappa, e0):
             W[i, k] *= f
 
 
-@jit
+@jit_hot
 def write_record(j, r, mask, t, a, v, W, theta, A, wall, rank, o_time, o_pos, o_vel, o_spin, o_orient, o_wall,
                  o_rank):
     """Write the requested fields of one state into slot (j, r) of the block buffers."""
@@ -111,11 +111,11 @@ def write_record(j, r, mask, t, a, v, W, theta, A, wall, rank, o_time, o_pos, o_
         o_rank[j, r] = rank
 
 
-@jit
+@jit_loop
 def advance(j, stop, stop_wall, every, mask, follow_orientation, renormalize, codes, prim_wall, params, tol, R, kappa,
             root, kind, rank, first, children, cumprob, axis, basis,
             pos, vel, W, theta, A, time, ncoll, draws, alive, keys, last_wall, last_rank, energy0,
-            o_time, o_pos, o_vel, o_spin, o_orient, o_wall, o_rank):
+            o_time, o_pos, o_vel, o_spin, o_orient, o_wall, o_rank, scratch_n, scratch_3n, scratch_33):
     """Run trajectory j until it has made ``stop`` collisions in all -> records written to row j.
 
     It ends early (``alive[j] = False``) when no wall lies ahead (an escape) or, if ``stop_wall ≥ 0``, right
@@ -125,10 +125,10 @@ def advance(j, stop, stop_wall, every, mask, follow_orientation, renormalize, co
     Wj = W[j]
     Aj = A[j]
     n = a.shape[0]
-    nu = np.empty(n)
-    work = np.empty((3, n))
-    E = np.empty((3, 3))
-    tmp = np.empty((3, 3))
+    nu = scratch_n[j]
+    work = scratch_3n[j]
+    E = scratch_33[j, 0]
+    tmp = scratch_33[j, 1]
     th = theta[j]
     t = time[j]
     c = ncoll[j]
@@ -150,11 +150,11 @@ def advance(j, stop, stop_wall, every, mask, follow_orientation, renormalize, co
                 th += tau * Wj[1, 0]
             else:
                 rotate(Aj, Wj, tau, E, tmp)
-        contact_normal(codes[p], params[p], a, nu)
+        contact_normal(codes[p], params, p, a, nu)
         w = prim_wall[p]
         node, d = choose(w, nu, Aj, th, key, d, root, kind, first, children, cumprob, axis)
         rk = rank[node]
-        collide(v, Wj, nu, R, kappa, rk, basis[node, w], work)
+        collide(v, Wj, nu, R, kappa, rk, basis, node, w, work)
         if renormalize and rk > 0:
             rescale_energy(v, Wj, R, kappa, energy0[j])
         c += 1
@@ -178,7 +178,7 @@ def advance(j, stop, stop_wall, every, mask, follow_orientation, renormalize, co
 def advance_all(stop, stop_wall, every, mask, follow_orientation, renormalize, codes, prim_wall, params, tol, R, kappa,
                 root, kind, rank, first, children, cumprob, axis, basis,
                 pos, vel, W, theta, A, time, ncoll, draws, alive, keys, last_wall, last_rank, energy0,
-                o_time, o_pos, o_vel, o_spin, o_orient, o_wall, o_rank):
+                o_time, o_pos, o_vel, o_spin, o_orient, o_wall, o_rank, scratch_n, scratch_3n, scratch_33):
     """Advance every live trajectory to ``stop[j]`` collisions, in parallel -> records written per trajectory."""
     N = pos.shape[0]
     nrec = np.zeros(N, np.int64)
@@ -187,5 +187,6 @@ def advance_all(stop, stop_wall, every, mask, follow_orientation, renormalize, c
             nrec[j] = advance(j, stop[j], stop_wall, every, mask, follow_orientation, renormalize, codes, prim_wall, params, tol, R, kappa,
                               root, kind, rank, first, children, cumprob, axis, basis,
                               pos, vel, W, theta, A, time, ncoll, draws, alive, keys, last_wall, last_rank, energy0,
-                              o_time, o_pos, o_vel, o_spin, o_orient, o_wall, o_rank)
+                              o_time, o_pos, o_vel, o_spin, o_orient, o_wall, o_rank, scratch_n, scratch_3n,
+                              scratch_33)
     return nrec

@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from ._jit import jit
+from ._jit import jit, jit_hot
 
 HALFSPACE, SEGMENT, CONCAVE_ARC, CONVEX_ARC = 0, 1, 2, 3
 NPARAM = 16
@@ -237,17 +237,18 @@ _BUILDERS = {"strip": _strip, "circle": _circle, "wedge": _wedge, "rectangle": _
 TABLE_KINDS = tuple(_BUILDERS)
 
 
-@jit
-def collision_time(code, row, a, v, tol):
+@jit_hot
+def collision_time(code, params, k, a, v, tol):
     """Flight time until the centre at ``a`` moving with ``v`` hits the primitive while moving into it -> t ≥ 0,
-    or inf if it never does. A centre a hair outside (rounding) and moving in is hit at t = 0."""
+    or inf if it never does. A centre a hair outside (rounding) and moving in is hit at t = 0.
+    The primitive is row ``k`` of ``params`` (indices, not a row view: views cost reference counting)."""
     n = a.shape[0]
     if code == HALFSPACE or code == SEGMENT:
         vn = 0.0
         d = 0.0
         for i in range(n):
-            vn += v[i] * row[4 + i]
-            d += (a[i] - row[i]) * row[4 + i]
+            vn += v[i] * params[k, 4 + i]
+            d += (a[i] - params[k, i]) * params[k, 4 + i]
         if vn >= 0.0:
             return np.inf                      # parallel or leaving: a grazing flight never touches the wall
         if code == HALFSPACE:
@@ -257,8 +258,8 @@ def collision_time(code, row, a, v, tol):
         t = max(d, 0.0) / -vn
         s = 0.0
         for i in range(2):
-            s += (a[i] + t * v[i] - row[i]) * row[8 + i]
-        if s < -tol or s > row[12] + tol:
+            s += (a[i] + t * v[i] - params[k, i]) * params[k, 8 + i]
+        if s < -tol or s > params[k, 12] + tol:
             return np.inf
         return t
     # arcs: |a + t v − c|² = ρ²  <=>  |v|² t² + 2 b t + cc = 0
@@ -266,11 +267,11 @@ def collision_time(code, row, a, v, tol):
     cc = 0.0
     vv = 0.0
     for i in range(n):
-        dx = a[i] - row[i]
+        dx = a[i] - params[k, i]
         b += dx * v[i]
         cc += dx * dx
         vv += v[i] * v[i]
-    rho = row[12]
+    rho = params[k, 12]
     cc = (np.sqrt(cc) - rho) * (np.sqrt(cc) + rho)   # |a−c|² − ρ², without cancelling ρ² away
     if code == CONCAVE_ARC:
         disc = b * b - vv * cc
@@ -294,24 +295,24 @@ def collision_time(code, row, a, v, tol):
         if cc < -2.0 * tol * rho:
             return np.inf
         t = 0.0
-    mx = a[0] + t * v[0] - row[0]
-    my = a[1] + t * v[1] - row[1]
-    if row[4] * my - row[5] * mx < -tol * rho or mx * row[9] - my * row[8] < -tol * rho:
+    mx = a[0] + t * v[0] - params[k, 0]
+    my = a[1] + t * v[1] - params[k, 1]
+    if params[k, 4] * my - params[k, 5] * mx < -tol * rho or mx * params[k, 9] - my * params[k, 8] < -tol * rho:
         return np.inf
     return t
 
 
-@jit
-def contact_normal(code, row, a, nu):
+@jit_hot
+def contact_normal(code, params, k, a, nu):
     """Unit normal at the contact point of the centre ``a`` on the primitive, pointing into the free region -> nu."""
     n = a.shape[0]
     if code == HALFSPACE or code == SEGMENT:
         for i in range(n):
-            nu[i] = row[4 + i]
+            nu[i] = params[k, 4 + i]
         return
     s = 0.0
     for i in range(n):
-        nu[i] = a[i] - row[i]
+        nu[i] = a[i] - params[k, i]
         s += nu[i] * nu[i]
     s = 1.0 / np.sqrt(s)
     if code == CONCAVE_ARC:
@@ -320,14 +321,14 @@ def contact_normal(code, row, a, nu):
         nu[i] *= s
 
 
-@jit
+@jit_hot
 def next_collision(codes, params, a, v, tol):
     """The first primitive the centre hits -> (flight time, primitive index), (inf, -1) if none lies ahead.
     Ties go to the lower index (primitives are listed in wall order)."""
     best = np.inf
     which = -1
     for k in range(codes.shape[0]):
-        t = collision_time(codes[k], params[k], a, v, tol)
+        t = collision_time(codes[k], params, k, a, v, tol)
         if t < best:
             best = t
             which = k

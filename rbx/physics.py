@@ -16,7 +16,7 @@ no basis is needed (P is the tangent projector at whatever point of the wall was
 """
 import numpy as np
 
-from ._jit import jit
+from ._jit import jit, jit_hot
 
 #: κ = 2λ/R² of named mass distributions; 'uniform' depends on the dimension: 2/(n+2)
 INERTIA_KAPPA = {"shell": {2: 1.0, 3: 2.0 / 3.0}, "ring": {2: 1.0}}
@@ -31,12 +31,13 @@ def kappa_of(inertia, n):
     return float(inertia)
 
 
-@jit
-def collide(v, W, nu, R, kappa, rank, basis, work):
+@jit_hot
+def collide(v, W, nu, R, kappa, rank, basis, node, wall, work):
     """Apply the strict collision map in place: (v, W) <- (v', W'); returns nothing.  SPEC §1, paper eq. (update).
 
     The normal velocity is reversed exactly (``v·ν`` changes sign), so the next flight leaves the wall.
-    ``work`` is scratch space of shape (3, n), so that the event loop allocates nothing per collision.
+    ``basis[node, wall]`` holds the roughness basis (rows) and ``work`` is scratch space of shape (3, n): the
+    kernel passes whole arrays and indices, since every array view costs reference counting in the hot loop.
     """
     n = v.shape[0]
     vn = 0.0
@@ -47,36 +48,34 @@ def collide(v, W, nu, R, kappa, rank, basis, work):
             v[i] -= 2.0 * vn * nu[i]
         return
     # u = v + W r with r = −Rν; its normal part is v·ν because W is antisymmetric (r·W r = 0)
-    u = work[0]
     for i in range(n):
         s = 0.0
         for j in range(n):
             s -= W[i, j] * nu[j]
-        u[i] = v[i] + R * s
+        work[0, i] = v[i] + R * s
     # slip velocity u_t, then its projection P u_t onto the roughness subspace
-    dv = work[1]
     for i in range(n):
-        dv[i] = u[i] - vn * nu[i]
+        work[1, i] = work[0, i] - vn * nu[i]
     if rank < n - 1:
-        pu = work[2]
-        pu[:] = 0.0
+        for i in range(n):
+            work[2, i] = 0.0
         for q in range(rank):
             c = 0.0
             for i in range(n):
-                c += dv[i] * basis[q, i]
+                c += work[1, i] * basis[node, wall, q, i]
             for i in range(n):
-                pu[i] += c * basis[q, i]
+                work[2, i] += c * basis[node, wall, q, i]
         for i in range(n):
-            dv[i] = pu[i]
+            work[1, i] = work[2, i]
     alpha2 = 2.0 * kappa / (1.0 + kappa)
     for i in range(n):
-        dv[i] *= -alpha2
-        v[i] += dv[i] - 2.0 * vn * nu[i]
+        work[1, i] *= -alpha2
+        v[i] += work[1, i] - 2.0 * vn * nu[i]
     # W += (Δv rᵀ − r Δvᵀ)/(2λ) with r = −Rν and 2λ = κR²
     scale = 1.0 / (kappa * R)
     for i in range(n):
         for j in range(n):
-            W[i, j] += scale * (nu[i] * dv[j] - dv[i] * nu[j])
+            W[i, j] += scale * (nu[i] * work[1, j] - work[1, i] * nu[j])
 
 
 def collision_map(v, W, nu, R, kappa, rank, basis=None):
@@ -85,7 +84,8 @@ def collision_map(v, W, nu, R, kappa, rank, basis=None):
     n = v.shape[0]
     Wm = spin_matrix(W, n)
     b = np.zeros((max(n - 1, 1), n)) if basis is None else np.asarray(basis, dtype=float)
-    collide(v, Wm, np.asarray(nu, dtype=float), float(R), float(kappa), int(rank), b, np.empty((3, n)))
+    collide(v, Wm, np.asarray(nu, dtype=float), float(R), float(kappa), int(rank), b[None, None], 0, 0,
+            np.empty((3, n)))
     return v, Wm
 
 

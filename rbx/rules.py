@@ -10,7 +10,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ._jit import jit
+from ._jit import jit, jit_hot
 from .config import Constant, Hemisphere, Random
 from .rng import uniform
 
@@ -104,7 +104,7 @@ def _reachable(root, nodes, links):
     return sorted(seen)
 
 
-@jit
+@jit_hot
 def choose(wall, nu, A, theta, key, draws, root, kind, first, children, cumprob, axis):
     """Walk the rule tree of ``wall`` -> (constant node, number of draws used so far).
 
