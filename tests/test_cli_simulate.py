@@ -1,0 +1,111 @@
+"""End to end: the real `rbx simulate` in a subprocess, the real HDF5 file read back (SPEC §4–5)."""
+import os
+import subprocess
+import sys
+
+import h5py
+import numpy as np
+import pytest
+import yaml
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+RBX = [sys.executable, "-c", "from rbx.cli.main import main; main()"]
+
+
+def rbx(*args, cwd=None):
+    return subprocess.run(RBX + list(args), capture_output=True, text=True, cwd=cwd, timeout=300)
+
+
+@pytest.mark.parametrize("example", sorted(os.listdir(os.path.join(ROOT, "configs", "examples"))))
+def test_every_example_config_runs(example, tmp_path):
+    out = tmp_path / "run.h5"
+    res = rbx("simulate", os.path.join(ROOT, "configs", "examples", example), "-o", str(out), "--collisions", "500",
+              "--quiet")
+    assert res.returncode == 0, res.stderr
+    with h5py.File(out) as f:
+        assert f.attrs["complete"]
+        n = int(f.attrs["dimension"])
+        cfg = yaml.safe_load(f.attrs["config"])
+        assert cfg["run"]["collisions"] == 500
+        g = f["collisions"]
+        M = cfg["run"]["trajectories"]
+        count = g["count"][:]
+        assert count.shape == (M,)
+        every = cfg["output"]["every"]
+        assert np.all(count <= 500 // every + 1) and np.all(count >= 1)
+        if "position" in g:
+            assert g["position"].shape[:2] == (M, g["step"].shape[0]) and g["position"].shape[2] == n
+            np.testing.assert_array_equal(g["step"][:], np.arange(g["step"].shape[0]) * every)
+        if "wall" in g:
+            assert np.all(g["wall"][:, 0] == -1)
+        assert np.all(f["final/collisions"][:] <= 500)
+
+
+def test_records_and_shapes_3d(tmp_path):
+    cfg = {"table": {"kind": "box", "size": [1, 1, 1]}, "boundary": {"default": {"rule": "constant", "rank": 2}},
+           "ball": {"radius": 0.1},
+           "initial": {"position": [0.5, 0.5, 0.5], "velocity": [0.3, 0.2, 0.9], "angular_velocity": [1, 0, 0]},
+           "run": {"collisions": 2000, "trajectories": 3},
+           "output": {"path": "out.h5", "every": 7}}
+    (tmp_path / "c.yaml").write_text(yaml.safe_dump(cfg))
+    res = rbx("simulate", "c.yaml", "--quiet", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    with h5py.File(tmp_path / "out.h5") as f:               # output.path is relative to the config's folder
+        g = f["collisions"]
+        T = 2000 // 7 + 1
+        assert g["orientation"].shape == (3, T, 3, 3) and g["angular_velocity"].shape == (3, T, 3)
+        assert list(g["count"][:]) == [T] * 3
+        A = g["orientation"][0, -1]
+        np.testing.assert_allclose(A @ A.T, np.eye(3), atol=1e-12)
+        # every 7th record equals the state just after collision 7k: the times grow, the walls are real walls
+        assert np.all(np.diff(g["time"][0]) > 0) and set(np.unique(g["wall"][0, 1:])) <= set(range(6))
+        assert g.attrs.get("complete", f.attrs["complete"])
+
+
+def test_record_nothing_keeps_only_the_final_state(tmp_path):
+    cfg = {"table": {"kind": "strip", "width": 1}, "boundary": {"default": {"rule": "constant", "rank": 1}},
+           "ball": {"radius": 0.1}, "initial": {"position": [0, 0.5], "velocity": [0.6, 0.8]},
+           "run": {"collisions": 100000, "trajectories": 4}, "output": {"path": "o.h5", "record": []}}
+    (tmp_path / "c.yaml").write_text(yaml.safe_dump(cfg))
+    assert rbx("simulate", "c.yaml", "--quiet", cwd=tmp_path).returncode == 0
+    with h5py.File(tmp_path / "o.h5") as f:
+        assert "position" not in f["collisions"] and list(f["collisions/count"][:]) == [0] * 4
+        assert list(f["final/collisions"][:]) == [100000] * 4
+        # the first flight crosses half the shrunk width (0.4 at vy = 0.8), every later one all of it (0.8)
+        assert f["final/time"][0] == pytest.approx(0.5 + 99999 * 1.0, rel=1e-12)
+
+
+def test_results_do_not_depend_on_the_number_of_threads(tmp_path):
+    cfg = {"table": {"kind": "rectangle", "width": 2, "height": 1}, "ball": {"radius": 0.1},
+           "boundary": {"default": {"rule": "random", "choices": [{"rule": "constant", "rank": 0},
+                                                                  {"rule": "constant", "rank": 1}],
+                                    "probabilities": [0.5, 0.5]}},
+           "initial": {"sample": "billiard"}, "run": {"collisions": 3000, "trajectories": 16, "seed": 9},
+           "output": {"record": ["position", "rank"], "every": 3}}
+    (tmp_path / "c.yaml").write_text(yaml.safe_dump(cfg))
+    data = []
+    for threads in ("1", "2"):
+        env = dict(os.environ, NUMBA_NUM_THREADS=threads)
+        res = subprocess.run(RBX + ["simulate", "c.yaml", "-o", f"t{threads}.h5", "--quiet"], cwd=tmp_path, env=env,
+                             capture_output=True, text=True, timeout=300)
+        assert res.returncode == 0, res.stderr
+        with h5py.File(tmp_path / f"t{threads}.h5") as f:
+            data.append((f["collisions/position"][:], f["collisions/rank"][:]))
+    np.testing.assert_array_equal(data[0][0], data[1][0])
+    np.testing.assert_array_equal(data[0][1], data[1][1])
+    assert 0 < data[0][1][:, 1:].mean() < 1                  # both ranks were drawn
+
+
+def test_wedge_escape_ends_the_trajectory_and_count_says_where(tmp_path):
+    cfg = {"table": {"kind": "wedge", "angle_deg": 60}, "ball": {"radius": 0.1},
+           "boundary": {"default": {"rule": "constant", "rank": 0}},
+           "initial": {"position": [1.0, 0.3], "velocity": [-1.0, 0.2]}, "run": {"collisions": 50},
+           "output": {"path": "w.h5"}}
+    (tmp_path / "c.yaml").write_text(yaml.safe_dump(cfg))
+    assert rbx("simulate", "c.yaml", "--quiet", cwd=tmp_path).returncode == 0
+    with h5py.File(tmp_path / "w.h5") as f:
+        c = int(f["collisions/count"][0])
+        assert 1 < c <= 4                      # specular in a 60° wedge: at most 3 collisions, then away
+        assert f.attrs["complete"]
+        assert not f["final/alive"][0]
+        assert np.all(np.isnan(f["collisions/time"][0, c:]))
