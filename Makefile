@@ -15,6 +15,15 @@ $(STAMP): pyproject.toml
 test: $(STAMP)
 	$(PY) -m pytest -q -n 2 tests
 
+# Until the figure scripts land (issue 5) this runs every example experiment into runs/.
+EXAMPLES := $(wildcard configs/examples/*.yaml)
+RUNS := $(patsubst configs/examples/%.yaml,runs/%.h5,$(EXAMPLES))
+
+reproduce-figures: $(RUNS)
+
+runs/%.h5: configs/examples/%.yaml $(STAMP)
+	$(VENV)/bin/rbx simulate $< -o $@ --force --quiet
+
 bench: $(STAMP)
 	$(PY) scripts/bench.py
 
