@@ -1,11 +1,21 @@
 """Experiment configs: YAML in, validated once into frozen dataclasses (SPEC §3–4).
 
 Every user mistake becomes a :class:`ConfigError` naming the file, the key (a dotted path such as
-``boundary.walls.top.rank``) and the problem; the CLI prints it as one line and exits with code 2.
+``boundary.walls.top.rank``) and the problem; the CLI prints it as one line and exits with code 2. A table or
+boundary kept in its own file is checked against that file, so its errors name it. Command-line overrides
+(``--collisions`` …) are checked here too and their errors name the option instead of a file.
+
+What is checked: the YAML itself (syntax with line and column, duplicate keys, an empty file, a top level that is
+not a mapping); unknown keys (with a did-you-mean hint) and missing required ones at every level; the type, range
+and finiteness of every value; that the ball fits the table and starts inside the table shrunk by its radius with
+a finite, non-zero velocity; wall names; ranks 0 … n−1 and a direction for 3D rank 1; probabilities that are
+non-negative and sum to 1; positive integer counts. Relative paths are resolved from the config file's folder.
 """
 import difflib
 import math
 import os
+import re
+import types
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -18,14 +28,23 @@ RECORD_FIELDS = ("time", "position", "velocity", "angular_velocity", "orientatio
 TABLE_PARAMS = {"strip": ("width",), "circle": ("radius",), "wedge": ("angle_deg",), "rectangle": ("width", "height"),
                 "polygon": ("vertices",), "plates": ("gap",), "box": ("size",)}
 TABLE_DIM = {"strip": 2, "circle": 2, "wedge": 2, "rectangle": 2, "polygon": 2, "plates": 3, "box": 3}
+SECTIONS = ("table", "boundary", "ball", "initial", "run", "output")
+#: command-line options that override config keys, and the option each one's errors name
+OVERRIDE_OPTIONS = {"collisions": "--collisions", "trajectories": "--trajectories", "seed": "--seed"}
+#: counters are int64 in the kernels; anything near this is a typo, not a run anyone can wait for
+MAX_COUNT = 2**62
+MAX_SEED = 2**63 - 1
+#: tolerance on the sum of the probabilities of a random rule (1/3 written as 0.3333333333 is accepted)
+PROBABILITY_SUM_TOLERANCE = 1e-9
 
 
 class ConfigError(Exception):
-    """A user mistake in a config: ``rbx: <file>: <key>: <problem>``."""
+    """A user mistake in a config: ``rbx: <file>: <key>: <problem>`` (file None: a command-line option)."""
 
     def __init__(self, file, key, problem):
-        self.file, self.key, self.problem = str(file), key, problem
-        super().__init__(f"{self.file}: {key}: {problem}" if key else f"{self.file}: {problem}")
+        self.file = None if file is None else str(file)
+        self.key, self.problem = key, problem
+        super().__init__(": ".join(x for x in (self.file, key, problem) if x))
 
 
 # ---- the validated config -------------------------------------------------------------------------------------
@@ -72,7 +91,11 @@ class Output:
 
 @dataclass(frozen=True)
 class Config:
-    """A validated experiment. ``initial`` is a tuple of explicit states (dicts of arrays) or ``('sample', wall)``."""
+    """A validated experiment. ``initial`` is a tuple of explicit states (read-only arrays) or ``('sample', wall)``.
+
+    ``table`` is a read-only mapping of the table's parameters; ``resolved`` is the plain-data form of the whole
+    config (tables and boundaries inlined, paths absolute) that is stored in the HDF5 file and read back by
+    ``--resume``."""
     source: str
     dimension: int
     table_kind: str
@@ -93,31 +116,74 @@ class Config:
         return dataclasses.replace(self, **changes)
 
 
-# ---- loading --------------------------------------------------------------------------------------------------
+# ---- YAML -----------------------------------------------------------------------------------------------------
 
-def load(path, overrides=None):
-    """Read and validate an experiment config file -> :class:`Config`. Raises :class:`ConfigError`."""
-    path = os.path.abspath(path)
-    data = _read_yaml(path)
-    return from_dict(data, path, overrides)
+class _Loader(yaml.SafeLoader):
+    """Safe YAML with two fixes for configs: ``1e6`` is a number (YAML 1.2; PyYAML reads it as text) and a key
+    given twice in one mapping is an error (PyYAML keeps the last one silently)."""
+
+
+_Loader.add_implicit_resolver(
+    "tag:yaml.org,2002:float",
+    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)$"),
+    list("-+0123456789"))
+
+
+def _construct_mapping(loader, node, deep=False):
+    seen = set()
+    for key_node, _ in node.value:
+        if key_node.tag == "tag:yaml.org,2002:merge":
+            continue   # `<<: *base` followed by overrides is legitimate YAML
+        key = loader.construct_object(key_node, deep=True)
+        try:
+            duplicate = key in seen
+            seen.add(key)
+        except TypeError:
+            continue   # an unhashable key: the constructor reports it
+        if duplicate:
+            raise yaml.constructor.ConstructorError(None, None, f"duplicate key '{key}'", key_node.start_mark)
+    return loader.construct_mapping(node, deep=deep)
+
+
+_Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
+
+
+def parse_yaml(text, file, key=None):
+    """YAML text -> data, or :class:`ConfigError` naming ``file`` and the line of a syntax error."""
+    try:
+        return yaml.load(text, Loader=_Loader)
+    except yaml.YAMLError as exc:
+        mark = getattr(exc, "problem_mark", None)
+        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
+        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
+        raise ConfigError(file, key, f"YAML syntax error: {where}{problem}") from None
+    except RecursionError:
+        raise ConfigError(file, key, "the YAML is nested too deeply") from None
 
 
 def _read_yaml(path, key=None):
     try:
         with open(path, encoding="utf-8") as fh:
-            data = yaml.safe_load(fh)
+            text = fh.read()
     except FileNotFoundError:
         raise ConfigError(path, key, "file not found") from None
     except IsADirectoryError:
         raise ConfigError(path, key, "is a directory, not a YAML file") from None
+    except PermissionError:
+        raise ConfigError(path, key, "cannot read the file: permission denied") from None
     except UnicodeDecodeError:
         raise ConfigError(path, key, "not a text (UTF-8) file") from None
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
-        problem = getattr(exc, "problem", None) or str(exc).splitlines()[0]
-        raise ConfigError(path, key, f"YAML syntax error: {where}{problem}") from None
+    except OSError as exc:
+        raise ConfigError(path, key, f"cannot read the file: {exc.strerror or exc}") from None
+    data = parse_yaml(text, path)
+    if data is None:
+        raise ConfigError(path, None, "the file is empty (expected a YAML mapping)")
     return data
+
+
+# ---- checks ---------------------------------------------------------------------------------------------------
+
+_SCIENTIFIC = re.compile(r"^\s*[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+\s*$")
 
 
 class _Checker:
@@ -134,18 +200,29 @@ class _Checker:
             self.fail(key, f"expected a mapping, got {_kind(value)}")
         for k in value:
             if k not in allowed:
-                hint = difflib.get_close_matches(str(k), allowed, n=1)
-                extra = f" (did you mean '{hint[0]}'?)" if hint else f" (allowed: {', '.join(allowed)})"
-                self.fail(_join(key, k), f"unknown key{extra}")
+                self.fail(_join(key, k), "unknown key" + _hint(k, allowed, "allowed"))
         for k in required:
             if k not in value:
                 self.fail(_join(key, k), "missing required key")
         return value
 
+    def choice(self, value, key, allowed, what):
+        """A name from ``allowed`` (table kinds, rule names, …) -> the name."""
+        if not isinstance(value, str):
+            self.fail(key, f"expected a {what} name ({', '.join(allowed)}), got {_kind(value)}")
+        if value not in allowed:
+            self.fail(key, f"unknown {what} '{value}'" + _hint(value, allowed, "known"))
+        return value
+
     def number(self, value, key, positive=False, lo=None, hi=None, lo_open=False, hi_open=False):
+        if isinstance(value, str) and _SCIENTIFIC.match(value):
+            value = float(value)
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             self.fail(key, f"expected a number, got {_kind(value)}")
-        value = float(value)
+        try:
+            value = float(value)
+        except OverflowError:
+            self.fail(key, "is too large")
         if not math.isfinite(value):
             self.fail(key, f"must be finite, got {value}")
         if positive and value <= 0:
@@ -157,14 +234,18 @@ class _Checker:
         return value
 
     def integer(self, value, key, lo=None, hi=None):
-        if isinstance(value, float) and value.is_integer():
+        if isinstance(value, str) and _SCIENTIFIC.match(value):
+            value = float(value)
+        if isinstance(value, float) and math.isfinite(value) and value.is_integer():
             value = int(value)
+        if isinstance(value, float):
+            self.fail(key, f"expected an integer, got {value:g}")
         if isinstance(value, bool) or not isinstance(value, int):
             self.fail(key, f"expected an integer, got {_kind(value)}")
         if lo is not None and value < lo:
-            self.fail(key, f"must be ≥ {lo}, got {value}")
+            self.fail(key, f"must be {'a positive integer' if lo == 1 else f'≥ {lo}'}, got {value}")
         if hi is not None and value > hi:
-            self.fail(key, f"must be ≤ {hi}, got {value}")
+            self.fail(key, f"must be ≤ {hi:.3g}, got {value:.3g}")
         return value
 
     def vector(self, value, key, n):
@@ -174,41 +255,150 @@ class _Checker:
             self.fail(key, f"expected {n} numbers, got {len(value)}")
         return tuple(self.number(x, f"{key}[{i}]") for i, x in enumerate(value))
 
+    def nonzero_vector(self, value, key, n):
+        vec = np.array(self.vector(value, key, n))
+        if not np.any(vec):
+            self.fail(key, "must be a non-zero vector")
+        return vec
+
+
+def _hint(name, allowed, label):
+    close = difflib.get_close_matches(str(name), [str(a) for a in allowed], n=1)
+    return f" (did you mean '{close[0]}'?)" if close else f" ({label}: {', '.join(str(a) for a in allowed)})"
+
 
 def _kind(value):
     if value is None:
         return "nothing (null)"
-    return {bool: "a boolean", str: f"the text '{value}'", list: "a list", dict: "a mapping",
-            int: "an integer", float: "a number"}.get(type(value), type(value).__name__)
+    if isinstance(value, str):
+        return f"the text '{value}'" if len(value) <= 40 else f"the text '{value[:37]}...'"
+    return {bool: "a boolean", list: "a list", dict: "a mapping", int: "an integer",
+            float: "a number"}.get(type(value), type(value).__name__)
 
 
 def _join(key, k):
     return f"{key}.{k}" if key else str(k)
 
 
+# ---- loading --------------------------------------------------------------------------------------------------
+
+def load(path, overrides=None):
+    """Read and validate an experiment config file -> :class:`Config`. Raises :class:`ConfigError`.
+
+    ``overrides``: ``{'collisions': N, 'trajectories': M, 'seed': S}`` from the command line (None: not given)."""
+    path = os.path.abspath(path)
+    return from_dict(_read_yaml(path), path, overrides)
+
+
+def loads(text, source, overrides=None):
+    """Validate config YAML text (e.g. the ``config`` attribute of a run's HDF5 file) -> :class:`Config`."""
+    data = parse_yaml(text, source)
+    if data is None:
+        raise ConfigError(source, None, "the config is empty")
+    return from_dict(data, source, overrides)
+
+
 def from_dict(data, source="<config>", overrides=None):
     """Validate a config mapping (paths relative to ``source``'s folder) -> :class:`Config`."""
+    try:
+        return _from_dict(data, str(source), overrides or {})
+    except RecursionError:
+        # a YAML alias that contains itself (`&a [*a]`) would otherwise recurse without end
+        raise ConfigError(source, None, "the config is nested too deeply (an alias that refers to itself?)") \
+            from None
+
+
+def _from_dict(data, source, overrides):
     c = _Checker(source)
     base = os.path.dirname(os.path.abspath(source)) if not source.startswith("<") else os.getcwd()
-    c.mapping(data, "", ("table", "boundary", "ball", "initial", "run", "output"),
-              required=("table", "boundary", "ball", "initial"))
+    if not isinstance(data, dict):
+        c.fail(None, f"expected a mapping with the sections {', '.join(SECTIONS)}; got {_kind(data)}")
+    c.mapping(data, "", SECTIONS, required=("table", "boundary", "ball", "initial"))
     resolved = {}
 
-    table, table_file = _include(data["table"], "table", base, c)
-    tc = _Checker(table_file or source)
-    tc.mapping(table, "table" if table_file is None else "", ("kind",) + tuple(sorted({p for ps in TABLE_PARAMS.values() for p in ps})), ("kind",))
-    tkey = (lambda k: _join("table", k)) if table_file is None else (lambda k: k)
-    kind = table["kind"]
-    if kind not in TABLE_PARAMS:
-        hint = difflib.get_close_matches(str(kind), TABLE_PARAMS, n=1)
-        tc.fail(tkey("kind"), f"unknown table kind '{kind}'" + (f" (did you mean '{hint[0]}'?)" if hint else
-                                                                f" (known: {', '.join(TABLE_PARAMS)})"))
-    tc.mapping(table, "table" if table_file is None else "", ("kind",) + TABLE_PARAMS[kind], ("kind",) + TABLE_PARAMS[kind])
+    kind, tparams = _table(data["table"], base, c)
     n = TABLE_DIM[kind]
-    tparams = _table_params(kind, table, tc, tkey)
-    resolved["table"] = {"kind": kind, **{k: (v.tolist() if isinstance(v, np.ndarray) else v) for k, v in tparams.items()}}
+    resolved["table"] = {"kind": kind, **tparams}
+    frozen_table = types.MappingProxyType({k: _frozen(v) for k, v in tparams.items()})
 
-    ball = c.mapping(data["ball"], "ball", ("radius", "inertia"), ("radius",))
+    radius, inertia, kappa = _ball(data["ball"], n, c)
+    resolved["ball"] = {"radius": radius, "inertia": inertia}
+
+    try:
+        geom = geometry.build(kind, tparams, radius)
+    except Exception as exc:   # a degenerate table the checks above let through: still the user's input
+        c.fail("table", f"cannot build the table: {exc}")
+    _check_fits(kind, tparams, radius, geom, c)
+    names = geom.wall_names
+
+    per_wall, resolved["boundary"] = _boundary(data["boundary"], base, c, n, geom, kind)
+
+    run = c.mapping(_section(data, "run"), "run", ("collisions", "trajectories", "seed"))
+    collisions = _count(run, overrides, "collisions", 1000, c, lo=1, hi=MAX_COUNT)
+    seed = _count(run, overrides, "seed", 0, c, lo=0, hi=MAX_SEED)
+
+    initial, traj_default = _initial(data["initial"], n, c, geom, kind, radius, kappa, names)
+    trajectories = _count(run, overrides, "trajectories", traj_default, c, lo=1, hi=MAX_COUNT)
+    if initial[0] != "sample" and len(initial) > 1 and trajectories != len(initial):
+        key, file = ("run.trajectories", source) if overrides.get("trajectories") is None else ("--trajectories", None)
+        raise ConfigError(file, key, f"is {trajectories} but initial lists {len(initial)} states")
+    resolved["initial"] = data["initial"]
+    resolved["run"] = {"collisions": collisions, "trajectories": trajectories, "seed": seed}
+
+    output = _output(_section(data, "output"), base, c)
+    resolved["output"] = {"path": output.path, "record": list(output.record), "every": output.every}
+
+    return Config(source=source, dimension=n, table_kind=kind, table=frozen_table,
+                  wall_rules=tuple(per_wall), wall_names=tuple(names), ball=Ball(radius, inertia, kappa),
+                  initial=initial, run=Run(collisions, trajectories, seed), output=output, resolved=resolved)
+
+
+def _frozen(x):
+    return tuple(_frozen(v) for v in x) if isinstance(x, list) else x
+
+
+def _section(data, name):
+    """An optional section: absent or empty (``run:`` with nothing after it) means all defaults."""
+    value = data.get(name)
+    return {} if value is None else value
+
+
+def _count(section, overrides, name, default, c, lo, hi):
+    """run.<name>, or its command-line override (whose errors name the option, not the file)."""
+    if overrides.get(name) is not None:
+        return _Checker(None).integer(overrides[name], OVERRIDE_OPTIONS[name], lo=lo, hi=hi)
+    return c.integer(section.get(name, default), f"run.{name}", lo=lo, hi=hi)
+
+
+def _include(value, key, base, c):
+    """A table or boundary given inline (mapping) or as a path relative to the config's folder -> (data, file)."""
+    if isinstance(value, str):
+        if not value.strip():
+            c.fail(key, "expected a file name or a mapping, got an empty text")
+        path = os.path.normpath(os.path.join(base, value))
+        if not os.path.exists(path):
+            c.fail(key, f"file not found: {path}")
+        return _read_yaml(path), path
+    if not isinstance(value, dict):
+        c.fail(key, f"expected a file name or a mapping, got {_kind(value)}")
+    return value, None
+
+
+def _table(value, base, c):
+    """-> (kind, validated parameters as plain data)."""
+    table, table_file = _include(value, "table", base, c)
+    tc = _Checker(table_file or c.file)
+    prefix = "table" if table_file is None else ""
+    all_params = tuple(sorted({p for ps in TABLE_PARAMS.values() for p in ps}))
+    tc.mapping(table, prefix, ("kind",) + all_params, ("kind",))
+    kind = tc.choice(table["kind"], _join(prefix, "kind"), tuple(TABLE_PARAMS), "table kind")
+    tc.mapping(table, prefix, ("kind",) + TABLE_PARAMS[kind], ("kind",) + TABLE_PARAMS[kind])
+    return kind, _table_params(kind, table, tc, lambda k: _join(prefix, k))
+
+
+def _ball(ball, n, c):
+    """-> (radius, inertia as given, kappa)."""
+    c.mapping(ball, "ball", ("radius", "inertia"), ("radius",))
     radius = c.number(ball["radius"], "ball.radius", positive=True)
     inertia = ball.get("inertia", "uniform")
     if isinstance(inertia, str):
@@ -218,91 +408,58 @@ def from_dict(data, source="<config>", overrides=None):
                                    f"or a number κ in (0, 1])")
     else:
         inertia = c.number(inertia, "ball.inertia", lo=0.0, hi=1.0, lo_open=True)
-    kappa = kappa_of(inertia, n)
-    resolved["ball"] = {"radius": radius, "inertia": inertia}
+    return radius, inertia, kappa_of(inertia, n)
 
-    try:
-        geom = geometry.build(kind, tparams, radius)
-    except (ValueError, np.linalg.LinAlgError) as exc:  # pragma: no cover - defensive
-        c.fail("table", f"cannot build the table: {exc}")
-    _check_fits(kind, tparams, radius, geom, c)
+
+def _boundary(value, base, c, n, geom, kind):
+    """-> (one rule per wall in wall order, plain-data form)."""
     names = geom.wall_names
-
-    bdata, bfile = _include(data["boundary"], "boundary", base, c)
-    bc = _Checker(bfile or source)
+    bdata, bfile = _include(value, "boundary", base, c)
+    bc = _Checker(bfile or c.file)
     bkey = "boundary" if bfile is None else ""
     bc.mapping(bdata, bkey, ("default", "walls"))
-    if "default" not in bdata and set((bdata.get("walls") or {})) != set(names):
-        bc.fail(_join(bkey, "default"), "missing: give a default rule or a rule for every wall "
-                                        f"({', '.join(names)})")
-    default = _rule(bdata["default"], _join(bkey, "default"), n, bc, geom, None) if "default" in bdata else None
-    walls_cfg = bdata.get("walls") or {}
+    walls_cfg = bdata.get("walls")
+    walls_cfg = {} if walls_cfg is None else walls_cfg
     if not isinstance(walls_cfg, dict):
         bc.fail(_join(bkey, "walls"), f"expected a mapping from wall name to rule, got {_kind(walls_cfg)}")
-    per_wall = []
     for w in walls_cfg:
         if w not in names:
-            hint = difflib.get_close_matches(str(w), names, n=1)
-            bc.fail(_join(bkey, f"walls.{w}"), f"no wall named '{w}' in a {kind} table" +
-                    (f" (did you mean '{hint[0]}'?)" if hint else f" (walls: {', '.join(names)})"))
-    for i, w in enumerate(names):
-        if w in walls_cfg:
-            per_wall.append(_rule(walls_cfg[w], _join(bkey, f"walls.{w}"), n, bc, geom, [i]))
-        else:
-            per_wall.append(default)
-    if default is not None:
-        _rule(bdata["default"], _join(bkey, "default"), n, bc, geom,
-              [i for i, w in enumerate(names) if w not in walls_cfg])
-    resolved["boundary"] = {"default": bdata["default"]} if "default" in bdata else {}
+            bc.fail(_join(bkey, f"walls.{w}"), f"no wall named '{w}' in a {kind} table" + _hint(w, names, "walls"))
+    uncovered = [i for i, w in enumerate(names) if w not in walls_cfg]
+    if "default" not in bdata and uncovered:
+        bc.fail(_join(bkey, "default"), "missing: give a default rule or a rule for every wall "
+                                        f"({', '.join(names)})")
+    default = None
+    if "default" in bdata:
+        # checked against the walls it applies to (a 3D direction must not be normal to any of them)
+        default = _rule(bdata["default"], _join(bkey, "default"), n, bc, geom, uncovered)
+    per_wall = [_rule(walls_cfg[w], _join(bkey, f"walls.{w}"), n, bc, geom, [i]) if w in walls_cfg else default
+                for i, w in enumerate(names)]
+    plain = {"default": bdata["default"]} if "default" in bdata else {}
     if walls_cfg:
-        resolved["boundary"]["walls"] = walls_cfg
+        plain["walls"] = walls_cfg
+    return per_wall, plain
 
-    run = c.mapping(data.get("run") or {}, "run", ("collisions", "trajectories", "seed"))
-    ov = overrides or {}
-    collisions = c.integer(ov.get("collisions", run.get("collisions", 1000)), "run.collisions", lo=1)
-    seed = c.integer(ov.get("seed", run.get("seed", 0)), "run.seed", lo=0, hi=2**63 - 1)
 
-    initial, traj_default = _initial(data["initial"], n, c, geom, kind, radius, names)
-    trajectories = c.integer(ov.get("trajectories", run.get("trajectories", traj_default)), "run.trajectories", lo=1)
-    if isinstance(initial, tuple) and initial and initial[0] != "sample" and len(initial) > 1 \
-            and trajectories != len(initial):
-        c.fail("run.trajectories", f"is {trajectories} but initial lists {len(initial)} states")
-    resolved["initial"] = data["initial"]
-    resolved["run"] = {"collisions": collisions, "trajectories": trajectories, "seed": seed}
-
-    out = c.mapping(data.get("output") or {}, "output", ("path", "record", "every"))
+def _output(out, base, c):
+    c.mapping(out, "output", ("path", "record", "every"))
     opath = out.get("path")
     if opath is not None:
-        if not isinstance(opath, str) or not opath:
+        if not isinstance(opath, str) or not opath.strip():
             c.fail("output.path", f"expected a file name, got {_kind(opath)}")
         opath = os.path.normpath(os.path.join(base, opath))
     record = out.get("record", list(RECORD_FIELDS))
+    if record is None:
+        record = []
     if not isinstance(record, list):
-        c.fail("output.record", f"expected a list of fields, got {_kind(record)}")
+        c.fail("output.record", f"expected a list of fields ({', '.join(RECORD_FIELDS)}), got {_kind(record)}")
     for i, f in enumerate(record):
-        if f not in RECORD_FIELDS:
-            hint = difflib.get_close_matches(str(f), RECORD_FIELDS, n=1)
-            c.fail(f"output.record[{i}]", f"unknown field '{f}'" + (f" (did you mean '{hint[0]}'?)" if hint else
-                                                                  f" (fields: {', '.join(RECORD_FIELDS)})"))
+        if not isinstance(f, str) or f not in RECORD_FIELDS:
+            c.fail(f"output.record[{i}]", f"unknown field {_kind(f) if not isinstance(f, str) else repr(f)}"
+                   + _hint(f, RECORD_FIELDS, "fields"))
     record = tuple(f for f in RECORD_FIELDS if f in record)
-    every = c.integer(out.get("every", 1), "output.every", lo=1)
-    resolved["output"] = {"path": opath, "record": list(record), "every": every}
-
-    return Config(source=source, dimension=n, table_kind=kind, table=tparams, wall_rules=tuple(per_wall),
-                  wall_names=tuple(names), ball=Ball(radius, inertia, kappa), initial=initial,
-                  run=Run(collisions, trajectories, seed), output=Output(opath, record, every), resolved=resolved)
-
-
-def _include(value, key, base, c):
-    """A table or boundary given inline (mapping) or as a path relative to the config's folder."""
-    if isinstance(value, str):
-        path = os.path.normpath(os.path.join(base, value))
-        if not os.path.exists(path):
-            c.fail(key, f"file not found: {path}")
-        return _read_yaml(path), path
-    if not isinstance(value, dict):
-        c.fail(key, f"expected a file name or a mapping, got {_kind(value)}")
-    return value, None
+    every = c.integer(out.get("every", 1), "output.every", lo=1, hi=MAX_COUNT)
+    return Output(opath, record, every)
 
 
 def _table_params(kind, t, c, key):
@@ -325,19 +482,31 @@ def _table_params(kind, t, c, key):
         return {"size": list(size)}
     V = t["vertices"]
     if not isinstance(V, list) or len(V) < 3:
-        c.fail(key("vertices"), "expected a list of at least 3 points [x, y]")
+        c.fail(key("vertices"), f"expected a list of at least 3 points [x, y], got {_kind(V)}"
+               + (f" of {len(V)}" if isinstance(V, list) else ""))
     V = np.array([c.vector(p, f"{key('vertices')}[{i}]", 2) for i, p in enumerate(V)])
-    area = 0.5 * np.sum(V[:, 0] * np.roll(V[:, 1], -1) - np.roll(V[:, 0], -1) * V[:, 1])
-    if area <= 0:
-        c.fail(key("vertices"), "must be listed counter-clockwise (the signed area is not positive)")
-    if np.any(np.linalg.norm(np.roll(V, -1, axis=0) - V, axis=1) == 0):
+    with np.errstate(over="ignore", invalid="ignore"):
+        area = 0.5 * np.sum(V[:, 0] * np.roll(V[:, 1], -1) - np.roll(V[:, 0], -1) * V[:, 1])
+    if not np.isfinite(area):
+        c.fail(key("vertices"), "coordinates too large (the area overflows)")
+    if np.any(np.all(np.roll(V, -1, axis=0) == V, axis=1)):
         c.fail(key("vertices"), "two consecutive vertices coincide")
     if _self_intersecting(V):
-        c.fail(key("vertices"), "the polygon crosses itself")
+        c.fail(key("vertices"), "the polygon crosses or touches itself")
+    if area <= 0:
+        c.fail(key("vertices"), "must be listed counter-clockwise (the signed area is not positive)")
     return {"vertices": V.tolist()}
 
 
 def _self_intersecting(V):
+    """Whether two non-adjacent edges cross or touch (a vertex on another edge counts: the shrunk table of such
+    a polygon pinches to nothing there)."""
+    def cross(o, a, b):
+        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
+
+    def on_segment(p, a, b):
+        return min(a[0], b[0]) <= p[0] <= max(a[0], b[0]) and min(a[1], b[1]) <= p[1] <= max(a[1], b[1])
+
     m = len(V)
     for i in range(m):
         a, b = V[i], V[(i + 1) % m]
@@ -345,9 +514,12 @@ def _self_intersecting(V):
             if i == 0 and j == m - 1:
                 continue
             p, q = V[j], V[(j + 1) % m]
-            d1, d2 = np.cross(b - a, p - a), np.cross(b - a, q - a)
-            d3, d4 = np.cross(q - p, a - p), np.cross(q - p, b - p)
+            d1, d2 = cross(a, b, p), cross(a, b, q)
+            d3, d4 = cross(p, q, a), cross(p, q, b)
             if d1 * d2 < 0 and d3 * d4 < 0:
+                return True
+            if (d1 == 0 and on_segment(p, a, b)) or (d2 == 0 and on_segment(q, a, b)) or \
+                    (d3 == 0 and on_segment(a, p, q)) or (d4 == 0 and on_segment(b, p, q)):
                 return True
     return False
 
@@ -374,11 +546,7 @@ def _rule(r, key, n, c, geom, wall_ids):
     kinds = ("constant", "hemisphere", "random")
     if "rule" not in r:
         c.fail(_join(key, "rule"), f"missing required key (one of: {', '.join(kinds)})")
-    kind = r["rule"]
-    if kind not in kinds:
-        hint = difflib.get_close_matches(str(kind), kinds, n=1)
-        c.fail(_join(key, "rule"), f"unknown rule '{kind}'" + (f" (did you mean '{hint[0]}'?)" if hint else
-                                                             f" (rules: {', '.join(kinds)})"))
+    kind = c.choice(r["rule"], _join(key, "rule"), kinds, "rule")
     if kind == "constant":
         c.mapping(r, key, ("rule", "rank", "direction_deg", "direction"), ("rank",))
         rank = c.integer(r["rank"], _join(key, "rank"), lo=0, hi=n - 1)
@@ -394,7 +562,7 @@ def _rule(r, key, n, c, geom, wall_ids):
                                                     "(direction_deg or direction)")
             if "direction_deg" in r:
                 return Constant(1, ("deg", c.number(r["direction_deg"], _join(key, "direction_deg"))))
-            vec = np.array(c.vector(r["direction"], _join(key, "direction"), 3))
+            vec = c.nonzero_vector(r["direction"], _join(key, "direction"), 3)
             for w in wall_ids or ():
                 t = geom.wall_list[w].tangents
                 if np.linalg.norm(t @ vec) < 1e-9 * max(np.linalg.norm(vec), 1e-300):
@@ -404,10 +572,11 @@ def _rule(r, key, n, c, geom, wall_ids):
         return Constant(rank)
     if kind == "hemisphere":
         c.mapping(r, key, ("rule", "axis", "rough", "smooth"), ("axis", "rough", "smooth"))
-        axis = np.array(c.vector(r["axis"], _join(key, "axis"), n))
+        axis = c.nonzero_vector(r["axis"], _join(key, "axis"), n)
         norm = np.linalg.norm(axis)
-        if norm == 0:
-            c.fail(_join(key, "axis"), "must be a non-zero vector")
+        if not np.isfinite(norm):   # huge components: normalise in two steps so that the norm does not overflow
+            axis = axis / np.max(np.abs(axis))
+            norm = np.linalg.norm(axis)
         return Hemisphere(tuple(axis / norm), _rule(r["rough"], _join(key, "rough"), n, c, geom, wall_ids),
                           _rule(r["smooth"], _join(key, "smooth"), n, c, geom, wall_ids))
     c.mapping(r, key, ("rule", "choices", "probabilities"), ("choices", "probabilities"))
@@ -417,7 +586,7 @@ def _rule(r, key, n, c, geom, wall_ids):
     if not isinstance(pr, list) or len(pr) != len(ch):
         c.fail(_join(key, "probabilities"), f"expected a list of {len(ch)} numbers, one per choice")
     probs = tuple(c.number(p, f"{_join(key, 'probabilities')}[{i}]", lo=0.0) for i, p in enumerate(pr))
-    if abs(sum(probs) - 1.0) > 1e-9:
+    if abs(sum(probs) - 1.0) > PROBABILITY_SUM_TOLERANCE:
         c.fail(_join(key, "probabilities"), f"must sum to 1, they sum to {sum(probs):.12g}")
     return Random(tuple(_rule(x, f"{_join(key, 'choices')}[{i}]", n, c, geom, wall_ids) for i, x in enumerate(ch)),
                   probs)
@@ -426,19 +595,15 @@ def _rule(r, key, n, c, geom, wall_ids):
 STATE_KEYS = ("position", "velocity", "angular_velocity", "orientation")
 
 
-def _initial(init, n, c, geom, kind, R, names):
+def _initial(init, n, c, geom, kind, R, kappa, names):
     """-> (tuple of explicit states, or ('sample', wall index or None)), default number of trajectories."""
     if isinstance(init, dict) and "sample" in init:
         c.mapping(init, "initial", ("sample", "wall"))
-        if init["sample"] != "billiard":
-            c.fail("initial.sample", f"unknown sampler '{init['sample']}' (use: billiard)")
+        c.choice(init["sample"], "initial.sample", ("billiard",), "sampler")
         wall = init.get("wall")
-        if wall is not None and wall not in names:
-            hint = difflib.get_close_matches(str(wall), names, n=1)
-            c.fail("initial.wall", f"no wall named '{wall}'" + (f" (did you mean '{hint[0]}'?)" if hint else
-                                                              f" (walls: {', '.join(names)})"))
+        if wall is not None:
+            c.choice(wall, "initial.wall", names, "wall")
         idx = None if wall is None else names.index(wall)
-        walls = range(len(names)) if idx is None else [idx]
         if kind == "wedge":
             c.fail("initial.wall" if wall else "initial.sample", "the wedge's walls are infinite: the billiard "
                                                                  "measure on them cannot be normalised")
@@ -449,20 +614,28 @@ def _initial(init, n, c, geom, kind, R, names):
     out = []
     for i, s in enumerate(states):
         key = "initial" if not isinstance(init, list) else f"initial[{i}]"
-        c.mapping(s, key, STATE_KEYS, ("position", "velocity"))
+        # 'sample' is allowed only for the hint: a mapping holding it took the branch above
+        c.mapping(s, key, STATE_KEYS + (("sample",) if s is init else ()), ("position", "velocity"))
         pos = np.array(c.vector(s["position"], _join(key, "position"), n))
         vel = np.array(c.vector(s["velocity"], _join(key, "velocity"), n))
         if not np.any(vel):
-            c.fail(_join(key, "velocity"), "must be non-zero")
+            c.fail(_join(key, "velocity"), "must be non-zero (a ball at rest never reaches a wall)")
         spin = s.get("angular_velocity", 0.0 if n == 2 else [0.0, 0.0, 0.0])
         spin = c.number(spin, _join(key, "angular_velocity")) if n == 2 else \
             np.array(c.vector(spin, _join(key, "angular_velocity"), 3))
         orient = s.get("orientation", 0.0 if n == 2 else [0.0, 0.0, 0.0])
         orient = c.number(orient, _join(key, "orientation")) if n == 2 else \
             np.array(c.vector(orient, _join(key, "orientation"), 3))
-        clearance = float(geom.clearance(pos))
-        if clearance < -1e-12 * geom.size:
+        with np.errstate(over="ignore", invalid="ignore"):
+            energy = 0.5 * (np.sum(vel * vel) + kappa * R * R * np.sum(np.square(spin)))
+        if not np.isfinite(energy):
+            c.fail(_join(key, "velocity"), "too large: the kinetic energy ½(|v|² + 2λ|ω|²) overflows")
+        with np.errstate(all="ignore"):
+            clearance = float(geom.clearance(pos))
+        if not clearance >= -1e-12 * geom.size:   # written so that a NaN fails too
             c.fail(_join(key, "position"), f"{pos.tolist()} is outside the table shrunk by the ball's radius "
-                                           f"{R:g} (by {-clearance:.3g})")
+                                           f"{R:g}" + (f" (by {-clearance:.3g})" if np.isfinite(clearance) else ""))
+        for a in (pos, vel) + ((spin, orient) if n == 3 else ()):
+            a.setflags(write=False)
         out.append({"position": pos, "velocity": vel, "angular_velocity": spin, "orientation": orient})
     return tuple(out), len(out)

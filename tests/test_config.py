@@ -1,0 +1,161 @@
+"""rbx.config: a valid config loads once into frozen objects; paths, numbers, defaults and overrides behave as a
+user expects; what is stored in a run file reads back to the same config (for --resume)."""
+import dataclasses
+import os
+
+import numpy as np
+import pytest
+import yaml
+
+from rbx import config
+from rbx.config import ConfigError
+from rbx.output import config_yaml
+from tests.catalog import SCENES
+
+STRIP = """\
+table: tables/strip.yaml
+boundary: boundary/rough.yaml
+ball: {radius: 0.1, inertia: uniform}
+initial: {position: [0.0, 0.5], velocity: [0.6, 0.8], angular_velocity: 1.5}
+run: {collisions: 100, trajectories: 2, seed: 7}
+output: {path: runs/strip.h5, record: [time, wall], every: 2}
+"""
+
+
+@pytest.fixture
+def experiment(tmp_path):
+    (tmp_path / "tables").mkdir()
+    (tmp_path / "boundary").mkdir()
+    (tmp_path / "tables" / "strip.yaml").write_text("kind: strip\nwidth: 1\n")
+    (tmp_path / "boundary" / "rough.yaml").write_text("default: {rule: constant, rank: 1}\n")
+    path = tmp_path / "exp.yaml"
+    path.write_text(STRIP)
+    return path
+
+
+def error_of(path_or_data, overrides=None):
+    with pytest.raises(ConfigError) as info:
+        if isinstance(path_or_data, dict):
+            config.from_dict(path_or_data, overrides=overrides)
+        else:
+            config.load(path_or_data, overrides)
+    return info.value
+
+
+def test_a_valid_config_is_frozen(experiment):
+    cfg = config.load(experiment)
+    assert cfg.table_kind == "strip" and cfg.dimension == 2 and cfg.wall_names == ("bottom", "top")
+    assert cfg.run == config.Run(100, 2, 7)
+    assert cfg.output.record == ("time", "wall") and cfg.output.every == 2
+    assert cfg.wall_rules == (config.Constant(1), config.Constant(1))
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        cfg.run = None
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        cfg.run.collisions = 5
+    with pytest.raises(TypeError):
+        cfg.table["width"] = 2.0
+    with pytest.raises(ValueError):
+        cfg.initial[0]["position"][0] = 1.0
+
+
+def test_relative_paths_resolve_from_the_config_folder(experiment, tmp_path, monkeypatch):
+    elsewhere = tmp_path / "elsewhere"
+    elsewhere.mkdir()
+    monkeypatch.chdir(elsewhere)
+    cfg = config.load(os.path.relpath(experiment))
+    assert cfg.output.path == str(tmp_path / "runs" / "strip.h5")
+    assert cfg.table["width"] == 1.0
+
+
+def test_defaults(experiment):
+    data = yaml.safe_load(STRIP)
+    del data["run"], data["output"]
+    data["table"] = {"kind": "strip", "width": 1}
+    data["boundary"] = {"default": {"rule": "constant", "rank": 0}}
+    cfg = config.from_dict(data)
+    assert cfg.run == config.Run(1000, 1, 0)
+    assert cfg.output == config.Output(None, config.RECORD_FIELDS, 1)
+    # an empty section means its defaults too
+    cfg = config.from_dict({**data, "run": None, "output": None})
+    assert cfg.run == config.Run(1000, 1, 0)
+
+
+def test_scientific_notation_is_a_number(experiment):
+    experiment.write_text(STRIP.replace("collisions: 100", "collisions: 1e6").replace("radius: 0.1", "radius: 5e-2"))
+    cfg = config.load(experiment)
+    assert cfg.run.collisions == 1_000_000 and cfg.ball.radius == 0.05
+
+
+def test_duplicate_keys_are_errors_but_merge_keys_work(experiment):
+    experiment.write_text(STRIP + "run: {collisions: 5}\n")
+    err = error_of(experiment)
+    assert err.file == str(experiment) and "duplicate key 'run'" in err.problem and "line 7" in err.problem
+    experiment.write_text(STRIP.replace("run: {collisions: 100, trajectories: 2, seed: 7}",
+                                        "base: &base {collisions: 100, trajectories: 2, seed: 7}\n"
+                                        "run: {<<: *base, seed: 9}").replace("base:", "x-base:"))
+    err = error_of(experiment)   # the anchor's own key is unknown, but the merge itself parses
+    assert err.key == "x-base"
+    data = yaml.load(experiment.read_text(), Loader=config._Loader)
+    assert data["run"] == {"collisions": 100, "trajectories": 2, "seed": 9}
+
+
+def test_yaml_errors_name_file_and_line(experiment):
+    experiment.write_text("table: tables/strip.yaml\nball: {radius: 0.1\ninitial: x\n")
+    err = error_of(experiment)
+    assert err.file == str(experiment) and err.problem.startswith("YAML syntax error: line 3")
+
+
+def test_an_alias_that_contains_itself_is_an_error(experiment):
+    experiment.write_text(STRIP.replace("boundary: boundary/rough.yaml",
+                                        "boundary: {default: &r {rule: random, choices: [*r], probabilities: [1]}}"))
+    err = error_of(experiment)
+    assert "nested too deeply" in err.problem
+
+
+def test_errors_in_an_included_file_name_that_file(experiment, tmp_path):
+    (tmp_path / "boundary" / "rough.yaml").write_text("default: {rule: constant, rank: 3}\n")
+    err = error_of(experiment)
+    assert err.file == str(tmp_path / "boundary" / "rough.yaml") and err.key == "default.rank"
+    (tmp_path / "tables" / "strip.yaml").write_text("")
+    err = error_of(experiment)
+    assert err.file == str(tmp_path / "tables" / "strip.yaml") and "empty" in err.problem
+
+
+def test_overrides_win_and_name_the_option(experiment):
+    cfg = config.load(experiment, {"collisions": 5, "trajectories": None, "seed": 3})
+    assert cfg.run == config.Run(5, 2, 3)
+    for name, value in (("collisions", 0), ("trajectories", -1), ("seed", -2), ("collisions", 2**70)):
+        err = error_of(experiment, {name: value})
+        assert err.file is None and err.key == f"--{name}" and str(err).startswith(f"--{name}: ")
+
+
+@pytest.mark.parametrize("name", list(SCENES))
+def test_stored_config_reads_back_the_same(name):
+    """What a run file stores (``config`` attribute) validates again to the same experiment: --resume needs it."""
+    cfg = config.from_dict(SCENES[name])
+    again = config.loads(config_yaml(cfg), "run.h5")
+    for f in ("dimension", "table_kind", "wall_rules", "wall_names", "ball", "run", "output"):
+        assert getattr(again, f) == getattr(cfg, f), f
+    assert dict(again.table) == dict(cfg.table)
+    for a, b in zip(again.initial, cfg.initial):
+        for k in a:
+            np.testing.assert_array_equal(a[k], b[k])
+
+
+@pytest.mark.parametrize("vertices, problem", [
+    ([[0, 0], [2, 0], [2, 1], [1, 0], [0, 1]], "touches"),     # a vertex on another edge
+    ([[0, 0], [1, 0], [1, 0], [0, 1]], "coincide"),
+    ([[0, 0], [1, 0], [2, 0]], "counter-clockwise"),             # no area
+])
+def test_degenerate_polygons(vertices, problem):
+    data = dict(SCENES["triangle-rough"], table={"kind": "polygon", "vertices": vertices})
+    assert problem in error_of(data).problem
+
+
+def test_hints():
+    data = dict(SCENES["strip-rough"])
+    assert "did you mean 'boundary'" in str(error_of({**data, "bondary": {}}))
+    assert "did you mean 'circle'" in str(error_of({**data, "table": {"kind": "circel", "radius": 1}}))
+    assert "did you mean 'hemisphere'" in str(error_of({**data, "boundary": {"default": {"rule": "hemispere"}}}))
+    err = error_of({**data, "initial": {"sampel": "billiard"}})
+    assert err.key == "initial.sampel" and "did you mean 'sample'" in err.problem
