@@ -1,0 +1,459 @@
+"""Analysis of runs: arrays in, numbers out. Nothing here simulates or draws.
+
+- the billiard-measure laws (paper §2.7): the angle φ to the normal in the metric-orthonormal coordinates
+  ``(v, R√κ·ω)``, its predicted density ∝ cos φ·sin^(d−2) φ with ``d = n + n(n−1)/2``, the Kolmogorov–Smirnov test
+  against it, and Santaló's mean free path;
+- positions on the boundary: which part of a wall a collision point lies on, its inward normal, and the Birkhoff
+  coordinates of the boundary map (arc length s, sin of the angle to the normal);
+- diffusion: mean-square displacement and the diffusion coefficient with a confidence interval;
+- reading an rbx HDF5 file (SPEC §5) with one-line errors for the CLI (:class:`RunFileError`).
+
+Units: lengths in the table's unit L, times in the unit T of the config's velocities; a "step" is one collision.
+"""
+import math
+import os
+from dataclasses import dataclass
+
+import numpy as np
+
+# ---- the billiard measure (paper §2.7) -------------------------------------------------------------------------
+
+
+def velocity_dimension(n):
+    """d = n + n(n−1)/2: the dimension of the velocity space (v, R√κ·ω) of a ball in Rⁿ (3 for a disc, 6 for a
+    ball), i.e. of the configuration space Q = table × SO(n)."""
+    return n + n * (n - 1) // 2
+
+
+def normal_angle(velocity, angular_velocity, normal, R, kappa):
+    """Angle φ ∈ [0, π] between the state's velocity in metric-orthonormal coordinates (v, R√κ·ω) and the inward
+    normal (ν, 0) of the wall -> (M,).  cos φ = (v·ν)/sqrt(|v|² + κR²|ω|²); φ < π/2 for a post-collision state."""
+    v = np.asarray(velocity, float)
+    w = np.asarray(angular_velocity, float)
+    w2 = w * w if w.ndim == 1 else np.sum(w * w, axis=-1)
+    speed = np.sqrt(np.sum(v * v, axis=-1) + kappa * R * R * w2)
+    c = np.sum(v * np.asarray(normal, float), axis=-1) / speed
+    return np.arccos(np.clip(c, -1.0, 1.0))
+
+
+def cos_law_pdf(phi, d):
+    """Density of φ on [0, π/2] under the billiard measure in d velocity dimensions: (d−1)·cos φ·sin^(d−2) φ
+    (sin 2φ for a disc, d = 3; 5·cos φ·sin⁴ φ for a ball, d = 6)."""
+    phi = np.asarray(phi, float)
+    return (d - 1) * np.cos(phi) * np.sin(phi) ** (d - 2)
+
+
+def cos_law_cdf(phi, d):
+    """Distribution function of φ under the billiard measure: sin^(d−1) φ on [0, π/2]."""
+    return np.sin(np.clip(np.asarray(phi, float), 0.0, np.pi / 2)) ** (d - 1)
+
+
+def ks_cos_law(phi, d):
+    """Kolmogorov–Smirnov test of angles φ against the billiard-measure law -> (statistic, p-value)."""
+    from scipy import stats
+    res = stats.kstest(np.asarray(phi, float), lambda x: cos_law_cdf(x, d))
+    return float(res.statistic), float(res.pvalue)
+
+
+def santalo_constant(d):
+    """|S^(d−1)| / |B^(d−1)| = 2√π·Γ((d+1)/2)/Γ(d/2): π for d = 2, 4 for d = 3, 15π/8 for d = 6.
+
+    Santaló's formula: in a domain Q ⊂ R^d the mean free path of the billiard measure (uniform on ∂Q, ∝ cos φ on
+    the inward hemisphere) is this constant times |Q|/|∂Q|."""
+    return 2.0 * math.sqrt(math.pi) * math.gamma((d + 1) / 2) / math.gamma(d / 2)
+
+
+def santalo_mean_free_path(geom):
+    """Mean free path of the billiard measure on the whole boundary (Santaló) -> float.
+
+    Q = shrunk table × SO(n) with the metric of (v, R√κ·ω); SO(n) is compact without boundary, so its volume
+    cancels from |Q|/|∂Q| = V/S (area/perimeter of the shrunk disc table, volume/surface of the shrunk box):
+    4·A/P for a disc, 15π/8·V/S for a ball. With unit speed it is also the mean first flight time."""
+    volume, surface = table_measure(geom)
+    return santalo_constant(velocity_dimension(geom.dimension)) * volume / surface
+
+
+def table_measure(geom):
+    """(volume, boundary measure) of the shrunk table -> (area, perimeter) in 2D, (volume, surface) in 3D.
+
+    From the sampling patches of the walls and the divergence theorem, V = (1/n)∮ p·ν_out dS, so reflex-vertex
+    arcs are exact. Raises ValueError for unbounded tables (strip, wedge, plates)."""
+    n = geom.dimension
+    volume, surface = 0.0, 0.0
+    for wall in geom.wall_list:
+        for patch in wall.patches:
+            if patch[0] == "flat":
+                _, origin, normal, axes = patch
+                lengths = [length for _, length in axes]
+                if not all(np.isfinite(lengths)):
+                    raise ValueError(f"the {geom.kind} table is unbounded: it has no finite volume")
+                m = float(np.prod(lengths))
+                surface += m
+                volume += -float(origin @ normal) * m          # p·ν_out = −p·ν is constant on a flat wall
+            else:
+                _, centre, rho, a0, a1, sign = patch
+                surface += rho * (a1 - a0)
+                radial_integral = np.array([np.sin(a1) - np.sin(a0), np.cos(a0) - np.cos(a1)])
+                volume += -sign * rho * (float(centre @ radial_integral) + rho * (a1 - a0))
+    return volume / n, surface
+
+
+# ---- positions on the boundary ---------------------------------------------------------------------------------
+
+
+def _ccw_tangent(nu):
+    """The boundary tangent t = −Jν (2D, J the rotation by +90°): the direction in which the table's boundary is
+    traversed counter-clockwise (interior on the left)."""
+    return np.stack([nu[..., 1], -nu[..., 0]], axis=-1)
+
+
+def _patch_offsets(geom):
+    """[(wall, patch, s0)] in boundary order: walls in index order and, within an edge of a polygon, the arc at
+    its start vertex before the segment (docs/conventions.md). s0 is 0 on every wall of an unbounded table."""
+    patches = [(w, p) for w, wall in enumerate(geom.wall_list)
+               for p in sorted(wall.patches, key=lambda p: p[0] != "arc")]
+    if any(p[0] == "flat" and not all(np.isfinite(length) for _, length in p[3]) for _, p in patches):
+        return [(w, p, 0.0) for w, p in patches]
+    out, s = [], 0.0
+    for w, p in patches:
+        out.append((w, p, s))
+        s += float(np.prod([length for _, length in p[3]])) if p[0] == "flat" else p[2] * (p[4] - p[3])
+    return out
+
+
+def boundary_length(geom):
+    """Total arc length of the shrunk 2D table's boundary (inf for unbounded tables)."""
+    try:
+        return table_measure(geom)[1]
+    except ValueError:
+        return np.inf
+
+
+def wall_joints(geom):
+    """Arc lengths where one wall ends and the next begins (for marking them in phase portraits) -> list."""
+    offsets = _patch_offsets(geom)
+    if all(s0 == 0.0 for _, _, s0 in offsets):
+        return []
+    starts = {}
+    for w, _, s0 in offsets:
+        starts.setdefault(w, s0)
+    return sorted(starts.values())[1:]
+
+
+def locate(geom, walls, positions):
+    """Where collision points lie on the boundary -> (s, normal).
+
+    ``walls`` (M,) are wall indices (from the file's ``wall`` field), ``positions`` (M, n) the centre at the
+    collision. ``normal`` (M, n) is the inward unit normal there (exact on arcs too). ``s`` (M,) is the Birkhoff
+    arc length along the shrunk boundary, counter-clockwise, starting at the start of wall 0 (2D; on unbounded
+    tables each wall's s is measured from its own origin along the counter-clockwise tangent — for the strip's
+    top wall s = −x); NaN in 3D and where ``walls`` < 0."""
+    walls = np.asarray(walls, np.int64).reshape(-1)
+    p = np.asarray(positions, float)
+    n = p.shape[-1]
+    p = p.reshape(len(walls), n)
+    s = np.full(len(walls), np.nan)
+    normal = np.full((len(walls), n), np.nan)
+    best = np.full(len(walls), np.inf)
+    for w, patch, s0 in _patch_offsets(geom):
+        sel = np.nonzero(walls == w)[0]
+        if len(sel) == 0:
+            continue
+        q = p[sel]
+        if patch[0] == "flat":
+            _, origin, nu, axes = patch
+            d = q - origin
+            residual = np.abs(d @ nu)
+            for axis, length in axes:
+                c = d @ np.asarray(axis, float)
+                if np.isfinite(length):
+                    residual = residual + np.maximum(0.0, np.maximum(-c, c - length))
+            nus = np.broadcast_to(nu, q.shape)
+            local = d @ _ccw_tangent(nu) if n == 2 else np.full(len(sel), np.nan)
+        else:
+            _, centre, rho, a0, a1, sign = patch
+            d = q - centre
+            r = np.linalg.norm(d, axis=1)
+            ang = a0 + np.mod(np.arctan2(d[:, 1], d[:, 0]) - a0, 2 * np.pi)
+            over = np.where(ang > a1, np.minimum(ang - a1, a0 + 2 * np.pi - ang), 0.0)
+            residual = np.abs(r - rho) + rho * over
+            nus = sign * d / np.where(r > 0, r, 1.0)[:, None]
+            local = rho * (ang - a0) if sign < 0 else rho * (a1 - ang)
+        take = residual < best[sel]
+        idx = sel[take]
+        best[idx] = residual[take]
+        normal[idx] = nus[take]
+        s[idx] = s0 + local[take]
+    return s, normal
+
+
+def birkhoff_coordinates(geom, walls, positions, velocities):
+    """Birkhoff coordinates of collisions of a 2D table -> (s, sin ψ).
+
+    s: arc length along the shrunk boundary (see :func:`locate`); ψ: the angle between the centre's outgoing
+    velocity v and the inward normal ν, signed so that sin ψ = v·t/|v| with t the counter-clockwise tangent."""
+    s, nu = locate(geom, walls, positions)
+    v = np.asarray(velocities, float).reshape(nu.shape)
+    sin_psi = np.sum(v * _ccw_tangent(nu), axis=1) / np.linalg.norm(v, axis=1)
+    return s, sin_psi
+
+
+def spin_planes(walls, normals, velocities, angular_velocity, R, kappa, tangents=None):
+    """Tangential velocity against scaled spin at collisions (angle–position coordinates, v₀ = R√κ·ω) -> list of
+    (x, y, x name, y name): one plane in 2D, two in 3D.
+
+    2D: x = v·t (t the counter-clockwise tangent), y = v₀ = R√κ·ω; the contact point's slip is v·t + Rω, so the
+    no-slip line is y = −√κ·x and the completely rough map acts on the plane as a reflection.
+    3D: with e₁ the wall's first tangent axis (``tangents[wall][0]``) and e₂ = ν×e₁ the slip is
+    (v·e₁ − Rω·e₂, v·e₂ + Rω·e₁): planes (v·e₁, R√κ ω·e₂) and (v·e₂, −R√κ ω·e₁)."""
+    nu = np.asarray(normals, float)
+    v = np.asarray(velocities, float)
+    w = np.asarray(angular_velocity, float)
+    scale = R * math.sqrt(kappa)
+    if nu.shape[1] == 2:
+        return [(np.sum(v * _ccw_tangent(nu), axis=1), scale * w.reshape(-1), "v·t", "v₀ = R√κ·ω")]
+    e1 = np.array([tangents[k][0] if k >= 0 else np.full(3, np.nan) for k in np.asarray(walls, np.int64)])
+    e1 = e1 - np.sum(e1 * nu, axis=1, keepdims=True) * nu
+    e1 /= np.linalg.norm(e1, axis=1, keepdims=True)
+    e2 = np.cross(nu, e1)
+    return [(np.sum(v * e1, axis=1), scale * np.sum(w * e2, axis=1), "v·e₁", "R√κ ω·e₂"),
+            (np.sum(v * e2, axis=1), -scale * np.sum(w * e1, axis=1), "v·e₂", "−R√κ ω·e₁")]
+
+
+# ---- diffusion -------------------------------------------------------------------------------------------------
+
+
+def mean_square_displacement(x):
+    """x (M, T): one coordinate of M trajectories at T records -> (T,) ⟨(x(t) − x(0))²⟩ over the trajectories
+    that have a record there (NaN rows, from trajectories that ended early, are skipped)."""
+    x = np.asarray(x, float)
+    dx = x - x[:, :1]
+    with np.errstate(invalid="ignore"):
+        return np.nanmean(dx * dx, axis=0)
+
+
+@dataclass(frozen=True)
+class DiffusionFit:
+    """MSD(t) ≈ 2·D·t + c over the fit window, D in L² per unit of t, with a confidence interval."""
+    coefficient: float
+    low: float
+    high: float
+    confidence: float
+    intercept: float
+    start: float
+    stop: float
+    trajectories: int
+
+    def msd(self, t):
+        return 2.0 * self.coefficient * np.asarray(t, float) + self.intercept
+
+    @property
+    def half_width(self):
+        return 0.5 * (self.high - self.low)
+
+
+def fit_diffusion(t, x, fit_from=0.1, confidence=0.95):
+    """Diffusion coefficient of one coordinate -> :class:`DiffusionFit`.
+
+    ``t`` (T,): steps (or times) of the records, ``x`` (M, T): the coordinate of M independent trajectories.
+    Each complete trajectory j gets the least-squares line through its own squared displacement over the window
+    t ≥ fit_from·max(t) (skipping the ballistic start); D_j = slope_j/2. The slope of the ensemble MSD is the mean
+    of the D_j (least squares is linear in the data), and because trajectories are independent — unlike the
+    points of one MSD curve — their spread gives an honest Student-t confidence interval."""
+    from scipy import stats
+    t = np.asarray(t, float)
+    x = np.asarray(x, float)
+    full = np.all(np.isfinite(x), axis=1)
+    M = int(full.sum())
+    if M < 2:
+        raise ValueError("a diffusion fit needs at least 2 complete trajectories")
+    window = t >= fit_from * t.max()
+    window &= t > t.min()
+    if window.sum() < 2:
+        raise ValueError("the fit window holds fewer than 2 records")
+    tw = t[window]
+    y = (x[full] - x[full, :1])[:, window] ** 2
+    tc = tw - tw.mean()
+    slopes = (y - y.mean(axis=1, keepdims=True)) @ tc / (tc @ tc)
+    intercepts = y.mean(axis=1) - slopes * tw.mean()
+    D = 0.5 * slopes
+    mean = float(D.mean())
+    half = float(stats.t.ppf(0.5 + confidence / 2, M - 1) * D.std(ddof=1) / math.sqrt(M))
+    return DiffusionFit(mean, mean - half, mean + half, confidence, float(intercepts.mean()), float(tw.min()),
+                        float(tw.max()), M)
+
+
+# ---- reading runs ----------------------------------------------------------------------------------------------
+
+
+class RunFileError(Exception):
+    """A file that cannot be read as an rbx run: ``<file>: <problem>``."""
+
+    def __init__(self, file, problem):
+        self.file, self.problem = str(file), problem
+        super().__init__(f"{file}: {problem}")
+
+
+REQUIRED_ATTRS = ("dimension", "config", "table_kind", "radius", "kappa", "wall_names")
+
+
+class RunFile:
+    """An rbx HDF5 run (SPEC §5), opened read-only and checked: ``with RunFile(path) as run: run.read(...)``."""
+
+    def __init__(self, path):
+        import h5py
+        import yaml
+        self.path = str(path)
+        if not os.path.exists(self.path):
+            raise RunFileError(self.path, "file not found")
+        if os.path.isdir(self.path):
+            raise RunFileError(self.path, "is a directory, not an HDF5 file")
+        try:
+            self.h5 = h5py.File(self.path, "r")
+        except OSError:
+            raise RunFileError(self.path, "not an HDF5 file (or unreadable)") from None
+        try:
+            a = self.h5.attrs
+            missing = [k for k in REQUIRED_ATTRS if k not in a]
+            if missing:
+                raise RunFileError(self.path, f"not an rbx run: no root attribute '{missing[0]}'")
+            if "collisions" not in self.h5:
+                what = " (it holds return angles from rbx histogram)" if "returns" in self.h5 else ""
+                raise RunFileError(self.path, f"not an rbx run: no group 'collisions'{what}")
+            g = self.h5["collisions"]
+            for k in ("count", "step"):
+                if k not in g:
+                    raise RunFileError(self.path, f"not an rbx run: no dataset 'collisions/{k}'")
+            self.dimension = int(a["dimension"])
+            self.table_kind = _text(a["table_kind"])
+            self.wall_names = [_text(x) for x in a["wall_names"]]
+            self.radius = float(a["radius"])
+            self.kappa = float(a["kappa"])
+            self.complete = bool(a.get("complete", True))
+            try:
+                self.config = yaml.safe_load(_text(a["config"]))
+            except yaml.YAMLError:
+                raise RunFileError(self.path, "the root attribute 'config' is not valid YAML") from None
+            if not isinstance(self.config, dict) or not isinstance(self.config.get("table"), dict):
+                raise RunFileError(self.path, "the root attribute 'config' has no resolved 'table' mapping")
+            self.fields = [k for k in g if k not in ("count", "step")]
+            self.count = g["count"][...]
+            self.steps = g["step"][...]
+            self.trajectories = len(self.count)
+            self.records = len(self.steps)
+            every = self.config.get("output", {}).get("every", 1) if isinstance(self.config.get("output"), dict) \
+                else 1
+            self.every = int(every or 1)
+        except Exception:
+            self.h5.close()
+            raise
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self):
+        self.h5.close()
+
+    def require(self, fields, why):
+        """Raise a RunFileError unless every field was recorded."""
+        missing = [f for f in fields if f not in self.fields]
+        if missing:
+            raise RunFileError(self.path, f"has no collisions/{missing[0]}: {why} needs "
+                                          f"{', '.join(fields)} (list them in output.record)")
+
+    def read(self, field, trajectories, records=slice(None)):
+        """One recorded field for the given trajectories (sorted list) and record slice -> (len, T, …) array."""
+        ds = self.h5["collisions"][field]
+        idx = sorted(trajectories)
+        if idx == list(range(idx[0], idx[-1] + 1)):
+            idx = slice(idx[0], idx[-1] + 1)       # a contiguous block reads much faster than a point selection
+        start, stop, stride = records.indices(ds.shape[1])
+        if stride != 1:
+            return ds[idx, start:stop][:, ::stride]
+        return ds[idx, start:stop]
+
+    def geometry(self):
+        from . import geometry
+        table = {k: v for k, v in self.config["table"].items() if k != "kind"}
+        return geometry.build(self.table_kind, table, self.radius)
+
+    def scene(self):
+        """A title naming the scene and rule: 'disc (R = 0.1, κ = 0.5) in a 2 × 1 rectangle · rough'."""
+        return scene_title(self.dimension, self.table_kind, self.config.get("table", {}), self.radius, self.kappa,
+                           self.config.get("boundary", {}), self.wall_names)
+
+
+def _text(x):
+    return x.decode() if isinstance(x, bytes) else str(x)
+
+
+# ---- describing scenes -----------------------------------------------------------------------------------------
+
+
+def _num(x):
+    return f"{float(x):g}"
+
+
+_TABLE_PHRASES = {
+    "strip": lambda t: f"in a strip of width {_num(t['width'])}",
+    "circle": lambda t: f"in a circle of radius {_num(t['radius'])}",
+    "wedge": lambda t: f"in a {_num(t['angle_deg'])}° wedge",
+    "rectangle": lambda t: f"in a {_num(t['width'])} × {_num(t['height'])} rectangle",
+    "polygon": lambda t: f"in a polygon with {len(t['vertices'])} vertices",
+    "plates": lambda t: f"between plates {_num(t['gap'])} apart",
+    "box": lambda t: "in a " + " × ".join(_num(x) for x in t["size"]) + " box",
+}
+
+
+def describe_table(kind, t):
+    """'in a 2 × 1 rectangle', 'between plates 1 apart', …"""
+    try:
+        return _TABLE_PHRASES[kind](t)
+    except (KeyError, TypeError, ValueError):
+        return f"in a {kind}"
+
+
+def describe_rule(r, n):
+    """A short name for a rule mapping of the config (SPEC §3): 'specular', 'rough', 'rank 1 at 60°', …"""
+    if not isinstance(r, dict):
+        return "?"
+    kind = r.get("rule")
+    if kind == "constant":
+        rank = int(r.get("rank", 0))
+        if rank == 0:
+            return "specular"
+        if rank == n - 1:
+            return "rough" if n == 2 else f"rough (rank {rank})"
+        if "direction_deg" in r:
+            return f"rank {rank} at {_num(r['direction_deg'])}°"
+        if "direction" in r:
+            return f"rank {rank} along ({', '.join(_num(x) for x in r['direction'])})"
+        return f"rank {rank}"
+    if kind == "hemisphere":
+        return f"hemisphere {describe_rule(r.get('rough'), n)}/{describe_rule(r.get('smooth'), n)}"
+    if kind == "random":
+        parts = [f"{describe_rule(c, n)} {_num(p)}" for c, p in zip(r.get("choices", []), r.get("probabilities", []))]
+        return "random (" + ", ".join(parts) + ")"
+    return str(kind)
+
+
+def describe_boundary(b, wall_names, n):
+    if not isinstance(b, dict):
+        return "?"
+    walls = b.get("walls") or {}
+    default = b.get("default")
+    if not walls:
+        return describe_rule(default, n)
+    parts = [f"{w}: {describe_rule(walls[w], n)}" for w in wall_names if w in walls]
+    if default is not None and len(walls) < len(wall_names):
+        parts.append(f"others: {describe_rule(default, n)}")
+    return ", ".join(parts)
+
+
+def scene_title(n, kind, table, R, kappa, boundary, wall_names):
+    ball = "disc" if n == 2 else "ball"
+    return (f"{ball} (R = {_num(R)}, κ = {kappa:.3g}) {describe_table(kind, table)} · "
+            f"{describe_boundary(boundary, wall_names, n)}")
