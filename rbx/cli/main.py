@@ -3,6 +3,7 @@ import click
 
 from .. import __version__
 from .simulate import simulate
+from . import histogram
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -13,6 +14,7 @@ def cli():
 
 
 cli.add_command(simulate)
+for _command in (histogram.histogram,): cli.add_command(_command)
 
 
 def main():

@@ -1,0 +1,86 @@
+"""``rbx histogram CONFIG``: the invariant-measure experiment (paper §2.7, SPEC §4)."""
+import os
+
+import click
+
+from .common import Progress, UserError, report_and_exit
+
+
+@click.command()
+@click.argument("config", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", "out", type=click.Path(dir_okay=False),
+              help="Figure to write (default: output.path with .png).")
+@click.option("--trajectories", type=int, help="Override run.trajectories (the number of samples).")
+@click.option("--seed", type=int, help="Override run.seed.")
+@click.option("--force", is_flag=True, help="Overwrite existing output files.")
+@click.option("--quiet", is_flag=True, help="No progress bar.")
+@click.option("--debug", is_flag=True, help="Show a traceback with user errors.")
+def histogram(config, out, trajectories, seed, force, quiet, debug):
+    """Test the invariance of the billiard measure (paper §2.7): return angles against cos φ·sin^(d−2) φ.
+
+    Samples run.trajectories states from the billiard measure on the wall of initial: {sample: billiard, wall:
+    NAME}, follows each until it returns to that wall (at most run.collisions collisions), writes the return
+    angles to returns/angle in output.path, prints the Kolmogorov–Smirnov statistic and p-value and draws the
+    histogram against the predicted density."""
+    try:
+        _histogram(config, out, trajectories, seed, force, quiet)
+    except UserError as exc:
+        report_and_exit(exc, debug)
+
+
+def _histogram(config, out, trajectories, seed, force, quiet):
+    from .. import config as cfgmod
+    from .. import plotting
+    from ..analysis import scene_title
+    from ..histogram import return_experiment, write_returns
+
+    overrides = {k: v for k, v in (("trajectories", trajectories), ("seed", seed)) if v is not None}
+    try:
+        cfg = cfgmod.load(config, overrides)
+    except cfgmod.ConfigError as exc:
+        raise UserError(exc.file, exc.key, exc.problem) from None
+    if cfg.initial[0] != "sample":
+        raise UserError(config, "initial", "rbx histogram samples its states: use initial: {sample: billiard, "
+                                           "wall: NAME}")
+    h5_path = cfg.output.path or (os.path.splitext(os.path.abspath(out))[0] + ".h5" if out else None)
+    if h5_path is None:
+        raise UserError(config, "output.path", "no output file: give output.path in the config or -o FIG.png")
+    fig_path = os.path.abspath(out) if out else os.path.splitext(h5_path)[0] + ".png"
+    for p in (h5_path, fig_path):
+        if os.path.exists(p) and not force:
+            raise UserError(p, None, "exists; use --force to overwrite it")
+
+    progress = Progress("histogram", quiet=quiet)
+    result = return_experiment(cfg, progress=progress)
+    progress.close()
+    try:
+        write_returns(h5_path, cfg, result)
+    except OSError as exc:
+        raise UserError(h5_path, None, f"cannot write: {exc.strerror or exc}") from None
+
+    names = cfg.wall_names
+    wall = "the whole boundary (next collision)" if result.wall is None else f"wall '{names[result.wall]}'"
+    title = scene_title(cfg.dimension, cfg.table_kind, cfg.resolved["table"], cfg.ball.radius, cfg.ball.kappa,
+                        cfg.resolved["boundary"], names)
+    fig = plotting.histogram_figure(result.angle, result.d, result.ks_statistic, result.ks_pvalue,
+                                    f"{title}\nreturn angles to {wall}: {len(result.angle)} of {result.samples} "
+                                    f"billiard-measure samples")
+    try:
+        os.makedirs(os.path.dirname(fig_path), exist_ok=True)
+        fig.savefig(fig_path, dpi=150)
+    except (OSError, ValueError) as exc:
+        raise UserError(fig_path, None, f"cannot write the figure: {getattr(exc, 'strerror', None) or exc}") \
+            from None
+
+    d = result.d
+    click.echo(f"{result.samples} samples on {wall}, {result.samples - result.not_returned} returned "
+               f"in {result.seconds:.2f} s")
+    if result.not_returned:
+        click.echo(f"rbx: warning: {result.not_returned} trajectories did not return within "
+                   f"{cfg.run.collisions} collisions (run.collisions); they are left out", err=True)
+    if len(result.angle) == 0:
+        click.echo("no trajectory returned: nothing to compare (raise run.collisions)")
+    else:
+        click.echo(f"Kolmogorov–Smirnov against the law of the billiard measure (density {plotting.density_name(d)}, "
+                   f"d = {d}): D = {result.ks_statistic:.4g}, p = {result.ks_pvalue:.4g}")
+    click.echo(f"wrote {h5_path} (returns/angle) and {fig_path}")

@@ -1,0 +1,159 @@
+"""The invariant-measure experiment (paper §2.7, SPEC §4 ``rbx histogram``) and Santaló's mean free path.
+
+Sample M states from the billiard measure on one wall (:func:`rbx.sampling.sample_billiard`), follow each until
+it returns to that wall — keeping only the return state, no trajectory is stored — and compare the return angles
+φ (to the wall's normal, in the metric-orthonormal coordinates (v, R√κ·ω)) with the law the invariance of the
+billiard measure predicts: density ∝ cos φ·sin^(d−2) φ, distribution function sin^(d−1) φ, d = n + n(n−1)/2.
+
+The return map of a wall is the first-return map of the boundary map to that wall, so it preserves the billiard
+measure restricted to the wall whenever the boundary map preserves it (Theorem `invariance`). The post-collision
+state is the one compared: it is the state the boundary map acts on.
+"""
+import dataclasses
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from . import analysis
+from .sampling import sample_billiard
+from .simulate import Simulation
+
+
+class _NullSink:
+    """Records nothing: the experiment reads the final state only."""
+
+    def write(self, block, nrec):  # pragma: no cover - never called with record = ()
+        pass
+
+    def checkpoint(self, sim):
+        pass
+
+
+@dataclass
+class Returns:
+    """Outcome of the experiment. Arrays over the M sampled trajectories unless said otherwise."""
+    wall: int | None               # the wall sampled and returned to (None: the whole boundary, one collision)
+    d: int                         # velocity dimension n + n(n−1)/2
+    initial_angle: np.ndarray      # (M,) φ of the sampled state
+    returned: np.ndarray           # (M,) bool: came back within run.collisions
+    collisions: np.ndarray         # (M,) collisions made (up to and including the return)
+    angle: np.ndarray              # (K,) return angles of the K returned trajectories, in trajectory order
+    ks_statistic: float
+    ks_pvalue: float
+    seconds: float
+
+    @property
+    def samples(self):
+        return len(self.returned)
+
+    @property
+    def not_returned(self):
+        return int(np.count_nonzero(~self.returned))
+
+
+def _sample(cfg, geom, _spin_scale):
+    state = sample_billiard(geom, cfg.ball.kappa, cfg.ball.radius, cfg.run.seed, cfg.initial[1], 0,
+                            cfg.run.trajectories)
+    # test hook: a sampler with the wrong spin scaling must make the experiment fail
+    state["angular_velocity"] = state["angular_velocity"] * _spin_scale
+    return state
+
+
+def _quiet(cfg):
+    return cfg.replace(output=dataclasses.replace(cfg.output, record=(), every=1))
+
+
+def return_experiment(cfg, progress=None, _spin_scale=1.0):
+    """Run the return-angle experiment of a validated config with ``initial: {sample: billiard, wall: W}`` ->
+    :class:`Returns`.
+
+    Each of ``run.trajectories`` sampled states is followed until it hits wall W again (at most
+    ``run.collisions`` collisions; the others are counted in ``returned``). Without a wall the states are drawn
+    on the whole boundary and the return is the next collision, on any wall (the boundary map itself).
+    ``_spin_scale`` multiplies the sampled spins: a deliberately wrong sampler, for testing that the test can
+    fail."""
+    if cfg.initial[0] != "sample":
+        raise ValueError("the return experiment needs initial: {sample: billiard, wall: NAME}")
+    start = time.perf_counter()
+    wall = cfg.initial[1]
+    if wall is None:
+        cfg = cfg.replace(run=dataclasses.replace(cfg.run, collisions=1))
+    cfg = _quiet(cfg)
+    n, R, kappa = cfg.dimension, cfg.ball.radius, cfg.ball.kappa
+    d = analysis.velocity_dimension(n)
+    geom = cfg.geometry()
+    state = _sample(cfg, geom, _spin_scale)
+    initial = analysis.normal_angle(state["velocity"], state["angular_velocity"], state["normal"], R, kappa)
+    sim = Simulation(cfg, state=state)
+    sim.stop_wall = -1 if wall is None else wall
+    sim.run(_NullSink(), progress=progress)
+    fin = sim.final_state()
+    hit = fin["last_wall"]
+    returned = (fin["collisions"] > 0) & (hit >= 0)
+    if wall is not None:
+        returned &= (hit == wall) & ~fin["alive"]
+    _, nu = analysis.locate(geom, hit[returned], fin["position"][returned])
+    angle = analysis.normal_angle(fin["velocity"][returned], fin["angular_velocity"][returned], nu, R, kappa)
+    stat, p = analysis.ks_cos_law(angle, d) if len(angle) else (np.nan, np.nan)
+    return Returns(wall, d, initial, returned, np.asarray(fin["collisions"]), angle, stat, p,
+                   time.perf_counter() - start)
+
+
+def first_flight_times(cfg, _spin_scale=1.0):
+    """Flight time from a billiard-measure sample on the boundary (``initial.wall`` or, without it, the whole
+    boundary) to the next collision -> (M,) times. With unit speed in (v, R√κ·ω) — the sampler's — these are
+    free path lengths in Q; on the whole boundary their mean is Santaló's :func:`rbx.analysis.santalo_mean_free_path`.
+    Trajectories that escape (no wall ahead) give inf."""
+    cfg = _quiet(cfg.replace(run=dataclasses.replace(cfg.run, collisions=1)))
+    geom = cfg.geometry()
+    sim = Simulation(cfg, state=_sample(cfg, geom, _spin_scale))
+    sim.run(_NullSink())
+    fin = sim.final_state()
+    return np.where(fin["collisions"] > 0, fin["time"], np.inf)
+
+
+def write_returns(path, cfg, result):
+    """Write the experiment to a new HDF5 file (via ``path.partial``, renamed at the end).
+
+    Root attributes as for ``rbx simulate`` (SPEC §5); group ``returns/``: ``angle`` (K,) return angles [rad],
+    ``trajectory`` (K,) their trajectory indices, ``collisions`` (K,) collisions to return, ``initial_angle``
+    (M,) sampled angles; attributes ``ks_statistic``, ``ks_pvalue``, ``wall``, ``samples``, ``returned``,
+    ``not_returned``, ``velocity_dimension``, ``predicted_density``, ``predicted_cdf``, ``seconds``."""
+    import os
+
+    import h5py
+
+    from . import __version__
+    from .output import SCHEMA_VERSION, config_yaml, open_for_writing, temporary_path
+
+    geom = cfg.geometry()
+    with open_for_writing(path) as h5:
+        a = h5.attrs
+        a["rbx_version"] = __version__
+        a["schema_version"] = SCHEMA_VERSION
+        a["dimension"] = cfg.dimension
+        a["config"] = config_yaml(cfg)
+        a["complete"] = True
+        a["table_kind"] = cfg.table_kind
+        a["wall_names"] = np.array(geom.wall_names, dtype=h5py.string_dtype())
+        a["radius"] = cfg.ball.radius
+        a["kappa"] = cfg.ball.kappa
+        a["collisions_requested"] = cfg.run.collisions
+        g = h5.create_group("returns")
+        g.create_dataset("angle", data=result.angle)
+        g.create_dataset("trajectory", data=np.nonzero(result.returned)[0].astype(np.int64))
+        g.create_dataset("collisions", data=result.collisions[result.returned].astype(np.int64))
+        g.create_dataset("initial_angle", data=result.initial_angle)
+        ga = g.attrs
+        ga["wall"] = "" if result.wall is None else geom.wall_names[result.wall]
+        ga["samples"] = result.samples
+        ga["returned"] = result.samples - result.not_returned
+        ga["not_returned"] = result.not_returned
+        ga["velocity_dimension"] = result.d
+        ga["predicted_density"] = f"{result.d - 1}·cos φ·sin^{result.d - 2} φ"
+        ga["predicted_cdf"] = f"sin^{result.d - 1} φ"
+        ga["ks_statistic"] = result.ks_statistic
+        ga["ks_pvalue"] = result.ks_pvalue
+        ga["seconds"] = result.seconds
+    os.replace(temporary_path(path), path)

@@ -1,0 +1,319 @@
+"""Figures from arrays: each function takes data (and, for drawing the table, a :class:`rbx.geometry.Geometry`)
+and returns a :class:`matplotlib.figure.Figure`. Nothing here reads files or simulates.
+
+Figures are built without pyplot, so no global state or GUI backend is involved: ``fig.savefig`` renders with
+matplotlib's Agg canvas. Units on the axes: L is the table's length unit, T the time unit of the config's
+velocities; a step is one collision.
+"""
+import numpy as np
+from matplotlib import colormaps
+from matplotlib.colors import Normalize
+from matplotlib.figure import Figure
+
+from . import analysis
+
+TABLE_STYLE = dict(color="0.15", lw=1.4)
+SHRUNK_STYLE = dict(color="0.45", lw=0.9, ls="--")
+MAX_LEGEND = 10
+
+
+def _figure(width, height, title):
+    fig = Figure(figsize=(width, height), layout="constrained")
+    fig.suptitle(title, fontsize=9)
+    return fig
+
+
+def _colour(i):
+    return colormaps["tab10"](i % 10)
+
+
+# ---- drawing the table -----------------------------------------------------------------------------------------
+
+
+def _extent(paths, dims=2):
+    pts = np.concatenate([p[:, :dims] for p in paths if len(p)] or [np.zeros((1, dims))])
+    pts = pts[np.all(np.isfinite(pts), axis=1)]
+    if len(pts) == 0:
+        pts = np.zeros((1, dims))
+    return pts.min(axis=0), pts.max(axis=0)
+
+
+def draw_table_2d(ax, geom, lo, hi):
+    """The table (solid) and the shrunk table seen by the centre (dashed) on 2D axes, to scale. Unbounded tables
+    are drawn over the data range [lo, hi] (and the axes limited to it)."""
+    R = geom.shrunk_radius
+    if geom.kind == "strip":
+        w = geom.size
+        for y, style in ((0.0, TABLE_STYLE), (w, TABLE_STYLE), (R, SHRUNK_STYLE), (w - R, SHRUNK_STYLE)):
+            ax.axhline(y, **style)
+        pad = 0.05 * max(hi[0] - lo[0], w)
+        ax.set_xlim(lo[0] - pad, hi[0] + pad)
+        ax.set_ylim(-0.1 * w, 1.1 * w)
+        return
+    if geom.kind == "wedge":
+        far = 10.0 * (np.max(np.abs(np.concatenate([lo, hi]))) + geom.size)
+        for line, style in ((geom.outline, TABLE_STYLE), (geom.shrunk_outline, SHRUNK_STYLE)):
+            apex = line[1]
+            rays = [apex + far * (p - apex) / np.linalg.norm(p - apex) for p in (line[0], line[2])]
+            ax.plot(*np.array([rays[0], apex, rays[1]]).T, **style)
+        span = max(np.max(hi - lo), geom.size)
+        ax.set_xlim(min(lo[0], 0.0) - 0.05 * span, max(hi[0], 0.0) + 0.05 * span)
+        ax.set_ylim(min(lo[1], 0.0) - 0.05 * span, max(hi[1], 0.0) + 0.05 * span)
+        return
+    if geom.kind in ("plates",):
+        return
+    if geom.kind == "box":  # horizontal projection of a box
+        lx, ly = _box_size(geom)[:2]
+        for (x0, y0, x1, y1), style in (((0, 0, lx, ly), TABLE_STYLE), ((R, R, lx - R, ly - R), SHRUNK_STYLE)):
+            ax.plot([x0, x1, x1, x0, x0], [y0, y0, y1, y1, y0], **style)
+        return
+    for line, style in ((geom.outline, TABLE_STYLE), (geom.shrunk_outline, SHRUNK_STYLE)):
+        if line is not None:
+            closed = np.vstack([line, line[:1]])
+            ax.plot(closed[:, 0], closed[:, 1], **style)
+
+
+def _box_size(geom):
+    """(lx, ly, lz) of a box table, from its walls (right, back, top are at l − R)."""
+    R = geom.shrunk_radius
+    origins = {w.name: w.patches[0][1] for w in geom.wall_list}
+    return np.array([origins["right"][0], origins["back"][1], origins["top"][2]]) + R
+
+
+# ---- orbits ----------------------------------------------------------------------------------------------------
+
+
+def orbit_figure(paths, geom, title, labels=None, points_only=False):
+    """The 2D path of the centre (or the horizontal projection of a 3D one) in the table drawn to scale.
+
+    ``paths``: list of (T_j, ≥2) arrays of positions, one per trajectory; consecutive collision points are joined
+    by straight segments (the free flights) unless ``points_only`` (records that skip collisions)."""
+    fig = _figure(6.4, 6.0, title)
+    ax = fig.add_subplot()
+    lo, hi = _extent(paths)
+    draw_table_2d(ax, geom, lo, hi)
+    for i, p in enumerate(paths):
+        style = dict(ls="none", marker=".", ms=2) if points_only else dict(lw=0.6)
+        ax.plot(p[:, 0], p[:, 1], color=_colour(i), label=labels[i] if labels else None, **style)
+        if len(p):
+            ax.plot(p[0, 0], p[0, 1], "o", color=_colour(i), ms=4)
+    ax.set_aspect("equal", adjustable="box")
+    # to scale, so the figure takes the table's shape (a long stretch of a strip: a wide, low figure)
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    width = 9.0 if (y1 - y0) < 0.5 * (x1 - x0) else 6.4
+    fig.set_size_inches(width, float(np.clip(width * (y1 - y0) / (x1 - x0) + 1.3, 2.6, 9.0)))
+    ax.set_xlabel("x [L]")
+    ax.set_ylabel("y [L]")
+    if labels and len(paths) <= MAX_LEGEND:
+        ax.legend(fontsize=7, loc="best")
+    return fig
+
+
+def orbit3d_figure(paths, geom, title, labels=None, points_only=False):
+    """The 3D path of the centre between plates or in a box, beside its horizontal projection (x, y)."""
+    fig = _figure(11.0, 5.2, title)
+    ax = fig.add_subplot(1, 2, 1, projection="3d")
+    lo, hi = _extent(paths, 3)
+    R = geom.shrunk_radius
+    style = dict(ls="none", marker=".", ms=2) if points_only else dict(lw=0.6)
+    for i, p in enumerate(paths):
+        ax.plot(p[:, 0], p[:, 1], p[:, 2], color=_colour(i), label=labels[i] if labels else None, **style)
+    if geom.kind == "plates":
+        gap = geom.size
+        pad = 0.05 * max(hi[0] - lo[0], hi[1] - lo[1], gap)
+        X, Y = np.meshgrid([lo[0] - pad, hi[0] + pad], [lo[1] - pad, hi[1] + pad])
+        for z, alpha in ((0.0, 0.18), (gap, 0.18)):
+            ax.plot_surface(X, Y, np.full_like(X, z), color="0.5", alpha=alpha, linewidth=0)
+        zlo, zhi = 0.0, gap
+    else:
+        size = _box_size(geom)
+        _box_edges(ax, np.zeros(3), size, TABLE_STYLE)
+        _box_edges(ax, np.full(3, R), size - R, SHRUNK_STYLE)
+        lo, hi = np.minimum(lo, 0.0), np.maximum(hi, size)
+        zlo, zhi = 0.0, size[2]
+    ranges = np.array([hi[0] - lo[0], hi[1] - lo[1], zhi - zlo])
+    ax.set_box_aspect(np.maximum(ranges, 0.2 * ranges.max()))  # to scale, unless a range is very thin
+    ax.set_xlabel("x [L]")
+    ax.set_ylabel("y [L]")
+    ax.set_zlabel("z [L]")
+    ax.set_title("3D path of the centre", fontsize=9)
+    ax2 = fig.add_subplot(1, 2, 2)
+    lo2, hi2 = _extent(paths)
+    draw_table_2d(ax2, geom, lo2, hi2)
+    for i, p in enumerate(paths):
+        ax2.plot(p[:, 0], p[:, 1], color=_colour(i), label=labels[i] if labels else None, **style)
+        if len(p):
+            ax2.plot(p[0, 0], p[0, 1], "o", color=_colour(i), ms=4)
+    ax2.set_aspect("equal", adjustable="datalim")
+    ax2.set_xlabel("x [L]")
+    ax2.set_ylabel("y [L]")
+    ax2.set_title("horizontal projection", fontsize=9)
+    if labels and len(paths) <= MAX_LEGEND:
+        ax2.legend(fontsize=7, loc="best")
+    return fig
+
+
+def _box_edges(ax, lo, hi, style):
+    for a in range(3):
+        b, c = [k for k in range(3) if k != a]
+        for u in (lo[b], hi[b]):
+            for w in (lo[c], hi[c]):
+                p, q = np.zeros(3), np.zeros(3)
+                p[a], q[a] = lo[a], hi[a]
+                p[b] = q[b] = u
+                p[c] = q[c] = w
+                ax.plot(*np.array([p, q]).T, **style)
+
+
+# ---- phase portraits -------------------------------------------------------------------------------------------
+
+
+def phase_figure(panels, colour, title, colour_label, categorical=True, labels=None):
+    """Scatter panels sharing one colouring. ``panels``: list of dicts with ``x``, ``y``, ``xlabel``, ``ylabel``
+    and optionally ``title``, ``vlines`` (x positions to mark, e.g. wall joints), ``lines`` (list of
+    (slope, label) lines through the origin), ``xlim``, ``ylim``, ``equal`` (bool). ``colour``: one value per
+    point — a trajectory index (``categorical``, legend from ``labels``) or a step (colour bar). A panel that
+    shows only some of the points gives their boolean mask as ``select``."""
+    fig = _figure(5.2 * len(panels) + 0.8, 5.0, title)
+    colour = np.asarray(colour)
+    if categorical:
+        keys = list(dict.fromkeys(colour.tolist()))
+        rgba = np.array([_colour(keys.index(c)) for c in colour.tolist()]).reshape(-1, 4)
+        norm = None
+    else:
+        norm = Normalize(float(np.min(colour)) if len(colour) else 0.0, float(np.max(colour)) if len(colour) else 1.0)
+        rgba = colormaps["viridis"](norm(colour))
+    ms = float(np.clip(30000.0 / max(len(colour), 1), 2.0, 12.0))  # marker area [pt²]
+    axes = []
+    for spec in panels:
+        ax = fig.add_subplot(1, len(panels), len(axes) + 1)
+        sel = spec.get("select")
+        ax.scatter(spec["x"], spec["y"], c=rgba if sel is None else rgba[sel], s=ms, lw=0, rasterized=True)
+        for v in spec.get("vlines", ()):
+            ax.axvline(v, color="0.6", lw=0.6, ls=":")
+        for slope, label in spec.get("lines", ()):
+            ax.axline((0.0, 0.0), slope=slope, color="0.3", lw=0.8, ls="--", label=label)
+        if "xlim" in spec:
+            ax.set_xlim(*spec["xlim"])
+        if "ylim" in spec:
+            ax.set_ylim(*spec["ylim"])
+        if spec.get("equal"):
+            ax.set_aspect("equal", adjustable="box")
+        ax.set_xlabel(spec["xlabel"])
+        ax.set_ylabel(spec["ylabel"])
+        if spec.get("title"):
+            ax.set_title(spec["title"], fontsize=9)
+        axes.append(ax)
+    if categorical and labels and len(keys) <= MAX_LEGEND:
+        for i, k in enumerate(keys):
+            axes[-1].plot([], [], "o", color=_colour(i), ms=4, label=labels[i])
+    if any(spec.get("lines") for spec in panels) or (categorical and labels and len(keys) <= MAX_LEGEND):
+        axes[-1].legend(fontsize=7, loc="upper right")
+    if not categorical:
+        from matplotlib.cm import ScalarMappable
+        fig.colorbar(ScalarMappable(norm=norm, cmap="viridis"), ax=axes, label=colour_label, shrink=0.85)
+    return fig
+
+
+# ---- series ----------------------------------------------------------------------------------------------------
+
+
+def series_figure(steps, values, title, ylabel, labels=None, scales=(0.01, 0.1, 1.0), points_only=False):
+    """A coordinate against the collision step at several time scales (paper Figure `graph`): one panel per
+    scale f, showing the first fraction f of the run. ``steps`` (T,), ``values``: list of (T,) arrays (one per
+    trajectory; NaN past a trajectory's end)."""
+    fig = _figure(8.0, 2.6 * len(scales) + 0.4, title)
+    steps = np.asarray(steps)
+    last = float(steps.max()) if len(steps) else 0.0
+    first = float(steps.min()) if len(steps) else 0.0
+    for k, f in enumerate(scales):
+        ax = fig.add_subplot(len(scales), 1, k + 1)
+        upto = first + f * (last - first)
+        sel = steps <= upto
+        for i, v in enumerate(values):
+            style = dict(ls="none", marker=".", ms=1.5) if points_only or sel.sum() > 200_000 else dict(lw=0.7)
+            ax.plot(steps[sel], np.asarray(v)[sel], color=_colour(i), label=labels[i] if labels else None,
+                    **style)
+        frac = "all" if f >= 1 else f"first 1/{round(1 / f)}" if abs(1 / f - round(1 / f)) < 1e-9 else f"first {f:g}"
+        ax.set_title(f"{frac} of the run (steps {first:.0f} – {upto:.0f})", fontsize=9)
+        ax.set_xlabel("collision step [–]")
+        ax.set_ylabel(ylabel)
+        if k == 0 and labels and 1 < len(values) <= MAX_LEGEND:
+            ax.legend(fontsize=7, loc="best")
+    return fig
+
+
+# ---- diffusion -------------------------------------------------------------------------------------------------
+
+
+def diffusion_figure(steps, msd, fit, displacement, title, coordinate="x"):
+    """Left: mean-square displacement against steps (log–log) with the fit 2·D·t + c and its confidence
+    interval; right: the distribution of the final displacement against the Gaussian of the fitted MSD."""
+    from scipy import stats
+    fig = _figure(11.0, 4.6, title)
+    ax = fig.add_subplot(1, 2, 1)
+    steps = np.asarray(steps, float)
+    ok = (steps > 0) & (np.asarray(msd) > 0)
+    ax.loglog(steps[ok], np.asarray(msd)[ok], ".", ms=3, color=_colour(0), label="ensemble MSD")
+    t = np.geomspace(fit.start, fit.stop, 200)                # the fit is drawn where it was made
+    model = fit.msd(t)
+    pct = round(100 * fit.confidence)
+    ax.loglog(t[model > 0], model[model > 0], "-", color="k", lw=1,
+              label=f"fit 2Dt + c: D = {fit.coefficient:.4g} ± {fit.half_width:.2g} L²/step ({pct}% CI)")
+    band_lo, band_hi = 2 * fit.low * t + fit.intercept, 2 * fit.high * t + fit.intercept
+    good = (band_lo > 0) & (band_hi > 0)
+    ax.fill_between(t[good], band_lo[good], band_hi[good], color="0.6", alpha=0.4, lw=0)
+    ax.axvspan(fit.start, fit.stop, color=_colour(2), alpha=0.07, label="fit window")
+    ax.set_xlabel("collision step [–]")
+    ax.set_ylabel(f"MSD ⟨Δ{coordinate}²⟩ [L²]")
+    ax.set_title(f"mean-square displacement, {fit.trajectories} trajectories", fontsize=9)
+    ax.legend(fontsize=7, loc="upper left")
+    ax2 = fig.add_subplot(1, 2, 2)
+    dx = np.asarray(displacement, float)
+    dx = dx[np.isfinite(dx)]
+    T = float(steps.max()) if len(steps) else 0.0
+    var = float(fit.msd(T))
+    ax2.hist(dx, bins=max(10, min(60, int(np.sqrt(len(dx))) + 1)), density=True, color=_colour(0), alpha=0.6,
+             label=f"Δ{coordinate} after {T:.0f} steps")
+    if var > 0:
+        sd = np.sqrt(var)
+        u = np.linspace(min(dx.min(), -4 * sd) if len(dx) else -4 * sd, max(dx.max(), 4 * sd) if len(dx) else 4 * sd,
+                        400)
+        p = stats.kstest(dx, stats.norm(0.0, sd).cdf).pvalue if len(dx) else np.nan
+        ax2.plot(u, stats.norm.pdf(u, 0.0, sd), "k-", lw=1.2,
+                 label=f"Gaussian, variance 2DT + c = {var:.3g} L² (KS p = {p:.2g})")
+    ax2.set_xlabel(f"displacement Δ{coordinate} [L]")
+    ax2.set_ylabel("density [1/L]")
+    ax2.set_title("displacement distribution", fontsize=9)
+    ax2.legend(fontsize=7, loc="upper left")
+    return fig
+
+
+# ---- the invariant-measure histogram ---------------------------------------------------------------------------
+
+
+def density_name(d):
+    if d == 3:
+        return "sin 2φ"
+    return f"{d - 1}·cos φ·sin{_superscript(d - 2)} φ"
+
+
+def _superscript(k):
+    return str(k).translate(str.maketrans("0123456789", "⁰¹²³⁴⁵⁶⁷⁸⁹"))
+
+
+def histogram_figure(angle, d, ks_statistic, ks_pvalue, title, bins=50):
+    """Histogram of return angles φ against the billiard-measure density (d−1)·cos φ·sin^(d−2) φ on [0, π/2]."""
+    fig = _figure(6.4, 4.6, title)
+    ax = fig.add_subplot()
+    ax.hist(angle, bins=bins, range=(0.0, np.pi / 2), density=True, color=_colour(0), alpha=0.65,
+            label=f"{len(angle)} return angles")
+    u = np.linspace(0.0, np.pi / 2, 400)
+    ax.plot(u, analysis.cos_law_pdf(u, d), "k-", lw=1.3,
+            label=f"predicted {density_name(d)} (KS D = {ks_statistic:.3g}, p = {ks_pvalue:.3g})")
+    ax.set_xlim(0.0, np.pi / 2)
+    ax.set_ylim(0.0, 1.25 * max(ax.get_ylim()[1], float(np.max(analysis.cos_law_pdf(u, d)))))
+    ax.set_xlabel("return angle φ to the normal [rad]")
+    ax.set_ylabel("density [1/rad]")
+    ax.legend(fontsize=8, loc="upper left" if d > 3 else "upper right")
+    return fig
