@@ -3,7 +3,7 @@ import click
 
 from .. import __version__
 from .simulate import simulate
-from . import histogram
+from . import histogram, plot
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -14,7 +14,7 @@ def cli():
 
 
 cli.add_command(simulate)
-for _command in (histogram.histogram,): cli.add_command(_command)
+for _command in (plot.plot, histogram.histogram): cli.add_command(_command)
 
 
 def main():

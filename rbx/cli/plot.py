@@ -1,0 +1,264 @@
+"""``rbx plot OUT.h5 --kind K``: pictures from a run (SPEC §4). Reads the file, picks records and trajectories,
+computes with :mod:`rbx.analysis` and draws with :mod:`rbx.plotting`; never simulates."""
+import os
+
+import click
+import numpy as np
+
+from .common import UserError, report_and_exit
+
+KINDS = ("orbit", "orbit3d", "phase", "series", "diffusion")
+#: --coordinate name -> (field, component or None, axis label, dimensions where it exists)
+COORDINATES = {
+    "x": ("position", 0, "x [L]", (2, 3)), "y": ("position", 1, "y [L]", (2, 3)), "z": ("position", 2, "z [L]", (3,)),
+    "vx": ("velocity", 0, "vₓ [L/T]", (2, 3)), "vy": ("velocity", 1, "v_y [L/T]", (2, 3)),
+    "vz": ("velocity", 2, "v_z [L/T]", (3,)),
+    "w": ("angular_velocity", None, "ω [rad/T]", (2,)), "wx": ("angular_velocity", 0, "ωₓ [rad/T]", (3,)),
+    "wy": ("angular_velocity", 1, "ω_y [rad/T]", (3,)), "wz": ("angular_velocity", 2, "ω_z [rad/T]", (3,)),
+    "theta": ("orientation", None, "θ [rad]", (2,)), "time": ("time", None, "t [T]", (2, 3)),
+}
+#: default number of trajectories drawn when --trajectories is not given
+DEFAULT_TRAJECTORIES = {"orbit": 10, "orbit3d": 10, "phase": 20, "series": 1, "diffusion": None}
+
+
+@click.command()
+@click.argument("run_file", metavar="OUT.h5", type=click.Path())
+@click.option("--kind", required=True, type=click.Choice(KINDS), help="Which picture.")
+@click.option("-o", "--output", "out", type=click.Path(dir_okay=False),
+              help="Figure to write (PNG, PDF, SVG; default: OUT_<kind>.png beside the run). Overwritten.")
+@click.option("--records", metavar="A:B[:C]", help="Record range, as a Python slice (record i = the state after "
+                                                     "collision i·every). Default: all.")
+@click.option("--trajectories", metavar="LIST", help="Trajectories to use: 0,1,2 or 0-9 or all. Default: the first "
+                                                    "10 (orbit), 20 (phase), 1 (series), all (diffusion).")
+@click.option("--color", "colour", type=click.Choice(["trajectory", "step"]), default="trajectory",
+              show_default=True, help="phase: colour points by trajectory or by collision step.")
+@click.option("--coordinate", default="x", show_default=True, type=click.Choice(list(COORDINATES)),
+              help="series, diffusion: the coordinate to follow.")
+@click.option("--scales", default="0.01,0.1,1", show_default=True,
+              help="series: fractions of the run shown in the panels.")
+@click.option("--fit-from", default=0.1, show_default=True, type=float,
+              help="diffusion: fit the MSD over steps ≥ this fraction of the last step.")
+@click.option("--dpi", default=150, show_default=True, type=int, help="Resolution of raster figures.")
+@click.option("--debug", is_flag=True, help="Show a traceback with user errors.")
+def plot(run_file, kind, out, records, trajectories, colour, coordinate, scales, fit_from, dpi, debug):
+    """Draw a picture of the run OUT.h5 (written by rbx simulate)."""
+    try:
+        path = _plot(run_file, kind, out, records, trajectories, colour, coordinate, scales, fit_from, dpi)
+    except UserError as exc:
+        report_and_exit(exc, debug)
+    click.echo(f"wrote {path}")
+
+
+def _plot(run_file, kind, out, records, trajectories, colour, coordinate, scales, fit_from, dpi):
+    fig = make_figure(run_file, kind, parse_records(records), trajectories, colour=colour, coordinate=coordinate,
+                      scales=parse_scales(scales), fit_from=fit_from)
+    path = out or f"{os.path.splitext(run_file)[0]}_{kind}.png"
+    try:
+        os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
+        fig.savefig(path, dpi=dpi)
+    except (OSError, ValueError) as exc:
+        raise UserError(path, None, f"cannot write the figure: {getattr(exc, 'strerror', None) or exc}") from None
+    return path
+
+
+def make_figure(run_file, kind, records=slice(None), trajectories=None, **options):
+    """The Figure of one picture of a run file -> matplotlib Figure (for the CLI, figure scripts and tests).
+
+    ``trajectories``: text as for --trajectories, or None for the kind's default; ``options``: colour,
+    coordinate, scales, fit_from. Problems with the file or the selection raise :class:`UserError`."""
+    from ..analysis import RunFile, RunFileError
+
+    try:
+        run = RunFile(run_file)
+    except RunFileError as exc:
+        raise UserError(exc.file, None, exc.problem) from None
+    with run:
+        traj = parse_trajectories(trajectories, run.trajectories, DEFAULT_TRAJECTORIES[kind], run.path)
+        try:
+            return _BUILDERS[kind](run, records, traj, **options)
+        except RunFileError as exc:
+            raise UserError(exc.file, None, exc.problem) from None
+        except ValueError as exc:
+            raise UserError(run.path, None, str(exc)) from None
+
+
+# ---- options ---------------------------------------------------------------------------------------------------
+
+
+def parse_records(text):
+    """'A:B', 'A:', ':B', 'A:B:C' -> slice (Python semantics)."""
+    if text is None:
+        return slice(None)
+    parts = text.split(":")
+    try:
+        if len(parts) not in (2, 3):
+            raise ValueError
+        vals = [int(p) if p.strip() else None for p in parts]
+    except ValueError:
+        raise UserError("--records", None, f"expected A:B or A:B:C (integers, either may be empty), got '{text}'") \
+            from None
+    if len(vals) == 3 and vals[2] is not None and vals[2] <= 0:
+        raise UserError("--records", None, f"the stride must be positive, got {vals[2]}")
+    return slice(*vals)
+
+
+def parse_trajectories(text, available, default, file):
+    """'0,1,2', '0-9', 'all' -> sorted list of trajectory indices (default: the first ``default`` or all)."""
+    if text is None or text.strip() == "all":
+        count = available if text is not None or default is None else min(default, available)
+        return list(range(count))
+    out = set()
+    try:
+        for part in text.split(","):
+            if "-" in part.strip()[1:]:
+                a, b = part.split("-", 1)
+                out.update(range(int(a), int(b) + 1))
+            else:
+                out.add(int(part))
+    except ValueError:
+        raise UserError("--trajectories", None, f"expected a list like 0,1,2 or 0-9 or all, got '{text}'") from None
+    bad = [j for j in sorted(out) if j < 0 or j >= available]
+    if bad:
+        raise UserError(file, "--trajectories", f"trajectory {bad[0]} does not exist (the run has {available}: "
+                                                f"0–{available - 1})")
+    if not out:
+        raise UserError("--trajectories", None, "no trajectory selected")
+    return sorted(out)
+
+
+def parse_scales(text):
+    try:
+        vals = [float(x) for x in text.split(",")]
+    except ValueError:
+        vals = []
+    if not vals or any(not 0 < v <= 1 for v in vals):
+        raise UserError("--scales", None, f"expected fractions in (0, 1] separated by commas, got '{text}'")
+    return vals
+
+
+# ---- assembling the data of each picture -----------------------------------------------------------------------
+
+
+def _span(items):
+    items = list(items)
+    if len(items) > 1 and items == list(range(items[0], items[-1] + 1)):
+        return f"{items[0]}–{items[-1]}"
+    return ",".join(str(i) for i in items[:8]) + ("…" if len(items) > 8 else "")
+
+
+def _title(run, what, traj, rec):
+    steps = run.steps[rec]
+    trange = f"trajectory {traj[0]}" if len(traj) == 1 else f"trajectories {_span(traj)}"
+    srange = f"collisions {steps.min()}–{steps.max()}" if len(steps) else "no records"
+    extra = "" if run.complete else " · INCOMPLETE RUN"
+    every = f" (a record every {run.every} collisions)" if run.every > 1 else ""
+    return f"{run.scene()}\n{what} · {trange} of {run.trajectories} · {srange}{every}{extra}"
+
+
+def _paths(run, rec, traj):
+    run.require(["position"], "this picture")
+    pos = run.read("position", traj, rec)
+    return [p[np.all(np.isfinite(p), axis=1)] for p in pos]
+
+
+def _orbit(run, rec, traj, **_):
+    from .. import plotting
+    paths = _paths(run, rec, traj)
+    what = "orbit of the centre" if run.dimension == 2 else "horizontal projection of the orbit"
+    return plotting.orbit_figure(paths, run.geometry(), _title(run, what, traj, rec),
+                                 labels=[f"trajectory {j}" for j in traj], points_only=run.every > 1)
+
+
+def _orbit3d(run, rec, traj, **_):
+    from .. import plotting
+    from ..analysis import RunFileError
+    if run.dimension != 3:
+        raise RunFileError(run.path, "orbit3d needs a 3D run (plates or box); this one is 2D: use --kind orbit")
+    return plotting.orbit3d_figure(_paths(run, rec, traj), run.geometry(), _title(run, "orbit", traj, rec),
+                                   labels=[f"trajectory {j}" for j in traj], points_only=run.every > 1)
+
+
+def _phase(run, rec, traj, colour="trajectory", **_):
+    from .. import analysis, plotting
+    run.require(["position", "velocity", "angular_velocity", "wall"], "the phase portrait")
+    wall = run.read("wall", traj, rec)
+    pos = run.read("position", traj, rec)
+    vel = run.read("velocity", traj, rec)
+    spin = run.read("angular_velocity", traj, rec)
+    steps = np.broadcast_to(run.steps[rec], wall.shape)
+    which = np.broadcast_to(np.arange(len(traj))[:, None], wall.shape)
+    at = wall >= 0                                     # records made at a collision (not record 0, not past the end)
+    wall, pos, vel, spin, steps, which = wall[at], pos[at], vel[at], spin[at], steps[at], which[at]
+    if len(wall) == 0:
+        raise ValueError("no collisions in the selected records")
+    geom = run.geometry()
+    s, nu = analysis.locate(geom, wall, pos)
+    tangents = [w.tangents for w in geom.wall_list]
+    panels = []
+    if run.dimension == 2:
+        _, sin_psi = analysis.birkhoff_coordinates(geom, wall, pos, vel)
+        total = analysis.boundary_length(geom)
+        if np.isfinite(total):
+            panels.append(dict(x=s, y=sin_psi, xlabel="arc length s along the shrunk boundary [L]",
+                               ylabel="sin ψ = v·t/|v| [–]", ylim=(-1.05, 1.05), xlim=(0.0, total),
+                               vlines=analysis.wall_joints(geom), title="Birkhoff coordinates of the boundary map"))
+        else:  # unbounded walls (strip, wedge): one panel per wall, along the wall's own axis (x for the strip)
+            for w, name in enumerate(run.wall_names):
+                _, origin, _, axes = geom.wall_list[w].patches[0]
+                e = np.asarray(axes[0][0], float)
+                on = wall == w
+                panels.append(dict(x=(pos[on] - origin) @ e, y=(vel[on] @ e) / np.linalg.norm(vel[on], axis=1),
+                                   select=on, xlabel=f"position along wall '{name}' [L]",
+                                   ylabel="sin ψ = v·e/|v|, e along the wall [–]", ylim=(-1.05, 1.05),
+                                   title=f"boundary map on wall '{name}'"))
+    for x, y, xn, yn in analysis.spin_planes(wall, nu, vel, spin, run.radius, run.kappa, tangents):
+        lim = 1.05 * float(np.max(np.abs(np.concatenate([x, y])))) or 1.0
+        panel = dict(x=x, y=y, xlabel=f"{xn} [L/T]", ylabel=f"{yn} [L/T]", equal=True, xlim=(-lim, lim),
+                     ylim=(-lim, lim), title="tangential velocity against spin at collisions")
+        if run.dimension == 2:
+            panel["lines"] = [(-np.sqrt(run.kappa), "no slip: v·t + Rω = 0")]
+        else:
+            panel["lines"] = [(np.sqrt(run.kappa), "no slip")]
+        panels.append(panel)
+    categorical = colour == "trajectory"
+    return plotting.phase_figure(panels, [traj[k] for k in which] if categorical else steps,
+                                 _title(run, "phase portrait at collisions", traj, rec),
+                                 colour_label="collision step", categorical=categorical,
+                                 labels=[f"trajectory {j}" for j in traj])
+
+
+def _coordinate(run, name, traj, rec):
+    from ..analysis import RunFileError
+    field, comp, label, dims = COORDINATES[name]
+    if run.dimension not in dims:
+        raise RunFileError(run.path, f"--coordinate {name} does not exist in a {run.dimension}D run")
+    run.require([field], f"--coordinate {name}")
+    data = run.read(field, traj, rec)
+    return (data if comp is None else data[..., comp]), label
+
+
+def _series(run, rec, traj, coordinate="x", scales=(0.01, 0.1, 1.0), **_):
+    from .. import plotting
+    values, label = _coordinate(run, coordinate, traj, rec)
+    return plotting.series_figure(run.steps[rec], list(values), _title(run, f"{coordinate} against step", traj, rec),
+                                  label, labels=[f"trajectory {j}" for j in traj], scales=scales,
+                                  points_only=run.every > 1)
+
+
+def _diffusion(run, rec, traj, coordinate="x", fit_from=0.1, **_):
+    from .. import analysis, plotting
+    if len(traj) < 2:
+        raise ValueError("the diffusion plot needs an ensemble: at least 2 trajectories")
+    x, _ = _coordinate(run, coordinate, traj, rec)
+    steps = run.steps[rec].astype(float)
+    if len(steps) < 3:
+        raise ValueError("the diffusion plot needs at least 3 records")
+    t = steps - steps[0]
+    msd = analysis.mean_square_displacement(x)
+    fit = analysis.fit_diffusion(t, x, fit_from=fit_from)
+    full = np.all(np.isfinite(x), axis=1)
+    return plotting.diffusion_figure(t, msd, fit, (x[full, -1] - x[full, 0]),
+                                     _title(run, f"diffusion along {coordinate}", traj, rec), coordinate=coordinate)
+
+
+_BUILDERS = {"orbit": _orbit, "orbit3d": _orbit3d, "phase": _phase, "series": _series, "diffusion": _diffusion}

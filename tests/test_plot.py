@@ -1,0 +1,311 @@
+"""``rbx plot`` and the analysis behind it, on small real runs written by ``rbx simulate`` in a temporary folder.
+
+Every kind renders (in-process: the Figure's axes carry labels with units and the title names the scene and
+rule; through the CLI in a subprocess: a PNG of reasonable size), the coordinates the pictures show obey the
+physics they should (conserved planes, the closed-form rough map, caustic periodicity), and bad files give exit
+code 2 with one line.
+"""
+import math
+import os
+import subprocess
+import sys
+
+import h5py
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from rbx import analysis
+from rbx.cli.main import cli
+from rbx.cli.plot import make_figure
+from rbx.cli.common import UserError
+
+ROUGH = "{rule: constant, rank: 1}"
+RUNS = {
+    "strip": f"""table: {{kind: strip, width: 1.0}}
+boundary: {{default: {{rule: hemisphere, axis: [1.0, 0.0], rough: {ROUGH}, smooth: {{rule: constant, rank: 0}}}}}}
+ball: {{radius: 0.1}}
+initial: {{position: [0.0, 0.5], velocity: [0.6, 0.8], angular_velocity: 0.0, orientation: 0.3}}
+run: {{collisions: 3000}}
+""",
+    "random": """table: {kind: strip, width: 1.0}
+boundary: {default: {rule: random, choices: [{rule: constant, rank: 0}, {rule: constant, rank: 1}],
+                     probabilities: [0.5, 0.5]}}
+ball: {radius: 0.1}
+initial: {sample: billiard, wall: bottom}
+run: {collisions: 1000, trajectories: 40, seed: 3}
+output: {record: [position], every: 5}
+""",
+    "lshape": f"""table: {{kind: polygon, vertices: [[0, 0], [2, 0], [2, 1], [1, 1], [1, 2], [0, 2]]}}
+boundary: {{default: {ROUGH}}}
+ball: {{radius: 0.1}}
+initial: {{sample: billiard}}
+run: {{collisions: 300, trajectories: 3, seed: 1}}
+""",
+    "circle": f"""table: {{kind: circle, radius: 1.0}}
+boundary: {{default: {ROUGH}}}
+ball: {{radius: 0.1}}
+initial: [{{position: [0.2, 0.1], velocity: [0.6, 0.8], angular_velocity: 1.0}},
+          {{position: [0.5, 0.0], velocity: [0.1, 1.0], angular_velocity: -2.0}}]
+run: {{collisions: 200}}
+""",
+    "plates": """table: {kind: plates, gap: 1.0}
+boundary: {default: {rule: constant, rank: 2}}
+ball: {radius: 0.1}
+initial: {position: [0, 0, 0.5], velocity: [0.6, 0.3, 0.7], angular_velocity: [0.2, -1.0, 0.5]}
+run: {collisions: 400}
+""",
+    "box": """table: {kind: box, size: [1.0, 1.2, 0.8]}
+boundary: {default: {rule: constant, rank: 2}}
+ball: {radius: 0.1}
+initial: {sample: billiard}
+run: {collisions: 100, trajectories: 2, seed: 2}
+""",
+}
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    """name -> path of a real HDF5 run, written by `rbx simulate` (in-process, through the CLI)."""
+    folder = tmp_path_factory.mktemp("runs")
+    out = {}
+    for name, text in RUNS.items():
+        conf = folder / f"{name}.yaml"
+        conf.write_text(text)
+        h5 = folder / f"{name}.h5"
+        result = CliRunner().invoke(cli, ["simulate", str(conf), "-o", str(h5), "--quiet"])
+        assert result.exit_code == 0, result.output
+        out[name] = str(h5)
+    return out
+
+
+def labelled(fig):
+    """Every data axes has x and y labels (and z in 3D) with units in brackets; colour bars are skipped."""
+    axes = [ax for ax in fig.axes if ax.get_label() != "<colorbar>"]
+    assert axes
+    for ax in axes:
+        labels = [ax.get_xlabel(), ax.get_ylabel()] + ([ax.get_zlabel()] if hasattr(ax, "get_zlabel") else [])
+        for text in labels:
+            assert text and "[" in text and "]" in text, (text, labels)
+    return axes
+
+
+CASES = [("orbit", "lshape", {}), ("orbit", "circle", {}), ("orbit", "strip", {"records": slice(0, 200)}),
+         ("orbit", "plates", {}), ("orbit3d", "plates", {}), ("orbit3d", "box", {}),
+         ("phase", "lshape", {}), ("phase", "strip", {"colour": "step"}), ("phase", "plates", {}),
+         ("series", "strip", {}), ("series", "random", {"trajectories": "0,1,2"}), ("diffusion", "random", {})]
+
+
+@pytest.mark.parametrize("kind,run,options", CASES, ids=[f"{k}-{r}" for k, r, _ in CASES])
+def test_every_kind_renders_with_labelled_axes(runs, kind, run, options):
+    options = dict(options)
+    records = options.pop("records", slice(None))
+    trajectories = options.pop("trajectories", None)
+    fig = make_figure(runs[run], kind, records, trajectories, **options)
+    axes = labelled(fig)
+    title = fig._suptitle.get_text()
+    assert (" in a " in title or " between plates " in title) and "·" in title
+    assert {"strip": "hemisphere", "random": "random", "lshape": "rough", "circle": "rough", "plates": "rough",
+            "box": "rough"}[run] in title
+    if kind == "orbit3d":
+        assert axes[0].name == "3d" and len(axes) == 2
+    if kind == "series":
+        assert len(axes) == 3
+        ends = [ax.get_lines()[0].get_xdata().max() for ax in axes]
+        assert ends[0] < ends[1] < ends[2]            # 1/100, 1/10 and all of the run
+
+
+@pytest.mark.parametrize("kind,run", [("orbit", "lshape"), ("orbit3d", "plates"), ("phase", "lshape"),
+                                      ("series", "strip"), ("diffusion", "random")])
+def test_cli_writes_a_png(runs, tmp_path, kind, run):
+    png = tmp_path / f"{kind}.png"
+    exe = os.path.join(os.path.dirname(sys.executable), "rbx")
+    r = subprocess.run([exe, "plot", runs[run], "--kind", kind, "-o", str(png)], capture_output=True, text=True,
+                       timeout=300)
+    assert r.returncode == 0, r.stderr
+    data = png.read_bytes()
+    assert data[:8] == b"\x89PNG\r\n\x1a\n"
+    assert 20_000 < len(data) < 5_000_000
+    from matplotlib.image import imread
+    height, width = imread(str(png)).shape[:2]
+    assert width >= 600 and height >= 300
+
+
+def test_default_figure_path_beside_the_run(runs, tmp_path):
+    import shutil
+    h5 = tmp_path / "copy.h5"
+    shutil.copy(runs["circle"], h5)
+    result = CliRunner().invoke(cli, ["plot", str(h5), "--kind", "orbit"])
+    assert result.exit_code == 0, result.output
+    assert (tmp_path / "copy_orbit.png").stat().st_size > 20_000
+
+
+# ---- what the pictures show ------------------------------------------------------------------------------------
+
+
+def read(path, *fields):
+    with analysis.RunFile(path) as run:
+        traj = list(range(run.trajectories))
+        return run, run.geometry(), [run.read(f, traj) for f in fields]
+
+
+def test_plates_rank2_spin_planes_are_circles(runs):
+    """Completely rough plates: v·e₁² + κR²(ω·e₂)² and v·e₂² + κR²(ω·e₁)² are conserved by the map at either
+    plate, so each picture plane shows a circle."""
+    run, geom, (wall, pos, vel, spin) = read(runs["plates"], "wall", "position", "velocity", "angular_velocity")
+    at = wall[0] >= 0
+    _, nu = analysis.locate(geom, wall[0][at], pos[0][at])
+    planes = analysis.spin_planes(wall[0][at], nu, vel[0][at], spin[0][at], run.radius, run.kappa,
+                                  [w.tangents for w in geom.wall_list])
+    for x, y, _, _ in planes:
+        r = np.hypot(x, y)
+        assert r.std() < 1e-9 * r.mean()
+
+
+def test_spin_plane_follows_the_closed_form_rough_map(runs):
+    """At each collision, (v₀, v·Jν) after = [[(κ−1)/(1+κ), 2√κ/(1+κ)], [2√κ/(1+κ), (1−κ)/(1+κ)]]·before (SPEC §1),
+    with the plane's axis v·t = −v·Jν; 'before' is the previous record (a free flight changes neither)."""
+    run, geom, (wall, pos, vel, spin) = read(runs["lshape"], "wall", "position", "velocity", "angular_velocity")
+    k = run.kappa
+    T = np.array([[(k - 1) / (1 + k), 2 * math.sqrt(k) / (1 + k)], [2 * math.sqrt(k) / (1 + k), (1 - k) / (1 + k)]])
+    for j in range(run.trajectories):
+        w, p, v, s = wall[j, 1:], pos[j, 1:], vel[j], spin[j]
+        _, nu = analysis.locate(geom, w, p)
+        [(after_t, after_0, _, _)] = analysis.spin_planes(w, nu, v[1:], s[1:], run.radius, k)
+        [(before_t, before_0, _, _)] = analysis.spin_planes(w, nu, v[:-1], s[:-1], run.radius, k)
+        predicted = T @ np.array([before_0, -before_t])
+        np.testing.assert_allclose(after_0, predicted[0], atol=1e-10)
+        np.testing.assert_allclose(-after_t, predicted[1], atol=1e-10)
+
+
+def test_birkhoff_coordinates_in_a_polygon(runs):
+    """s lies in its wall's stretch of the boundary, agrees with the position on straight walls, |sin ψ| ≤ 1."""
+    run, geom, (wall, pos, vel) = read(runs["lshape"], "wall", "position", "velocity")
+    at = wall >= 0
+    w, p, v = wall[at], pos[at], vel[at]
+    s, sin_psi = analysis.birkhoff_coordinates(geom, w, p, v)
+    edges = [0.0] + analysis.wall_joints(geom) + [analysis.boundary_length(geom)]
+    assert len(edges) == 7
+    assert np.all((s >= np.take(edges, w) - 1e-12) & (s <= np.take(edges, w + 1) + 1e-12))
+    assert np.all(np.abs(sin_psi) <= 1)
+    bottom = w == 0
+    np.testing.assert_allclose(s[bottom], p[bottom, 0] - 0.1, atol=1e-12)
+    np.testing.assert_allclose(sin_psi[bottom], v[bottom, 0] / np.linalg.norm(v[bottom], axis=1), atol=1e-12)
+    left = w == 5                                      # traversed downwards: s = total − (y − R)
+    np.testing.assert_allclose(s[left], edges[-1] - (p[left, 1] - 0.1), atol=1e-12)
+
+
+def test_circle_collisions_repeat_with_period_two_in_birkhoff_coordinates(runs):
+    """Paper Proposition (circular rough billiard): the vertex angle is constant and the segments touch two
+    caustic circles alternately, so sin ψ repeats every second collision."""
+    run, geom, (wall, pos, vel) = read(runs["circle"], "wall", "position", "velocity")
+    for j in range(run.trajectories):
+        s, sin_psi = analysis.birkhoff_coordinates(geom, wall[j, 1:], pos[j, 1:], vel[j, 1:])
+        np.testing.assert_allclose(sin_psi[2:], sin_psi[:-2], atol=1e-9)
+        assert np.all((s >= 0) & (s <= 2 * math.pi * 0.9 + 1e-12))
+
+
+# ---- diffusion -------------------------------------------------------------------------------------------------
+
+
+def test_diffusion_fit_recovers_a_known_coefficient():
+    """±1 random walks: MSD = t, D = 1/2 per step; the 95% interval covers it about 95% of the time."""
+    rng = np.random.default_rng(0)
+    t = np.arange(0, 201, 5.0)
+    hits, reps = 0, 200
+    for _ in range(reps):
+        steps = rng.choice([-1.0, 1.0], size=(60, 200))
+        x = np.concatenate([np.zeros((60, 1)), np.cumsum(steps, axis=1)], axis=1)[:, ::5]
+        fit = analysis.fit_diffusion(t, x)
+        hits += fit.low <= 0.5 <= fit.high
+    assert 0.88 <= hits / reps <= 0.99
+    assert fit.trajectories == 60 and fit.start >= 20 and fit.stop == 200
+
+
+def test_diffusion_fit_skips_trajectories_that_ended_early():
+    rng = np.random.default_rng(1)
+    x = np.cumsum(rng.standard_normal((30, 101)), axis=1)
+    x[:, 0] = 0
+    x[3, 50:] = np.nan
+    fit = analysis.fit_diffusion(np.arange(101.0), x)
+    assert fit.trajectories == 29
+    assert np.isfinite(analysis.mean_square_displacement(x)).all()
+    with pytest.raises(ValueError):
+        analysis.fit_diffusion(np.arange(101.0), x[3:4])
+
+
+def test_diffusion_figure_reports_the_fit(runs):
+    fig = make_figure(runs["random"], "diffusion")
+    left, right = labelled(fig)
+    legend = " ".join(t.get_text() for t in left.get_legend().get_texts())
+    assert "D = " in legend and "95% CI" in legend
+    with analysis.RunFile(runs["random"]) as run:
+        x = run.read("position", list(range(run.trajectories)))[..., 0]
+        fit = analysis.fit_diffusion(run.steps.astype(float), x)
+    assert fit.low < fit.coefficient < fit.high and fit.coefficient > 0
+    assert f"{fit.coefficient:.4g}" in legend
+
+
+# ---- errors ----------------------------------------------------------------------------------------------------
+
+
+def plot_error(*args):
+    result = CliRunner().invoke(cli, ["plot", *args])
+    assert result.exit_code == 2, (result.output, result.exception)
+    lines = result.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("rbx: ") and "Traceback" not in result.output
+    return lines[0]
+
+
+def test_missing_and_foreign_files(tmp_path):
+    assert "file not found" in plot_error(str(tmp_path / "nope.h5"), "--kind", "orbit")
+    text = tmp_path / "text.h5"
+    text.write_text("not hdf5\n")
+    assert plot_error(str(text), "--kind", "orbit") == f"rbx: {text}: not an HDF5 file (or unreadable)"
+    other = tmp_path / "other.h5"
+    with h5py.File(other, "w") as f:
+        f["x"] = np.arange(3)
+    assert "not an rbx run" in plot_error(str(other), "--kind", "phase")
+    assert "is a directory" in plot_error(str(tmp_path), "--kind", "orbit")
+
+
+def test_histogram_output_is_not_a_run(tmp_path):
+    path = tmp_path / "returns.h5"
+    with h5py.File(path, "w") as f:
+        for k, v in dict(dimension=2, config="table: {kind: rectangle}", table_kind="rectangle", radius=0.1,
+                         kappa=0.5, wall_names=["a"]).items():
+            f.attrs[k] = v
+        f["returns/angle"] = np.zeros(3)
+    assert "rbx histogram" in plot_error(str(path), "--kind", "orbit")
+
+
+def test_missing_fields_and_wrong_kinds(runs):
+    msg = plot_error(runs["random"], "--kind", "phase")
+    assert "collisions/velocity" in msg and "output.record" in msg
+    assert "3D run" in plot_error(runs["circle"], "--kind", "orbit3d")
+    assert "at least 2 trajectories" in plot_error(runs["strip"], "--kind", "diffusion")
+    assert "does not exist in a 2D run" in plot_error(runs["strip"], "--kind", "series", "--coordinate", "z")
+    assert "trajectory 7 does not exist" in plot_error(runs["lshape"], "--kind", "orbit", "--trajectories", "0,7")
+    assert "--records" in plot_error(runs["lshape"], "--kind", "orbit", "--records", "abc")
+    assert "--scales" in plot_error(runs["strip"], "--kind", "series", "--scales", "0,2")
+    with pytest.raises(UserError):
+        make_figure(runs["lshape"], "orbit", trajectories="-3")
+
+
+def test_incomplete_runs_are_plotted_and_marked(runs, tmp_path):
+    import shutil
+    h5 = tmp_path / "partial.h5"
+    shutil.copy(runs["lshape"], h5)
+    with h5py.File(h5, "a") as f:
+        f.attrs["complete"] = False
+    fig = make_figure(str(h5), "orbit")
+    assert "INCOMPLETE" in fig._suptitle.get_text()
+
+
+def test_displacement_panel_draws_a_gaussian_density(runs):
+    """The displacement panel's curve is the Gaussian of the fitted MSD at the last step (a density: area 1)."""
+    fig = make_figure(runs["random"], "diffusion")
+    curve = fig.axes[1].get_lines()[0]
+    x, y = curve.get_xdata(), curve.get_ydata()
+    assert np.trapezoid(y, x) == pytest.approx(1.0, abs=1e-3)
+    assert x[np.argmax(y)] == pytest.approx(0.0, abs=(x[1] - x[0]))
