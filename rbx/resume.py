@@ -1,0 +1,125 @@
+"""Continue an interrupted run from its HDF5 file (``rbx simulate --resume``).
+
+Everything needed is in the file: the fully resolved config (root attribute ``config``) and, in ``final/``, the
+last state of every trajectory with its collision and random-draw counters. Random streams are counter-based
+(:mod:`rbx.rng`: draw k of trajectory j depends only on (seed, j, k)), and records fall on the collisions whose
+number is a multiple of ``output.every`` whatever the block boundaries, so a resumed run writes exactly the
+records an uninterrupted run would have written.
+
+The records in the file are first cut back to what ``final/`` accounts for: an uninterrupted run writes a block's
+records before its checkpoint, so after a hard kill between the two the file may hold a few records past the
+saved state; those are dropped and recomputed. A file with no ``final/`` (stopped before its first block) starts
+over from the config's initial state.
+"""
+import numpy as np
+
+from . import __version__
+from .config import RECORD_FIELDS, ConfigError, loads
+from .simulate import Simulation
+
+#: what ``final/`` must hold to continue (Simulation takes the rest from the config)
+STATE_KEYS = ("time", "position", "velocity", "angular_velocity", "orientation", "collisions", "draws", "alive",
+              "last_wall", "last_rank")
+
+
+def read_config(h5, source):
+    """The validated config stored in a run file -> :class:`rbx.config.Config`; errors name ``source``."""
+    text = h5.attrs["config"]
+    if isinstance(text, bytes):
+        text = text.decode("utf-8", "replace")
+    if not isinstance(text, str):
+        raise ConfigError(source, "config", "the root attribute is not YAML text")
+    try:
+        return loads(text, source)
+    except ConfigError as exc:
+        raise ConfigError(source, f"config: {exc.key}" if exc.key else "config", exc.problem) from None
+
+
+def load(h5, source):
+    """Read an incomplete run (the file is only read) -> (Simulation, write_initial, done).
+
+    ``done``: collisions already made by the trajectories still running; ``write_initial``: True when the file
+    has no saved state yet and the run starts over. Raises :class:`rbx.config.ConfigError` (naming ``source``)
+    if the file does not hold a run that can be continued. Then call :func:`make_consistent` on a writable copy."""
+    cfg = read_config(h5, source)
+
+    def damaged(key, problem):
+        return ConfigError(source, key, f"{problem}; the file cannot be resumed")
+
+    if int(h5.attrs["dimension"]) != cfg.dimension:
+        raise damaged("dimension", f"is {int(h5.attrs['dimension'])} but the stored config is {cfg.dimension}D")
+    g = h5.get("collisions")
+    if g is None or "count" not in g or "step" not in g:
+        raise damaged("collisions", "missing or without count/step")
+    recorded = tuple(f for f in RECORD_FIELDS if f in g)
+    if recorded != cfg.output.record:
+        raise damaged("collisions", f"holds {', '.join(recorded) or 'no fields'} but the config records "
+                                    f"{', '.join(cfg.output.record) or 'no fields'}")
+    M = cfg.run.trajectories
+    for f in recorded + ("count",):
+        if g[f].shape[0] != M:
+            raise damaged(f"collisions/{f}", f"has {g[f].shape[0]} trajectories, the config {M}")
+
+    fin = h5.get("final")
+    if fin is None or any(k not in fin for k in STATE_KEYS):
+        return Simulation(cfg), True, 0
+    state = {k: fin[k][...] for k in fin}
+    for k in STATE_KEYS:
+        if state[k].shape[:1] != (M,):
+            raise damaged(f"final/{k}", f"has shape {state[k].shape}, expected {M} trajectories first")
+    collisions = state["collisions"].astype(np.int64)
+    alive = state["alive"].astype(bool)
+    running = np.unique(collisions[alive])
+    if running.size > 1:
+        raise damaged("final/collisions", "the running trajectories are at different collisions")
+    if np.any(collisions < 0) or np.any(collisions > cfg.run.collisions):
+        raise damaged("final/collisions", "out of range")
+    if cfg.output.record:
+        expected = 1 + collisions // cfg.output.every   # record 0 and one per ``every`` collisions
+        if g["step"].shape[0] < expected.max() or np.any(g["count"][...] < expected):
+            raise damaged("collisions/count", "fewer records than the saved state accounts for")
+    done = int(running[0]) if running.size else cfg.run.collisions
+    return Simulation(cfg, state), False, done
+
+
+def make_consistent(h5, sim, write_initial):
+    """Bring the records of a writable copy in line with the state :func:`load` read: cut records past it (or,
+    with ``write_initial``, all of them) and set ``count``."""
+    g = h5["collisions"]
+    if write_initial:
+        _reset(h5, g, sim.cfg)
+    else:
+        _cut_back(g, sim.cfg, sim.ncoll)
+
+
+def _cut_back(g, cfg, collisions):
+    """Drop records past the saved state; set ``count`` to what the state accounts for."""
+    if not cfg.output.record:
+        g["count"][...] = 0
+        return
+    expected = 1 + collisions // cfg.output.every
+    length = int(expected.max())
+    for f in cfg.output.record:
+        g[f].resize(length, axis=1)
+    g["step"].resize(length, axis=0)
+    g["count"][...] = expected
+
+
+def _reset(h5, g, cfg):
+    """A run stopped before its first checkpoint: empty the record datasets, to be written from record 0."""
+    for f in cfg.output.record:
+        g[f].resize(0, axis=1)
+    g["step"].resize(0, axis=0)
+    g["count"][...] = 0
+    if "final" in h5:
+        del h5["final"]
+
+
+def version_note(h5):
+    """A warning if the file was written by another rbx version (its records may then differ in the last bits)."""
+    written = h5.attrs.get("rbx_version")
+    if isinstance(written, bytes):
+        written = written.decode()
+    if written != __version__:
+        return f"written by rbx {written}, continued with rbx {__version__}"
+    return None

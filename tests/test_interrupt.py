@@ -1,0 +1,320 @@
+"""Interrupted runs lose nothing (SPEC §4): SIGINT/SIGTERM stop a real ``rbx simulate`` within a second or two and
+leave a valid HDF5 file marked ``complete = false``; ``rbx simulate --resume`` then writes exactly the records an
+uninterrupted run writes, record by record, bit for bit.
+
+The real-process tests show what a user sees. The in-process tests make the interruption deterministic: blocks
+are made tiny (``BLOCK_WORK``) and the process sends itself SIGINT from the progress callback after a chosen
+block, so every scene is cut at a known point, resumed, cut again and resumed to the end.
+"""
+import copy
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+import yaml
+from click.testing import CliRunner
+
+import rbx.cli.common as common
+import rbx.output as output
+import rbx.simulate as simulate
+from rbx.cli.main import cli
+from tests.catalog import SCENES
+
+RBX = str(Path(sys.executable).with_name("rbx"))
+
+
+def write_config(folder, cfg, name="exp.yaml"):
+    path = Path(folder) / name
+    path.write_text(yaml.safe_dump(cfg, sort_keys=False))
+    return path
+
+
+def strip_random(collisions, trajectories=3, every=3, record=("time", "position", "velocity", "angular_velocity",
+                                                               "orientation", "wall", "rank")):
+    cfg = copy.deepcopy(SCENES["strip-random"])
+    cfg["run"] = {"collisions": collisions, "trajectories": trajectories, "seed": 11}
+    cfg["output"] = {"record": list(record), "every": every}
+    return cfg
+
+
+def read_run(path):
+    """Everything a run file holds: root attributes, collisions/*, final/* -> dict."""
+    with h5py.File(path, "r") as f:
+        out = {"attrs": {k: f.attrs[k] for k in f.attrs}}
+        for group in ("collisions", "final"):
+            if group in f:
+                out.update({f"{group}/{k}": f[group][k][...] for k in f[group]})
+    return out
+
+
+def assert_same_records(a, b):
+    keys = sorted(k for k in b if k != "attrs")
+    assert sorted(k for k in a if k != "attrs") == keys
+    for k in keys:
+        x, y = a[k], b[k]
+        assert x.shape == y.shape, k
+        assert x.dtype == y.dtype, k
+        # bit for bit (NaN marks rows past a trajectory's end)
+        assert np.array_equal(x, y, equal_nan=x.dtype.kind == "f"), k
+    assert a["attrs"]["config"] == b["attrs"]["config"]
+
+
+def check_valid_partial(path, every, width=1.0, R=0.1):
+    """An interrupted file: complete = false, count and step consistent with final/, records physically sane."""
+    run = read_run(path)
+    assert not bool(run["attrs"]["complete"])
+    count, step = run["collisions/count"], run["collisions/step"]
+    made = run["final/collisions"]
+    np.testing.assert_array_equal(count, 1 + made // every)
+    assert len(step) == count.max()
+    np.testing.assert_array_equal(step, np.arange(len(step)) * every)
+    t = run["collisions/time"]
+    for j, c in enumerate(count):
+        assert np.all(np.diff(t[j, :c]) > 0)
+        y = run["collisions/position"][j, :c, 1]
+        assert np.all((y > R - 1e-9) & (y < width - R + 1e-9))
+        wall = run["collisions/wall"][j, :c]
+        assert wall[0] == -1 and set(np.unique(wall[1:])) <= {0, 1}
+        assert np.all(np.isnan(t[j, c:]))
+    return run
+
+
+# ---- real processes -----------------------------------------------------------------------------------------------
+
+def start_and_signal(args, partial, sig, cwd, delay):
+    """Start ``args``, wait until the run writes ``partial`` and ``delay`` more seconds, send ``sig`` ->
+    (completed process, seconds from the signal to the exit)."""
+    proc = subprocess.Popen(args, cwd=cwd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    while not os.path.exists(partial):
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline, "the run never started writing"
+        time.sleep(0.01)
+    time.sleep(delay)
+    assert proc.poll() is None, "the run ended before the signal: make it longer"
+    proc.send_signal(sig)
+    sent = time.monotonic()
+    out, err = proc.communicate(timeout=60)
+    return subprocess.CompletedProcess(args, proc.returncode, out, err), time.monotonic() - sent
+
+
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
+def test_a_signal_stops_a_real_run_quickly_and_leaves_a_valid_file(sig, tmp_path):
+    # 10⁹ collisions: hours of work, so the signal always lands mid-run
+    cfg = strip_random(10**9, trajectories=2, every=1000, record=("time", "position", "wall"))
+    write_config(tmp_path, cfg)
+    out = tmp_path / "run.h5"
+    res, latency = start_and_signal([RBX, "simulate", "exp.yaml", "-o", "run.h5"], f"{out}.partial", sig,
+                                    tmp_path, delay=1.0)
+    assert res.returncode == 128 + sig, res.stderr
+    assert "Traceback" not in res.stderr
+    assert f"interrupted by {sig.name}" in res.stderr and "--resume run.h5" in res.stderr
+    # blocks are ~0.3 s of work; allow for a loaded machine
+    assert latency < 2.0, f"took {latency:.2f} s to stop"
+    assert out.exists() and not Path(f"{out}.partial").exists()
+    run = check_valid_partial(out, every=1000)
+    assert 0 < run["final/collisions"].min() < 10**9
+
+
+def test_a_signal_while_setting_up_aborts_at_once(tmp_path):
+    """With an empty kernel cache the first compile takes seconds; a signal then aborts at once, writes nothing,
+    and prints one line (no traceback)."""
+    write_config(tmp_path, strip_random(1000))
+    env = dict(os.environ, NUMBA_CACHE_DIR=str(tmp_path / "empty-cache"))
+    proc = subprocess.Popen([RBX, "simulate", "exp.yaml", "-o", "run.h5"], cwd=tmp_path, env=env,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(1.5)   # past the imports, inside the compile
+    assert proc.poll() is None
+    proc.send_signal(signal.SIGINT)
+    sent = time.monotonic()
+    _, err = proc.communicate(timeout=60)
+    latency = time.monotonic() - sent
+    assert proc.returncode == 130
+    assert err.strip() == "rbx: interrupted by SIGINT before the run started; nothing written"
+    assert latency < 1.0, f"took {latency:.2f} s to stop"
+    assert not list(tmp_path.glob("run.h5*"))
+
+
+def test_real_interrupt_then_real_resume_equals_an_uninterrupted_run(tmp_path):
+    """Interrupt a real process running with tiny blocks, resume it with a real process and the normal block
+    size (so the block boundaries differ too), and compare with an uninterrupted run."""
+    cfg = strip_random(60_000, trajectories=3, every=7, record=("time", "position", "angular_velocity", "wall", "rank"))
+    write_config(tmp_path, cfg)
+    small_blocks = ("import sys, rbx.simulate as s; s.BLOCK_WORK = 600; from rbx.cli.main import cli; "
+                    "cli(sys.argv[1:], prog_name='rbx')")
+    args = [sys.executable, "-c", small_blocks, "simulate", "exp.yaml", "-o", "run.h5"]
+    res, _ = start_and_signal(args, tmp_path / "run.h5.partial", signal.SIGINT, tmp_path, delay=0.3)
+    assert res.returncode == 130, res.stderr
+    part = check_valid_partial(tmp_path / "run.h5", every=7)
+    assert part["final/collisions"].max() < 60_000
+    res = subprocess.run([RBX, "simulate", "--resume", "run.h5", "--quiet"], cwd=tmp_path, capture_output=True,
+                         text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    ref = CliRunner().invoke(cli, ["simulate", str(tmp_path / "exp.yaml"), "-o", str(tmp_path / "ref.h5"),
+                                   "--quiet"], catch_exceptions=False)
+    assert ref.exit_code == 0, ref.stderr
+    resumed, reference = read_run(tmp_path / "run.h5"), read_run(tmp_path / "ref.h5")
+    assert bool(resumed["attrs"]["complete"])
+    assert_same_records(resumed, reference)
+
+
+# ---- deterministic interruptions in-process ----------------------------------------------------------------------
+
+@pytest.fixture
+def tiny_blocks(monkeypatch):
+    """Blocks of a few hundred collisions, and a way to send SIGINT to this process after the k-th block."""
+    monkeypatch.setattr(simulate, "BLOCK_WORK", 300)
+    when = {"block": None, "seen": 0}
+    original = common.Progress.__call__
+
+    def progress(self, done, total):
+        when["seen"] += 1
+        if when["seen"] == when["block"]:
+            os.kill(os.getpid(), signal.SIGINT)
+        return original(self, done, total)
+
+    monkeypatch.setattr(common.Progress, "__call__", progress)
+
+    def interrupt_after(block):
+        when["block"], when["seen"] = block, 0
+    return interrupt_after
+
+
+def invoke(*args):
+    return CliRunner().invoke(cli, ["simulate", *map(str, args), "--quiet"], catch_exceptions=False)
+
+
+def scene(name, collisions, trajectories, every, record=None, initial=None):
+    cfg = copy.deepcopy(SCENES[name])
+    cfg["run"] = {"collisions": collisions, "trajectories": trajectories, "seed": 5}
+    cfg["output"] = {"every": every}
+    if record is not None:
+        cfg["output"]["record"] = record
+    if initial is not None:
+        cfg["initial"] = initial
+    return cfg
+
+
+ESCAPING = [  # the second trajectory flies parallel to the walls: no wall ahead, it ends at once (count = 1)
+    {"position": [0.0, 0.5], "velocity": [0.6, 0.8], "angular_velocity": 1.0},
+    {"position": [0.0, 0.5], "velocity": [1.0, 0.0]},
+    {"position": [0.3, 0.2], "velocity": [-0.3, 0.9], "angular_velocity": -2.0}]
+
+RESUME_SCENES = {
+    "strip-random-every3": scene("strip-random", 2000, 3, 3),
+    "plates-random-direction-every2": scene("plates-random-direction", 1500, 2, 2),
+    "box-hemisphere-every5": scene("box-hemisphere", 1500, 2, 5),
+    "strip-escape-every4": scene("strip-random", 2000, 3, 4, initial=ESCAPING),
+    "rectangle-sampled-every3": scene("rectangle-random", 1500, 4, 3, initial={"sample": "billiard"}),
+    "star-hemisphere-every1": scene("star-polygon-hemisphere", 1200, 2, 1),
+    "strip-final-state-only": scene("strip-random", 3000, 3, 1, record=[]),
+}
+
+
+@pytest.mark.parametrize("name", list(RESUME_SCENES))
+def test_resume_twice_equals_an_uninterrupted_run(name, tmp_path, tiny_blocks):
+    exp = write_config(tmp_path, RESUME_SCENES[name])
+    ref, run = tmp_path / "ref.h5", tmp_path / "run.h5"
+    tiny_blocks(None)
+    assert invoke(exp, "-o", ref).exit_code == 0
+
+    tiny_blocks(3)
+    first = invoke(exp, "-o", run)
+    assert first.exit_code == 130, first.stderr
+    assert "complete = false" in first.stderr
+    cut1 = read_run(run)
+    assert not bool(cut1["attrs"]["complete"])
+
+    tiny_blocks(4)
+    second = invoke("--resume", run)
+    assert second.exit_code == 130, second.stderr
+    cut2 = read_run(run)
+    assert cut1["final/collisions"].max() < cut2["final/collisions"].max() < RESUME_SCENES[name]["run"]["collisions"]
+
+    tiny_blocks(None)
+    third = invoke("--resume", run)
+    assert third.exit_code == 0, third.stderr
+    resumed = read_run(run)
+    assert bool(resumed["attrs"]["complete"])
+    assert_same_records(resumed, read_run(ref))
+
+
+def test_resume_of_a_run_stopped_before_its_first_block(tmp_path, monkeypatch):
+    """The signal arrives while record 0 is written: no block ran, there is no final/ yet; resume starts over."""
+    exp = write_config(tmp_path, scene("strip-random", 500, 2, 3))
+    assert invoke(exp, "-o", tmp_path / "ref.h5").exit_code == 0
+    write = output.H5Sink.write
+
+    def write_then_signal(self, block, nrec):
+        write(self, block, nrec)
+        os.kill(os.getpid(), signal.SIGINT)
+
+    monkeypatch.setattr(output.H5Sink, "write", write_then_signal)
+    res = invoke(exp, "-o", tmp_path / "run.h5")
+    assert res.exit_code == 130
+    cut = read_run(tmp_path / "run.h5")
+    assert "final/collisions" not in cut and list(cut["collisions/count"]) == [1, 1]
+    monkeypatch.setattr(output.H5Sink, "write", write)
+    assert invoke("--resume", tmp_path / "run.h5").exit_code == 0
+    assert_same_records(read_run(tmp_path / "run.h5"), read_run(tmp_path / "ref.h5"))
+
+
+def test_resume_drops_records_written_after_the_last_checkpoint(tmp_path, tiny_blocks):
+    """A hard kill between a block's records and its checkpoint leaves records the saved state does not account
+    for: resume cuts them and recomputes them."""
+    exp = write_config(tmp_path, scene("strip-random", 2000, 3, 3))
+    assert invoke(exp, "-o", tmp_path / "ref.h5").exit_code == 0
+    tiny_blocks(2)
+    assert invoke(exp, "-o", tmp_path / "run.h5").exit_code == 130
+    with h5py.File(tmp_path / "run.h5", "r+") as f:
+        g = f["collisions"]
+        n = g["step"].shape[0]
+        for k in ("time", "position", "velocity", "angular_velocity", "orientation", "wall", "rank"):
+            g[k].resize(n + 5, axis=1)
+            g[k][:, n:] = 7          # garbage where the next records go
+        g["step"].resize(n + 5, axis=0)
+        g["count"][...] += 5
+    tiny_blocks(None)
+    assert invoke("--resume", tmp_path / "run.h5").exit_code == 0
+    assert_same_records(read_run(tmp_path / "run.h5"), read_run(tmp_path / "ref.h5"))
+
+
+def test_resume_into_another_file_leaves_the_original(tmp_path, tiny_blocks):
+    exp = write_config(tmp_path, scene("strip-random", 1500, 2, 3))
+    tiny_blocks(2)
+    assert invoke(exp, "-o", tmp_path / "run.h5").exit_code == 130
+    before = (tmp_path / "run.h5").read_bytes()
+    tiny_blocks(None)
+    res = invoke("--resume", tmp_path / "run.h5", "-o", tmp_path / "done.h5")
+    assert res.exit_code == 0, res.stderr
+    assert (tmp_path / "run.h5").read_bytes() == before
+    assert bool(read_run(tmp_path / "done.h5")["attrs"]["complete"])
+    # a complete run: nothing to do, and that is not an error
+    res = invoke("--resume", tmp_path / "done.h5")
+    assert res.exit_code == 0 and "nothing to resume" in res.stderr
+    # and -o to an existing file still needs --force
+    res = invoke("--resume", tmp_path / "run.h5", "-o", tmp_path / "done.h5")
+    assert res.exit_code == 2 and "exists; use --force" in res.stderr
+
+
+def test_a_signal_during_the_last_block_still_completes_the_run(tmp_path, monkeypatch):
+    """Work that was finished is reported finished: a stop requested during the last block is not an interrupt."""
+    exp = write_config(tmp_path, scene("strip-random", 3000, 2, 1))
+    monkeypatch.setattr(simulate, "BLOCK_WORK", 300)
+    original = common.Progress.__call__
+
+    def signal_at_the_end(self, done, total):
+        if done == total:
+            os.kill(os.getpid(), signal.SIGINT)
+        return original(self, done, total)
+
+    monkeypatch.setattr(common.Progress, "__call__", signal_at_the_end)
+    res = invoke(exp, "-o", tmp_path / "run.h5")
+    assert res.exit_code == 0, res.stderr
+    assert bool(read_run(tmp_path / "run.h5")["attrs"]["complete"])
