@@ -12,7 +12,7 @@ Layout (trajectory axis first; T trajectories, N records):
 | ``collisions/wall``, ``rank`` | (T, N) | i4 | wall index hit (−1 for record 0), roughness rank used |
 | ``collisions/count`` | (T,) | i8 | records written for each trajectory (rows past it are NaN / −1) |
 | ``collisions/step`` | (N,) | i8 | collision number of each record (0, every, 2·every, …) |
-| ``final/*`` | (T, …) | | last state of every trajectory, its ``collisions`` and ``draws`` counts and ``alive`` flag (for ``--resume``) |
+| ``final/*`` | (T, …) | | last state of every trajectory, its ``collisions`` and ``draws`` counts and ``alive`` flag (for ``--resume``); attribute ``digest``: hash of the state, see :func:`state_digest` |
 
 Datasets grow along the record axis in chunks, so memory does not grow with the run's length; ``count`` and
 ``final/`` are rewritten after every block and the file is flushed, so an interrupted run leaves a readable file
@@ -92,8 +92,11 @@ class H5Sink:
         g["count"][...] = g["count"][...] + nrec
 
     def checkpoint(self, sim):
+        # flush first: the block's records reach the file before the state that accounts for them
+        self.h5.flush()
         fin = self.h5.require_group("final")
-        for k, v in sim.final_state().items():
+        state = sim.final_state()
+        for k, v in state.items():
             v = np.asarray(v)
             if k in fin and fin[k].shape == v.shape:
                 fin[k][...] = v
@@ -101,7 +104,21 @@ class H5Sink:
                 if k in fin:
                     del fin[k]
                 fin.create_dataset(k, data=v)
+        fin.attrs["digest"] = state_digest(state)
         self.h5.flush()
+
+
+def state_digest(state):
+    """A hash of a final state (dict of arrays). A process killed outright (SIGKILL, power loss) can leave
+    ``final/`` half rewritten; ``--resume`` recomputes this hash and refuses such a state instead of continuing
+    from a mixture of two blocks."""
+    import hashlib
+    h = hashlib.blake2b(digest_size=16)
+    for k in sorted(state):
+        a = np.ascontiguousarray(state[k])
+        h.update(f"{k}:{a.dtype.str}:{a.shape}:".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
 
 
 def temporary_path(path):

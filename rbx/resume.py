@@ -15,6 +15,7 @@ import numpy as np
 
 from . import __version__
 from .config import RECORD_FIELDS, ConfigError, loads
+from .output import state_digest
 from .simulate import Simulation
 
 #: what ``final/`` must hold to continue (Simulation takes the rest from the config)
@@ -67,6 +68,9 @@ def load(h5, source):
     for k in STATE_KEYS:
         if state[k].shape[:1] != (M,):
             raise damaged(f"final/{k}", f"has shape {state[k].shape}, expected {M} trajectories first")
+    digest = fin.attrs.get("digest")
+    if digest is not None and digest != state_digest(state):
+        raise damaged("final", "the last saved state is incomplete (the process was killed while writing it)")
     collisions = state["collisions"].astype(np.int64)
     alive = state["alive"].astype(bool)
     running = np.unique(collisions[alive])
@@ -78,8 +82,27 @@ def load(h5, source):
         expected = 1 + collisions // cfg.output.every   # record 0 and one per ``every`` collisions
         if g["step"].shape[0] < expected.max() or np.any(g["count"][...] < expected):
             raise damaged("collisions/count", "fewer records than the saved state accounts for")
+        _check_last_records(g, cfg, state, expected, damaged)
     done = int(running[0]) if running.size else cfg.run.collisions
     return Simulation(cfg, state), False, done
+
+
+def _check_last_records(g, cfg, state, expected, damaged):
+    """The last record of each running trajectory must be its saved state when it stopped on a recorded
+    collision: records and state from different blocks (a hard kill) would otherwise continue silently from the
+    wrong point. (Ended trajectories do not continue, so they need no check.)"""
+    alive = state["alive"].astype(bool)
+    rows = np.nonzero(alive & (state["collisions"] % cfg.output.every == 0))[0]
+    if rows.size == 0:
+        return
+    column = int(expected[rows[0]]) - 1          # the running trajectories share it
+    saved_as = {"wall": "last_wall", "rank": "last_rank"}
+    for f in cfg.output.record:
+        last = g[f][:, column][rows]
+        saved = np.asarray(state[saved_as.get(f, f)])[rows].reshape(last.shape).astype(last.dtype)
+        if not np.array_equal(last, saved):
+            raise damaged(f"collisions/{f}", "the last records are not the saved state (the process was killed "
+                                             "while writing)")
 
 
 def make_consistent(h5, sim, write_initial):
