@@ -285,6 +285,57 @@ def test_resume_drops_records_written_after_the_last_checkpoint(tmp_path, tiny_b
     assert_same_records(read_run(tmp_path / "run.h5"), read_run(tmp_path / "ref.h5"))
 
 
+@pytest.mark.parametrize("damage", ["state", "state-and-digest"])
+def test_resume_refuses_a_state_that_does_not_match_its_records(damage, tmp_path, tiny_blocks):
+    """A kill while final/ is rewritten can leave it half old, half new: resume must refuse it, not continue from
+    a mixture (caught by the digest, or failing that by comparing the last records with the state)."""
+    exp = write_config(tmp_path, scene("strip-random", 2000, 3, 3))
+    tiny_blocks(2)
+    assert invoke(exp, "-o", tmp_path / "run.h5").exit_code == 130
+    with h5py.File(tmp_path / "run.h5", "r+") as f:
+        f["final/time"][0] += 1.0
+        if damage == "state-and-digest":
+            f["final"].attrs["digest"] = output.state_digest({k: f["final"][k][...] for k in f["final"]})
+    res = invoke("--resume", tmp_path / "run.h5")
+    assert res.exit_code == 2
+    line, = res.stderr.strip().splitlines()
+    assert "run.h5" in line and "killed" in line and "cannot be resumed" in line
+
+
+def test_a_killed_run_resumes_exactly_or_is_refused(tmp_path):
+    """SIGKILL gives the process no chance to close the file. Resuming the .partial it leaves must give exactly
+    the uninterrupted records or a one-line refusal, never something else."""
+    cfg = strip_random(400_000, trajectories=3, every=7, record=("time", "position", "wall", "rank"))
+    write_config(tmp_path, cfg)
+    assert invoke(tmp_path / "exp.yaml", "-o", tmp_path / "ref.h5").exit_code == 0
+    reference = read_run(tmp_path / "ref.h5")
+    small_blocks = ("import sys, rbx.simulate as s; s.BLOCK_WORK = 3000; from rbx.cli.main import cli; "
+                    "cli(sys.argv[1:], prog_name='rbx')")
+    outcomes = []
+    for delay in (0.05, 0.2, 0.35):
+        for f in tmp_path.glob("run.h5*"):
+            f.unlink()
+        proc = subprocess.Popen([sys.executable, "-c", small_blocks, "simulate", "exp.yaml", "-o", "run.h5"],
+                                cwd=tmp_path, stderr=subprocess.DEVNULL)
+        while not (tmp_path / "run.h5.partial").exists():
+            time.sleep(0.005)
+        time.sleep(delay)
+        assert proc.poll() is None, "the run ended before the kill: make it longer"
+        proc.kill()
+        proc.wait()
+        assert not (tmp_path / "run.h5").exists()
+        res = invoke("--resume", tmp_path / "run.h5.partial")          # writes run.h5
+        if res.exit_code == 0:
+            assert_same_records(read_run(tmp_path / "run.h5"), reference)
+            outcomes.append("same")
+        else:
+            assert res.exit_code == 2, res.stderr
+            line, = res.stderr.strip().splitlines()
+            assert "run.h5.partial" in line and "cannot be resumed" in line
+            outcomes.append("refused")
+    print(outcomes)
+
+
 def test_resume_into_another_file_leaves_the_original(tmp_path, tiny_blocks):
     exp = write_config(tmp_path, scene("strip-random", 1500, 2, 3))
     tiny_blocks(2)

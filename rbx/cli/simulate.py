@@ -100,7 +100,11 @@ def _resume(config, run_file, out, overrides, force, quiet, stop):
             raise UserError(None, f"--{name}", "cannot be changed when resuming: the run continues with the "
                                                "settings stored in its file")
     source = os.path.abspath(run_file)
-    path = os.path.abspath(out) if out else source
+    # a killed run leaves only OUT.h5.partial: resuming it writes OUT.h5, working on the .partial in place
+    default = source[:-len(".partial")] if source.endswith(".partial") else source
+    path = os.path.abspath(out) if out else default
+    tmp = temporary_path(path)
+    in_place = tmp == source
     with open_run(run_file, need=("collisions/count", "collisions/step")) as f:
         if bool(f.attrs["complete"]):
             click.echo(f"rbx: {display_path(run_file)}: the run is complete; nothing to resume", err=True)
@@ -113,9 +117,8 @@ def _resume(config, run_file, out, overrides, force, quiet, stop):
         except MemoryError:
             raise UserError(run_file, "run.trajectories", "the trajectories do not fit in the free memory") from None
     if path != source:
-        _check_target(path, force, "-o", None)
-    tmp = temporary_path(path)
-    if os.path.exists(tmp) and not force:
+        _check_target(path, force, "-o", None, partial_ok=in_place)
+    if os.path.exists(tmp) and not force and not in_place:
         raise UserError(tmp, None, "exists: another run may be writing it, or an earlier one was killed; "
                                    "remove it or use --force")
     if note:
@@ -123,12 +126,13 @@ def _resume(config, run_file, out, overrides, force, quiet, stop):
     _compile(sim)
     if stop.start_running():
         raise KeyboardInterrupt
-    # work on a copy: if this attempt dies badly, the file it started from is intact
+    # work on a copy (unless resuming a .partial): if this attempt dies badly, the file it started from is intact
     try:
-        shutil.copyfile(source, tmp)
+        if not in_place:
+            shutil.copyfile(source, tmp)
         h5 = h5py.File(tmp, "r+")
     except OSError as exc:
-        if os.path.exists(tmp):
+        if os.path.exists(tmp) and not in_place:
             os.remove(tmp)
         raise UserError(tmp, None, f"cannot write: {exc.strerror or exc}") from None
     make_consistent(h5, sim, write_initial)
@@ -182,7 +186,7 @@ def _rename(tmp, path):
                    f"the records are in {display_path(tmp)}", err=True)
 
 
-def _check_target(path, force, key, config_source):
+def _check_target(path, force, key, config_source, partial_ok=False):
     """Refuse to overwrite an existing file (or the config itself, or a run still writing) without --force."""
     from ..output import temporary_path
 
@@ -194,7 +198,7 @@ def _check_target(path, force, key, config_source):
     if os.path.exists(path) and not force:
         raise UserError(path, None, "exists; use --force to overwrite it")
     tmp = temporary_path(path)
-    if os.path.exists(tmp) and not force:
+    if os.path.exists(tmp) and not force and not partial_ok:
         raise UserError(tmp, None, "exists: another run may be writing it, or an earlier one was killed "
                                    "(try: rbx simulate --resume " + display_path(tmp) + "); remove it or use --force")
 
