@@ -135,7 +135,13 @@ def _resume(config, run_file, out, overrides, force, quiet, stop):
         if os.path.exists(tmp) and not in_place:
             os.remove(tmp)
         raise UserError(tmp, None, f"cannot write: {exc.strerror or exc}") from None
-    make_consistent(h5, sim, write_initial)
+    try:
+        make_consistent(h5, sim, write_initial)
+    except BaseException:
+        h5.close()
+        if not in_place:
+            os.remove(tmp)
+        raise
     return _execute(sim, h5, tmp, path, stop, quiet, fresh=False, done=done, write_initial=write_initial)
 
 
