@@ -122,24 +122,11 @@ def write_returns(path, cfg, result):
     ``not_returned``, ``velocity_dimension``, ``predicted_density``, ``predicted_cdf``, ``seconds``."""
     import os
 
-    import h5py
-
-    from . import __version__
-    from .output import SCHEMA_VERSION, config_yaml, open_for_writing, temporary_path
+    from .output import open_for_writing, temporary_path, write_root_attrs
 
     geom = cfg.geometry()
     with open_for_writing(path) as h5:
-        a = h5.attrs
-        a["rbx_version"] = __version__
-        a["schema_version"] = SCHEMA_VERSION
-        a["dimension"] = cfg.dimension
-        a["config"] = config_yaml(cfg)
-        a["complete"] = True
-        a["table_kind"] = cfg.table_kind
-        a["wall_names"] = np.array(geom.wall_names, dtype=h5py.string_dtype())
-        a["radius"] = cfg.ball.radius
-        a["kappa"] = cfg.ball.kappa
-        a["collisions_requested"] = cfg.run.collisions
+        write_root_attrs(h5, cfg, geom, complete=True)
         g = h5.create_group("returns")
         g.create_dataset("angle", data=result.angle)
         g.create_dataset("trajectory", data=np.nonzero(result.returned)[0].astype(np.int64))

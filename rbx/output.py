@@ -47,6 +47,21 @@ def _plain(x):
     return x
 
 
+def write_root_attrs(h5, cfg, geom, complete):
+    """The root attributes every rbx file carries (SPEC §5), for run files and return-angle files alike."""
+    a = h5.attrs
+    a["rbx_version"] = __version__
+    a["schema_version"] = SCHEMA_VERSION
+    a["dimension"] = cfg.dimension
+    a["config"] = config_yaml(cfg)
+    a["complete"] = bool(complete)
+    a["table_kind"] = cfg.table_kind
+    a["wall_names"] = np.array(geom.wall_names, dtype=h5py.string_dtype())
+    a["radius"] = cfg.ball.radius
+    a["kappa"] = cfg.ball.kappa
+    a["collisions_requested"] = cfg.run.collisions
+
+
 class H5Sink:
     """Streams the records of a :class:`rbx.simulate.Simulation` into an open HDF5 file."""
 
@@ -55,17 +70,7 @@ class H5Sink:
         M, n = cfg.run.trajectories, cfg.dimension
         self.every = cfg.output.every
         if fresh:
-            a = h5.attrs
-            a["rbx_version"] = __version__
-            a["schema_version"] = SCHEMA_VERSION
-            a["dimension"] = n
-            a["config"] = config_yaml(cfg)
-            a["complete"] = False
-            a["table_kind"] = cfg.table_kind
-            a["wall_names"] = np.array(geom.wall_names, dtype=h5py.string_dtype())
-            a["radius"] = cfg.ball.radius
-            a["kappa"] = cfg.ball.kappa
-            a["collisions_requested"] = cfg.run.collisions
+            write_root_attrs(h5, cfg, geom, complete=False)
             g = h5.create_group("collisions")
             for f in cfg.output.record:
                 tail = field_shapes(n)[f]
