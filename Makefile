@@ -45,6 +45,10 @@ data/histogram.h5: configs/experiments/histogram.yaml | $(STAMP)
 
 bench: $(STAMP)
 	$(PY) scripts/bench.py
+	$(PY) scripts/accuracy.py
+
+stress: $(STAMP)
+	$(PY) scripts/stress.py
 
 clean:
 	rm -rf data runs figures/*.png figures/*.json
