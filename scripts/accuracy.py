@@ -1,0 +1,410 @@
+"""Run time against error (SPEC §7): energy drift, time-reversal error and deviation from a high-precision orbit
+after N collisions, for each scene worth it and each numerical variant of the engine. Writes docs/accuracy.md and
+docs/accuracy-<scene>.png.
+
+    python scripts/accuracy.py [--quick] [--out docs/accuracy.md] [--repeats K] [--digits D]
+
+Metrics (all relative, so that scenes and scales compare):
+
+* energy drift: |E_N − E_0| / E_0 of the state after N collisions;
+* time reversal: N collisions forward, v ← −v and ω ← −ω, N collisions back; the backward run then stands at the
+  first collision point, so it is carried on along its last flight to the forward run's total time, where it
+  should be at the start with the reversed start velocity: |Δa|∞ / L (L: the table's size) and |Δv|∞ / |v|_E
+  (|v|_E = √(2E), the speed in the metric (v, R√κ·ω));
+* deviation: the engine's state after N collisions against the same orbit followed with mpmath at ``--digits``
+  digits (rbx/precise.py), the difference taken at that precision: |Δa|∞ / L, |Δv|∞ / |v|_E. The reference is
+  checked by running it again with 20 more digits; where the two differ by more than 1e-3 of the engine's
+  deviation the entry is left out (a chaotic orbit outruns any fixed precision).
+
+Times are the engine's ``Simulation.run`` with nothing recorded (``record: []``), median of ``--repeats`` runs
+after compilation. Variants are attributes set on a Simulation before ``run``; the ones this engine lacks are
+listed as not available (adding one is one line in VARIANTS).
+"""
+import argparse
+import copy
+import math
+import os
+import platform
+import statistics
+import sys
+import time
+
+import numpy as np
+
+from rbx import config
+from rbx.simulate import MemorySink, Simulation
+
+ROUGH2 = {"default": {"rule": "constant", "rank": 1}}
+ROUGH3 = {"default": {"rule": "constant", "rank": 2}}
+L_SHAPE = [[0, 0], [2, 0], [2, 2], [1, 2], [1, 1], [0, 1]]
+
+
+def scene_config(table, boundary, position, velocity, spin, radius=0.1, inertia="uniform"):
+    return {"table": table, "boundary": boundary, "ball": {"radius": radius, "inertia": inertia},
+            "initial": {"position": position, "velocity": velocity, "angular_velocity": spin},
+            "run": {"collisions": 1, "seed": 1}, "output": {"record": []}}
+
+
+#: the scenes measured (the catalog's rough scenes, tests/catalog.py)
+SCENES = {
+    "strip": scene_config({"kind": "strip", "width": 1.0}, ROUGH2, [0, 0.5], [0.6, 0.8], 1.5),
+    "circle": scene_config({"kind": "circle", "radius": 1.0}, ROUGH2, [0.1, -0.2], [-0.3, 0.9], -2.0),
+    "rectangle": scene_config({"kind": "rectangle", "width": 2.0, "height": 1.0}, ROUGH2, [0.5, 0.5], [0.6, 0.3],
+                              1.0),
+    "L-polygon": scene_config({"kind": "polygon", "vertices": L_SHAPE}, ROUGH2, [0.5, 0.5], [0.83, 0.31], 0.7),
+    "plates": scene_config({"kind": "plates", "gap": 1.0}, ROUGH3, [0, 0, 0.5], [0.2, -0.4, 0.7], [1.0, 0.5, -0.3]),
+    "box": scene_config({"kind": "box", "size": [1.0, 1.3, 0.8]}, ROUGH3, [0.5, 0.5, 0.4], [0.3, -0.5, 0.6],
+                        [0.4, 0.1, -0.9]),
+}
+
+#: numerical variants: attributes set on a Simulation before run (values are converted to the type of the
+#: engine's default, so a flag that becomes a period keeps working)
+VARIANTS = {
+    "plain": {"renormalize": False},
+    "renormalize": {"renormalize": True},
+    "compensated": {"renormalize": True, "compensated": True},
+    "snap": {"renormalize": True, "snap": True},
+    "compensated+snap": {"renormalize": True, "compensated": True, "snap": True},
+    "renormalize/1000": {"renormalize": 1000},
+}
+DEFAULT_VARIANT = "renormalize"
+#: N: energy, reversal and time; the deviation from the precise orbit only up to PRECISE_MAX (it is slow: ~0.5 ms
+#: per collision at 50 digits, twice over). The L-polygon and the box are chaotic: by 10⁴ collisions neither the
+#: engine nor a 70-digit orbit is anywhere near the exact one.
+SIZES = (100, 1_000, 10_000, 100_000, 1_000_000, 10_000_000)
+PRECISE_MAX = {"strip": 100_000, "circle": 100_000, "rectangle": 100_000, "plates": 100_000, "L-polygon": 1_000,
+               "box": 1_000}
+QUICK_SIZES = (10, 100)
+
+
+# -- running the engine -----------------------------------------------------------------------------------------
+
+
+def make_config(base, collisions, **initial):
+    """Config of a scene dict with ``collisions`` collisions and nothing recorded (initial keys replaced)."""
+    c = copy.deepcopy(base)
+    c["run"]["collisions"] = int(collisions)
+    c.setdefault("output", {})["record"] = []
+    c["initial"].update(initial)
+    return config.from_dict(c)
+
+
+def available_variants(cfg):
+    """The variants this engine has: every attribute exists, and a number other than 0/1 is given only to an
+    attribute whose default is a number, not a flag (``renormalize`` as a period)."""
+    sim = Simulation(cfg)
+
+    def has(attr, value):
+        if not hasattr(sim, attr):
+            return False
+        default = getattr(sim, attr)
+        return not (value not in (0, 1, True, False) and isinstance(default, bool))
+
+    return {k: v for k, v in VARIANTS.items() if all(has(a, x) for a, x in v.items())}
+
+
+def apply_variant(sim, variant):
+    for attr, value in variant.items():
+        default = getattr(sim, attr)
+        setattr(sim, attr, type(default)(value) if isinstance(default, (bool, int, float)) else value)
+
+
+def engine_run(cfg, variant, state=None):
+    """Run one config with a variant -> (final state of trajectory 0 as a dict of arrays, seconds in run)."""
+    sim = Simulation(cfg) if state is None else Simulation(cfg, state=state)
+    apply_variant(sim, variant)
+    sink = MemorySink()
+    t0 = time.perf_counter()
+    sim.run(sink)
+    dt = time.perf_counter() - t0
+    return {k: np.asarray(v)[0] for k, v in sink.final.items()}, dt
+
+
+def energy(cfg, velocity, spin):
+    kap, R = cfg.ball.kappa, cfg.ball.radius
+    return 0.5 * float(np.sum(np.square(velocity))) + 0.5 * kap * R * R * float(np.sum(np.square(spin)))
+
+
+def table_size(cfg):
+    return cfg.geometry().size
+
+
+def initial_state(cfg):
+    s = cfg.initial[0]
+    return {k: np.asarray(s[k], float) for k in ("position", "velocity", "angular_velocity")}
+
+
+def reversal_error(cfg, variant, forward=None):
+    """N collisions forward, reverse, N back -> (position error / L, velocity error / |v|_E, collisions back).
+
+    ``forward``: the final state of the forward run if already at hand."""
+    N = cfg.run.collisions
+    if forward is None:
+        forward, _ = engine_run(cfg, variant)
+    s0 = initial_state(cfg)
+    # copies: Simulation(cfg, state) works in the arrays it is given
+    state = {"position": np.array(forward["position"])[None], "velocity": -np.array(forward["velocity"])[None],
+             "angular_velocity": -np.array(forward["angular_velocity"])[None],
+             "orientation": np.array(forward["orientation"])[None]}
+    back, _ = engine_run(cfg, variant, state=state)
+    if int(back["collisions"]) < N or int(forward["collisions"]) < N:
+        return math.nan, math.nan, int(back["collisions"])
+    # the backward run stands at the first collision point: carry it on to the forward run's total time
+    rest = float(forward["time"]) - float(back["time"])
+    a = back["position"] + rest * back["velocity"]
+    speed = math.sqrt(2 * energy(cfg, s0["velocity"], s0["angular_velocity"]))
+    dpos = float(np.max(np.abs(a - s0["position"]))) / table_size(cfg)
+    dvel = float(max(np.max(np.abs(back["velocity"] + s0["velocity"])),
+                     cfg.ball.radius * math.sqrt(cfg.ball.kappa)
+                     * np.max(np.abs(np.asarray(back["angular_velocity"]) + s0["angular_velocity"])))) / speed
+    return dpos, dvel, int(back["collisions"])
+
+
+# -- the high-precision orbit -----------------------------------------------------------------------------------
+
+
+def precise_states(cfg, sizes, digits):
+    """Follow the orbit at ``digits`` digits -> {N: (position, velocity, spin) as mpf lists} for N in sizes."""
+    from rbx.precise import PreciseBilliard
+    loop = PreciseBilliard(cfg, digits=digits, orientation=False)
+    out = {}
+    for N in sorted(sizes):
+        while loop.collisions < N and loop.step():
+            pass
+        if loop.collisions < N:
+            break
+        w = loop.omega()
+        out[N] = (list(loop.a), list(loop.v), [w] if loop.n == 2 else list(w))
+    return out, loop
+
+
+def mp_dev(loop, x, ref):
+    return float(max(abs(loop.num(float(p)) - q) for p, q in zip(np.ravel(x), ref)))
+
+
+# -- measuring --------------------------------------------------------------------------------------------------
+
+
+def measure_scene(name, base, sizes, precise_max, repeats, digits, log=print):
+    """-> list of rows {scene, variant, N, seconds, energy, rev_pos, rev_vel, dev_pos, dev_vel}."""
+    cfg0 = make_config(base, 1)
+    variants = available_variants(cfg0)
+    L = table_size(cfg0)
+    s0 = initial_state(cfg0)
+    e0 = energy(cfg0, s0["velocity"], s0["angular_velocity"])
+    speed = math.sqrt(2 * e0)
+    psizes = [N for N in sizes if N <= precise_max]
+    t0 = time.perf_counter()
+    ref, loop = precise_states(make_config(base, max(psizes)), psizes, digits)
+    check, loop2 = precise_states(make_config(base, max(psizes)), psizes, digits + 20)
+    log(f"  {name}: precise orbit to N = {max(psizes)} at {digits} and {digits + 20} digits in "
+        f"{time.perf_counter() - t0:.1f} s")
+    rows = []
+    for vname, variant in variants.items():
+        engine_run(make_config(base, 10), variant)                  # compile (or load from the cache) first
+        for N in sizes:
+            cfg = make_config(base, N)
+            runs = [engine_run(cfg, variant) for _ in range(repeats)]
+            final = runs[0][0]
+            secs = statistics.median(dt for _, dt in runs)
+            if int(final["collisions"]) < N:
+                log(f"  {name} {vname} N={N}: ended after {int(final['collisions'])} collisions")
+            e = energy(cfg, final["velocity"], final["angular_velocity"])
+            rp, rv, _ = reversal_error(cfg, variant, forward=final)
+            row = {"scene": name, "variant": vname, "N": N, "seconds": secs, "energy": abs(e - e0) / e0,
+                   "rev_pos": rp, "rev_vel": rv, "dev_pos": math.nan, "dev_vel": math.nan}
+            if N in ref and N in check:
+                pa, pv, pw = ref[N]
+                dp = mp_dev(loop, final["position"], pa) / L
+                dv = max(mp_dev(loop, final["velocity"], pv),
+                         float(cfg.ball.radius * math.sqrt(cfg.ball.kappa))
+                         * mp_dev(loop, np.atleast_1d(final["angular_velocity"]), pw)) / speed
+                ca, cv, _ = check[N]
+                unc_p = float(max(abs(p - q) for p, q in zip(pa, ca))) / L
+                unc_v = float(max(abs(p - q) for p, q in zip(pv, cv))) / speed
+                row["dev_pos"] = dp if unc_p <= 1e-3 * max(dp, 1e-300) else math.nan
+                row["dev_vel"] = dv if unc_v <= 1e-3 * max(dv, 1e-300) else math.nan
+                row["ref_unc"] = max(unc_p, unc_v)
+            rows.append(row)
+            log(f"  {name:10s} {vname:16s} N={N:>9,} {secs:9.4f} s  energy {row['energy']:.1e}  reversal "
+                f"{rp:.1e}/{rv:.1e}  deviation {row['dev_pos']:.1e}/{row['dev_vel']:.1e}")
+    return rows, variants
+
+
+# -- the document -----------------------------------------------------------------------------------------------
+
+
+def machine():
+    cpu = platform.processor() or "unknown CPU"
+    try:
+        with open("/proc/cpuinfo") as fh:
+            for line in fh:
+                if line.startswith("model name"):
+                    cpu = line.split(":", 1)[1].strip()
+                    break
+    except OSError:
+        pass
+    import numba
+    return (f"{cpu}, {os.cpu_count()} cores; Python {platform.python_version()}, numba {numba.__version__}, "
+            f"numpy {np.__version__}")
+
+
+def fmt(x):
+    if x is None or (isinstance(x, float) and math.isnan(x)):
+        return "—"
+    if x == 0:
+        return "0"
+    return f"{x:.1e}"
+
+
+def plot_scene(name, rows, variants, path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    panels = [("energy", "energy drift |ΔE|/E"), ("rev_pos", "reversal error |Δa|/L"),
+              ("dev_pos", "deviation |Δa|/L"), ("dev_vel", "deviation |Δv|/|v|")]
+    fig, axes = plt.subplots(1, 4, figsize=(16, 3.8))
+    for ax, (key, label) in zip(axes, panels):
+        for vname in variants:
+            pts = [(r["seconds"], r[key], r["N"]) for r in rows if r["variant"] == vname
+                   and np.isfinite(r[key]) and r[key] > 0]
+            if not pts:
+                continue
+            xs, ys, ns = zip(*pts)
+            ax.loglog(xs, ys, "o-", ms=4, label=vname)
+        ax.set_xlabel("run time (s)")
+        ax.set_title(label, fontsize=10)
+        ax.grid(True, which="major", alpha=0.3)
+    axes[0].legend(fontsize=8)
+    fig.suptitle(f"{name}: error against run time (points: N = " +
+                 ", ".join(f"{N:,}" for N in sorted({r['N'] for r in rows})) + " collisions)", fontsize=11)
+    fig.tight_layout()
+    fig.savefig(path, dpi=90)
+    plt.close(fig)
+
+
+def recommend(rows, variants):
+    """Compare each variant with the default at the same scene and N -> (lines of text, summary dict)."""
+    by = {(r["scene"], r["variant"], r["N"]): r for r in rows}
+    summary = {}
+    for vname in variants:
+        ratios = {"seconds": [], "energy": [], "rev_pos": [], "dev_pos": [], "dev_vel": []}
+        for (scene, v, N), r in by.items():
+            if v != vname:
+                continue
+            d = by.get((scene, DEFAULT_VARIANT, N))
+            if d is None:
+                continue
+            for k in ratios:
+                a, b = r[k], d[k]
+                if k == "seconds" and b < 1e-3:
+                    continue   # too short to time
+                if np.isfinite(a) and np.isfinite(b) and a > 0 and b > 0:
+                    ratios[k].append(a / b)
+        summary[vname] = {k: (statistics.median(v) if v else math.nan) for k, v in ratios.items()}
+    lines = ["| variant | time | energy drift | reversal (position) | deviation (position) | deviation (velocity) |",
+             "|---|---|---|---|---|---|"]
+    for vname, s in summary.items():
+        lines.append(f"| {vname} | " + " | ".join(f"{s[k]:.2f}" if np.isfinite(s[k]) else "—"
+                                                 for k in ("seconds", "energy", "rev_pos", "dev_pos", "dev_vel"))
+                     + " |")
+    return lines, summary
+
+
+def advice(summary, variants, rows):
+    """The recommendation, from the data: the cheapest variant whose errors are not worse than another's."""
+    text = []
+    plain = summary.get("plain", {})
+    by = {(r["scene"], r["variant"], r["N"]): r for r in rows}
+    big = max(r["N"] for r in rows)
+    drift_plain = [by[(s, "plain", big)]["energy"] for s in {r["scene"] for r in rows} if (s, "plain", big) in by]
+    drift_def = [by[(s, DEFAULT_VARIANT, big)]["energy"] for s in {r["scene"] for r in rows}
+                 if (s, DEFAULT_VARIANT, big) in by]
+    if plain:
+        text.append(f"- **Energy projection** (`renormalize`, the default): without it the energy of a rough scene "
+                    f"drifts to {fmt(max(drift_plain, default=math.nan))} after {big:,} collisions (largest over the "
+                    f"scenes; with it {fmt(max(drift_def, default=math.nan))}); it costs a median "
+                    f"{(1 / plain['seconds'] - 1) * 100 if np.isfinite(plain['seconds']) else math.nan:+.0f}% "
+                    f"of run time and leaves the deviation from the exact orbit at a median "
+                    f"{1 / plain['dev_pos'] if np.isfinite(plain['dev_pos']) else math.nan:.2f}× that of the plain "
+                    "loop. Keep it on.")
+    for vname in ("compensated", "snap", "compensated+snap"):
+        if vname not in summary:
+            text.append(f"- **{vname}**: not available in this engine.")
+            continue
+        s = summary[vname]
+        gain = min(s["dev_pos"], s["rev_pos"]) if np.isfinite(s["dev_pos"]) else s["rev_pos"]
+        verdict = ("worth making the default" if np.isfinite(gain) and gain < 0.5 and s["seconds"] < 1.15
+                   else "worth it only where its error is the one that matters (see the tables)"
+                   if np.isfinite(gain) and gain < 0.5 else "no gain worth its cost here: keep it off by default")
+        text.append(f"- **{vname}**: median time ×{s['seconds']:.2f}, energy drift ×{s['energy']:.2f}, reversal "
+                    f"error ×{s['rev_pos']:.2f}, deviation ×{s['dev_pos']:.2f} (position) and ×{s['dev_vel']:.2f} "
+                    f"(velocity) against the default: {verdict}.")
+    return text
+
+
+def main(argv=None):
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--quick", action="store_true", help="tiny sizes, one repeat (for the smoke test)")
+    ap.add_argument("--repeats", type=int, default=None)
+    ap.add_argument("--digits", type=int, default=None, help="digits of the high-precision orbit (default 50)")
+    ap.add_argument("--out", default=os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "docs",
+                                                  "accuracy.md"))
+    ap.add_argument("--scenes", default=",".join(SCENES), help="comma-separated subset of " + ", ".join(SCENES))
+    args = ap.parse_args(argv)
+    sizes = QUICK_SIZES if args.quick else SIZES
+    precise_max = {k: max(QUICK_SIZES) for k in SCENES} if args.quick else PRECISE_MAX
+    repeats = args.repeats or (1 if args.quick else 3)
+    digits = args.digits or (30 if args.quick else 50)
+    out_dir = os.path.dirname(os.path.abspath(args.out))
+    os.makedirs(out_dir, exist_ok=True)
+    names = [s for s in args.scenes.split(",") if s]
+
+    def log(msg):
+        print(msg, file=sys.stderr, flush=True)
+
+    all_rows, variants_all = [], {}
+    t_start = time.perf_counter()
+    for name in names:
+        rows, variants = measure_scene(name, SCENES[name], sizes, precise_max[name], repeats, digits, log)
+        all_rows += rows
+        variants_all.update(variants)
+        plot_scene(name, rows, variants, os.path.join(out_dir, f"accuracy-{name}.png"))
+    cmd = "python scripts/accuracy.py " + " ".join(argv if argv is not None else sys.argv[1:])
+    missing = [v for v in VARIANTS if v not in variants_all]
+    lines = ["# Accuracy: run time against error", "",
+             f"Generated by `{cmd.strip()}` (`make bench`) in {time.perf_counter() - t_start:.0f} s; "
+             "do not edit by hand.", "", f"Machine: {machine()}.", "",
+             "Each scene is one trajectory of a completely rough ball (R = 0.1, uniform mass distribution; the "
+             "catalog's initial states), run by the engine with nothing recorded. For N collisions:", "",
+             "- **energy**: |E_N − E_0|/E_0;",
+             "- **reversal**: N collisions forward, v and ω reversed, N back, carried on to the same total time; "
+             "distance from the start, Δa/L = ‖Δa‖∞/L and Δv/v = ‖Δv‖∞/‖v‖ (L the table's size, ‖v‖ = √(2E) "
+             "the speed in the metric (v, R√κ·ω));",
+             f"- **deviation**: distance from the same orbit followed at {digits} digits by `rbx/precise.py` "
+             f"(checked against {digits + 20} digits; left out, —, where that check is not 1000 times below the "
+             "engine's deviation, i.e. where the orbit is too chaotic for the reference), Δa/L and Δv/v;",
+             f"- **time**: `Simulation.run`, median of {repeats} runs after compilation.", "",
+             "Variants (attributes set on a `Simulation` before `run`): " + ", ".join(
+                 f"`{k}` = {VARIANTS[k]}" for k in VARIANTS) + "." +
+             (f" Not available in this engine: {', '.join(missing)}." if missing else ""), "",
+             "## Recommended defaults", ""]
+    table, summary = recommend(all_rows, variants_all)
+    lines += advice(summary, variants_all, all_rows)
+    lines += ["", f"Median over scenes and N of each variant's value divided by the default's (`{DEFAULT_VARIANT}`)"
+                  " at the same scene and N (below 1: better; times under 1 ms are left out):", ""] + table
+    for name in names:
+        rows = [r for r in all_rows if r["scene"] == name]
+        lines += ["", f"## {name}", "", f"![{name}](accuracy-{name}.png)", "",
+                  "| variant | N | time (s) | energy drift | reversal Δa/L | reversal Δv/v | deviation Δa/L "
+                  "| deviation Δv/v |", "|---|---|---|---|---|---|---|---|"]
+        for r in rows:
+            lines.append(f"| {r['variant']} | {r['N']:,} | {r['seconds']:.3g} | {fmt(r['energy'])} | "
+                         f"{fmt(r['rev_pos'])} | {fmt(r['rev_vel'])} | {fmt(r['dev_pos'])} | {fmt(r['dev_vel'])} |")
+    with open(args.out, "w") as fh:
+        fh.write("\n".join(lines) + "\n")
+    return all_rows
+
+
+if __name__ == "__main__":
+    main()
