@@ -5,7 +5,9 @@
   against it, and Santaló's mean free path;
 - positions on the boundary: which part of a wall a collision point lies on, its inward normal, and the Birkhoff
   coordinates of the boundary map (arc length s, sin of the angle to the normal);
-- diffusion: mean-square displacement and the diffusion coefficient with a confidence interval;
+- diffusion: mean-square displacement and the diffusion coefficient with a confidence interval, growth
+  exponents of excursions, the exact expected MSD of the random-rank strip, and the velocity an orbit between
+  parallel walls keeps forever (the part of its state that no collision map can change);
 - reading an rbx HDF5 file (SPEC §5) with one-line errors for the CLI (:class:`RunFileError`).
 
 Units: lengths in the table's unit L, times in the unit T of the config's velocities; a "step" is one collision.
@@ -243,6 +245,7 @@ class DiffusionFit:
     start: float
     stop: float
     trajectories: int
+    intercept_half_width: float = math.nan   # of the same confidence as D's interval
 
     def msd(self, t):
         return 2.0 * self.coefficient * np.asarray(t, float) + self.intercept
@@ -259,7 +262,9 @@ def fit_diffusion(t, x, fit_from=0.1, confidence=0.95):
     Each complete trajectory j gets the least-squares line through its own squared displacement over the window
     t ≥ fit_from·max(t) (skipping the ballistic start); D_j = slope_j/2. The slope of the ensemble MSD is the mean
     of the D_j (least squares is linear in the data), and because trajectories are independent — unlike the
-    points of one MSD curve — their spread gives an honest Student-t confidence interval."""
+    points of one MSD curve — their spread gives an honest Student-t confidence interval (for the intercept c
+    too: it is poorly determined, ±D·(window length) per trajectory, so a fitted c of either sign and of order
+    100 L² over a few thousand steps is noise, not curvature)."""
     from scipy import stats
     t = np.asarray(t, float)
     x = np.asarray(x, float)
@@ -278,9 +283,164 @@ def fit_diffusion(t, x, fit_from=0.1, confidence=0.95):
     intercepts = y.mean(axis=1) - slopes * tw.mean()
     D = 0.5 * slopes
     mean = float(D.mean())
-    half = float(stats.t.ppf(0.5 + confidence / 2, M - 1) * D.std(ddof=1) / math.sqrt(M))
+    tq = stats.t.ppf(0.5 + confidence / 2, M - 1)
+    half = float(tq * D.std(ddof=1) / math.sqrt(M))
+    c_half = float(tq * intercepts.std(ddof=1) / math.sqrt(M))
     return DiffusionFit(mean, mean - half, mean + half, confidence, float(intercepts.mean()), float(tw.min()),
-                        float(tw.max()), M)
+                        float(tw.max()), M, c_half)
+
+
+def growth_exponent(n, values, lo, hi):
+    """Least-squares slope of log(values) against log(n) over lo ≤ n ≤ hi -> float (the exponent a of values ∝ nᵃ):
+    0 for a bounded excursion, ½ for a diffusive one, 1 for a ballistic one (1 and 2 for a mean-square
+    displacement). Points with values ≤ 0 are skipped."""
+    n = np.asarray(n, float)
+    values = np.asarray(values, float)
+    sel = (n >= lo) & (n <= hi) & (values > 0) & np.isfinite(values)
+    if sel.sum() < 2:
+        raise ValueError("a growth exponent needs at least 2 points with positive values in the window")
+    return float(np.polyfit(np.log(n[sel]), np.log(values[sel]), 1)[0])
+
+
+def running_excursion(points):
+    """points (T, k): the largest distance from the first point reached up to each record -> (T,)."""
+    p = np.asarray(points, float)
+    return np.maximum.accumulate(np.linalg.norm(p - p[:1], axis=1))
+
+
+def time_averaged_msd(points, lags):
+    """Time-averaged mean-square displacement of one long orbit -> (len(lags),): the mean of |p(i+L) − p(i)|²
+    over every start i, for each lag L (in records). ~L for a diffusive orbit, ~L² for a ballistic one,
+    bounded for a bounded one."""
+    p = np.asarray(points, float).reshape(len(points), -1)
+    return np.array([np.mean(np.sum((p[L:] - p[:-L]) ** 2, axis=1)) for L in np.asarray(lags, int)])
+
+
+def strip_random_rank_msd(steps, position, velocity, angular_velocity, width, R, kappa, p):
+    """The exact expected mean-square displacement along a strip when each collision is rough (rank 1) with
+    probability p and specular otherwise, for trajectories that all start from one state -> (msd at ``steps``,
+    D, c) with MSD(k) = 2·D·k + c + (terms that decay geometrically in k).
+
+    In the metric-orthonormal coordinates u = (R√κ·ω, v_x) the rough map of a wall is a reflection S_w (SPEC
+    §1; bottom: v·Jν = −v_x, top: v·Jν = v_x), v_y only changes sign, so every flight after the first takes
+    τ = (width − 2R)/|v_y|. Exactly, with X_k = x_k − x_0 and B_k = S_w with probability p, else I:
+    X_{k+1} = X_k + τ_k·u_x,  u_{k+1} = B_{k+1}·u_k, so the moments q = E[X²], g = E[X·u], m = E[u uᵀ] obey
+    q' = q + 2τ g_x + τ² m_xx,  g' = Ā(g + τ m e_x),  m' = (1 − p)·m + p·S m S  with Ā = (1 − p)I + pS.
+    For p = ½ the limit is D = τ²|u|²(1 + 1/κ)/4 (the velocity correlation decays by (1 − κ)/(1 + κ) per
+    collision). ``steps``: collision counts (the records); the first flight starts at ``position``."""
+    steps = np.asarray(steps, np.int64)
+    kappa, R = float(kappa), float(R)
+    vx, vy = float(velocity[0]), float(velocity[1])
+    if vy == 0.0:
+        raise ValueError("v_y = 0: the disc never reaches a wall")
+    c0 = R * math.sqrt(kappa)
+    u = np.array([c0 * float(angular_velocity), vx])
+    k1, k2 = (kappa - 1) / (1 + kappa), 2 * math.sqrt(kappa) / (1 + kappa)
+    M = np.array([[k1, k2], [k2, -k1]])                # on (v0, v·Jν)
+    flip = np.diag([1.0, -1.0])
+    S = {"top": M, "bottom": flip @ M @ flip}          # on (v0, v_x)
+    A = {w: (1 - p) * np.eye(2) + p * S[w] for w in S}
+    tau = (width - 2 * R) / abs(vy)
+    y0 = float(position[1])
+    wall = "top" if vy > 0 else "bottom"
+    tau_k = ((width - R) - y0) / vy if vy > 0 else (y0 - R) / -vy
+    q, g, m = 0.0, np.zeros(2), np.outer(u, u)
+    last = int(steps.max()) if len(steps) else 0
+    horizon = max(last, 2000)                          # long after the transient has decayed
+    msd = np.zeros(horizon + 1)
+    for k in range(horizon):
+        q = q + 2 * tau_k * g[1] + tau_k * tau_k * m[1, 1]
+        g = A[wall] @ (g + tau_k * m[:, 1])
+        m = (1 - p) * m + p * S[wall] @ m @ S[wall].T
+        msd[k + 1] = q
+        tau_k = tau
+        wall = "bottom" if wall == "top" else "top"
+    D = (msd[horizon] - msd[horizon - 2]) / 4.0        # two flights: one past each wall
+    c = float(msd[horizon] - 2 * D * horizon)
+    return msd[steps], float(D), c
+
+
+def slip_constraints(rough, R, kappa):
+    """Rows of the linear map whose null space is the set of states that do not slip in any of the rough
+    directions ``rough`` = [(ν, d), …] (wall normal into the free region, unit rough direction d ⊥ ν), in the
+    metric-orthonormal coordinates z = (v, R√κ·ω) (2D: ω scalar; 3D: ω a vector) -> (len(rough), dim).
+
+    The contact point slips at u = v + ω×r with r = −Rν, so d·u = d·v − (1/√κ)·(R√κ ω)·(ν×d) in 3D and
+    d·v − (1/√κ)·(R√κ ω)·(d·Jν) in 2D."""
+    rows = []
+    for nu, d in rough:
+        nu, d = np.asarray(nu, float), np.asarray(d, float)
+        if len(nu) == 2:
+            rows.append(np.concatenate([d, [-(d @ np.array([-nu[1], nu[0]])) / math.sqrt(kappa)]]))
+        else:
+            rows.append(np.concatenate([d, -np.cross(nu, d) / math.sqrt(kappa)]))
+    return np.array(rows)
+
+
+def conserved_drift(velocity, angular_velocity, rough, R, kappa):
+    """Between two parallel walls (strip, plates): the velocity along the walls that the orbit keeps on average
+    forever -> (n,) vector (its normal component is 0).
+
+    Every rough collision acts on z = (v, R√κ·ω) (normal velocity left out: it only changes sign) as an
+    orthogonal reflection whose fixed space is the states that do not slip in that wall's rough directions
+    (SPEC §1: the map is an energy-preserving involution, the identity on non-slipping states). The part of z in
+    the intersection F of the fixed spaces of every map that can occur — ``rough`` lists each (ν, d) pair that
+    any rule can use — is therefore never changed, and the rest averages to zero unless more is conserved. A
+    non-zero velocity part of P_F z makes the orbit drift ballistically; none (F ∩ velocities = 0) leaves it
+    bounded or diffusive."""
+    v = np.asarray(velocity, float).copy()
+    n = len(v)
+    normal = np.asarray(rough[0][0], float) if rough else np.eye(n)[-1]
+    v = v - (v @ normal) * normal
+    w = np.atleast_1d(np.asarray(angular_velocity, float)) * R * math.sqrt(kappa)
+    z = np.concatenate([v, w])
+    if not rough:
+        return v
+    K = slip_constraints(rough, R, kappa)
+    zF = z - np.linalg.pinv(K) @ (K @ z)
+    drift = zF[:n]
+    return drift - (drift @ normal) * normal
+
+
+def rough_directions(boundary, geom):
+    """Every (ν, d) pair a boundary config (the resolved mapping of a run file) can use on the flat walls of a
+    table -> list: constant rank n−1 gives the wall's tangent axes, rank 1 its direction (``direction_deg`` from
+    the wall's first tangent axis, or ``direction`` projected onto the wall), random and hemisphere rules every
+    choice. For 2D walls the one tangent direction is Jν."""
+    n = geom.dimension
+    walls = boundary.get("walls") or {}
+    out = []
+    for wall in geom.wall_list:
+        rule = walls.get(wall.name, boundary.get("default"))
+        for patch in wall.patches:
+            if patch[0] != "flat":
+                raise ValueError("rough_directions handles flat walls only")
+            nu = np.asarray(patch[2], float)
+            for d in _rule_directions(rule, nu, wall, n):
+                out.append((nu, d))
+    return out
+
+
+def _rule_directions(rule, nu, wall, n):
+    kind = rule.get("rule")
+    if kind == "random":
+        return [d for c in rule["choices"] for d in _rule_directions(c, nu, wall, n)]
+    if kind == "hemisphere":
+        return _rule_directions(rule["rough"], nu, wall, n) + _rule_directions(rule["smooth"], nu, wall, n)
+    rank = int(rule.get("rank", 0))
+    if rank == 0:
+        return []
+    if n == 2:
+        return [np.array([-nu[1], nu[0]])]
+    t1, t2 = (np.asarray(t, float) for t in wall.tangents)
+    if rank == 2:
+        return [t1, t2]
+    if "direction_deg" in rule:
+        th = math.radians(float(rule["direction_deg"]))
+        return [math.cos(th) * t1 + math.sin(th) * t2]
+    d = np.asarray(rule["direction"], float)
+    d = d - (d @ nu) * nu
+    return [d / np.linalg.norm(d)]
 
 
 # ---- reading runs ----------------------------------------------------------------------------------------------

@@ -1,0 +1,163 @@
+"""The ball and start of Figure plate (κ = 2/5, radius 0.1, plates 1 apart) with roughness rank 1 on at least one
+plate: horizontal projections of one orbit of 10⁶ collisions each, for the paper's three combinations — both plates
+rank 1 with the rough direction drawn from 0°, 60°, 120° at every collision, independently (top left); top plate
+rank 1 along x, bottom plate drawn as before (bottom left); top plate rank 2, bottom plate rank 1 along x (top
+middle) — and, for comparison, rank 2 on both (bottom middle, the bounded orbit of Figure plate). Right: the largest
+horizontal distance from the start reached up to each collision, on log–log axes. As soon as one plate has rank 1
+the orbit is unbounded; how fast it runs away is decided by what no collision can change. A rough collision is a
+reflection of (v, R√κ·ω) that leaves the states not slipping in its rough directions alone; if some state slips in
+none of the directions of either plate, that part of the velocity is kept forever and the ball drifts ballistically
+(excursion ∝ steps¹) at that velocity (arrow: predicted by rbx.analysis.conserved_drift, and matched to 10⁻³ or
+better) — here for top rank 2 with bottom rank 1 along x, and for top rank 1 along x with random bottom directions
+(three constraints on four velocity–spin components). Insets: the path minus the predicted drift, bounded for the
+deterministic rules (drawn every 10th collision, so one phase of a period-2 wobble) and a random walk for the random
+ones. With random directions on both plates nothing is kept and the orbit is a random walk (excursion ∝ steps^½,
+time-averaged MSD ∝ lag); with rank 2 on both it is bounded. Why these parameters: the paper's three boundary
+conditions and ball, the start of Figure plate so that the bounded case is the same orbit, 10⁶ collisions (three
+decades of growth) recorded every 10th.
+"""
+import numpy as np
+from matplotlib.figure import Figure as MplFigure
+from matplotlib.ticker import MaxNLocator
+
+from fig_plate import plates_measures, read_plates_orbit, record_plates
+from figlib import Figure, arguments
+
+UNBOUNDED = 0.3      # growth exponent of the excursion above which an orbit is unbounded (bounded: 0)
+BOUNDED = 0.05       # ... and below which it is bounded
+DRIFT = 0.01         # relative error of the predicted drift velocity
+MAX_POINTS = 20000   # points drawn per path
+PLACES = {"both-random": (0, 0), "constant-random": (1, 0), "rank2-rank1": (0, 1), "rank2-rank2": (1, 1)}
+NAMES = {"both-random": "both plates rank 1, directions drawn from 0°, 60°, 120°",
+         "constant-random": "top rank 1 along x, bottom rank 1 drawn from 0°, 60°, 120°",
+         "rank2-rank1": "top rank 2, bottom rank 1 along x",
+         "rank2-rank2": "both plates rank 2 (Figure plate, for comparison)"}
+
+
+def uses_random(rule):
+    """True if a boundary config (or rule) draws at random anywhere."""
+    if isinstance(rule, dict):
+        return rule.get("rule") == "random" or any(uses_random(v) for v in rule.values())
+    if isinstance(rule, list):
+        return any(uses_random(v) for v in rule)
+    return False
+
+
+def kind_of(boundary, geom):
+    """'both-random' | 'constant-random' | 'rank2-rank1' | 'rank2-rank2' from a plates boundary config."""
+    walls = boundary.get("walls") or {}
+    rules = [walls.get(w.name, boundary.get("default")) for w in geom.wall_list]     # bottom, top
+    desc = []
+    for r in rules:
+        if r.get("rule") == "random":
+            desc.append("random")
+        elif r.get("rule") == "constant":
+            desc.append(f"rank{r.get('rank')}")
+        else:
+            desc.append("other")
+    bottom, top = desc
+    if bottom == top == "random":
+        return "both-random"
+    if bottom == "random" and top == "rank1":
+        return "constant-random"
+    if top == "rank2" and bottom == "rank1":
+        return "rank2-rank1"
+    if top == bottom == "rank2":
+        return "rank2-rank2"
+    raise SystemExit(f"roughrank: unexpected boundary (bottom {bottom}, top {top})")
+
+
+def main():
+    args = arguments(__doc__)
+    fig = Figure("roughrank", caption=__doc__)
+    scenes = {}
+    for path in args.data:
+        o = read_plates_orbit(path)
+        scenes[kind_of(o["boundary"], o["geom"])] = (o, plates_measures(o))
+    title = next(iter(scenes.values()))[0]["title"].split(" · ")[0]
+
+    for k in PLACES:
+        if k not in scenes:
+            continue
+        o, m = scenes[k]
+        record_plates(fig, m, prefix=f"{k}: ")
+    for k, (o, m) in scenes.items():
+        random = uses_random(o["boundary"])
+        if k == "rank2-rank2":
+            fig.check(f"{k}: bounded: growth exponent of the excursion", m["exponent"], "<=", BOUNDED)
+            continue
+        fig.check(f"{k}: unbounded: growth exponent of the excursion", m["exponent"], ">=", UNBOUNDED)
+        if m["drifts"]:
+            fig.check(f"{k}: drifts at the conserved slip-free velocity: relative error", m["drift_error"], "<=",
+                      DRIFT)
+        else:
+            fig.check(f"{k}: nothing conserved: |mean velocity| / |initial horizontal velocity|",
+                      float(np.linalg.norm(m["measured_drift"])) / m["speed"], "<=", DRIFT)
+        what = "after the drift" if m["drifts"] else "the orbit"
+        if random:
+            fig.check(f"{k}: {what} is a random walk: time-averaged MSD exponent ≥", m["rest_tamsd_exponent"],
+                      ">=", 0.8)
+            fig.check(f"{k}: {what} is a random walk: time-averaged MSD exponent ≤", m["rest_tamsd_exponent"],
+                      "<=", 1.2)
+        else:
+            fig.check(f"{k}: {what} is bounded (deterministic rules): growth exponent of its excursion",
+                      m["rest_exponent"], "<=", BOUNDED)
+
+    out = MplFigure(figsize=(15.0, 9.0), layout="constrained")
+    out.suptitle(f"roughrank · {title}: horizontal projections of one orbit of 10⁶ collisions per boundary "
+                 "condition", fontsize=9)
+    grid = out.add_gridspec(2, 3, width_ratios=[1, 1, 1.25])
+    for k, (row, col) in PLACES.items():
+        if k not in scenes:
+            continue
+        o, m = scenes[k]
+        ax = out.add_subplot(grid[row, col])
+        p = o["position"]
+        q = p[::max(1, len(p) // MAX_POINTS)]
+        ax.plot(q[:, 0], q[:, 1], color=f"C{list(PLACES).index(k)}", lw=0.4)
+        ax.plot(p[0, 0], p[0, 1], "o", color="k", ms=3)
+        d = m["drift"]
+        ax.set_aspect("equal", adjustable="datalim")
+        if m["drifts"]:
+            span = m["eN"]
+            arrow = 0.35 * span * d / np.linalg.norm(d)
+            ax.annotate("", xy=(p[0, 0] + arrow[0], p[0, 1] + arrow[1]), xytext=(p[0, 0], p[0, 1]),
+                        arrowprops=dict(arrowstyle="->", color="k", lw=1.2))
+            ax.plot([], [], color="k", label=f"predicted drift ({d[0]:.4f}, {d[1]:.4f}) L/T")
+            ax.legend(fontsize=7, loc="lower left")
+            inset = ax.inset_axes([0.52, 0.1, 0.45, 0.38])
+            r = m["rest"][::max(1, len(p) // MAX_POINTS)]
+            inset.plot(r[:, 0], r[:, 1], color="0.3", lw=0.3)
+            inset.set_aspect("equal", adjustable="datalim")
+            inset.tick_params(labelsize=6)
+            inset.xaxis.set_major_locator(MaxNLocator(4))
+            inset.set_title(f"(x, y) − drift·t: excursion ∝ steps^{m['rest_exponent']:.2f}", fontsize=7)
+        ax.xaxis.set_major_locator(MaxNLocator(5))
+        ax.ticklabel_format(axis="both", style="sci", scilimits=(-3, 4))
+        ax.set_xlabel("x [L]")
+        ax.set_ylabel("y [L]")
+        ax.set_title(f"{k}: {NAMES[k]}\nexcursion {m['e1']:.4g} L after {m['n1']}, {m['eN']:.4g} L after {m['N']}",
+                     fontsize=7.5)
+
+    ax = out.add_subplot(grid[:, 2])
+    for k in PLACES:
+        if k not in scenes:
+            continue
+        o, m = scenes[k]
+        s = o["steps"]
+        i = np.unique(np.geomspace(1, len(s) - 1, 2000).astype(int))
+        ax.loglog(s[i], m["excursion"][i], color=f"C{list(PLACES).index(k)}", lw=1.2,
+                  label=f"{k}: exponent {m['exponent']:.3f}")
+    n = np.geomspace(1e3, 1e6, 10)
+    ax.loglog(n, 0.5 * n, "k:", lw=0.9, label="∝ steps (ballistic)")
+    ax.loglog(n, 0.5 * np.sqrt(n), "k--", lw=0.9, label="∝ steps^½ (random walk)")
+    ax.axvspan(1e3, 1e6, color="0.93", zorder=0, label="where the exponent is fitted")
+    ax.set_xlabel("collisions")
+    ax.set_ylabel("largest horizontal distance from the start so far [L]")
+    ax.set_title("growth of the horizontal excursion", fontsize=8.5)
+    ax.legend(fontsize=7, loc="upper left")
+    fig.save(out, args)
+
+
+if __name__ == "__main__":
+    main()
