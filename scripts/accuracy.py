@@ -283,64 +283,102 @@ def plot_scene(name, rows, variants, path):
     plt.close(fig)
 
 
-def recommend(rows, variants):
-    """Compare each variant with the default at the same scene and N -> (lines of text, summary dict)."""
-    by = {(r["scene"], r["variant"], r["N"]): r for r in rows}
-    summary = {}
-    for vname in variants:
-        ratios = {"seconds": [], "energy": [], "rev_pos": [], "dev_pos": [], "dev_vel": []}
-        for (scene, v, N), r in by.items():
-            if v != vname:
-                continue
-            d = by.get((scene, DEFAULT_VARIANT, N))
-            if d is None:
-                continue
-            for k in ratios:
-                a, b = r[k], d[k]
-                if k == "seconds" and b < 1e-3:
-                    continue   # too short to time
-                if np.isfinite(a) and np.isfinite(b) and a > 0 and b > 0:
-                    ratios[k].append(a / b)
-        summary[vname] = {k: (statistics.median(v) if v else math.nan) for k, v in ratios.items()}
-    lines = ["| variant | time | energy drift | reversal (position) | deviation (position) | deviation (velocity) |",
-             "|---|---|---|---|---|---|"]
-    for vname, s in summary.items():
-        lines.append(f"| {vname} | " + " | ".join(f"{s[k]:.2f}" if np.isfinite(s[k]) else "—"
-                                                 for k in ("seconds", "energy", "rev_pos", "dev_pos", "dev_vel"))
-                     + " |")
-    return lines, summary
+#: scenes whose orbits are not chaotic: reversal and deviation stay meaningful over long runs
+REGULAR = ("strip", "circle", "rectangle", "plates")
+#: README: "energy kept to 1e-12" over 10⁵ collisions
+ENERGY_PROMISE = (100_000, 1e-12)
+EPS = 2.0 ** -53
 
 
-def advice(summary, variants, rows):
-    """The recommendation, from the data: the cheapest variant whose errors are not worse than another's."""
-    text = []
-    plain = summary.get("plain", {})
+def _median(xs):
+    xs = [x for x in xs if x is not None and np.isfinite(x)]
+    return statistics.median(xs) if xs else math.nan
+
+
+def summarize(rows, variants):
+    """Per variant, over the scenes: collisions per second at the largest N, the worst energy drift at 10⁵
+    collisions (or the largest N below) and at the largest N, and over the regular scenes the median reversal
+    error at the largest N and the median deviation at the largest N the reference reaches -> {variant: dict}."""
     by = {(r["scene"], r["variant"], r["N"]): r for r in rows}
-    big = max(r["N"] for r in rows)
-    drift_plain = [by[(s, "plain", big)]["energy"] for s in {r["scene"] for r in rows} if (s, "plain", big) in by]
-    drift_def = [by[(s, DEFAULT_VARIANT, big)]["energy"] for s in {r["scene"] for r in rows}
-                 if (s, DEFAULT_VARIANT, big) in by]
-    if plain:
-        text.append(f"- **Energy projection** (`renormalize`, the default): without it the energy of a rough scene "
-                    f"drifts to {fmt(max(drift_plain, default=math.nan))} after {big:,} collisions (largest over the "
-                    f"scenes; with it {fmt(max(drift_def, default=math.nan))}); it costs a median "
-                    f"{(1 / plain['seconds'] - 1) * 100 if np.isfinite(plain['seconds']) else math.nan:+.0f}% "
-                    f"of run time and leaves the deviation from the exact orbit at a median "
-                    f"{1 / plain['dev_pos'] if np.isfinite(plain['dev_pos']) else math.nan:.2f}× that of the plain "
-                    "loop. Keep it on.")
-    for vname in ("compensated", "snap", "compensated+snap"):
-        if vname not in summary:
-            text.append(f"- **{vname}**: not available in this engine.")
+    scenes = sorted({r["scene"] for r in rows})
+    sizes = sorted({r["N"] for r in rows})
+    big = sizes[-1]
+    n_promise = max([N for N in sizes if N <= ENERGY_PROMISE[0]], default=sizes[0])
+    out = {}
+    for v in variants:
+        get = [by.get((s, v, big)) for s in scenes]
+        rate = _median([big / r["seconds"] for r in get if r])
+        e_promise = max((by[(s, v, n_promise)]["energy"] for s in scenes if (s, v, n_promise) in by), default=math.nan)
+        e_big = max((r["energy"] for r in get if r), default=math.nan)
+        regular = [s for s in scenes if s in REGULAR] or scenes
+        rev = _median([by[(s, v, big)]["rev_pos"] for s in regular if (s, v, big) in by])
+        devs, dev_n = [], None
+        for s in regular:
+            ns = [N for N in sizes if (s, v, N) in by and np.isfinite(by[(s, v, N)]["dev_pos"])]
+            if ns:
+                devs.append(max(by[(s, v, ns[-1])]["dev_pos"], by[(s, v, ns[-1])]["dev_vel"]))
+                dev_n = ns[-1] if dev_n is None else min(dev_n, ns[-1])
+        out[v] = {"rate": rate, "energy_promise": e_promise, "energy_big": e_big, "reversal": rev,
+                  "deviation": _median(devs), "n_promise": n_promise, "big": big, "dev_n": dev_n}
+    return out
+
+
+def choose_default(summary):
+    """The recommendation rule: among the variants that keep the README's energy promise (drift ≤ 1e-12 over 10⁵
+    collisions), the one closest to the exact orbit (median deviation), unless it is more than 25% slower than the
+    fastest of them while that one is within a factor 3 of its deviation -> (name, rule text)."""
+    ok = {v: s for v, s in summary.items() if s["energy_promise"] <= ENERGY_PROMISE[1]}
+    if not ok:
+        return None, "no variant keeps the energy promise"
+    floor = lambda x: max(x, EPS) if np.isfinite(x) else math.inf  # noqa: E731
+    best = min(ok, key=lambda v: (floor(ok[v]["deviation"]), floor(ok[v]["reversal"]), -ok[v]["rate"]))
+    fastest = max(ok, key=lambda v: ok[v]["rate"])
+    if ok[best]["rate"] < 0.75 * ok[fastest]["rate"] and floor(ok[fastest]["deviation"]) <= 3 * floor(
+            ok[best]["deviation"]):
+        return fastest, (f"`{fastest}`: the fastest of the variants that keep the energy within "
+                         f"{ENERGY_PROMISE[1]:g} over {ENERGY_PROMISE[0]:,} collisions, and within a factor 3 of "
+                         f"the most accurate (`{best}`), which is more than 25% slower")
+    return best, (f"`{best}`: of the variants that keep the energy within {ENERGY_PROMISE[1]:g} over "
+                  f"{ENERGY_PROMISE[0]:,} collisions, the closest to the exact orbit"
+                  + ("" if best == fastest else f" (and no more than 25% slower than the fastest, `{fastest}`, or "
+                                                  "that one is more than 3 times further from the exact orbit)"))
+
+
+def advice(rows, variants):
+    """Generated text and table of the section 'Recommended defaults'."""
+    summary = summarize(rows, variants)
+    s0 = next(iter(summary.values()))
+    lines = [f"Over the scenes, per variant: collisions per second at N = {s0['big']:,} (median); the worst energy "
+             f"drift at N = {s0['n_promise']:,} and at N = {s0['big']:,}; over the regular scenes "
+             f"({', '.join(s for s in REGULAR)}) the median time-reversal error Δa/L at N = {s0['big']:,} and the "
+             f"median deviation max(Δa/L, Δv/v) from the exact orbit at the largest N the reference reaches"
+             f" ({s0['dev_n']:,} or more).", "",
+             "| variant | collisions/s | energy drift, N = %s | energy drift, N = %s | reversal | deviation |"
+             % (f"{s0['n_promise']:,}", f"{s0['big']:,}"), "|---|---|---|---|---|---|"]
+    for v, s in summary.items():
+        lines.append(f"| {v} | {s['rate']:.3g} | {fmt(s['energy_promise'])} | {fmt(s['energy_big'])} | "
+                     f"{fmt(s['reversal'])} | {fmt(s['deviation'])} |")
+    choice, rule = choose_default(summary)
+    lines += [""]
+    if choice is not None:
+        settings = ", ".join(f"`sim.{k} = {val!r}`" for k, val in VARIANTS[choice].items())
+        lines += [f"**Recommended default: {rule}.** That is {settings} (attributes not named keep the engine's "
+                  "default, off)."]
+    else:
+        lines += [f"**No recommendation: {rule}.**"]
+    d = summary.get(DEFAULT_VARIANT)
+    lines += ["", "Trade-offs against the present default (`%s`):" % DEFAULT_VARIANT, ""]
+    for v, s in summary.items():
+        if v == DEFAULT_VARIANT or d is None:
             continue
-        s = summary[vname]
-        gain = min(s["dev_pos"], s["rev_pos"]) if np.isfinite(s["dev_pos"]) else s["rev_pos"]
-        verdict = ("worth making the default" if np.isfinite(gain) and gain < 0.5 and s["seconds"] < 1.15
-                   else "worth it only where its error is the one that matters (see the tables)"
-                   if np.isfinite(gain) and gain < 0.5 else "no gain worth its cost here: keep it off by default")
-        text.append(f"- **{vname}**: median time ×{s['seconds']:.2f}, energy drift ×{s['energy']:.2f}, reversal "
-                    f"error ×{s['rev_pos']:.2f}, deviation ×{s['dev_pos']:.2f} (position) and ×{s['dev_vel']:.2f} "
-                    f"(velocity) against the default: {verdict}.")
-    return text
+        ratio = lambda a, b: (max(a, EPS) / max(b, EPS)) if np.isfinite(a) and np.isfinite(b) else math.nan  # noqa
+        parts = [f"speed ×{s['rate'] / d['rate']:.2f}",
+                 f"energy drift at {s['big']:,} ×{ratio(s['energy_big'], d['energy_big']):.3g}",
+                 f"reversal error ×{ratio(s['reversal'], d['reversal']):.3g}",
+                 f"deviation ×{ratio(s['deviation'], d['deviation']):.3g}"]
+        keeps = "keeps" if s["energy_promise"] <= ENERGY_PROMISE[1] else "breaks"
+        lines.append(f"- `{v}`: " + ", ".join(parts) + f"; {keeps} the energy promise.")
+    return lines
 
 
 def main(argv=None):
@@ -389,10 +427,7 @@ def main(argv=None):
                  f"`{k}` = {VARIANTS[k]}" for k in VARIANTS) + "." +
              (f" Not available in this engine: {', '.join(missing)}." if missing else ""), "",
              "## Recommended defaults", ""]
-    table, summary = recommend(all_rows, variants_all)
-    lines += advice(summary, variants_all, all_rows)
-    lines += ["", f"Median over scenes and N of each variant's value divided by the default's (`{DEFAULT_VARIANT}`)"
-                  " at the same scene and N (below 1: better; times under 1 ms are left out):", ""] + table
+    lines += advice(all_rows, variants_all)
     for name in names:
         rows = [r for r in all_rows if r["scene"] == name]
         lines += ["", f"## {name}", "", f"![{name}](accuracy-{name}.png)", "",
