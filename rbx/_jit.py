@@ -1,10 +1,39 @@
 """The one place that decides how rbx compiles its kernels (STYLE: one module owns the jit policy).
 
-- ``cache=True``: compiled kernels are stored in ``__pycache__`` so a second run starts in well under a second.
+- ``cache=True``: compiled kernels are stored on disk so a second run starts in well under a second. Numba checks
+  only the timestamp of a kernel's *own* file, not of the helpers inlined into it from other modules, so an edited
+  helper could run stale. The cache therefore lives in a folder named by a hash of every kernel module's source
+  and the Numba version (``$NUMBA_CACHE_DIR`` or ``~/.cache/rbx``, then ``numba-<hash>``): any change compiles
+  afresh.
 - ``error_model='numpy'``: a division by zero gives inf/nan instead of raising; ``inf`` means "no collision".
 - no ``fastmath``: the engine relies on ``inf`` and exact comparisons (fast-math would assume no infs).
 """
+import hashlib
+import os
+
 import numba
+
+#: every module that defines kernels (tests/test_jit.py checks the list is complete)
+KERNEL_MODULES = ("_jit", "engine", "geometry", "physics", "rng", "rules")
+
+
+def kernel_source_hash():
+    h = hashlib.sha256(numba.__version__.encode())
+    here = os.path.dirname(os.path.abspath(__file__))
+    for name in KERNEL_MODULES:
+        with open(os.path.join(here, name + ".py"), "rb") as f:
+            h.update(f.read())
+    return h.hexdigest()[:16]
+
+
+def _cache_dir():
+    base = os.environ.get("NUMBA_CACHE_DIR") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "rbx")
+    return os.path.join(base, "numba-" + kernel_source_hash())
+
+
+# read by Numba when a kernel is decorated below (its cache locator), so it must be set before any of them
+numba.config.CACHE_DIR = _cache_dir()
 
 _POLICY = dict(cache=True, error_model="numpy", fastmath=False, nogil=True)
 

@@ -14,11 +14,12 @@ Per collision (ARCHITECTURE.md, "The event loop"):
  5. the strict collision map updates (v, W) in place;
  6. every ``every``-th collision, the requested fields go to the trajectory's row of the block buffers.
 """
+import numba
 import numpy as np
-from numba import prange
+from numba import literally, prange
 
 from ._jit import jit, jit_hot, jit_loop, jit_parallel
-from .geometry import contact_normal, next_collision
+from .geometry import contact_normal, next_collision, slab_collision, snap
 from .physics import collide
 from .rules import choose
 
@@ -56,13 +57,12 @@ def rotate(A, W, tau, E, tmp):
 
 
 @jit_hot
-def rescale_energy(v, W, R, kappa, e0):
+def rescale_energy(v, W, R, kappa, e0, n):
     """Scale (v, W) so the kinetic energy is exactly the trajectory's initial energy ``e0`` again.
 
     The rough map conserves energy exactly in exact arithmetic, but its constants (α, 1/(κR)) are rounded the
     same way at every collision, which biases the energy by ~1e-17 per collision: 2e-12 after 10⁵ collisions in
     an L-shaped table. Projecting back onto the energy surface removes that drift (docs/accuracy.md)."""
-    n = v.shape[0]
     e = 0.0
     for i in range(n):
         e += v[i] * v[i]
@@ -80,9 +80,8 @@ def rescale_energy(v, W, R, kappa, e0):
 
 @jit_hot
 def write_record(j, r, mask, t, a, v, W, theta, A, wall, rank, o_time, o_pos, o_vel, o_spin, o_orient, o_wall,
-                 o_rank):
+                 o_rank, n):
     """Write the requested fields of one state into slot (j, r) of the block buffers."""
-    n = a.shape[0]
     if mask & F_TIME:
         o_time[j, r] = t
     if mask & F_POSITION:
@@ -111,20 +110,58 @@ def write_record(j, r, mask, t, a, v, W, theta, A, wall, rank, o_time, o_pos, o_
         o_rank[j, r] = rank
 
 
+#: bits of ``spec``, the compile-time description of what a run needs (SPEC §7: skip what a scene does not need).
+#: ``spec`` reaches the kernels as a literal, so Numba compiles one specialised loop per combination in use and the
+#: branches a scene does not need disappear from its machine code (and the dimension becomes a constant).
+S_DIM3 = 1          # 3D (else 2D)
+S_ORIENT = 2        # follow the orientation (a hemisphere rule or the recorded field needs it)
+S_SPIN = 4          # some rule is rough: spin arithmetic (else specular reflection only)
+S_TREE = 8          # some wall's rule is a hemisphere or random tree (else the wall's constant rule directly)
+S_RECORD = 16       # per-collision records are written
+S_COMPENSATED = 64  # compensated (Kahan) summation of the time and the position
+S_SNAP = 128        # put the centre exactly on the wall at contact
+S_SLAB = 256        # two parallel walls (strip, plates): closed-form flight time and exact normal coordinate
+S_STOP_WALL = 512   # end a trajectory when it hits ``stop_wall``
+
+
+def make_spec(n, orient=False, spin=True, tree=False, record=False, compensated=False, snap=False,
+              slab=False, stop_wall=False):
+    """The ``spec`` bits from flags (:class:`rbx.simulate.Simulation` derives them from the config)."""
+    flags = ((n == 3, S_DIM3), (orient, S_ORIENT), (spin, S_SPIN), (tree, S_TREE), (record, S_RECORD),
+             (compensated, S_COMPENSATED), (snap, S_SNAP), (slab, S_SLAB),
+             (stop_wall, S_STOP_WALL))
+    return sum(bit for on, bit in flags if on)
+
+
+@jit_hot
+def kahan_add(s, comp, j, i, x):
+    """s + x, compensated: the rounding error of each sum is carried in comp[j, i] and fed into the next one
+    (Neumaier's two-sum), so s stays within half an ulp of the exact sum of every x -> new s."""
+    y = x + comp[j, i]
+    t = s + y
+    if abs(s) >= abs(y):
+        comp[j, i] = (s - t) + y
+    else:
+        comp[j, i] = (y - t) + s
+    return t
+
+
 @jit_loop
-def advance(j, stop, stop_wall, every, mask, follow_orientation, renormalize, codes, prim_wall, params, tol, R, kappa,
+def advance(j, stop, spec, stop_wall, every, mask, renorm_every, codes, prim_wall, params, tol, R, kappa,
             root, kind, rank, first, children, cumprob, axis, basis,
-            pos, vel, W, theta, A, time, ncoll, draws, alive, keys, last_wall, last_rank, energy0,
+            pos, vel, W, theta, A, time, ncoll, draws, alive, keys, last_wall, last_rank, energy0, comp,
             o_time, o_pos, o_vel, o_spin, o_orient, o_wall, o_rank, scratch_n, scratch_3n, scratch_33):
     """Run trajectory j until it has made ``stop`` collisions in all -> records written to row j.
 
     It ends early (``alive[j] = False``) when no wall lies ahead (an escape) or, if ``stop_wall ≥ 0``, right
-    after a collision with that wall (the return loop of the invariant-measure experiment)."""
+    after a collision with that wall (the return loop of the invariant-measure experiment). With
+    ``S_COMPENSATED``, ``comp[j]`` carries the rounding errors of the position (0…n−1) and time (n) sums."""
+    literally(spec)
+    n = 3 if spec & S_DIM3 else 2
     a = pos[j]
     v = vel[j]
     Wj = W[j]
     Aj = A[j]
-    n = a.shape[0]
     nu = scratch_n[j]
     work = scratch_3n[j]
     E = scratch_33[j, 0]
@@ -136,35 +173,75 @@ def advance(j, stop, stop_wall, every, mask, follow_orientation, renormalize, co
     key = keys[j]
     w = last_wall[j]
     rk = last_rank[j]
+    e0 = energy0[j]
     nrec = 0
+    until_record = every - c % every           # collisions to the next record
+    until_renorm = renorm_every - c % renorm_every if renorm_every > 0 else 0
     while c < stop:
-        tau, p = next_collision(codes, params, a, v, tol)
+        # 1. next collision: the flight time and the primitive hit
+        if spec & S_SLAB:
+            tau, p = slab_collision(params, a, v, n)
+        else:
+            tau, p = next_collision(codes, params, a, v, tol, n)
         if p < 0:
             alive[j] = False
             break
-        for i in range(n):
-            a[i] += tau * v[i]
-        t += tau
-        if follow_orientation:
+        # 2. free flight
+        if spec & S_COMPENSATED:
+            for i in range(n):
+                a[i] = kahan_add(a[i], comp, j, i, tau * v[i])
+            t = kahan_add(t, comp, j, n, tau)
+        else:
+            for i in range(n):
+                a[i] += tau * v[i]
+            t += tau
+        if spec & S_SLAB:
+            a[n - 1] = params[p, n - 1]            # exactly on the wall: the normal coordinate is known
+            if spec & S_COMPENSATED:
+                comp[j, n - 1] = 0.0
+        if spec & S_ORIENT:
             if n == 2:
                 th += tau * Wj[1, 0]
             else:
                 rotate(Aj, Wj, tau, E, tmp)
-        contact_normal(codes[p], params, p, a, nu)
+        # 3. contact normal
+        contact_normal(codes[p], params, p, a, nu, n)
+        if spec & S_SNAP:
+            snap(codes[p], params, p, a, nu, n)
+        # 4. rule
         w = prim_wall[p]
-        node, d = choose(w, nu, Aj, th, key, d, root, kind, first, children, cumprob, axis)
+        if spec & S_TREE:
+            node, d = choose(w, nu, Aj, th, key, d, root, kind, first, children, cumprob, axis, n)
+        else:
+            node = root[w]
         rk = rank[node]
-        collide(v, Wj, nu, R, kappa, rk, basis, node, w, work)
-        if renormalize and rk > 0:
-            rescale_energy(v, Wj, R, kappa, energy0[j])
+        # 5. collision map
+        if spec & S_SPIN:
+            collide(v, Wj, nu, R, kappa, rk, basis, node, w, work, n)
+            if renorm_every > 0:
+                until_renorm -= 1
+                if until_renorm == 0:
+                    until_renorm = renorm_every
+                    rescale_energy(v, Wj, R, kappa, e0, n)
+        else:
+            vn = 0.0
+            for i in range(n):
+                vn += v[i] * nu[i]
+            for i in range(n):
+                v[i] -= 2.0 * vn * nu[i]
         c += 1
-        if mask != 0 and c % every == 0:
-            write_record(j, nrec, mask, t, a, v, Wj, th, Aj, w, rk, o_time, o_pos, o_vel, o_spin, o_orient, o_wall,
-                         o_rank)
-            nrec += 1
-        if w == stop_wall:
-            alive[j] = False
-            break
+        # 6. record
+        if spec & S_RECORD:
+            until_record -= 1
+            if until_record == 0:
+                until_record = every
+                write_record(j, nrec, mask, t, a, v, Wj, th, Aj, w, rk, o_time, o_pos, o_vel, o_spin, o_orient,
+                             o_wall, o_rank, n)
+                nrec += 1
+        if spec & S_STOP_WALL:
+            if w == stop_wall:
+                alive[j] = False
+                break
     theta[j] = th
     time[j] = t
     ncoll[j] = c
@@ -175,18 +252,32 @@ def advance(j, stop, stop_wall, every, mask, follow_orientation, renormalize, co
 
 
 @jit_parallel
-def advance_all(stop, stop_wall, every, mask, follow_orientation, renormalize, codes, prim_wall, params, tol, R, kappa,
+def advance_all(stop, spec, stop_wall, every, mask, renorm_every, codes, prim_wall, params, tol, R, kappa,
                 root, kind, rank, first, children, cumprob, axis, basis,
-                pos, vel, W, theta, A, time, ncoll, draws, alive, keys, last_wall, last_rank, energy0,
+                pos, vel, W, theta, A, time, ncoll, draws, alive, keys, last_wall, last_rank, energy0, comp,
                 o_time, o_pos, o_vel, o_spin, o_orient, o_wall, o_rank, scratch_n, scratch_3n, scratch_33):
     """Advance every live trajectory to ``stop[j]`` collisions, in parallel -> records written per trajectory."""
+    literally(spec)
     N = pos.shape[0]
     nrec = np.zeros(N, np.int64)
     for j in prange(N):
         if alive[j]:
-            nrec[j] = advance(j, stop[j], stop_wall, every, mask, follow_orientation, renormalize, codes, prim_wall, params, tol, R, kappa,
-                              root, kind, rank, first, children, cumprob, axis, basis,
+            nrec[j] = advance(j, stop[j], spec, stop_wall, every, mask, renorm_every, codes, prim_wall, params, tol,
+                              R, kappa, root, kind, rank, first, children, cumprob, axis, basis,
                               pos, vel, W, theta, A, time, ncoll, draws, alive, keys, last_wall, last_rank, energy0,
-                              o_time, o_pos, o_vel, o_spin, o_orient, o_wall, o_rank, scratch_n, scratch_3n,
+                              comp, o_time, o_pos, o_vel, o_spin, o_orient, o_wall, o_rank, scratch_n, scratch_3n,
                               scratch_33)
     return nrec
+
+
+def run_advance_all(*args):
+    """Call :func:`advance_all` (arguments in its order) without Numba's dispatch on literal arguments.
+
+    ``spec`` is a literal, and resolving a literal argument through the dispatcher costs ~10 ms per call (it
+    re-types the call every time); the compiled entry point of the specialisation costs ~5 µs. The first call of a
+    specialisation goes through the dispatcher (which compiles it or loads it from the cache)."""
+    sig = tuple(numba.types.literal(x) if i == 1 else numba.typeof(x) for i, x in enumerate(args))
+    cres = advance_all.overloads.get(sig)
+    if cres is None:
+        return advance_all(*args)
+    return cres.entry_point(*args)

@@ -50,6 +50,11 @@ class Geometry:
     circle: tuple | None = None                # (radius, shrunk radius) for the circle table
 
     @property
+    def slab(self):
+        """Two parallel walls (strip, plates): the engine takes :func:`slab_collision`'s closed form."""
+        return self.kind in ("strip", "plates")
+
+    @property
     def wall_names(self):
         return [w.name for w in self.wall_list]
 
@@ -238,11 +243,11 @@ TABLE_KINDS = tuple(_BUILDERS)
 
 
 @jit_hot
-def collision_time(code, params, k, a, v, tol):
+def collision_time(code, params, k, a, v, tol, n):
     """Flight time until the centre at ``a`` moving with ``v`` hits the primitive while moving into it -> t ≥ 0,
     or inf if it never does. A centre a hair outside (rounding) and moving in is hit at t = 0.
-    The primitive is row ``k`` of ``params`` (indices, not a row view: views cost reference counting)."""
-    n = a.shape[0]
+    The primitive is row ``k`` of ``params`` (indices, not a row view: views cost reference counting); ``n`` is
+    the dimension, passed in so that the kernels compile it as a constant."""
     if code == HALFSPACE or code == SEGMENT:
         vn = 0.0
         d = 0.0
@@ -303,9 +308,8 @@ def collision_time(code, params, k, a, v, tol):
 
 
 @jit_hot
-def contact_normal(code, params, k, a, nu):
+def contact_normal(code, params, k, a, nu, n):
     """Unit normal at the contact point of the centre ``a`` on the primitive, pointing into the free region -> nu."""
-    n = a.shape[0]
     if code == HALFSPACE or code == SEGMENT:
         for i in range(n):
             nu[i] = params[k, 4 + i]
@@ -322,14 +326,46 @@ def contact_normal(code, params, k, a, nu):
 
 
 @jit_hot
-def next_collision(codes, params, a, v, tol):
+def next_collision(codes, params, a, v, tol, n):
     """The first primitive the centre hits -> (flight time, primitive index), (inf, -1) if none lies ahead.
     Ties go to the lower index (primitives are listed in wall order)."""
     best = np.inf
     which = -1
     for k in range(codes.shape[0]):
-        t = collision_time(codes[k], params, k, a, v, tol)
+        t = collision_time(codes[k], params, k, a, v, tol, n)
         if t < best:
             best = t
             which = k
     return best, which
+
+
+@jit_hot
+def slab_collision(params, a, v, n):
+    """Closed form for a slab (strip, plates): primitives 0 and 1 are the planes x_{n−1} = lo (normal +e) and
+    x_{n−1} = hi (normal −e); the sign of the normal speed says which is next -> (flight time, primitive).
+    Same as :func:`next_collision` on these two half-spaces, without the loop over primitives."""
+    vn = v[n - 1]
+    if vn > 0.0:
+        return max(params[1, n - 1] - a[n - 1], 0.0) / vn, 1
+    if vn < 0.0:
+        return max(a[n - 1] - params[0, n - 1], 0.0) / -vn, 0
+    return np.inf, -1
+
+
+@jit_hot
+def snap(code, params, k, a, nu, n):
+    """Put the centre exactly on primitive ``k`` at contact (ν: its normal there): removes the rounding of the
+    flight along the normal. Half-space and segment: a −= ((a − p)·ν)ν; arcs: a = c + ρ(a − c)/|a − c|."""
+    if code == HALFSPACE or code == SEGMENT:
+        d = 0.0
+        for i in range(n):
+            d += (a[i] - params[k, i]) * params[k, 4 + i]
+        for i in range(n):
+            a[i] -= d * params[k, 4 + i]
+        return
+    s = 0.0
+    for i in range(n):
+        s += (a[i] - params[k, i]) * (a[i] - params[k, i])
+    f = params[k, 12] / np.sqrt(s)
+    for i in range(n):
+        a[i] = params[k, i] + f * (a[i] - params[k, i])

@@ -32,14 +32,14 @@ def kappa_of(inertia, n):
 
 
 @jit_hot
-def collide(v, W, nu, R, kappa, rank, basis, node, wall, work):
+def collide(v, W, nu, R, kappa, rank, basis, node, wall, work, n):
     """Apply the strict collision map in place: (v, W) <- (v', W'); returns nothing.  SPEC §1, paper eq. (update).
 
     The normal velocity is reversed exactly (``v·ν`` changes sign), so the next flight leaves the wall.
     ``basis[node, wall]`` holds the roughness basis (rows) and ``work`` is scratch space of shape (3, n): the
     kernel passes whole arrays and indices, since every array view costs reference counting in the hot loop.
+    ``n`` is the dimension, passed in so that the kernels compile it as a constant.
     """
-    n = v.shape[0]
     vn = 0.0
     for i in range(n):
         vn += v[i] * nu[i]
@@ -85,7 +85,7 @@ def collision_map(v, W, nu, R, kappa, rank, basis=None):
     Wm = spin_matrix(W, n)
     b = np.zeros((max(n - 1, 1), n)) if basis is None else np.asarray(basis, dtype=float)
     collide(v, Wm, np.asarray(nu, dtype=float), float(R), float(kappa), int(rank), b[None, None], 0, 0,
-            np.empty((3, n)))
+            np.empty((3, n)), n)
     return v, Wm
 
 

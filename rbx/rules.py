@@ -105,7 +105,7 @@ def _reachable(root, nodes, links):
 
 
 @jit_hot
-def choose(wall, nu, A, theta, key, draws, root, kind, first, children, cumprob, axis):
+def choose(wall, nu, A, theta, key, draws, root, kind, first, children, cumprob, axis, n):
     """Walk the rule tree of ``wall`` -> (constant node, number of draws used so far).
 
     Hemisphere: the contact point in the body frame is b = Aᵀ(−ν) (2D: −ν rotated by −θ); rough iff b·axis > 0,
@@ -113,7 +113,6 @@ def choose(wall, nu, A, theta, key, draws, root, kind, first, children, cumprob,
     cumulative probability exceeds it.
     """
     node = root[wall]
-    n = nu.shape[0]
     while kind[node] != CONSTANT:
         if kind[node] == HEMISPHERE:
             s = 0.0

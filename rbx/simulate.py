@@ -15,6 +15,8 @@ from .sampling import explicit_states, sample_billiard
 BLOCK_WORK = 2_000_000
 #: values (float64) held in the record buffers of one block
 BLOCK_VALUES = 4_000_000
+#: default period (in collisions) of the projection onto the initial energy in rough scenes (docs/accuracy.md)
+RENORMALIZE_EVERY = 16
 
 
 def block_work(geom):
@@ -64,8 +66,13 @@ class Simulation:
         kap, R = cfg.ball.kappa, cfg.ball.radius
         self.energy0 = np.asarray(state.get("energy", 0.5 * np.sum(self.vel ** 2, axis=1)
                                             + 0.25 * kap * R * R * np.sum(self.W ** 2, axis=(1, 2))), float).copy()
-        #: project back onto the initial energy after each rough collision (see engine.rescale_energy)
-        self.renormalize = True
+        # numerical variants (docs/accuracy.md measures each): project back onto the initial energy every
+        # ``renormalize`` collisions of a rough scene (0: never; see engine.rescale_energy); compensated summation
+        # of the time and the position; snapping the centre onto the wall at contact
+        self.renormalize = RENORMALIZE_EVERY
+        self.compensated = False
+        self.snap = False
+        self._comp = np.zeros((M, n + 1))
         # per-trajectory scratch space, so that the kernels allocate nothing (and need no reference counting)
         self._scratch_n = np.zeros((M, n))
         self._scratch_3n = np.zeros((M, 3, n))
@@ -119,16 +126,25 @@ class Simulation:
         return min(by_memory, by_work)
 
     # -- running ------------------------------------------------------------------------------------------------
+    def spec(self):
+        """What the kernel must do for this run, as compile-time bits (engine.S_*): the rest is compiled out."""
+        r = self.rules
+        rough = r.max_rank > 0
+        return engine.make_spec(
+            self.n, orient=self.follow_orientation, spin=rough, tree=r.uses_orientation or r.uses_random,
+            record=bool(self.record), compensated=self.compensated,
+            snap=self.snap, slab=self.geom.slab, stop_wall=self.stop_wall >= 0)
+
     def advance(self, stop, bufs):
         """Advance every live trajectory to ``stop`` collisions in all -> records written per trajectory (M,)."""
         r = self.rules
         stops = np.full(self.M, stop, np.int64)
-        return engine.advance_all(
-            stops, self.stop_wall, self.cfg.output.every, self.mask, self.follow_orientation, self.renormalize,
+        return engine.run_advance_all(
+            stops, self.spec(), self.stop_wall, self.cfg.output.every, self.mask, int(self.renormalize),
             self.geom.codes, self.geom.walls, self.geom.params, self.tol, self.cfg.ball.radius, self.cfg.ball.kappa,
             r.root, r.kind, r.rank, r.first, r.children, r.cumprob, r.axis, r.basis,
             self.pos, self.vel, self.W, self.theta, self.A, self.time, self.ncoll, self.draws, self.alive,
-            self.keys, self.last_wall, self.last_rank, self.energy0,
+            self.keys, self.last_wall, self.last_rank, self.energy0, self._comp,
             bufs["time"], bufs["position"], bufs["velocity"], bufs["angular_velocity"], bufs["orientation"],
             bufs["wall"], bufs["rank"], self._scratch_n, self._scratch_3n, self._scratch_33)
 

@@ -71,7 +71,7 @@ def test_more_digits_change_nothing_at_the_engines_error(name):
         worst_digits = max(worst_digits, float(max(abs(x - y) for x, y in zip(a.a + a.v, b.a + b.v))))
         d = deviation(b, rec["position"][i], rec["velocity"][i])
         worst_engine = max(worst_engine, d["position"], d["velocity"])
-    assert worst_digits < 1e-35 < 1e-20 * worst_engine, (worst_digits, worst_engine)
+    assert worst_digits < 1e-35 and worst_digits < 1e-20 * worst_engine, (worst_digits, worst_engine)
 
 
 @pytest.mark.parametrize("name", ["circle-rough", "L-polygon-rough", "box-rough", "plates-mixed"])
