@@ -440,7 +440,8 @@ def compare_transformed(case, rec, N):
 def check_case(case, quick=False):
     """Run a case -> dict of metrics and ``problems`` (what broke, against what was expected)."""
     N = case.n(quick)
-    res = {"group": case.group, "name": case.name, "N": N, "problems": [], "remarks": [], "note": case.note}
+    res = {"group": case.group, "name": case.name, "N": N, "problems": [], "remarks": [], "note": case.note,
+           "config": case.config, "variant": case.variant}
     if not variant_available(case.variant):
         res["remarks"].append("variant not available in this engine: not run")
         res["skipped"] = True
@@ -665,6 +666,21 @@ def write(path, results, long_rows, cmd, seconds, quick):
               f"{len(results)} cases, none broken.", ""]
     for r in broken:
         lines.append(f"- BROKEN **{r['name']}** ({r['group']}): " + "; ".join(r["problems"]) + ".")
+    if broken:
+        import yaml
+        lines += ["", "Reproducers (run with `rbx simulate`, or `rbx.simulate.run_in_memory(rbx.config.from_dict(…))`"
+                      "; a variant is set on the Simulation before `run`):", ""]
+        seen = set()
+        for r in broken:
+            c = copy.deepcopy(r["config"])
+            c["run"]["collisions"] = r["N"]
+            c["output"] = {"record": ["time", "position", "velocity", "angular_velocity", "wall"]}
+            text = yaml.safe_dump(c, default_flow_style=None, sort_keys=False, width=110).strip()
+            if text in seen:
+                continue
+            seen.add(text)
+            lines += [f"{r['name']}" + (f" (variant {r['variant']})" if r["variant"] else "") + ":", "", "```yaml",
+                      text, "```", ""]
     if long_rows:
         lines += ["", "## A long run", "",
                   f"The rough strip (width 1, R = 0.1, κ = ½, start (0, 0.5), v = (0.6, 0.7), ω = 1.5), "
