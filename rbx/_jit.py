@@ -12,6 +12,10 @@ import hashlib
 import os
 
 import numba
+from numba import types
+from numba.core import cgutils
+from numba.extending import intrinsic
+from numba.np.arrayobj import make_array, populate_array
 
 #: every module that defines kernels (tests/test_jit.py checks the list is complete)
 KERNEL_MODULES = ("_jit", "engine", "geometry", "physics", "rng", "rules")
@@ -45,7 +49,7 @@ jit = numba.njit(**_POLICY)
 #: (Numba 0.68; ``inline="always"`` does not help, the inlined arguments are reference-counted too).
 jit_hot = numba.njit(_nrt=False, inline="always", **_POLICY)
 
-#: the serial loop of one trajectory: no runtime either (its scratch space is allocated by the caller), so the
+#: the serial loop of one trajectory: no runtime either (its scratch space is on its stack: ``stack_array``), so the
 #: helpers inlined into it are free of reference counting
 jit_loop = numba.njit(_nrt=False, **_POLICY)
 
@@ -53,3 +57,33 @@ jit_loop = numba.njit(_nrt=False, **_POLICY)
 def jit_parallel(func):
     """Compile a driver that loops over trajectories with ``prange`` (never inside one trajectory)."""
     return numba.njit(parallel=True, **_POLICY)(func)
+
+
+@intrinsic
+def stack_array(typingctx, capacity, shape):
+    """A float64 C-contiguous array of ``shape`` (a tuple) in the calling kernel's stack frame, with room for
+    ``capacity`` (a literal int) values; uninitialised, never freed, never to be returned.
+
+    Why: the state of a trajectory held in arrays of the caller (``pos[j]``…) lives in memory, and every collision
+    then goes through store-to-load round trips (the compiler cannot prove the arrays do not alias). A stack array
+    whose every index is a constant once the dimension is (``spec``) is promoted to registers by LLVM: the rough
+    strip went from 15–21 to 11–16 ns per collision (same loaded machine, interleaved runs)."""
+    if not isinstance(capacity, types.IntegerLiteral) or not isinstance(shape, types.BaseTuple) or \
+            not all(isinstance(t, types.Integer) for t in shape):
+        return None
+    ndim = len(shape)
+    arrty = types.Array(types.float64, ndim, "C")
+
+    def codegen(context, builder, signature, args):
+        data = cgutils.alloca_once(builder, context.get_value_type(types.float64), size=capacity.literal_value)
+        shapes = [context.cast(builder, x, t, types.intp)
+                  for x, t in zip(cgutils.unpack_tuple(builder, args[1], ndim), shape)]
+        itemsize = context.get_constant(types.intp, 8)
+        strides = [itemsize] * ndim
+        for k in range(ndim - 2, -1, -1):
+            strides[k] = builder.mul(strides[k + 1], shapes[k + 1])
+        ary = make_array(arrty)(context, builder)
+        populate_array(ary, data=data, shape=shapes, strides=strides, itemsize=itemsize, meminfo=None)
+        return ary._getvalue()
+
+    return arrty(capacity, shape), codegen

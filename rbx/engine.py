@@ -18,7 +18,7 @@ import numba
 import numpy as np
 from numba import literally, prange
 
-from ._jit import jit, jit_hot, jit_loop, jit_parallel
+from ._jit import jit, jit_hot, jit_loop, jit_parallel, stack_array
 from .geometry import contact_normal, next_collision, slab_collision, snap
 from .physics import collide
 from .rules import choose
@@ -150,7 +150,7 @@ def kahan_add(s, comp, j, i, x):
 def advance(j, stop, spec, stop_wall, every, mask, renorm_every, codes, prim_wall, params, tol, R, kappa,
             root, kind, rank, first, children, cumprob, axis, basis,
             pos, vel, W, theta, A, time, ncoll, draws, alive, keys, last_wall, last_rank, energy0, comp,
-            o_time, o_pos, o_vel, o_spin, o_orient, o_wall, o_rank, scratch_n, scratch_3n, scratch_33):
+            o_time, o_pos, o_vel, o_spin, o_orient, o_wall, o_rank):
     """Run trajectory j until it has made ``stop`` collisions in all -> records written to row j.
 
     It ends early (``alive[j] = False``) when no wall lies ahead (an escape) or, if ``stop_wall ≥ 0``, right
@@ -158,14 +158,24 @@ def advance(j, stop, spec, stop_wall, every, mask, renorm_every, codes, prim_wal
     ``S_COMPENSATED``, ``comp[j]`` carries the rounding errors of the position (0…n−1) and time (n) sums."""
     literally(spec)
     n = 3 if spec & S_DIM3 else 2
-    a = pos[j]
-    v = vel[j]
-    Wj = W[j]
-    Aj = A[j]
-    nu = scratch_n[j]
-    work = scratch_3n[j]
-    E = scratch_33[j, 0]
-    tmp = scratch_33[j, 1]
+    # the trajectory's state in the kernel's own stack frame (registers, once n is a constant): see stack_array
+    a = stack_array(3, (n,))
+    v = stack_array(3, (n,))
+    Wj = stack_array(9, (n, n))
+    Aj = stack_array(9, (3, 3))
+    nu = stack_array(3, (n,))
+    work = stack_array(9, (3, n))
+    E = stack_array(9, (3, 3))
+    tmp = stack_array(9, (3, 3))
+    for i in range(n):
+        a[i] = pos[j, i]
+        v[i] = vel[j, i]
+        for k in range(n):
+            Wj[i, k] = W[j, i, k]
+    if spec & S_ORIENT:
+        for i in range(3):
+            for k in range(3):
+                Aj[i, k] = A[j, i, k]
     th = theta[j]
     t = time[j]
     c = ncoll[j]
@@ -242,6 +252,15 @@ def advance(j, stop, spec, stop_wall, every, mask, renorm_every, codes, prim_wal
             if w == stop_wall:
                 alive[j] = False
                 break
+    for i in range(n):
+        pos[j, i] = a[i]
+        vel[j, i] = v[i]
+        for k in range(n):
+            W[j, i, k] = Wj[i, k]
+    if spec & S_ORIENT:
+        for i in range(3):
+            for k in range(3):
+                A[j, i, k] = Aj[i, k]
     theta[j] = th
     time[j] = t
     ncoll[j] = c
@@ -255,7 +274,7 @@ def advance(j, stop, spec, stop_wall, every, mask, renorm_every, codes, prim_wal
 def advance_all(stop, spec, stop_wall, every, mask, renorm_every, codes, prim_wall, params, tol, R, kappa,
                 root, kind, rank, first, children, cumprob, axis, basis,
                 pos, vel, W, theta, A, time, ncoll, draws, alive, keys, last_wall, last_rank, energy0, comp,
-                o_time, o_pos, o_vel, o_spin, o_orient, o_wall, o_rank, scratch_n, scratch_3n, scratch_33):
+                o_time, o_pos, o_vel, o_spin, o_orient, o_wall, o_rank):
     """Advance every live trajectory to ``stop[j]`` collisions, in parallel -> records written per trajectory."""
     literally(spec)
     N = pos.shape[0]
@@ -265,8 +284,7 @@ def advance_all(stop, spec, stop_wall, every, mask, renorm_every, codes, prim_wa
             nrec[j] = advance(j, stop[j], spec, stop_wall, every, mask, renorm_every, codes, prim_wall, params, tol,
                               R, kappa, root, kind, rank, first, children, cumprob, axis, basis,
                               pos, vel, W, theta, A, time, ncoll, draws, alive, keys, last_wall, last_rank, energy0,
-                              comp, o_time, o_pos, o_vel, o_spin, o_orient, o_wall, o_rank, scratch_n, scratch_3n,
-                              scratch_33)
+                              comp, o_time, o_pos, o_vel, o_spin, o_orient, o_wall, o_rank)
     return nrec
 
 

@@ -73,10 +73,6 @@ class Simulation:
         self.compensated = False
         self.snap = False
         self._comp = np.zeros((M, n + 1))
-        # per-trajectory scratch space, so that the kernels allocate nothing (and need no reference counting)
-        self._scratch_n = np.zeros((M, n))
-        self._scratch_3n = np.zeros((M, 3, n))
-        self._scratch_33 = np.zeros((M, 2, 3, 3))
         #: stop a trajectory right after it hits this wall (−1: never); used by the return-angle experiment
         self.stop_wall = -1
 
@@ -146,7 +142,7 @@ class Simulation:
             self.pos, self.vel, self.W, self.theta, self.A, self.time, self.ncoll, self.draws, self.alive,
             self.keys, self.last_wall, self.last_rank, self.energy0, self._comp,
             bufs["time"], bufs["position"], bufs["velocity"], bufs["angular_velocity"], bufs["orientation"],
-            bufs["wall"], bufs["rank"], self._scratch_n, self._scratch_3n, self._scratch_33)
+            bufs["wall"], bufs["rank"])
 
     def run(self, sink, progress=None, should_stop=None, write_initial=None):
         """Run to ``run.collisions`` collisions, streaming records to ``sink`` -> True if complete.
