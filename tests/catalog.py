@@ -40,9 +40,11 @@ SCENES = {
                            [0.5, 0.3], [0.31, 0.77], 2.0),
     "L-polygon-rough": _cfg({"kind": "polygon", "vertices": L_SHAPE}, ROUGH, [0.5, 0.5], [0.83, 0.31], 0.7),
     "star-polygon-hemisphere": _cfg({"kind": "polygon", "vertices": STAR}, HEMI, [1.5, 0.5], [0.3, 0.9], -1.0),
-    "plates-rank2": _cfg({"kind": "plates", "gap": 1.0}, ROUGH3, [0, 0, 0.5], [0.2, -0.4, 0.7], [1.0, 0.5, -0.3]),
+    # the horizontal spin is not perpendicular to the horizontal velocity: with (1, 0.5) the orbit would stay in
+    # one vertical plane, a 2D problem
+    "plates-rank2": _cfg({"kind": "plates", "gap": 1.0}, ROUGH3, [0, 0, 0.5], [0.2, -0.4, 0.7], [1.0, -2.0, -0.3]),
     "plates-mixed": _cfg({"kind": "plates", "gap": 1.0}, MIXED_PLATES, [0, 0, 0.5], [0.2, -0.4, 0.7],
-                         [1.0, 0.5, -0.3]),
+                         [1.0, -2.0, -0.3]),
     "plates-random-direction": _cfg({"kind": "plates", "gap": 1.0}, RANK1_RANDOM_DIR, [0, 0, 0.5],
                                     [0.2, -0.4, 0.7], [1.0, 0.5, -0.3]),
     "box-rough": _cfg({"kind": "box", "size": [1.0, 1.3, 0.8]}, ROUGH3, [0.5, 0.5, 0.4], [0.3, -0.5, 0.6],

@@ -1,4 +1,6 @@
 """``rbx``: the command-line entry point (SPEC §4)."""
+import sys
+
 import click
 
 from .. import __version__
@@ -18,4 +20,8 @@ for _command in (plot.plot, histogram.histogram): cli.add_command(_command)
 
 
 def main():
-    cli(prog_name="rbx")
+    try:
+        cli(prog_name="rbx")
+    except KeyboardInterrupt:   # Ctrl-C before a command installed its own handler (e.g. while importing)
+        sys.stderr.write("rbx: interrupted\n")
+        sys.exit(130)
