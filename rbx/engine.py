@@ -122,6 +122,11 @@ S_COMPENSATED = 64  # compensated (Kahan) summation of the time and the position
 S_SNAP = 128        # put the centre exactly on the wall at contact
 S_SLAB = 256        # two parallel walls (strip, plates): closed-form flight time and exact normal coordinate
 S_STOP_WALL = 512   # end a trajectory when it hits ``stop_wall``
+#: the bits compiled into the kernel; the others are tested at run time (a predictable branch). Each compiled
+#: combination costs a compile of ~5 s the first time, so only the bits that pay for it are compiled: the
+#: dimension (loops of constant length, state in registers), spin arithmetic and the slab's closed form.
+COMPILED_BITS = S_DIM3 | S_SPIN | S_SLAB
+RUNTIME_BITS = ~COMPILED_BITS
 
 
 def make_spec(n, orient=False, spin=True, tree=False, record=False, compensated=False, snap=False,
@@ -147,7 +152,7 @@ def kahan_add(s, comp, j, i, x):
 
 
 @jit_loop
-def advance(j, stop, spec, stop_wall, every, mask, renorm_every, codes, prim_wall, params, tol, R, kappa,
+def advance(j, stop, spec, flags, stop_wall, every, mask, renorm_every, codes, prim_wall, params, tol, R, kappa,
             root, kind, rank, first, children, cumprob, axis, basis,
             pos, vel, W, theta, A, time, ncoll, draws, alive, keys, last_wall, last_rank, energy0, comp,
             o_time, o_pos, o_vel, o_spin, o_orient, o_wall, o_rank):
@@ -158,6 +163,9 @@ def advance(j, stop, spec, stop_wall, every, mask, renorm_every, codes, prim_wal
     ``S_COMPENSATED``, ``comp[j]`` carries the rounding errors of the position (0…n−1) and time (n) sums."""
     literally(spec)
     n = 3 if spec & S_DIM3 else 2
+    # ``spec``: the compiled bits (a literal); ``flags``: all bits, of which the run-time ones are taken. For a
+    # compiled bit, ``flags & RUNTIME_BITS & bit`` folds to 0, so ``on & bit`` is a constant and its branch goes.
+    on = spec | (flags & RUNTIME_BITS)
     # the trajectory's state in the kernel's own stack frame (registers, once n is a constant): see stack_array
     a = stack_array(3, (n,))
     v = stack_array(3, (n,))
@@ -172,7 +180,7 @@ def advance(j, stop, spec, stop_wall, every, mask, renorm_every, codes, prim_wal
         v[i] = vel[j, i]
         for k in range(n):
             Wj[i, k] = W[j, i, k]
-    if spec & S_ORIENT:
+    if on & S_ORIENT:
         for i in range(3):
             for k in range(3):
                 Aj[i, k] = A[j, i, k]
@@ -189,7 +197,7 @@ def advance(j, stop, spec, stop_wall, every, mask, renorm_every, codes, prim_wal
     until_renorm = renorm_every - c % renorm_every if renorm_every > 0 else 0
     while c < stop:
         # 1. next collision: the flight time and the primitive hit
-        if spec & S_SLAB:
+        if on & S_SLAB:
             tau, p = slab_collision(params, a, v, n)
         else:
             tau, p = next_collision(codes, params, a, v, tol, n)
@@ -197,7 +205,7 @@ def advance(j, stop, spec, stop_wall, every, mask, renorm_every, codes, prim_wal
             alive[j] = False
             break
         # 2. free flight
-        if spec & S_COMPENSATED:
+        if on & S_COMPENSATED:
             for i in range(n):
                 a[i] = kahan_add(a[i], comp, j, i, tau * v[i])
             t = kahan_add(t, comp, j, n, tau)
@@ -205,28 +213,28 @@ def advance(j, stop, spec, stop_wall, every, mask, renorm_every, codes, prim_wal
             for i in range(n):
                 a[i] += tau * v[i]
             t += tau
-        if spec & S_SLAB:
+        if on & S_SLAB:
             a[n - 1] = params[p, n - 1]            # exactly on the wall: the normal coordinate is known
-            if spec & S_COMPENSATED:
+            if on & S_COMPENSATED:
                 comp[j, n - 1] = 0.0
-        if spec & S_ORIENT:
+        if on & S_ORIENT:
             if n == 2:
                 th += tau * Wj[1, 0]
             else:
                 rotate(Aj, Wj, tau, E, tmp)
         # 3. contact normal
         contact_normal(codes[p], params, p, a, nu, n)
-        if spec & S_SNAP:
+        if on & S_SNAP:
             snap(codes[p], params, p, a, nu, n)
         # 4. rule
         w = prim_wall[p]
-        if spec & S_TREE:
+        if on & S_TREE:
             node, d = choose(w, nu, Aj, th, key, d, root, kind, first, children, cumprob, axis, n)
         else:
             node = root[w]
         rk = rank[node]
         # 5. collision map
-        if spec & S_SPIN:
+        if on & S_SPIN:
             collide(v, Wj, nu, R, kappa, rk, basis, node, w, work, n)
             if renorm_every > 0:
                 until_renorm -= 1
@@ -241,14 +249,14 @@ def advance(j, stop, spec, stop_wall, every, mask, renorm_every, codes, prim_wal
                 v[i] -= 2.0 * vn * nu[i]
         c += 1
         # 6. record
-        if spec & S_RECORD:
+        if on & S_RECORD:
             until_record -= 1
             if until_record == 0:
                 until_record = every
                 write_record(j, nrec, mask, t, a, v, Wj, th, Aj, w, rk, o_time, o_pos, o_vel, o_spin, o_orient,
                              o_wall, o_rank, n)
                 nrec += 1
-        if spec & S_STOP_WALL:
+        if on & S_STOP_WALL:
             if w == stop_wall:
                 alive[j] = False
                 break
@@ -257,7 +265,7 @@ def advance(j, stop, spec, stop_wall, every, mask, renorm_every, codes, prim_wal
         vel[j, i] = v[i]
         for k in range(n):
             W[j, i, k] = Wj[i, k]
-    if spec & S_ORIENT:
+    if on & S_ORIENT:
         for i in range(3):
             for k in range(3):
                 A[j, i, k] = Aj[i, k]
@@ -271,7 +279,7 @@ def advance(j, stop, spec, stop_wall, every, mask, renorm_every, codes, prim_wal
 
 
 @jit_parallel
-def advance_all(stop, spec, stop_wall, every, mask, renorm_every, codes, prim_wall, params, tol, R, kappa,
+def advance_all(stop, spec, flags, stop_wall, every, mask, renorm_every, codes, prim_wall, params, tol, R, kappa,
                 root, kind, rank, first, children, cumprob, axis, basis,
                 pos, vel, W, theta, A, time, ncoll, draws, alive, keys, last_wall, last_rank, energy0, comp,
                 o_time, o_pos, o_vel, o_spin, o_orient, o_wall, o_rank):
@@ -281,7 +289,7 @@ def advance_all(stop, spec, stop_wall, every, mask, renorm_every, codes, prim_wa
     nrec = np.zeros(N, np.int64)
     for j in prange(N):
         if alive[j]:
-            nrec[j] = advance(j, stop[j], spec, stop_wall, every, mask, renorm_every, codes, prim_wall, params, tol,
+            nrec[j] = advance(j, stop[j], spec, flags, stop_wall, every, mask, renorm_every, codes, prim_wall, params, tol,
                               R, kappa, root, kind, rank, first, children, cumprob, axis, basis,
                               pos, vel, W, theta, A, time, ncoll, draws, alive, keys, last_wall, last_rank, energy0,
                               comp, o_time, o_pos, o_vel, o_spin, o_orient, o_wall, o_rank)

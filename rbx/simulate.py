@@ -123,7 +123,8 @@ class Simulation:
 
     # -- running ------------------------------------------------------------------------------------------------
     def spec(self):
-        """What the kernel must do for this run, as compile-time bits (engine.S_*): the rest is compiled out."""
+        """What the kernel must do for this run, as bits engine.S_*; those in engine.COMPILED_BITS are compiled in
+        (what is not needed is not in the machine code), the others are tested at run time."""
         r = self.rules
         rough = r.max_rank > 0
         return engine.make_spec(
@@ -135,8 +136,9 @@ class Simulation:
         """Advance every live trajectory to ``stop`` collisions in all -> records written per trajectory (M,)."""
         r = self.rules
         stops = np.full(self.M, stop, np.int64)
+        flags = self.spec()
         return engine.run_advance_all(
-            stops, self.spec(), self.stop_wall, self.cfg.output.every, self.mask, int(self.renormalize),
+            stops, flags & engine.COMPILED_BITS, flags, self.stop_wall, self.cfg.output.every, self.mask, int(self.renormalize),
             self.geom.codes, self.geom.walls, self.geom.params, self.tol, self.cfg.ball.radius, self.cfg.ball.kappa,
             r.root, r.kind, r.rank, r.first, r.children, r.cumprob, r.axis, r.basis,
             self.pos, self.vel, self.W, self.theta, self.A, self.time, self.ncoll, self.draws, self.alive,
