@@ -1,24 +1,38 @@
-"""Collisions per second with nothing recorded, rbx against a minimal hand-written njit loop for the same scene
-(our proxy for the speed limit). Writes docs/benchmarks.md.
+"""How fast rbx is, measured: collisions per second per scene and rule, against minimal hand-written njit loops,
+the cost of each recorded field (in memory and to HDF5 through the CLI), ensembles on 1 and 2 threads, compile
+time against the on-disk cache, the numerical variants, and a public peer. Writes docs/benchmarks.md and its
+plots docs/benchmarks-*.png (`make bench`).
 
-    python scripts/bench.py [--collisions N] [--repeats K] [--out docs/benchmarks.md]
+    python scripts/bench.py [--quick] [--out docs/benchmarks.md] [--repeats K] [--seconds S] [--collisions N]
+
+Every timing is ``time.perf_counter`` around the work alone (``Simulation.run``; the whole ``rbx simulate``
+command for the CLI), after a warm-up run of the same configuration (compiled or loaded from the cache), with the
+number of collisions grown until one run lasts at least ``--seconds``; the table shows the median of ``--repeats``
+runs. ``--quick`` runs everything at tiny sizes (for tests/test_bench_smoke.py): its numbers mean nothing.
 """
 import argparse
+import math
 import os
 import platform
+import shutil
 import statistics
+import subprocess
 import sys
+import tempfile
 import time
+from dataclasses import dataclass
 
 import numba
 import numpy as np
+import yaml
 
 from rbx import config
-from rbx.simulate import MemorySink, Simulation
+from rbx.simulate import RENORMALIZE_EVERY, MemorySink, Simulation
 
 KAPPA, R = 0.5, 0.1
 
 
+# ---- minimal hand-written loops: our proxy for the speed limit of each scene ---------------------------------------
 @numba.njit(cache=True)
 def strip_loop(x, y, vx, vy, w, width, N):
     """Rough disc in a strip: the walls are known from the sign of vy."""
@@ -88,38 +102,406 @@ def plates_loop(x, y, z, vx, vy, vz, wx, wy, wz, gap, N):
     return x + y + z + vx + vy + vz + wx + wy + wz + t
 
 
+@numba.njit(cache=True)
+def rectangle_loop(x, y, vx, vy, width, height, N):
+    """Specular disc in a rectangle [0, width] × [0, height]: the nearer of the two walls ahead."""
+    t = 0.0
+    for _ in range(N):
+        tx = (width - R - x) / vx if vx > 0 else (R - x) / vx
+        ty = (height - R - y) / vy if vy > 0 else (R - y) / vy
+        tau = min(tx, ty)
+        x += tau * vx
+        y += tau * vy
+        t += tau
+        if tau == ty:
+            vy = -vy
+        else:
+            vx = -vx
+    return x + y + vx + vy + t
+
+
+@numba.njit(cache=True)
+def box_loop(x, y, z, vx, vy, vz, lx, ly, lz, N):
+    """Specular ball in a box [0, lx] × [0, ly] × [0, lz]: the nearest of the three walls ahead."""
+    t = 0.0
+    for _ in range(N):
+        tx = (lx - R - x) / vx if vx > 0 else (R - x) / vx
+        ty = (ly - R - y) / vy if vy > 0 else (R - y) / vy
+        tz = (lz - R - z) / vz if vz > 0 else (R - z) / vz
+        tau = min(tx, ty, tz)
+        x += tau * vx
+        y += tau * vy
+        z += tau * vz
+        t += tau
+        if tau == tx:
+            vx = -vx
+        elif tau == ty:
+            vy = -vy
+        else:
+            vz = -vz
+    return x + y + z + vx + vy + vz + t
+
+
+# ---- the scenes, rules and configs ----------------------------------------------------------------------------------
+#: name -> (table, position, velocity, angular velocity): one explicit start per scene, well inside the table
 SCENES = {
-    "strip": ({"kind": "strip", "width": 1.0}, [0.0, 0.5], [0.6, 0.8], 1.5,
-              lambda N: strip_loop(0.0, 0.5, 0.6, 0.8, 1.5, 1.0, N)),
-    "circle": ({"kind": "circle", "radius": 1.0}, [0.1, -0.2], [-0.3, 0.9], -2.0,
-               lambda N: circle_loop(0.1, -0.2, -0.3, 0.9, -2.0, 1.0 - R, N)),
-    "plates": ({"kind": "plates", "gap": 1.0}, [0, 0, 0.5], [0.2, -0.4, 0.7], [1.0, 0.5, -0.3],
-               lambda N: plates_loop(0, 0, 0.5, 0.2, -0.4, 0.7, 1.0, 0.5, -0.3, 1.0, N)),
+    "strip": ({"kind": "strip", "width": 1.0}, [0.0, 0.5], [0.6, 0.8], 1.5),
+    "circle": ({"kind": "circle", "radius": 1.0}, [0.1, -0.2], [-0.3, 0.9], -2.0),
+    "wedge60": ({"kind": "wedge", "angle_deg": 60}, [1.5, 0.2], [-0.2, 0.05], -3.0),
+    "rectangle": ({"kind": "rectangle", "width": 2.0, "height": 1.0}, [0.5, 0.5], [0.83, 0.31], 0.7),
+    "L-polygon": ({"kind": "polygon", "vertices": [[0, 0], [2, 0], [2, 2], [1, 2], [1, 1], [0, 1]]},
+                  [0.5, 0.5], [0.83, 0.31], 0.7),
+    # 3D: the horizontal spin is not perpendicular to the horizontal velocity (else the plates orbit stays in a plane)
+    "plates": ({"kind": "plates", "gap": 1.0}, [0, 0, 0.5], [0.2, -0.4, 0.7], [1.0, -2.0, -0.3]),
+    "box": ({"kind": "box", "size": [1.0, 1.3, 0.8]}, [0.5, 0.6, 0.4], [0.3, -0.5, 0.7], [1.0, -2.0, -0.3]),
+}
+RULE_NAMES = ("specular", "rough", "hemisphere", "random")
+
+
+def rule(name, n):
+    """The boundary rule ``name`` in dimension n (the same on every wall)."""
+    smooth, rough = {"rule": "constant", "rank": 0}, {"rule": "constant", "rank": n - 1}
+    if name == "specular":
+        return smooth
+    if name == "rough":
+        return rough
+    if name == "hemisphere":
+        return {"rule": "hemisphere", "axis": [0, 1] if n == 2 else [0, 0, 1], "rough": rough, "smooth": smooth}
+    if n == 2:   # random rank 0 / 1 with p = ½ (figure graphRandom)
+        return {"rule": "random", "choices": [smooth, rough], "probabilities": [0.5, 0.5]}
+    # random rank-1 direction among 0°, 60°, 120° (figure roughrank)
+    return {"rule": "random", "probabilities": [1 / 3, 1 / 3, 1 - 2 / 3],
+            "choices": [{"rule": "constant", "rank": 1, "direction_deg": d} for d in (0, 60, 120)]}
+
+
+RULE_TEXT = {"specular": "rank 0 everywhere", "rough": "constant, completely rough (2D rank 1, 3D rank 2)",
+             "hemisphere": "hemisphere rule (axis y / z in the body frame; rough: completely rough, smooth: rank 0)",
+             "random": "2D: rank 0 or 1 with p = ½; 3D: rank 1 along 0°, 60° or 120°, drawn at every collision"}
+
+
+def scene_dict(scene, rule_name="rough", record=(), every=1, trajectories=1, sample=False):
+    """A config mapping (for ``config.from_dict`` or a YAML file); run.collisions is set by the caller."""
+    table, pos, vel, spin = SCENES[scene]
+    n = len(pos)
+    initial = {"sample": "billiard"} if sample else {"position": pos, "velocity": vel, "angular_velocity": spin}
+    out = {"record": list(record)}
+    if record:
+        out["every"] = every
+    return {"table": table, "boundary": {"default": rule(rule_name, n)}, "ball": {"radius": R, "inertia": KAPPA},
+            "initial": initial, "run": {"collisions": 1, "trajectories": trajectories, "seed": 0}, "output": out}
+
+
+def rbx_config(name, N, rule_name="rough"):
+    """The validated config of scene ``name``, one trajectory of N collisions, nothing recorded."""
+    d = scene_dict(name, rule_name)
+    d["run"]["collisions"] = N
+    return config.from_dict(d, "<bench>")
+
+
+#: (scene, rule) -> hand-written loop of N collisions from the scene's start (returns a checksum of the final state)
+HAND = {
+    ("strip", "rough"): lambda N: strip_loop(0.0, 0.5, 0.6, 0.8, 1.5, 1.0, N),
+    ("circle", "rough"): lambda N: circle_loop(0.1, -0.2, -0.3, 0.9, -2.0, 1.0 - R, N),
+    ("plates", "rough"): lambda N: plates_loop(0, 0, 0.5, 0.2, -0.4, 0.7, 1.0, -2.0, -0.3, 1.0, N),
+    ("rectangle", "specular"): lambda N: rectangle_loop(0.5, 0.5, 0.83, 0.31, 2.0, 1.0, N),
+    ("box", "specular"): lambda N: box_loop(0.5, 0.6, 0.4, 0.3, -0.5, 0.7, 1.0, 1.3, 0.8, N),
 }
 
+FIELDS = ("time", "position", "velocity", "angular_velocity", "orientation", "wall", "rank")
+FIELD_VALUES = {2: {"time": 1, "position": 2, "velocity": 2, "angular_velocity": 1, "orientation": 1, "wall": 0.5,
+                    "rank": 0.5},
+                3: {"time": 1, "position": 3, "velocity": 3, "angular_velocity": 3, "orientation": 9, "wall": 0.5,
+                    "rank": 0.5}}   # in units of 8 bytes (wall and rank are int32)
+FIELD_CASES = ([("nothing", (), 1)] + [(f, (f,), 1) for f in FIELDS]
+               + [("all", FIELDS, 1), ("all, every 10", FIELDS, 10), ("all, every 100", FIELDS, 100)])
+FIELD_SCENES = ("strip", "plates")           # rough
+QUICK_H5_CASES = ("nothing", "time", "all", "all, every 100")   # --quick: the CLI's start-up dominates, run fewer
+ENSEMBLE_SCENES = ("circle", "box")          # rough, starts drawn from the billiard measure
+ENSEMBLE_SIZES = (1, 10, 100, 1000)
+JIT_SCENES = ("circle", "box")               # rough, every field recorded
+VARIANT_SCENES = ("strip", "circle")         # rough
+VARIANTS = [("default (renormalize 16)", {}), ("renormalize 0 (off)", {"renormalize": 0}),
+            ("renormalize 1", {"renormalize": 1}), ("renormalize 64", {"renormalize": 64}),
+            ("compensated", {"compensated": True}), ("snap", {"snap": True}),
+            ("compensated + snap", {"compensated": True, "snap": True})]
+PEER_SCENES = ("rectangle", "strip")         # specular: what the peer simulates
 
-def rbx_config(name, N):
-    table, pos, vel, spin, _ = SCENES[name]
-    rank = 2 if len(pos) == 3 else 1
-    return config.from_dict({"table": table, "boundary": {"default": {"rule": "constant", "rank": rank}},
-                             "ball": {"radius": R, "inertia": KAPPA},
-                             "initial": {"position": pos, "velocity": vel, "angular_velocity": spin},
-                             "run": {"collisions": N}, "output": {"record": []}})
+
+# ---- timing ---------------------------------------------------------------------------------------------------------
+@dataclass
+class Timing:
+    """``N`` collisions (work units) per run, ``times`` of the repeats; ``escaped``: collisions made before the
+    trajectory left for infinity (then no rate)."""
+    N: int
+    times: list
+    escaped: int = None
+    extra: float = 0.0          # bytes written, for the HDF5 runs
+
+    @property
+    def seconds(self):
+        return statistics.median(self.times) if self.times else math.nan
+
+    @property
+    def rate(self):
+        return self.N / self.seconds if self.times and self.escaped is None else math.nan
 
 
-def time_rbx(cfg):
-    sim = Simulation(cfg)
+def measure(run, args, n0=1000, cap=10 ** 10):
+    """``run(N) -> (seconds, collisions made)``: at least N collisions unless the trajectory escaped. Warm up,
+    grow N until one run lasts ``args.seconds``, then time ``args.repeats`` runs -> Timing."""
+    if args.collisions:
+        N = args.collisions
+        run(min(N, 10))
+    else:
+        run(10)
+        N = min(n0, cap)
+        while True:
+            t, done = run(N)
+            if done < N:
+                return Timing(N, [], escaped=done)
+            if t >= args.seconds or N >= cap:
+                break
+            N = int(min(cap, max(2 * N, N * min(1000.0, 1.25 * args.seconds / max(t, 1e-9)))))
+    times = []
+    for _ in range(args.repeats):
+        t, done = run(N)
+        if done < N:
+            return Timing(N, [], escaped=done)
+        times.append(t)
+    return Timing(done, times)
+
+
+def rbx_run(d, threads=1, **variants):
+    """A runner for :func:`measure`: the config mapping ``d`` for N collisions in all (split over its
+    trajectories), timed around ``Simulation.run`` with a MemorySink."""
+    M = d["run"]["trajectories"]
+
+    def run(N):
+        per = max(1, -(-N // M))
+        cfg = config.from_dict({**d, "run": {**d["run"], "collisions": per}}, "<bench>")
+        sim = Simulation(cfg)
+        for k, v in variants.items():
+            setattr(sim, k, v)
+        numba.set_num_threads(threads)
+        sink = MemorySink()
+        t0 = time.perf_counter()
+        sim.run(sink)
+        dt = time.perf_counter() - t0
+        return dt, int(sim.ncoll.sum())
+    return run
+
+
+def rbx_command():
+    exe = os.path.join(os.path.dirname(sys.executable), "rbx")
+    return [exe] if os.path.exists(exe) else [shutil.which("rbx") or "rbx"]
+
+
+def cli_start(d, tmp, name, N, env=None):
+    """Start ``rbx simulate`` of config ``d`` for N collisions in a subprocess -> handle for :func:`cli_finish`."""
+    cfg_path = os.path.join(tmp, name + ".yaml")
+    out = os.path.join(tmp, name + ".h5")
+    with open(cfg_path, "w") as fh:
+        yaml.safe_dump(d, fh)
+    cmd = rbx_command() + ["simulate", cfg_path, "-o", out, "--force", "--quiet", "--collisions", str(N)]
     t0 = time.perf_counter()
-    sim.run(MemorySink())
-    return time.perf_counter() - t0
+    proc = subprocess.Popen(cmd, stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, text=True, env=env)
+    return cmd, out, proc, t0
 
 
-def time_hand(fn, N):
+def cli_finish(handle):
+    """Wait for it -> (wall seconds, bytes of the file written)."""
+    cmd, out, proc, t0 = handle
+    _, err = proc.communicate()
+    dt = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed:\n{err[-2000:]}")
+    size = os.path.getsize(out)
+    os.remove(out)
+    return dt, size
+
+
+def cli_run(d, tmp, name, N, env=None):
+    """``rbx simulate`` of config ``d`` for N collisions in a subprocess -> (wall seconds, bytes of the file)."""
+    return cli_finish(cli_start(d, tmp, name, N, env))
+
+
+# ---- the sections ---------------------------------------------------------------------------------------------------
+def log(*a):
+    print(*a, file=sys.stderr, flush=True)
+
+
+def section_rates(args):
+    """(scene, rule) -> Timing: one trajectory, nothing recorded, one thread."""
+    res = {}
+    for scene in SCENES:
+        for r in RULE_NAMES:
+            res[scene, r] = measure(rbx_run(scene_dict(scene, r)), args, n0=2000)
+            tm = res[scene, r]
+            log(f"rates    {scene:10s} {r:10s} " + (f"{tm.rate:10.3e}/s" if tm.escaped is None
+                                                     else f"escapes after {tm.escaped}"))
+    return res
+
+
+def section_hand(args, rates):
+    """(scene, rule) -> (rbx default Timing, rbx renormalize-off Timing or None, hand Timing)."""
+    res = {}
+    for (scene, r), fn in HAND.items():
+        off = None
+        if r != "specular":
+            off = measure(rbx_run(scene_dict(scene, r), renormalize=0), args, n0=2000)
+
+        def hand(N, fn=fn):
+            t0 = time.perf_counter()
+            fn(N)
+            return time.perf_counter() - t0, N
+        h = measure(hand, args, n0=10000)
+        res[scene, r] = (rates[scene, r], off, h)
+        log(f"hand     {scene:10s} {r:10s} hand {h.rate:10.3e}/s  rbx / hand {rates[scene, r].rate / h.rate:.2f}")
+    return res
+
+
+def field_bytes(n, fields, every):
+    return 8 * sum(FIELD_VALUES[n][f] for f in fields) / every
+
+
+def section_fields(args, tmp):
+    """scene -> list of (label, memory Timing, HDF5 Timing) and the CLI start-up Timing per scene."""
+    res, startup = {}, {}
+    for scene in FIELD_SCENES:
+        n = len(SCENES[scene][1])
+        # start-up of `rbx simulate` (import, cache load, file set-up): one collision, nothing recorded
+        base = Timing(1, [cli_run(scene_dict(scene), tmp, "startup", 1)[0] for _ in range(max(1, args.repeats))])
+        startup[scene] = base
+        rows = []
+        for label, fields, every in FIELD_CASES:
+            d = scene_dict(scene, "rough", fields, every)
+            per_coll = field_bytes(n, fields, every)
+            cap = int(args.memory_cap / per_coll) if per_coll else 10 ** 10
+            mem = measure(rbx_run(d), args, n0=2000, cap=cap)
+            h5 = None
+            if not args.quick or label in QUICK_H5_CASES:
+                # HDF5: enough collisions for ~h5_seconds of work (from the in-memory rate), capped by the file
+                # size; the kernels are in the disk cache already (the in-memory runs put them there)
+                N = int(max(1000, min(mem.rate * args.h5_seconds, args.file_cap / per_coll if per_coll else 1e12)))
+                runs = [cli_run(d, tmp, "fields", N) for _ in range(args.repeats)]
+                h5 = Timing(N, [t for t, _ in runs], extra=statistics.median(s for _, s in runs))
+            rows.append((label, fields, mem, h5))
+            log(f"fields   {scene:10s} {label:16s} memory {mem.rate:10.3e}/s"
+                + (f"  HDF5 wall {h5.seconds:.2f} s" if h5 else ""))
+        res[scene] = rows
+    return res, startup
+
+
+def section_ensembles(args):
+    """(scene, M, threads) -> Timing of N collisions in all over M trajectories."""
+    res = {}
+    for scene in ENSEMBLE_SCENES:
+        for threads in (1, 2):
+            for M in ENSEMBLE_SIZES:
+                d = scene_dict(scene, "rough", trajectories=M, sample=True)
+                res[scene, M, threads] = measure(rbx_run(d, threads=threads), args, n0=max(2000, M))
+                log(f"ensemble {scene:10s} M={M:5d} threads={threads} {res[scene, M, threads].rate:10.3e}/s")
+    numba.set_num_threads(1)
+    return res
+
+
+def section_jit(args, tmp):
+    """scene -> (cold seconds, warm Timing, cache bytes): `rbx simulate` of a tiny config with an empty
+    NUMBA_CACHE_DIR, then the same command again."""
+    colds = {scene: [] for scene in JIT_SCENES}
+    warms = {scene: [] for scene in JIT_SCENES}
+    sizes = {}
+    for _ in range(args.repeats):
+        caches = {scene: tempfile.mkdtemp(prefix="rbx-bench-cache-", dir=tmp) for scene in JIT_SCENES}
+        envs = {scene: {**os.environ, "NUMBA_CACHE_DIR": caches[scene]} for scene in JIT_SCENES}
+        cfgs = {scene: scene_dict(scene, "rough", FIELDS) for scene in JIT_SCENES}
+        if args.quick:      # both at once: the timings mean nothing anyway, and the test stays short
+            handles = [cli_start(cfgs[s], tmp, "jit-" + s, 1000, envs[s]) for s in JIT_SCENES]
+            for s, h in zip(JIT_SCENES, handles):
+                colds[s].append(cli_finish(h)[0])
+        else:
+            for s in JIT_SCENES:
+                colds[s].append(cli_run(cfgs[s], tmp, "jit-" + s, 1000, envs[s])[0])
+        for s in JIT_SCENES:
+            sizes[s] = sum(os.path.getsize(os.path.join(dp, f)) for dp, _, fs in os.walk(caches[s]) for f in fs)
+            warms[s] += [cli_run(cfgs[s], tmp, "jit-" + s, 1000, envs[s])[0] for _ in range(args.repeats)]
+            shutil.rmtree(caches[s], ignore_errors=True)
+    res = {s: (Timing(1000, colds[s]), Timing(1000, warms[s]), sizes[s]) for s in JIT_SCENES}
+    for s, (cold, warm, _) in res.items():
+        log(f"jit      {s:10s} cold {cold.seconds:.2f} s  warm {warm.seconds:.2f} s")
+    return res
+
+
+def section_variants(args):
+    """(scene, variant label) -> Timing."""
+    res = {}
+    for scene in VARIANT_SCENES:
+        for label, var in VARIANTS:
+            res[scene, label] = measure(rbx_run(scene_dict(scene, "rough"), **var), args, n0=2000)
+            log(f"variant  {scene:10s} {label:26s} {res[scene, label].rate:10.3e}/s")
+    return res
+
+
+def peer_table(scene):
+    """The ``billiards`` obstacles for a specular scene: infinite walls (inside on the left)."""
+    from billiards import InfiniteWall
+    if scene == "rectangle":
+        w, h = SCENES[scene][0]["width"], SCENES[scene][0]["height"]
+        corners = [(0, 0), (w, 0), (w, h), (0, h)]
+        return [InfiniteWall(corners[i], corners[(i + 1) % 4]) for i in range(4)]
+    width = SCENES[scene][0]["width"]
+    return [InfiniteWall((0, 0), (1, 0)), InfiniteWall((1, width), (0, width))]
+
+
+def peer_run(scene, T):
+    """``billiards`` from the scene's start up to time T -> (seconds, collisions, collision times)."""
+    from billiards import Billiard
+    _, pos, vel, _ = SCENES[scene]
+    bil = Billiard(peer_table(scene))
+    bil.add_ball(pos, vel, radius=R)
     t0 = time.perf_counter()
-    fn(N)
-    return time.perf_counter() - t0
+    colls = bil.evolve(T)
+    return time.perf_counter() - t0, len(colls), np.array([c[0] for c in colls])
 
 
+def peer_k(args):
+    return 200 if args.quick else 1000
+
+
+def section_peer(args, rates):
+    """-> (version or None, reason, {scene: (peer Timing, rbx Timing, max |Δt| of the first collision times)})."""
+    try:
+        import billiards
+        version = getattr(billiards, "__version__", None)
+        if version is None:
+            from importlib.metadata import version as _v
+            version = _v("billiards")
+    except ImportError:
+        return None, "not installed (`pip install billiards`, or `pip install -e '.[bench]'`)", {}
+    res = {}
+    for scene in PEER_SCENES:
+        # the same orbit? collision times of the first K collisions, against rbx's recorded times
+        K = peer_k(args)
+        d = scene_dict(scene, "specular", ("time",))
+        d["run"]["collisions"] = K
+        sink = MemorySink()
+        Simulation(config.from_dict(d, "<bench>")).run(sink)
+        t_rbx = sink.records["time"][0, 1:]
+        _, m, t_peer = peer_run(scene, t_rbx[-1] * (1 + 1e-9))
+        k = min(m, K)
+        dev = float(np.max(np.abs(t_peer[:k] - t_rbx[:k]) / t_rbx[:k])) if m >= K - 1 else math.inf
+        # its speed: grow the end time until a run lasts args.seconds
+        mean_free = t_rbx[-1] / K
+        def run(N):
+            dt, done, _ = peer_run(scene, N * mean_free)
+            return dt * N / max(done, 1), N     # the time of exactly N collisions at the measured pace
+        peer = measure(run, args, n0=200)
+        res[scene] = (peer, rates[scene, "specular"], dev)
+        log(f"peer     {scene:10s} billiards {peer.rate:10.3e}/s  rbx {rates[scene, 'specular'].rate:10.3e}/s")
+    return version, "", res
+
+
+# ---- the document ---------------------------------------------------------------------------------------------------
 def machine():
     cpu = platform.processor() or "unknown CPU"
     try:
@@ -130,38 +512,376 @@ def machine():
                     break
     except OSError:
         pass
-    return (f"{cpu}, {os.cpu_count()} cores; Python {platform.python_version()}, numba {numba.__version__}, "
-            f"numpy {np.__version__}")
+    import h5py
+    return (f"{cpu}, {os.cpu_count()} cores; {platform.system()} {platform.machine()}; "
+            f"Python {platform.python_version()}, numba {numba.__version__}, numpy {np.__version__}, "
+            f"h5py {h5py.__version__}")
+
+
+def engine_version():
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    try:
+        head = subprocess.run(["git", "-C", root, "rev-parse", "--short", "HEAD"], capture_output=True, text=True,
+                              check=True).stdout.strip()
+        dirty = subprocess.run(["git", "-C", root, "status", "--porcelain", "--", "rbx"], capture_output=True,
+                               text=True, check=True).stdout.strip()
+    except (OSError, subprocess.CalledProcessError):
+        return "unknown (not a git checkout)"
+    return f"commit {head}" + (" with uncommitted changes in rbx/" if dirty else "")
+
+
+def rate_s(x):
+    return "—" if x is None or not np.isfinite(x) else f"{x:.3g}"
+
+
+def ns(tm):
+    return f"{1e9 * tm.seconds / tm.N:.1f}"
+
+
+def cell_rate(tm):
+    if tm.escaped is not None:
+        return f"escapes after {tm.escaped}"
+    return f"{tm.rate:.3g} ({ns(tm)} ns)"
+
+
+def heading(args, title, key):
+    return [title, "", f"*Load average (1 min) when this section started: {args.loads[key]}.*", ""]
+
+
+def table(header, rows):
+    out = ["| " + " | ".join(header) + " |", "|" + "---|" * len(header)]
+    out += ["| " + " | ".join(str(c) for c in r) + " |" for r in rows]
+    return out
+
+
+def plot_rates(path, rates):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    scenes = list(SCENES)
+    fig, ax = plt.subplots(figsize=(9, 4.2))
+    width = 0.2
+    for i, r in enumerate(RULE_NAMES):
+        xs = np.arange(len(scenes)) + (i - 1.5) * width
+        ys = [rates[s, r].rate if rates[s, r].escaped is None else np.nan for s in scenes]
+        ax.bar(xs, ys, width, label=r)
+    ax.set_yscale("log")
+    lo = min(t.rate for t in rates.values() if t.escaped is None) / 3
+    ax.set_ylim(bottom=lo)
+    for i, r in enumerate(RULE_NAMES):
+        for j, s in enumerate(scenes):
+            if rates[s, r].escaped is not None:
+                ax.text(j + (i - 1.5) * width, lo * 1.1, "escapes", rotation=90, ha="center", va="bottom",
+                        fontsize=7)
+    ax.set_xticks(np.arange(len(scenes)), scenes)
+    ax.set_ylabel("collisions / s (one core)")
+    ax.set_title("rbx, one trajectory, nothing recorded")
+    ax.legend(ncol=4, fontsize=8)
+    ax.grid(axis="y", alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_fields(path, fields, startup):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(1, len(fields), figsize=(11, 4.5), sharey=True)
+    for ax, (scene, rows) in zip(np.atleast_1d(axes), fields.items()):
+        labels = [r[0] for r in rows]
+        base_mem = rows[0][2].seconds / rows[0][2].N
+        mem = [r[2].seconds / r[2].N / base_mem for r in rows]
+        h5 = [h5_work(r[3], startup[scene]) / r[3].N / base_mem if h5_ok(r[3], startup[scene]) else np.nan
+              for r in rows]
+        y = np.arange(len(rows))
+        ax.barh(y - 0.2, mem, 0.4, label="in memory (MemorySink)")
+        ax.barh(y + 0.2, h5, 0.4, label="HDF5 (rbx simulate, start-up subtracted)")
+        ax.set_xscale("log")
+        ax.set_yticks(y, labels)
+        ax.invert_yaxis()
+        ax.axvline(1, color="k", lw=0.8)
+        ax.set_xlabel("time per collision / nothing recorded in memory")
+        ax.set_title(f"{scene} (rough)")
+        ax.grid(axis="x", alpha=0.3)
+    np.atleast_1d(axes)[0].legend(fontsize=8, loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def plot_scaling(path, ens):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    fig, ax = plt.subplots(figsize=(6, 4))
+    for scene in ENSEMBLE_SCENES:
+        for threads, style in ((1, "o-"), (2, "s--")):
+            ax.plot(ENSEMBLE_SIZES, [ens[scene, M, threads].rate for M in ENSEMBLE_SIZES], style,
+                    label=f"{scene}, {threads} thread{'s' if threads > 1 else ''}")
+    ax.set_xscale("log")
+    ax.set_xlabel("trajectories M")
+    ax.set_ylabel("collisions / s in total")
+    ax.set_ylim(bottom=0)
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+def h5_ok(h5, base):
+    """Was there enough work in the HDF5 runs to tell it from the start-up's noise?"""
+    return h5 is not None and h5_work(h5, base) > 0.05 * h5.seconds
+
+
+def h5_work(h5, base):
+    """Seconds of work in an `rbx simulate` run: wall time less the start-up (a one-collision run)."""
+    return h5.seconds - base.seconds
+
+
+def write_document(args, cmd, results, wall):
+    out = args.out
+    stem = os.path.splitext(os.path.basename(out))[0]
+    folder = os.path.dirname(os.path.abspath(out))
+    rates, hand, (fields, startup), ens, jit, variants, (peer_version, peer_reason, peer) = results
+    pngs = {k: f"{stem}-{k}.png" for k in ("rates", "fields", "scaling")}
+    plot_rates(os.path.join(folder, pngs["rates"]), rates)
+    plot_fields(os.path.join(folder, pngs["fields"]), fields, startup)
+    plot_scaling(os.path.join(folder, pngs["scaling"]), ens)
+
+    L = ["# Benchmarks", "",
+         f"Generated by `{cmd}` (`make bench`) in {wall / 60:.1f} min; do not edit by hand.", "",
+         f"Machine: {machine()}. Load average at the start {args.load0}, at the end {fmt_load()} "
+         "(other work on the machine shows up as noise).", "",
+         f"Engine: {engine_version()}.", "",
+         "How: `time.perf_counter` around the work alone (`Simulation.run` with a `MemorySink`, or the whole "
+         "`rbx simulate` command), after a warm-up run of the same configuration (which compiles it or loads it "
+         f"from the cache); the number of collisions N is grown until one run lasts ≥ {args.seconds:g} s, then "
+         f"the median of {args.repeats} runs is shown. Ball: R = {R}, κ = {KAPPA}. Rates are collisions per "
+         "second, with the time per collision in parentheses."
+         + (" **Quick mode: tiny sizes, the numbers mean nothing.**" if args.quick else ""), ""]
+
+    # 1
+    L += heading(args, "## 1. Collisions per second per scene and rule", "rates") + [
+          "One trajectory, one thread, nothing recorded (`record: []`), from one explicit start per scene. Rules "
+          "(the same on every wall):", ""]
+    L += [f"- **{r}**: {RULE_TEXT[r]}" for r in RULE_NAMES]
+    L += [""]
+    L += table(["scene", "dim", "walls"] + list(RULE_NAMES),
+               [[s, len(SCENES[s][1]), len(config.from_dict(scene_dict(s), "<bench>").geometry().codes)]
+                + [cell_rate(rates[s, r]) for r in RULE_NAMES] for s in SCENES])
+    L += ["", "`walls` counts the primitives of the shrunk table that each collision tests (the L-polygon's "
+          "reflex corner is an extra arc). “escapes after k”: the trajectory left for infinity after k "
+          "collisions, so there is no rate (a specular disc makes at most 3 collisions in a 60° wedge, and any "
+          "rule with specular bounces lets it out too).", "",
+          f"![collisions per second per scene and rule]({pngs['rates']})", ""]
+
+    # 2
+    L += heading(args, "## 2. Against a minimal hand-written loop", "hand") + [
+          "The hand-written loop (in `scripts/bench.py`) is a plain `@njit` loop for that scene and rule alone, "
+          "with the wall known in closed form: our proxy for the speed limit. It computes the same orbit "
+          "(tests/test_bench_smoke.py checks it against rbx), but it does not renormalize the energy, check "
+          "for escapes, count draws or support any other table. `rbx` is the default engine (energy projected back "
+          f"every {RENORMALIZE_EVERY} collisions in rough scenes); `rbx, renormalize 0` turns that off, which "
+          "is the like-for-like comparison.", ""]
+    rows = []
+    for (s, r), (dflt, off, h) in hand.items():
+        rows.append([s, r, rate_s(dflt.rate), rate_s(off.rate) if off else "—", rate_s(h.rate),
+                     f"{dflt.rate / h.rate:.2f}", f"{off.rate / h.rate:.2f}" if off else "—"])
+    L += table(["scene", "rule", "rbx collisions/s", "rbx, renormalize 0", "hand-written collisions/s",
+                "rbx / hand", "rbx renormalize 0 / hand"], rows)
+    L += ["", "Target of issue 6: rbx / hand ≥ 0.9 for the rough strip, plates and circle with nothing recorded.",
+          ""]
+
+    # 3
+    L += heading(args, "## 3. The cost of recording", "fields") + [
+          "One trajectory, rough rule, each field alone, all of them, and all of them every 10 and 100 "
+          "collisions. **In memory**: `Simulation.run` into a `MemorySink` (the API; it keeps copies of every "
+          f"block), N capped at {args.memory_cap / 1e6:.0f} MB of records. **HDF5**: the real command "
+          "`rbx simulate CONFIG -o OUT.h5 --force --quiet --collisions N` in a subprocess, N chosen for about "
+          f"{args.h5_seconds:g} s of work (at most {args.file_cap / 1e6:.0f} MB of file); its work is the wall "
+          "time less the start-up (the same command for one collision, median of runs: import, loading the "
+          "kernels from the cache, creating the file), and the rates and MB/s come from that work. `relative` is "
+          "the time per collision over that of nothing recorded in memory.", ""]
+    for scene, rows in fields.items():
+        base_mem = rows[0][2].seconds / rows[0][2].N
+        n = len(SCENES[scene][1])
+        trs = []
+        for label, fs, mem, h5 in rows:
+            if h5 is None:
+                trs.append([label, f"{field_bytes(n, fs, 1):g}", rate_s(mem.rate),
+                            f"{mem.seconds / mem.N / base_mem:.2f}"] + ["not run (--quick)"] * 6)
+                continue
+            work = h5_work(h5, startup[scene])
+            ok = h5_ok(h5, startup[scene])
+            trs.append([label, f"{field_bytes(n, fs, 1):g}",
+                        rate_s(mem.rate), f"{mem.seconds / mem.N / base_mem:.2f}",
+                        f"{h5.N:,}", f"{h5.seconds:.2f}", f"{h5.extra / 1e6:.1f}",
+                        rate_s(h5.N / work) if ok else "within start-up noise",
+                        f"{work / h5.N / base_mem:.2f}" if ok else "—",
+                        f"{h5.extra / 1e6 / work:.0f}" if ok and h5.extra > 1e5 else "—"])
+        L += [f"### {scene} ({n}D, rough); `rbx simulate` start-up {startup[scene].seconds:.2f} s", ""]
+        L += table(["recorded", "bytes/record", "memory collisions/s", "memory relative", "HDF5 N", "HDF5 wall s",
+                    "file MB", "HDF5 collisions/s", "HDF5 relative", "HDF5 MB/s"], trs)
+        L += [""]
+    L += [f"![cost of each recorded field]({pngs['fields']})", ""]
+
+    # 4
+    L += heading(args, "## 4. Ensembles and threads", "ensembles") + [
+          "`run.trajectories: M`, starts drawn from the billiard measure, rough rule, nothing recorded, N "
+          "collisions in all (N/M each), `numba.set_num_threads(k)`. Collisions per second in total.", ""]
+    rows = []
+    for scene in ENSEMBLE_SCENES:
+        for M in ENSEMBLE_SIZES:
+            one, two = ens[scene, M, 1], ens[scene, M, 2]
+            rows.append([scene, M, f"{one.N // M:,}", rate_s(one.rate), rate_s(two.rate),
+                         f"{two.rate / one.rate:.2f}"])
+    L += table(["scene", "M", "collisions per trajectory (1 thread)", "1 thread", "2 threads", "speed-up"], rows)
+    L += ["", f"![ensembles and threads]({pngs['scaling']})", ""]
+
+    # 5
+    L += heading(args, "## 5. Compilation and the on-disk cache", "jit") + [
+          "`rbx simulate` of a 1000-collision config recording every field, rough rule, one trajectory, in a "
+          "subprocess: first with an empty `NUMBA_CACHE_DIR` (every kernel that run needs is compiled), then the "
+          "same command again with the cache it left. Wall time of the whole command, median over "
+          f"{args.repeats} fresh caches (and {args.repeats} cached runs on each).", ""]
+    L += table(["scene", "first run, empty cache (s)", "cached start-up (s)", "compile cost (s)", "cache size (MB)"],
+               [[s, f"{c.seconds:.2f}", f"{w.seconds:.2f}", f"{c.seconds - w.seconds:.2f}", f"{size / 1e6:.1f}"]
+                for s, (c, w, size) in jit.items()])
+    L += ["", "Each further combination of compile-time bits (dimension, rule kinds, recording, variants: "
+          "`Simulation.spec()`) compiles once more on first use, then loads from the same cache.", ""]
+
+    # 6
+    L += heading(args, "## 6. Numerical variants", "variants") + [
+          "Speed only (their accuracy is in docs/accuracy.md): rough rule, one trajectory, nothing recorded; "
+          "`Simulation.renormalize` (period of the projection onto the initial energy, 0 = off), "
+          "`.compensated` (compensated summation of time and position), `.snap` (centre put on the wall at "
+          "contact). `relative` is the time per collision over the default's.", ""]
+    rows = []
+    for scene in VARIANT_SCENES:
+        base = variants[scene, VARIANTS[0][0]]
+        for label, _ in VARIANTS:
+            tm = variants[scene, label]
+            rows.append([scene, label, cell_rate(tm), f"{base.rate / tm.rate:.2f}"])
+    L += table(["scene", "variant", "collisions/s", "relative"], rows)
+    L += [""]
+
+    # 7
+    L += heading(args, "## 7. A public peer: `billiards` (PyPI)", "peer") + [
+          "[`billiards`](https://pypi.org/project/billiards/) simulates 2D billiards event by event: balls (with "
+          "a radius) against each other and against obstacles (infinite walls, discs), specular only and in pure "
+          "Python with NumPy. It fits the specular rectangle (four infinite walls) and the specular strip (two); "
+          "it cannot express a circular table (its disc obstacles are hit from outside), 3D, or any rough rule. "
+          "Timed: `Billiard.evolve(T)` from the same start as rbx, with the end time grown until one run lasts "
+          f"≥ {args.seconds:g} s; `Δt` is the largest relative difference between its collision times and rbx's "
+          f"over the first {peer_k(args)} collisions (is it the same orbit?). It is an optional dependency: "
+          "`pip install -e '.[bench]'`. We found no other package on PyPI for these tables: `pooltool-billiards` "
+          "simulates the game of pool (cloth friction, cushions), and physics engines such as pymunk step time "
+          "with contact forces instead of going from collision to collision.", ""]
+    if peer_version is None:
+        L += table(["scene", "billiards collisions/s", "rbx collisions/s", "rbx / billiards", "Δt"],
+                   [[s, peer_reason, rate_s(rates[s, "specular"].rate), "—", "—"] for s in PEER_SCENES])
+    else:
+        L += [f"`billiards` {peer_version}.", ""]
+        L += table(["scene", "billiards collisions/s", "rbx collisions/s", "rbx / billiards", "Δt"],
+                   [[s, rate_s(p.rate), rate_s(r.rate), f"{r.rate / p.rate:.0f}", f"{dev:.1e}"]
+                    for s, (p, r, dev) in peer.items()])
+    L += [""]
+    L += notes(rates, hand, fields, ens, variants)
+    with open(out, "w") as fh:
+        fh.write("\n".join(L) + "\n")
+
+
+def notes(rates, hand, fields, ens, variants):
+    """Facts read off the numbers (no judgement beyond them)."""
+    L = ["## What stands out", ""]
+    ok = [(k, t) for k, t in rates.items() if t.escaped is None]
+    fast = max(ok, key=lambda kt: kt[1].rate)
+    slow = min(ok, key=lambda kt: kt[1].rate)
+    L.append(f"- Fastest: {fast[0][0]} / {fast[0][1]} at {fast[1].rate:.3g} collisions/s; slowest: {slow[0][0]} / "
+             f"{slow[0][1]} at {slow[1].rate:.3g} ({fast[1].rate / slow[1].rate:.1f}× slower).")
+    for r in RULE_NAMES:
+        col = [(s, rates[s, r]) for s in SCENES if rates[s, r].escaped is None]
+        if len(col) < 3:
+            continue
+        med = statistics.median(t.rate for _, t in col)
+        for s, t in col:
+            if t.rate < med / 3:
+                L.append(f"- {s} / {r} runs at {t.rate:.3g} collisions/s, {med / t.rate:.1f}× below the median of "
+                         f"the {r} column ({med:.3g}).")
+    for (s, r), (dflt, off, h) in hand.items():
+        if r == "rough":
+            L.append(f"- {s} (rough) against its hand-written loop: {dflt.rate / h.rate:.2f} with the default "
+                     f"renormalization, {off.rate / h.rate:.2f} without (target 0.9).")
+    for scene, rows in fields.items():
+        base = rows[0][2].seconds / rows[0][2].N
+        single = [r for r in rows if len(r[1]) == 1]
+        worst = max(single, key=lambda r: r[2].seconds / r[2].N)
+        L.append(f"- {scene}: the dearest single field in memory is `{worst[0]}` "
+                 f"({worst[2].seconds / worst[2].N / base:.2f}× the time per collision of nothing recorded).")
+    for scene in ENSEMBLE_SCENES:
+        sp = ens[scene, ENSEMBLE_SIZES[-1], 2].rate / ens[scene, ENSEMBLE_SIZES[-1], 1].rate
+        L.append(f"- {scene}: {ENSEMBLE_SIZES[-1]} trajectories on 2 threads run {sp:.2f}× as fast as on 1.")
+    return L + [""]
+
+
+def load1():
+    try:
+        return f"{os.getloadavg()[0]:.1f}"
+    except OSError:
+        return "unknown"
+
+
+def fmt_load():
+    try:
+        return "/".join(f"{x:.2f}" for x in os.getloadavg())
+    except OSError:
+        return "unknown"
+
+
+SECTIONS = ("rates", "hand", "fields", "ensembles", "jit", "variants", "peer")
 
 
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--collisions", type=int, default=2_000_000)
-    ap.add_argument("--repeats", type=int, default=5)
-    ap.add_argument("--out", default=os.path.join(os.path.dirname(__file__), "..", "docs", "benchmarks.md"))
+    ap.add_argument("--quick", action="store_true", help="tiny sizes (for the smoke test): numbers mean nothing")
+    ap.add_argument("--repeats", type=int, help="timed runs per measurement (median); default 3, quick 1")
+    ap.add_argument("--seconds", type=float, help="least duration of one timed run; default 0.4, quick 0.002")
+    ap.add_argument("--collisions", type=int, help="a fixed number of collisions instead of --seconds")
+    ap.add_argument("--out", default=os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "docs",
+                                                  "benchmarks.md"))
     args = ap.parse_args(argv)
-    N = args.collisions
-    rows = []
-    for name, (*_, hand) in SCENES.items():
-        cfg = rbx_config(name, N)
-        time_rbx(rbx_config(name, 10))   # compile (or load from the cache) first
-        hand(10)
-        t_rbx = statistics.median(time_rbx(cfg) for _ in range(args.repeats))
-        t_hand = statistics.median(time_hand(hand, N) for _ in range(args.repeats))
-        rows.append((name, N / t_rbx, N / t_hand, t_hand / t_rbx))
-        print(f"{name:8s} rbx {N / t_rbx:12.3e}/s  hand {N / t_hand:12.3e}/s  ratio {t_hand / t_rbx:.2f}",
-              file=sys.stderr)
-    cmd = "python scripts/bench.py " + " ".join(argv if argv is not None else sys.argv[1:])
-    lines = ["# Benchmarks", "", "Generated by `" + cmd.strip() + "` (`make bench`); do not edit by hand.", "",
-             f"Machine: {machine()}.", "",
-             f"One trajectory, {N:,} collisions, nothing recorded (`record: []`), completely rough ball "
-             f"(R = {R}, κ = {KAPPA}); median of {args.repeats} runs after compilation. The hand-written loop is a minimal "
-             "njit loop for that scene alone (in this script): our proxy for the speed limit.", "",
-             "| scene | rbx collisions/s | hand-written collisions/s | rbx / hand |", "|---|---|---|---|"]
-    lines += [f"| {n} | {a:.3g} | {b:.3g} | {c:.2f} |" for n, a, b, c in rows]
-    with open(args.out, "w") as fh:
-        fh.write("\n".join(lines) + "\n")
-    return rows
+    args.repeats = args.repeats or (1 if args.quick else 3)
+    args.seconds = args.seconds or (0.002 if args.quick else 0.4)
+    args.h5_seconds = 0.01 if args.quick else 1.0          # work per `rbx simulate` run of section 3
+    args.memory_cap = 2e6 if args.quick else 256e6         # bytes of records kept by a MemorySink run
+    args.file_cap = 2e6 if args.quick else 400e6           # bytes of an HDF5 file
+    args.load0 = fmt_load()
+    argv = sys.argv[1:] if argv is None else argv
+    cmd = " ".join(["python scripts/bench.py"] + [a if a != args.out else os.path.relpath(a) for a in argv])
+    t0 = time.perf_counter()
+    numba.set_num_threads(1)
+    args.loads = {}
+
+    def section(name, fn, *a):
+        args.loads[name] = load1()
+        t = time.perf_counter()
+        res = fn(args, *a)
+        log(f"section {name}: {time.perf_counter() - t:.1f} s")
+        return res
+    with tempfile.TemporaryDirectory(prefix="rbx-bench-") as tmp:
+        rates = section("rates", section_rates)
+        hand = section("hand", section_hand, rates)
+        fields = section("fields", section_fields, tmp)
+        ens = section("ensembles", section_ensembles)
+        jit = section("jit", section_jit, tmp)
+        variants = section("variants", section_variants)
+        peer = section("peer", section_peer, rates)
+    results = (rates, hand, fields, ens, jit, variants, peer)
+    write_document(args, cmd, results, time.perf_counter() - t0)
+    log(f"wrote {args.out} in {time.perf_counter() - t0:.0f} s")
+    return results
 
 
 if __name__ == "__main__":

@@ -45,7 +45,7 @@ def test_accuracy_writes_its_document(tmp_path):
     per_scene = [rows for header, rows in found if header[:2] == ["variant", "N"]]
     assert len(per_scene) == 6
     for rows in per_scene:
-        assert {r[0] for r in rows} >= {"plain", "renormalize"} and {r[1] for r in rows} == {"10", "100"}
+        assert {r[0] for r in rows} >= {"plain", "default"} and {r[1] for r in rows} == {"10", "100"}
 
 
 def test_stress_writes_its_document(tmp_path):

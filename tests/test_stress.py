@@ -84,14 +84,14 @@ def test_corners_are_resolved_one_wall_at_a_time_lower_index_first():
 
 def test_a_long_run_against_the_exact_strip_orbit():
     rows = {r["variant"]: r for r in stress.long_run(200_000, 20_000, log=lambda *_: None)}
-    plain, renorm = rows["plain"], rows["renormalize"]
+    plain, default = rows["plain"], rows["default"]
     assert all(r["collisions"] == 200_000 for r in rows.values())
     for r in rows.values():          # the exact orbit is a closed form (stress.exact_strip)
         assert r["time_error"] < 1e-10 and r["x_error"] < 1e-10 and r["v_error"] < 1e-10, r
-    assert plain["energy"] < 1e-10 and renorm["energy"] < 1e-15
-    assert plain["reversal"] < 1e-10 and renorm["reversal"] < 1e-5
-    if "compensated, no renormalize" in rows:
-        assert rows["compensated, no renormalize"]["time_error"] < 1e-15
+    assert plain["energy"] < 1e-10 and default["energy"] < 1e-14
+    assert plain["reversal"] < 1e-10 and default["reversal"] < 1e-5
+    if "compensated, no projection" in rows:
+        assert rows["compensated, no projection"]["time_error"] < 1e-15
 
 
 def test_the_closed_form_strip_orbit_is_the_precise_loops():
