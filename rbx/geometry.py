@@ -279,22 +279,24 @@ def collision_time(code, params, k, a, v, tol, n):
     rho = params[k, 12]
     cc = (np.sqrt(cc) - rho) * (np.sqrt(cc) + rho)   # |a−c|² − ρ², without cancelling ρ² away
     if code == CONCAVE_ARC:
+        # The centre is inside the circle (a bounded table): one a hair outside by rounding is taken to be on it,
+        # else a grazing flight moving inward from there could miss the circle altogether and "escape".
+        if vv == 0.0:
+            return np.inf
+        if cc > 0.0:
+            cc = 0.0
         disc = b * b - vv * cc
-        if disc < 0.0:
-            disc = 0.0
         if b > 0.0:
             t = -cc / (b + np.sqrt(disc))         # stable form of the larger root
         else:
             t = (np.sqrt(disc) - b) / vv
-        if b + max(t, 0.0) * vv <= 0.0:
-            return np.inf                        # tangent flight: never moving outward
-        return max(t, 0.0)
+        return t                                 # ≥ 0; 0 for a centre on the circle moving out (or along it)
     # CONVEX_ARC: entering the disc around a reflex vertex, through the arc between its two normals
     if b >= 0.0:
         return np.inf
     disc = b * b - vv * cc
-    if disc < 0.0:
-        return np.inf
+    if disc <= 0.0:
+        return np.inf                            # the line misses the disc or is tangent: a grazing flight
     t = cc / (np.sqrt(disc) - b)                 # stable form of the smaller root
     if t < 0.0:
         if cc < -2.0 * tol * rho:

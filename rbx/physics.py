@@ -67,15 +67,15 @@ def collide(v, W, nu, R, kappa, rank, basis, node, wall, work, n):
                 work[2, i] += c * basis[node, wall, q, i]
         for i in range(n):
             work[1, i] = work[2, i]
+    # Δv = −2α P u_t, and W += (Δv rᵀ − r Δvᵀ)/(2λ) with r = −Rν, 2λ = κR²: since α/κ = 1/(1+κ) the spin
+    # change is (2/((1+κ)R))·(P u_t νᵀ − ν (P u_t)ᵀ), computed without dividing by κ (finite as κ → 0)
     alpha2 = 2.0 * kappa / (1.0 + kappa)
+    scale = 2.0 / ((1.0 + kappa) * R)
     for i in range(n):
-        work[1, i] *= -alpha2
-        v[i] += work[1, i] - 2.0 * vn * nu[i]
-    # W += (Δv rᵀ − r Δvᵀ)/(2λ) with r = −Rν and 2λ = κR²
-    scale = 1.0 / (kappa * R)
+        v[i] -= alpha2 * work[1, i] + 2.0 * vn * nu[i]
     for i in range(n):
         for j in range(n):
-            W[i, j] += scale * (nu[i] * work[1, j] - work[1, i] * nu[j])
+            W[i, j] += scale * (work[1, i] * nu[j] - nu[i] * work[1, j])
 
 
 def collision_map(v, W, nu, R, kappa, rank, basis=None):

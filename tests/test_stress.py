@@ -5,7 +5,7 @@ shrunk table, every collision lies on the wall it names, the energy drifts by le
 (bounded collisions; escapes only where docs/conventions.md says so), and it agrees with the 50-digit orbit and
 with the transformed reference run where the case has one.
 
-Cases that break in the engine today are strict xfails with a reproducer in the reason: they flip when fixed."""
+A case that breaks goes into KNOWN_BROKEN as a strict xfail with a reproducer in the reason, so it flips when fixed."""
 import math
 import os
 import sys
@@ -24,27 +24,8 @@ from rbx.simulate import run_in_memory  # noqa: E402
 
 L_SHAPE = [[0, 0], [2, 0], [2, 2], [1, 2], [1, 1], [0, 1]]
 
-TANGENT_ARC = ("engine bug: a flight exactly tangent to a reflex arc (disc == 0 in geometry.collision_time, "
-               "CONVEX_ARC) is taken as a collision with v·ν = 0, and the rough map then changes the velocity; "
-               "docs/conventions.md: a flight parallel to a wall never touches it. L-polygon, R = 0.125, start "
-               "(0.5, 0.875), v = (1, 0): the engine hits edge4 at (1, 0.875), t = 0.5; expected the right wall "
-               "at (1.875, 0.875), t = 1.375")
-SUBNORMAL_KAPPA = ("engine bug: the config accepts κ = 1e-320 (in (0, 1]) but 1/(κR) overflows in physics.collide: the "
-                   "first rough collision gives inf/NaN spin and the trajectory ends; expected a ConfigError or a "
-                   "finite orbit (κ below ~1e-307/R)")
-CIRCLE_ESCAPE = ("engine bug: a grazing orbit in the circle escapes. After a collision the centre can sit an ulp "
-                 "outside the rim while moving inward at a grazing angle; its line then misses the circle of radius "
-                 "ρ (disc < 0 or b + t·|v|² ≤ 0 in collision_time, CONCAVE_ARC) and the bounded table reports "
-                 "'no wall ahead'. circle r = 1, R = 0.1, specular, start (0, −0.9·√(1 − 1e-16)), v = (1, 0): "
-                 "ends after ~6000 collisions; expected never to end")
-
-#: quick stress cases that break today (their names in scripts/stress.py) -> reason
-KNOWN_BROKEN = {
-    "L-polygon: flight tangent to the reflex arc (along edge 4's offset line)": TANGENT_ARC,
-    "strip, κ = 1e-320": SUBNORMAL_KAPPA,
-    "circle, κ = 1e-320": SUBNORMAL_KAPPA,
-    "box, κ = 1e-320": SUBNORMAL_KAPPA,
-}
+#: quick stress cases that break today (their names in scripts/stress.py) -> reason, with a reproducer
+KNOWN_BROKEN = {}
 
 
 def _params():
@@ -112,7 +93,6 @@ def _circle(position, velocity, collisions, inertia="uniform"):
             "output": {"record": ["position", "wall"]}}
 
 
-@pytest.mark.xfail(strict=True, reason=CIRCLE_ESCAPE)
 def test_a_grazing_orbit_never_escapes_the_circle():
     e = 1e-8
     cfg = config.from_dict(_circle([0.0, -0.9 * math.sqrt(1 - e * e)], [1.0, 0.0], 10_000))
@@ -120,7 +100,6 @@ def test_a_grazing_orbit_never_escapes_the_circle():
     assert final["alive"][0] and count[0] == 10_001
 
 
-@pytest.mark.xfail(strict=True, reason=CIRCLE_ESCAPE)
 def test_a_centre_an_ulp_outside_the_rim_moving_inward_still_hits_it():
     # the state the grazing orbit above reaches after 6060 collisions
     cfg = config.from_dict(_circle([1.731197046377943e-04, -8.999999833497598e-01],
@@ -129,7 +108,6 @@ def test_a_centre_an_ulp_outside_the_rim_moving_inward_still_hits_it():
     assert final["alive"][0] and count[0] == 11
 
 
-@pytest.mark.xfail(strict=True, reason=TANGENT_ARC)
 def test_a_flight_tangent_to_a_reflex_arc_touches_nothing():
     cfg = config.from_dict({"table": {"kind": "polygon", "vertices": L_SHAPE},
                             "boundary": {"default": {"rule": "constant", "rank": 1}}, "ball": {"radius": 0.125},
@@ -140,7 +118,6 @@ def test_a_flight_tangent_to_a_reflex_arc_touches_nothing():
     np.testing.assert_array_equal(rec["position"][0, 1], [1.875, 0.875])
 
 
-@pytest.mark.xfail(strict=True, reason=SUBNORMAL_KAPPA)
 def test_a_kappa_the_config_accepts_gives_a_finite_orbit():
     c = {"table": {"kind": "strip", "width": 1.0}, "boundary": {"default": {"rule": "constant", "rank": 1}},
          "ball": {"radius": 0.1, "inertia": 1e-320}, "initial": {"position": [0, 0.5], "velocity": [0.6, 0.8],
