@@ -54,11 +54,6 @@ jit_hot = numba.njit(_nrt=False, inline="always", **_POLICY)
 jit_loop = numba.njit(_nrt=False, **_POLICY)
 
 
-def jit_parallel(func):
-    """Compile a driver that loops over trajectories with ``prange`` (never inside one trajectory)."""
-    return numba.njit(parallel=True, **_POLICY)(func)
-
-
 @intrinsic
 def stack_array(typingctx, capacity, shape):
     """A float64 C-contiguous array of ``shape`` (a tuple) in the calling kernel's stack frame, with room for

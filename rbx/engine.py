@@ -1,8 +1,8 @@
 """The event loop (njit): free flight to the next wall, choose the rule, apply the collision map, record.
 
-Three tiers (STYLE, after stumpy): :mod:`rbx.simulate` validates and allocates → :func:`advance_all`, a
-``prange`` driver over trajectories (each writes only its own slots) → :func:`advance`, the serial loop of one
-trajectory. Kernels take arrays and scalars only.
+Three tiers (STYLE, after stumpy): :mod:`rbx.simulate` validates and allocates → :func:`run_advance_all` runs
+slices of the trajectories on a thread pool through :func:`advance_all` (``nogil``; each trajectory writes only its
+own slots) → :func:`advance`, the serial loop of one trajectory. Kernels take arrays and scalars only.
 
 Per collision (ARCHITECTURE.md, "The event loop"):
  1. ``next_collision``: the smallest flight time over the shrunk table's primitives (inf: the trajectory escapes
@@ -14,13 +14,15 @@ Per collision (ARCHITECTURE.md, "The event loop"):
  5. the strict collision map updates (v, W) in place;
  6. every ``every``-th collision, the requested fields go to the trajectory's row of the block buffers.
 """
+from concurrent.futures import ThreadPoolExecutor
+
 import numba
 import numpy as np
-from numba import literally, prange
+from numba import literally
 
-from ._jit import jit, jit_hot, jit_loop, jit_parallel, stack_array
+from ._jit import jit, jit_hot, jit_loop, stack_array
 from .geometry import contact_normal, next_collision, slab_collision, snap
-from .physics import collide
+from .physics import collide, collide_slab
 from .rules import choose
 
 # bits of the record mask, in the order of SPEC §5
@@ -57,8 +59,8 @@ def rotate(A, W, tau, E, tmp):
 
 
 @jit_hot
-def rescale_energy(v, W, R, kappa, e0, n):
-    """Scale (v, W) so the kinetic energy is exactly the trajectory's initial energy ``e0`` again.
+def energy_factor(v, W, R, kappa, e0, half_inv_e0, n):
+    """The factor f that puts (v, W) back onto the trajectory's initial energy ``e0``: f²·energy = e0.
 
     The rough map conserves energy exactly in exact arithmetic, but its constants (α, 1/(κR)) are rounded the
     same way at every collision, which biases the energy by ~1e-17 per collision: 2e-12 after 10⁵ collisions in
@@ -66,16 +68,28 @@ def rescale_energy(v, W, R, kappa, e0, n):
     e = 0.0
     for i in range(n):
         e += v[i] * v[i]
-    rot = 0.0
+    rot = 0.0                                   # ½ tr(WᵀW): W is antisymmetric, its upper triangle is enough
     for i in range(n):
-        for k in range(n):
+        for k in range(i + 1, n):
             rot += W[i, k] * W[i, k]
-    e = 0.5 * e + 0.25 * kappa * R * R * rot
-    f = np.sqrt(e0 / e)
+    e = 0.5 * e + 0.5 * kappa * R * R * rot
+    # f = √(e0/e). Between projections e drifts from e0 by a few ulp (δ = (e0 − e)/e0 ~ 1e-15), and for
+    # |δ| < 1e-9, 1 + δ/2 is √(e0/e) to within δ²/8 < 1.3e-19, below an ulp: no division and no square root
+    # (``half_inv_e0`` = 1/(2e0), once per trajectory)
+    d = e0 - e
+    if abs(d) < 1e-9 * e0:
+        return 1.0 + d * half_inv_e0
+    return np.sqrt(e0 / e)
+
+
+@jit_hot
+def scale_state(v, W, f, n):
+    """(v, W) ← f·(v, W), W kept exactly antisymmetric."""
     for i in range(n):
         v[i] *= f
-        for k in range(n):
+        for k in range(i + 1, n):
             W[i, k] *= f
+            W[k, i] = -W[i, k]
 
 
 @jit_hot
@@ -123,9 +137,12 @@ S_SNAP = 128        # put the centre exactly on the wall at contact
 S_SLAB = 256        # two parallel walls (strip, plates): closed-form flight time and exact normal coordinate
 S_STOP_WALL = 512   # end a trajectory when it hits ``stop_wall``
 #: the bits compiled into the kernel; the others are tested at run time (a predictable branch). Each compiled
-#: combination costs a compile of ~5 s the first time, so only the bits that pay for it are compiled: the
-#: dimension (loops of constant length, state in registers), spin arithmetic and the slab's closed form.
-COMPILED_BITS = S_DIM3 | S_SPIN | S_SLAB
+#: combination in use costs a compile of ~5 s the first time (then it is on disk), so the bits compiled are the
+#: ones that pay: the dimension (loops of constant length, state in registers), spin arithmetic, the slab's closed
+#: form, and what SPEC §7 asks to skip (orientation, rule trees and random draws, per-collision records). Compiling
+#: the last three took the rough strip from 6.7 to 5.0 ns per collision and the rough plates from 8.5 to 6.2 (the
+#: run-time tests keep registers busy); the variants and the stop wall stay run-time bits.
+COMPILED_BITS = S_DIM3 | S_SPIN | S_SLAB | S_RECORD | S_TREE | S_ORIENT
 RUNTIME_BITS = ~COMPILED_BITS
 
 
@@ -192,6 +209,7 @@ def advance(j, stop, spec, flags, stop_wall, every, mask, renorm_every, codes, p
     w = last_wall[j]
     rk = last_rank[j]
     e0 = energy0[j]
+    half_inv_e0 = 0.5 / e0
     nrec = 0
     until_record = every - c % every           # collisions to the next record
     until_renorm = renorm_every - c % renorm_every if renorm_every > 0 else 0
@@ -222,8 +240,13 @@ def advance(j, stop, spec, flags, stop_wall, every, mask, renorm_every, codes, p
                 th += tau * Wj[1, 0]
             else:
                 rotate(Aj, Wj, tau, E, tmp)
-        # 3. contact normal
-        contact_normal(codes[p], params, p, a, nu, n)
+        # 3. contact normal (a slab's is ±e_{n−1}: set as constants, so the map's products with zeros fold away)
+        if on & S_SLAB:
+            for i in range(n - 1):
+                nu[i] = 0.0
+            nu[n - 1] = 1.0 if p == 0 else -1.0
+        else:
+            contact_normal(codes[p], params, p, a, nu, n)
         if on & S_SNAP:
             snap(codes[p], params, p, a, nu, n)
         # 4. rule
@@ -235,12 +258,21 @@ def advance(j, stop, spec, flags, stop_wall, every, mask, renorm_every, codes, p
         rk = rank[node]
         # 5. collision map
         if on & S_SPIN:
-            collide(v, Wj, nu, R, kappa, rk, basis, node, w, work, n)
+            # every renorm_every-th collision, the factor onto the initial energy is taken from the state before
+            # the map and applied after it: the map keeps the energy to an ulp, and computing the factor beside
+            # the map instead of after it keeps it off the chain of operations that sets the speed
+            f = 0.0
             if renorm_every > 0:
                 until_renorm -= 1
                 if until_renorm == 0:
                     until_renorm = renorm_every
-                    rescale_energy(v, Wj, R, kappa, e0, n)
+                    f = energy_factor(v, Wj, R, kappa, e0, half_inv_e0, n)
+            if on & S_SLAB:
+                collide_slab(v, Wj, nu[n - 1], R, kappa, rk, basis, node, w, work, n)
+            else:
+                collide(v, Wj, nu, R, kappa, rk, basis, node, w, work, n)
+            if f != 0.0:
+                scale_state(v, Wj, f, n)
         else:
             vn = 0.0
             for i in range(n):
@@ -278,32 +310,60 @@ def advance(j, stop, spec, flags, stop_wall, every, mask, renorm_every, codes, p
     return nrec
 
 
-@jit_parallel
-def advance_all(stop, spec, flags, stop_wall, every, mask, renorm_every, codes, prim_wall, params, tol, R, kappa,
-                root, kind, rank, first, children, cumprob, axis, basis,
+@jit
+def advance_all(j0, j1, stop, spec, flags, stop_wall, every, mask, renorm_every, codes, prim_wall, params, tol, R,
+                kappa, root, kind, rank, first, children, cumprob, axis, basis,
                 pos, vel, W, theta, A, time, ncoll, draws, alive, keys, last_wall, last_rank, energy0, comp,
-                o_time, o_pos, o_vel, o_spin, o_orient, o_wall, o_rank):
-    """Advance every live trajectory to ``stop[j]`` collisions, in parallel -> records written per trajectory."""
+                o_time, o_pos, o_vel, o_spin, o_orient, o_wall, o_rank, nrec):
+    """Advance the live trajectories j0 ≤ j < j1 to ``stop[j]`` collisions -> records written per trajectory,
+    their number in ``nrec[j]``. Compiled ``nogil``: :func:`run_advance_all` runs slices of the trajectories on
+    several threads at once (each writes only its own rows)."""
     literally(spec)
-    N = pos.shape[0]
-    nrec = np.zeros(N, np.int64)
-    for j in prange(N):
+    for j in range(j0, j1):
         if alive[j]:
-            nrec[j] = advance(j, stop[j], spec, flags, stop_wall, every, mask, renorm_every, codes, prim_wall, params, tol,
-                              R, kappa, root, kind, rank, first, children, cumprob, axis, basis,
+            nrec[j] = advance(j, stop[j], spec, flags, stop_wall, every, mask, renorm_every, codes, prim_wall, params,
+                              tol, R, kappa, root, kind, rank, first, children, cumprob, axis, basis,
                               pos, vel, W, theta, A, time, ncoll, draws, alive, keys, last_wall, last_rank, energy0,
                               comp, o_time, o_pos, o_vel, o_spin, o_orient, o_wall, o_rank)
-    return nrec
+
+
+_POOL = [None, 0]           # a thread pool and its size, made on first use
+
+
+def _pool(threads):
+    if _POOL[1] != threads:
+        if _POOL[0] is not None:
+            _POOL[0].shutdown()
+        _POOL[0], _POOL[1] = ThreadPoolExecutor(max_workers=threads, thread_name_prefix="rbx"), threads
+    return _POOL[0]
 
 
 def run_advance_all(*args):
-    """Call :func:`advance_all` (arguments in its order) without Numba's dispatch on literal arguments.
+    """Advance every live trajectory (arguments as :func:`advance_all` takes them after ``j0, j1``, without
+    ``nrec``) on ``numba.get_num_threads()`` threads -> records written per trajectory (M,).
 
-    ``spec`` is a literal, and resolving a literal argument through the dispatcher costs ~10 ms per call (it
-    re-types the call every time); the compiled entry point of the specialisation costs ~5 µs. The first call of a
-    specialisation goes through the dispatcher (which compiles it or loads it from the cache)."""
-    sig = tuple(numba.types.literal(x) if i == 1 else numba.typeof(x) for i, x in enumerate(args))
+    The trajectories are cut into slices (8 per thread, so that slices of short trajectories even out), each run
+    by the compiled entry point of the specialisation on a thread of a pool; the kernel releases the GIL. Why not
+    ``prange``: a parallel kernel takes ~15 s to compile against ~5 s for a serial one, for every combination of
+    compiled bits in use. Why the entry point: ``spec`` is a literal, and resolving a literal argument through the
+    dispatcher costs ~10 ms per call (it re-types the call every time); the entry point costs ~5 µs. The first call
+    of a specialisation goes through the dispatcher (which compiles it or loads it from the cache). Each
+    trajectory's numbers depend only on its own state and stream, never on the slicing or the thread count."""
+    M = args[21].shape[0]                       # pos
+    nrec = np.zeros(M, np.int64)
+    full = (0, M) + args + (nrec,)
+    sig = tuple(numba.types.literal(x) if i == 3 else numba.typeof(x) for i, x in enumerate(full))
     cres = advance_all.overloads.get(sig)
     if cres is None:
-        return advance_all(*args)
-    return cres.entry_point(*args)
+        advance_all(0, 0, *args, nrec)           # compiles (or loads) the specialisation; runs nothing
+        cres = advance_all.overloads[sig]
+    threads = max(1, min(numba.get_num_threads(), M))
+    if threads == 1:
+        cres.entry_point(*full)
+        return nrec
+    cuts = np.linspace(0, M, min(M, 8 * threads) + 1).astype(np.int64)
+    jobs = [_pool(threads).submit(cres.entry_point, int(a), int(b), *args, nrec) for a, b in zip(cuts[:-1], cuts[1:])
+            if b > a]
+    for job in jobs:
+        job.result()
+    return nrec

@@ -277,7 +277,9 @@ def collision_time(code, params, k, a, v, tol, n):
         cc += dx * dx
         vv += v[i] * v[i]
     rho = params[k, 12]
-    cc = (np.sqrt(cc) - rho) * (np.sqrt(cc) + rho)   # |a−c|² − ρ², without cancelling ρ² away
+    # |a−c|² − ρ² without cancelling ρ² away: a centre on the circle (snapped, or just hit) gives 0 or a few ulp
+    # of ρ·|a−c|, where |a−c|² − ρ² would keep the rounding of the squares (a grazing flight needs the former)
+    cc = (np.sqrt(cc) - rho) * (np.sqrt(cc) + rho)
     if code == CONCAVE_ARC:
         # The centre is inside the circle (a bounded table): one a hair outside by rounding is taken to be on it,
         # else a grazing flight moving inward from there could miss the circle altogether and "escape".

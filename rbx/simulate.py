@@ -67,7 +67,7 @@ class Simulation:
         self.energy0 = np.asarray(state.get("energy", 0.5 * np.sum(self.vel ** 2, axis=1)
                                             + 0.25 * kap * R * R * np.sum(self.W ** 2, axis=(1, 2))), float).copy()
         # numerical variants (docs/accuracy.md measures each): project back onto the initial energy every
-        # ``renormalize`` collisions of a rough scene (0: never; see engine.rescale_energy); compensated summation
+        # ``renormalize`` collisions of a rough scene (0: never; see engine.energy_factor); compensated summation
         # of the time and the position; snapping the centre onto the wall at contact
         self.renormalize = RENORMALIZE_EVERY
         self.compensated = False
