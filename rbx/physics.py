@@ -32,6 +32,22 @@ def kappa_of(inertia, n):
 
 
 @jit_hot
+def project_roughness(work, rank, basis, node, wall, n):
+    """work[1] ← P·work[1], P the projector onto the span of the first ``rank`` rows of ``basis[node, wall]`` (an
+    orthonormal basis of the roughness subspace); work[2] is scratch."""
+    for i in range(n):
+        work[2, i] = 0.0
+    for q in range(rank):
+        c = 0.0
+        for i in range(n):
+            c += work[1, i] * basis[node, wall, q, i]
+        for i in range(n):
+            work[2, i] += c * basis[node, wall, q, i]
+    for i in range(n):
+        work[1, i] = work[2, i]
+
+
+@jit_hot
 def collide(v, W, nu, R, kappa, rank, basis, node, wall, work, n):
     """Apply the strict collision map in place: (v, W) <- (v', W'); returns nothing.  SPEC §1, paper eq. (update).
 
@@ -56,16 +72,7 @@ def collide(v, W, nu, R, kappa, rank, basis, node, wall, work, n):
         work[1, i] = (v[i] - vn * nu[i]) - R * s
     # its projection P u_t onto the roughness subspace (the whole tangent plane for the completely rough map)
     if rank < n - 1:
-        for i in range(n):
-            work[2, i] = 0.0
-        for q in range(rank):
-            c = 0.0
-            for i in range(n):
-                c += work[1, i] * basis[node, wall, q, i]
-            for i in range(n):
-                work[2, i] += c * basis[node, wall, q, i]
-        for i in range(n):
-            work[1, i] = work[2, i]
+        project_roughness(work, rank, basis, node, wall, n)
     # Δv = −2α P u_t, and W += (Δv rᵀ − r Δvᵀ)/(2λ) with r = −Rν, 2λ = κR²: since α/κ = 1/(1+κ) the spin
     # change is (2/((1+κ)R))·(P u_t νᵀ − ν (P u_t)ᵀ), computed without dividing by κ (finite as κ → 0)
     alpha2 = 2.0 * kappa / (1.0 + kappa)
@@ -94,16 +101,7 @@ def collide_slab(v, W, sigma, R, kappa, rank, basis, node, wall, work, n):
         work[1, i] = v[i] - rs * W[i, m]
     work[1, m] = 0.0
     if rank < m:
-        for i in range(n):
-            work[2, i] = 0.0
-        for q in range(rank):
-            c = 0.0
-            for i in range(n):
-                c += work[1, i] * basis[node, wall, q, i]
-            for i in range(n):
-                work[2, i] += c * basis[node, wall, q, i]
-        for i in range(n):
-            work[1, i] = work[2, i]
+        project_roughness(work, rank, basis, node, wall, n)
     alpha2 = 2.0 * kappa / (1.0 + kappa)
     c = (2.0 / ((1.0 + kappa) * R)) * sigma
     for i in range(m):
