@@ -28,8 +28,9 @@ reproduce-figures: figures/README.md
 figures/README.md: $(FIGURES:%=figures/%.png) scripts/figures_readme.py
 	$(PY) scripts/figures_readme.py
 
-# keep the runs: they are the expensive part
-.SECONDARY:
+# keep the runs: they are the expensive part. (Not `.SECONDARY:` for all targets: that made the pictures
+# intermediate too, and a deleted figures/<x>.png was then not drawn again while figures/README.md existed.)
+.PRECIOUS: data/%.h5
 .SECONDEXPANSION:
 figures/%.png: scripts/fig_%.py scripts/figlib.py $$(call fig_data,$$*) | $(STAMP)
 	MPLBACKEND=Agg $(PY) $< $(call fig_data,$*) -o $@
