@@ -75,6 +75,10 @@ class Simulation:
         self._comp = np.zeros((M, n + 1))
         #: stop a trajectory right after it hits this wall (−1: never); used by the return-angle experiment
         self.stop_wall = -1
+        #: bits engine.S_* to add to / take from what this run needs: scripts/bench.py measures what each skip
+        #: saves by making the kernel do the work anyway (the results stay the same: the bits only add work)
+        self.force_bits = 0
+        self.drop_bits = 0
 
     def _initial_state(self):
         cfg = self.cfg
@@ -127,10 +131,11 @@ class Simulation:
         (what is not needed is not in the machine code), the others are tested at run time."""
         r = self.rules
         rough = r.max_rank > 0
-        return engine.make_spec(
+        bits = engine.make_spec(
             self.n, orient=self.follow_orientation, spin=rough, tree=r.uses_orientation or r.uses_random,
             record=bool(self.record), compensated=self.compensated,
             snap=self.snap, slab=self.geom.slab, stop_wall=self.stop_wall >= 0)
+        return (bits | self.force_bits) & ~self.drop_bits
 
     def advance(self, stop, bufs):
         """Advance every live trajectory to ``stop`` collisions in all -> records written per trajectory (M,)."""

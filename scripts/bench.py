@@ -1,7 +1,7 @@
 """How fast rbx is, measured: collisions per second per scene and rule, against minimal hand-written njit loops,
 the cost of each recorded field (in memory and to HDF5 through the CLI), ensembles on 1 and 2 threads, compile
-time against the on-disk cache, the numerical variants, and a public peer. Writes docs/benchmarks.md and its
-plots docs/benchmarks-*.png (`make bench`).
+time against the on-disk cache, the numerical variants, a public peer, and what each skip of SPEC §7 saves. Writes
+docs/benchmarks.md and its plots docs/benchmarks-*.png (`make bench`).
 
     python scripts/bench.py [--quick] [--out docs/benchmarks.md] [--repeats K] [--seconds S] [--collisions N]
 
@@ -225,6 +225,16 @@ VARIANTS = [("default (renormalize 16)", {}), ("renormalize 0 (off)", {"renormal
             ("compensated", {"compensated": True}), ("snap", {"snap": True}),
             ("compensated + snap", {"compensated": True, "snap": True})]
 PEER_SCENES = ("rectangle", "strip")         # specular: what the peer simulates
+#: what each skip saves (SPEC §7): (scene, rule, what the kernel skips, Simulation attribute, engine bit). The
+#: kernel is made to do the work anyway (force_bits) or to leave out a fast path (drop_bits); same orbit either way
+SKIPS = [("strip", "rough", "orientation update (θ += τω)", "force_bits", "S_ORIENT"),
+         ("plates", "rough", "orientation update (A ← exp(τW)A)", "force_bits", "S_ORIENT"),
+         ("rectangle", "specular", "spin arithmetic (the rough map at rank 0)", "force_bits", "S_SPIN"),
+         ("box", "specular", "spin arithmetic (the rough map at rank 0)", "force_bits", "S_SPIN"),
+         ("strip", "rough", "rule tree walk (a constant rule's node looked up directly)", "force_bits", "S_TREE"),
+         ("strip", "rough", "per-collision record bookkeeping", "force_bits", "S_RECORD"),
+         ("strip", "rough", "slab closed form (flight time, normal, slab map)", "drop_bits", "S_SLAB"),
+         ("plates", "rough", "slab closed form (flight time, normal, slab map)", "drop_bits", "S_SLAB")]
 
 
 # ---- timing ---------------------------------------------------------------------------------------------------------
@@ -442,6 +452,19 @@ def section_variants(args):
     return res
 
 
+def section_skips(args):
+    """index in SKIPS -> (Timing as the engine runs it, Timing with the work forced in or the fast path left out)."""
+    from rbx import engine
+    res = {}
+    for i, (scene, r, _, attr, bit) in enumerate(SKIPS):
+        d = scene_dict(scene, r)
+        base = measure(rbx_run(d), args, n0=2000)
+        worse = measure(rbx_run(d, **{attr: getattr(engine, bit)}), args, n0=2000)
+        res[i] = (base, worse)
+        log(f"skip     {scene:10s} {bit:10s} {base.rate:10.3e}/s  without the skip {worse.rate:10.3e}/s")
+    return res
+
+
 def peer_table(scene):
     """The ``billiards`` obstacles for a specular scene: infinite walls (inside on the left)."""
     from billiards import InfiniteWall
@@ -644,7 +667,7 @@ def write_document(args, cmd, results, wall):
     out = args.out
     stem = os.path.splitext(os.path.basename(out))[0]
     folder = os.path.dirname(os.path.abspath(out))
-    rates, hand, (fields, startup), ens, jit, variants, (peer_version, peer_reason, peer) = results
+    rates, hand, (fields, startup), ens, jit, variants, (peer_version, peer_reason, peer), skips = results
     pngs = {k: f"{stem}-{k}.png" for k in ("rates", "fields", "scaling")}
     plot_rates(os.path.join(folder, pngs["rates"]), rates)
     plot_fields(os.path.join(folder, pngs["fields"]), fields, startup)
@@ -788,6 +811,20 @@ def write_document(args, cmd, results, wall):
                    [[s, rate_s(p.rate), rate_s(r.rate), f"{r.rate / p.rate:.0f}", f"{dev:.1e}"]
                     for s, (p, r, dev) in peer.items()])
     L += [""]
+
+    # 8
+    L += heading(args, "## 8. What each skip saves", "skips") + [
+          "SPEC §7: the kernel leaves out what a scene does not need, by compiling it out (`engine.COMPILED_BITS`). "
+          "Here each skip is undone on one scene — the work forced in (`Simulation.force_bits`) or the fast path "
+          "left out (`Simulation.drop_bits`), the orbit the same — one trajectory, nothing recorded, one thread.",
+          ""]
+    L += table(["scene", "rule", "skipped", "collisions/s as run", "without the skip", "saved per collision (ns)",
+                "time without / with"],
+               [[SKIPS[i][0], SKIPS[i][1], SKIPS[i][2], cell_rate(a), cell_rate(b),
+                 f"{1e9 * (b.seconds / b.N - a.seconds / a.N):.1f}", f"{(b.seconds / b.N) / (a.seconds / a.N):.2f}"]
+                for i, (a, b) in skips.items()])
+    L += ["", "Random draws are skipped by the same bit as the tree walk: a constant rule draws nothing; the "
+          "`random` column of section 1 against `rough` shows what drawing costs.", ""]
     L += notes(rates, hand, fields, ens, variants)
     with open(out, "w") as fh:
         fh.write("\n".join(L) + "\n")
@@ -840,7 +877,7 @@ def fmt_load():
         return "unknown"
 
 
-SECTIONS = ("rates", "hand", "fields", "ensembles", "jit", "variants", "peer")
+SECTIONS = ("rates", "hand", "fields", "ensembles", "jit", "variants", "peer", "skips")
 
 
 def main(argv=None):
@@ -878,7 +915,8 @@ def main(argv=None):
         jit = section("jit", section_jit, tmp)
         variants = section("variants", section_variants)
         peer = section("peer", section_peer, rates)
-    results = (rates, hand, fields, ens, jit, variants, peer)
+        skips = section("skips", section_skips)
+    results = (rates, hand, fields, ens, jit, variants, peer, skips)
     write_document(args, cmd, results, time.perf_counter() - t0)
     log(f"wrote {args.out} in {time.perf_counter() - t0:.0f} s")
     return results

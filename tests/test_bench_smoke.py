@@ -42,7 +42,7 @@ def test_bench_writes_its_document(tmp_path):
     assert "scripts/bench.py --quick" in text and "Machine:" in text and "numba" in text and "Engine:" in text
     titles = ["## 1. Collisions per second", "## 2. Against a minimal hand-written loop", "## 3. The cost of recording",
               "## 4. Ensembles and threads", "## 5. Compilation", "## 6. Numerical variants", "## 7. A public peer",
-              "## What stands out"]
+              "## 8. What each skip saves", "## What stands out"]
     positions = [text.index(t) for t in titles]
     assert positions == sorted(positions)
     for stem in ("rates", "fields", "scaling"):
@@ -62,7 +62,7 @@ def test_bench_writes_its_document(tmp_path):
         assert all(is_number(c) or c.startswith("escapes after ") for c in r[3:]), r
         assert is_number(r[4]), r                  # the rough rule never escapes in these scenes
     # 2: each hand-written loop, with its ratio
-    (hand,), = [v for k, v in by_first.items() if k == ("scene", "rule")]
+    hand, skip = by_first[("scene", "rule")]      # sections 2 and 8, in that order
     assert [(r[0], r[1]) for r in hand] == list(bench.HAND)
     assert all(is_number(r[2]) and is_number(r[4]) and is_number(r[5]) for r in hand)
     # 3: two scenes, every field, `every`, memory always, HDF5 where run
@@ -88,6 +88,29 @@ def test_bench_writes_its_document(tmp_path):
     (peer,), = [v for k, v in by_first.items() if k == ("scene", "billiards collisions/s")]
     assert [r[0] for r in peer] == list(bench.PEER_SCENES)
     assert all(is_number(r[1]) or r[1].startswith("not installed") for r in peer)
+    # 8: every skip, with and without it
+    assert [(r[0], r[1], r[2]) for r in skip] == [s[:3] for s in bench.SKIPS]
+    assert all(is_number(r[3]) and is_number(r[4]) for r in skip)
+
+
+@pytest.mark.parametrize("i", range(len(bench.SKIPS)))
+def test_undoing_a_skip_keeps_the_orbit(i):
+    # section 8 compares the kernel with and without each skip: only the work may differ, not the orbit
+    from rbx import config, engine
+    from rbx.simulate import MemorySink, Simulation
+    scene, rule, _, attr, bit = bench.SKIPS[i]
+    d = bench.scene_dict(scene, rule)
+    d["run"]["collisions"] = 2000
+    finals = []
+    for undo in (False, True):
+        sim = Simulation(config.from_dict(d, "<bench>"))
+        if undo:
+            setattr(sim, attr, getattr(engine, bit))
+        sink = MemorySink()
+        sim.run(sink)
+        finals.append(sink.final)
+    for f in ("time", "position", "velocity", "angular_velocity", "collisions"):
+        np.testing.assert_allclose(finals[1][f], finals[0][f], rtol=1e-9, atol=1e-12, err_msg=f)
 
 
 @pytest.mark.parametrize("scene,rule", list(bench.HAND))
