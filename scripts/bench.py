@@ -825,6 +825,14 @@ def write_document(args, cmd, results, wall):
                 for i, (a, b) in skips.items()])
     L += ["", "Random draws are skipped by the same bit as the tree walk: a constant rule draws nothing; the "
           "`random` column of section 1 against `rough` shows what drawing costs.", ""]
+    spread = {}
+    for i, (a, _) in skips.items():
+        spread.setdefault(SKIPS[i][0], []).append(1e9 * a.seconds / a.N)
+    noisy = {sc: (min(v), max(v)) for sc, v in spread.items() if len(v) > 1}
+    if noisy:
+        L += ["The same run measured in several rows (“as run”) gives the spread of one measurement on this "
+              "machine: " + "; ".join(f"{sc} {lo:.1f}–{hi:.1f} ns" for sc, (lo, hi) in noisy.items()) + ". A "
+              "saving smaller than that spread (or negative) is not resolved by this measurement.", ""]
     L += notes(rates, hand, fields, ens, variants)
     with open(out, "w") as fh:
         fh.write("\n".join(L) + "\n")
