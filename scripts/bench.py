@@ -352,21 +352,36 @@ def section_rates(args):
     return res
 
 
+def interleaved(runs, args, n0=2000):
+    """Several runners timed in turn, repeat by repeat (so that a change of load on the machine hits them alike:
+    their ratio is what is compared) -> list of Timing; N is found for each by :func:`measure` first."""
+    one = argparse.Namespace(**{**vars(args), "repeats": 1})
+    sizes = [measure(run, one, n0=n0).N for run in runs]
+    times = [[] for _ in runs]
+    for _ in range(args.repeats):
+        for k, run in enumerate(runs):
+            t, _ = run(sizes[k])
+            times[k].append(t)
+    return [Timing(N, t) for N, t in zip(sizes, times)]
+
+
 def section_hand(args, rates):
-    """(scene, rule) -> (rbx default Timing, rbx renormalize-off Timing or None, hand Timing)."""
+    """(scene, rule) -> (rbx default Timing, rbx renormalize-off Timing or None, hand Timing), timed interleaved
+    (section 1's rate of the same run is not reused: measured minutes apart, the ratio would carry the change of
+    load in between)."""
     res = {}
     for (scene, r), fn in HAND.items():
-        off = None
-        if r != "specular":
-            off = measure(rbx_run(scene_dict(scene, r), renormalize=0), args, n0=2000)
-
         def hand(N, fn=fn):
             t0 = time.perf_counter()
             fn(N)
             return time.perf_counter() - t0, N
-        h = measure(hand, args, n0=10000)
-        res[scene, r] = (rates[scene, r], off, h)
-        log(f"hand     {scene:10s} {r:10s} hand {h.rate:10.3e}/s  rbx / hand {rates[scene, r].rate / h.rate:.2f}")
+        runs = [rbx_run(scene_dict(scene, r)), hand]
+        if r != "specular":
+            runs.append(rbx_run(scene_dict(scene, r), renormalize=0))
+        got = interleaved(runs, args)
+        dflt, h, off = got[0], got[1], (got[2] if len(got) > 2 else None)
+        res[scene, r] = (dflt, off, h)
+        log(f"hand     {scene:10s} {r:10s} hand {h.rate:10.3e}/s  rbx / hand {dflt.rate / h.rate:.2f}")
     return res
 
 
@@ -707,7 +722,8 @@ def write_document(args, cmd, results, wall):
           "(tests/test_bench_smoke.py checks it against rbx), but it does not renormalize the energy, check "
           "for escapes, count draws or support any other table. `rbx` is the default engine (energy projected back "
           f"every {RENORMALIZE_EVERY} collisions in rough scenes); `rbx, renormalize 0` turns that off, which "
-          "is the like-for-like comparison.", ""]
+          "is the like-for-like comparison. The three are timed in turn, run by run (median of "
+          f"{args.repeats} each), so that a change of load on the machine hits them alike.", ""]
     rows = []
     for (s, r), (dflt, off, h) in hand.items():
         rows.append([s, r, rate_s(dflt.rate), rate_s(off.rate) if off else "—", rate_s(h.rate),
