@@ -39,14 +39,14 @@ def rotate(A, W, tau, E, tmp):
     phi = tau * w
     if phi == 0.0:
         return
-    s = np.sin(phi)
-    c1 = 1.0 - np.cos(phi)
+    s = np.sin(phi) / w                  # the two divisions once, not once per entry (no fast-math to hoist them)
+    c1 = (1.0 - np.cos(phi)) / (w * w)
     for i in range(3):
         for j in range(3):
             k2 = 0.0
             for k in range(3):
                 k2 += W[i, k] * W[k, j]
-            E[i, j] = (1.0 if i == j else 0.0) + s * W[i, j] / w + c1 * k2 / (w * w)
+            E[i, j] = (1.0 if i == j else 0.0) + s * W[i, j] + c1 * k2
     for i in range(3):
         for j in range(3):
             s2 = 0.0
