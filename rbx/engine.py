@@ -62,7 +62,7 @@ def rotate(A, W, tau, E, tmp):
 def energy_factor(v, W, R, kappa, e0, half_inv_e0, n):
     """The factor f that puts (v, W) back onto the trajectory's initial energy ``e0``: f²·energy = e0.
 
-    The rough map conserves energy exactly in exact arithmetic, but its constants (α, 1/(κR)) are rounded the
+    The rough map conserves energy exactly in exact arithmetic, but its constants (α, 2/((1+κ)R)) are rounded the
     same way at every collision, which biases the energy by ~1e-17 per collision: 2e-12 after 10⁵ collisions in
     an L-shaped table. Projecting back onto the energy surface removes that drift (docs/accuracy.md)."""
     e = 0.0
@@ -240,7 +240,8 @@ def advance(j, stop, spec, flags, stop_wall, every, mask, renorm_every, codes, p
                 th += tau * Wj[1, 0]
             else:
                 rotate(Aj, Wj, tau, E, tmp)
-        # 3. contact normal (a slab's is ±e_{n−1}: set as constants, so the map's products with zeros fold away)
+        # 3. contact normal (a slab's is ±e_{n−1}, known from the wall: no lookup; the rule tree and snapping
+        #    read it, and the slab map takes only its sign)
         if on & S_SLAB:
             for i in range(n - 1):
                 nu[i] = 0.0
@@ -257,28 +258,25 @@ def advance(j, stop, spec, flags, stop_wall, every, mask, renorm_every, codes, p
             node = root[w]
         rk = rank[node]
         # 5. collision map
+        # Without spin arithmetic (a specular-only scene) the map is called with rank 0, a constant: only its
+        # reflection is compiled. Every renorm_every-th rough collision, the factor onto the initial energy is
+        # taken from the state before the map and applied after it: the map keeps the energy to an ulp, and
+        # computing the factor beside the map keeps it off the chain of operations that sets the speed.
+        f = 0.0
+        map_rank = 0
         if on & S_SPIN:
-            # every renorm_every-th collision, the factor onto the initial energy is taken from the state before
-            # the map and applied after it: the map keeps the energy to an ulp, and computing the factor beside
-            # the map instead of after it keeps it off the chain of operations that sets the speed
-            f = 0.0
+            map_rank = rk
             if renorm_every > 0:
                 until_renorm -= 1
                 if until_renorm == 0:
                     until_renorm = renorm_every
                     f = energy_factor(v, Wj, R, kappa, e0, half_inv_e0, n)
-            if on & S_SLAB:
-                collide_slab(v, Wj, nu[n - 1], R, kappa, rk, basis, node, w, work, n)
-            else:
-                collide(v, Wj, nu, R, kappa, rk, basis, node, w, work, n)
-            if f != 0.0:
-                scale_state(v, Wj, f, n)
+        if on & S_SLAB:
+            collide_slab(v, Wj, nu[n - 1], R, kappa, map_rank, basis, node, w, work, n)
         else:
-            vn = 0.0
-            for i in range(n):
-                vn += v[i] * nu[i]
-            for i in range(n):
-                v[i] -= 2.0 * vn * nu[i]
+            collide(v, Wj, nu, R, kappa, map_rank, basis, node, w, work, n)
+        if f != 0.0:
+            scale_state(v, Wj, f, n)
         c += 1
         # 6. record
         if on & S_RECORD:

@@ -1,4 +1,4 @@
-"""Python tier of the event loop: allocate the state, run :func:`rbx.engine.advance_all` block by block and hand
+"""Python tier of the event loop: allocate the state, run :func:`rbx.engine.run_advance_all` block by block and hand
 each block of records to a sink (the HDF5 writer, or memory for the API and tests).
 
 Memory stays flat: a block holds at most a few million values whatever the run's length.
@@ -143,7 +143,8 @@ class Simulation:
         stops = np.full(self.M, stop, np.int64)
         flags = self.spec()
         return engine.run_advance_all(
-            stops, flags & engine.COMPILED_BITS, flags, self.stop_wall, self.cfg.output.every, self.mask, int(self.renormalize),
+            stops, flags & engine.COMPILED_BITS, flags, self.stop_wall, self.cfg.output.every, self.mask,
+            int(self.renormalize),
             self.geom.codes, self.geom.walls, self.geom.params, self.tol, self.cfg.ball.radius, self.cfg.ball.kappa,
             r.root, r.kind, r.rank, r.first, r.children, r.cumprob, r.axis, r.basis,
             self.pos, self.vel, self.W, self.theta, self.A, self.time, self.ncoll, self.draws, self.alive,

@@ -431,7 +431,7 @@ def advice(rows, variants, defaults):
         lines.append(f"- Without any projection (`plain`) the energy of a rough scene drifts steadily: up to "
                      f"{fmt(p['energy_promise'])} after {p['n_promise']:,} collisions and {fmt(p['energy_big'])} "
                      f"after {big:,} (a bias of ~{p['energy_big'] / big:.0e} per collision: the rounded constants "
-                     f"α and 1/(κR) are the same at every collision).")
+                     f"α and 2/((1+κ)R) are the same at every collision).")
         for v, s in summary.items():
             period = VARIANTS[v].get("renormalize", defaults.get("renormalize"))
             if v in ("plain",) or (v != DEFAULT_VARIANT and not v.startswith("renormalize/")):
