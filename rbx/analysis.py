@@ -18,6 +18,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .model import roughness_direction
+
 # ---- the billiard measure (paper §2.7) -------------------------------------------------------------------------
 
 
@@ -435,12 +437,9 @@ def _rule_directions(rule, nu, wall, n):
     t1, t2 = (np.asarray(t, float) for t in wall.tangents)
     if rank == 2:
         return [t1, t2]
-    if "direction_deg" in rule:
-        th = math.radians(float(rule["direction_deg"]))
-        return [math.cos(th) * t1 + math.sin(th) * t2]
-    d = np.asarray(rule["direction"], float)
-    d = d - (d @ nu) * nu
-    return [d / np.linalg.norm(d)]
+    direction = ("deg", float(rule["direction_deg"])) if "direction_deg" in rule else \
+        ("vector", [float(x) for x in rule["direction"]])
+    return [np.array(roughness_direction(direction, t1, t2))]
 
 
 # ---- reading runs ----------------------------------------------------------------------------------------------

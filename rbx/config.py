@@ -16,19 +16,19 @@ import math
 import os
 import re
 import types
-from dataclasses import dataclass, field
 
 import numpy as np
 import yaml
 
 from . import geometry
+from .model import (RECORD_FIELDS, Ball, ConfigError, Constant, Experiment, Hemisphere, Numerics, Output, Random,
+                    RunSettings)
 from .physics import kappa_of
 
-RECORD_FIELDS = ("time", "position", "velocity", "angular_velocity", "orientation", "wall", "rank")
 TABLE_PARAMS = {"strip": ("width",), "circle": ("radius",), "wedge": ("angle_deg",), "rectangle": ("width", "height"),
                 "polygon": ("vertices",), "plates": ("gap",), "box": ("size",)}
 TABLE_DIM = {"strip": 2, "circle": 2, "wedge": 2, "rectangle": 2, "polygon": 2, "plates": 3, "box": 3}
-SECTIONS = ("table", "boundary", "ball", "initial", "run", "output")
+SECTIONS = ("table", "boundary", "ball", "initial", "run", "output", "numerics")
 #: command-line options that override config keys, and the option each one's errors name
 OVERRIDE_OPTIONS = {"collisions": "--collisions", "trajectories": "--trajectories", "seed": "--seed"}
 #: counters are int64 in the kernels; anything near this is a typo, not a run anyone can wait for
@@ -36,84 +36,6 @@ MAX_COUNT = 2**62
 MAX_SEED = 2**63 - 1
 #: tolerance on the sum of the probabilities of a random rule (1/3 written as 0.3333333333 is accepted)
 PROBABILITY_SUM_TOLERANCE = 1e-9
-
-
-class ConfigError(Exception):
-    """A user mistake in a config: ``rbx: <file>: <key>: <problem>`` (file None: a command-line option)."""
-
-    def __init__(self, file, key, problem):
-        self.file = None if file is None else str(file)
-        self.key, self.problem = key, problem
-        super().__init__(": ".join(x for x in (self.file, key, problem) if x))
-
-
-# ---- the validated config -------------------------------------------------------------------------------------
-
-@dataclass(frozen=True)
-class Constant:
-    rank: int
-    direction: tuple | None = None      # ('deg', θ) or ('vector', (x, y, z)) for 3D rank 1
-
-
-@dataclass(frozen=True)
-class Hemisphere:
-    axis: tuple
-    rough: object
-    smooth: object
-
-
-@dataclass(frozen=True)
-class Random:
-    choices: tuple
-    probabilities: tuple
-
-
-@dataclass(frozen=True)
-class Ball:
-    radius: float
-    inertia: object
-    kappa: float
-
-
-@dataclass(frozen=True)
-class Run:
-    collisions: int
-    trajectories: int
-    seed: int
-
-
-@dataclass(frozen=True)
-class Output:
-    path: str | None
-    record: tuple
-    every: int
-
-
-@dataclass(frozen=True)
-class Config:
-    """A validated experiment. ``initial`` is a tuple of explicit states (read-only arrays) or ``('sample', wall)``.
-
-    ``table`` is a read-only mapping of the table's parameters; ``resolved`` is the plain-data form of the whole
-    config (tables and boundaries inlined, paths absolute) that is stored in the HDF5 file and read back by
-    ``--resume``."""
-    source: str
-    dimension: int
-    table_kind: str
-    table: dict = field(hash=False)
-    wall_rules: tuple = ()               # one rule per wall, in wall order
-    wall_names: tuple = ()
-    ball: Ball = None
-    initial: object = None
-    run: Run = None
-    output: Output = None
-    resolved: dict = field(default=None, hash=False, compare=False)
-
-    def geometry(self):
-        return geometry.build(self.table_kind, self.table, self.ball.radius)
-
-    def replace(self, **changes):
-        import dataclasses
-        return dataclasses.replace(self, **changes)
 
 
 # ---- YAML -----------------------------------------------------------------------------------------------------
@@ -283,7 +205,7 @@ def _join(key, k):
 # ---- loading --------------------------------------------------------------------------------------------------
 
 def load(path, overrides=None):
-    """Read and validate an experiment config file -> :class:`Config`. Raises :class:`ConfigError`.
+    """Read and validate an experiment config file -> :class:`rbx.model.Experiment`. Raises :class:`ConfigError`.
 
     ``overrides``: ``{'collisions': N, 'trajectories': M, 'seed': S}`` from the command line (None: not given)."""
     path = os.path.abspath(path)
@@ -291,7 +213,7 @@ def load(path, overrides=None):
 
 
 def loads(text, source, overrides=None):
-    """Validate config YAML text (e.g. the ``config`` attribute of a run's HDF5 file) -> :class:`Config`."""
+    """Validate config YAML text (e.g. the ``config`` attribute of a run's HDF5 file) -> :class:`rbx.model.Experiment`."""
     data = parse_yaml(text, source)
     if data is None:
         raise ConfigError(source, None, "the config is empty")
@@ -299,7 +221,7 @@ def loads(text, source, overrides=None):
 
 
 def from_dict(data, source="<config>", overrides=None):
-    """Validate a config mapping (paths relative to ``source``'s folder) -> :class:`Config`."""
+    """Validate a config mapping (paths relative to ``source``'s folder) -> :class:`rbx.model.Experiment`."""
     try:
         return _from_dict(data, str(source), overrides or {})
     except RecursionError:
@@ -348,9 +270,30 @@ def _from_dict(data, source, overrides):
     output = _output(_section(data, "output"), base, c)
     resolved["output"] = {"path": output.path, "record": list(output.record), "every": output.every}
 
-    return Config(source=source, dimension=n, table_kind=kind, table=frozen_table,
-                  wall_rules=tuple(per_wall), wall_names=tuple(names), ball=Ball(radius, inertia, kappa),
-                  initial=initial, run=Run(collisions, trajectories, seed), output=output, resolved=resolved)
+    numerics = _numerics(_section(data, "numerics"), c)
+    if "numerics" in data:   # stored only when given, so that files of runs without it read the same as before
+        resolved["numerics"] = {"renormalize": numerics.renormalize, "compensated": numerics.compensated,
+                                "snap": numerics.snap}
+
+    return Experiment(source=source, dimension=n, table_kind=kind, table=frozen_table,
+                      wall_rules=tuple(per_wall), wall_names=tuple(names), ball=Ball(radius, inertia, kappa),
+                      initial=initial, run=RunSettings(collisions, trajectories, seed), output=output,
+                      numerics=numerics, resolved=resolved)
+
+
+def _numerics(section, c):
+    """The optional section ``numerics: {renormalize: N, compensated: bool, snap: bool}`` -> :class:`Numerics`."""
+    c.mapping(section, "numerics", ("renormalize", "compensated", "snap"))
+    default = Numerics()
+    flags = {}
+    for name in ("compensated", "snap"):
+        value = section.get(name, getattr(default, name))
+        if not isinstance(value, bool):
+            c.fail(f"numerics.{name}", f"expected true or false, got {_kind(value)}")
+        flags[name] = value
+    renormalize = c.integer(section.get("renormalize", default.renormalize), "numerics.renormalize", lo=0,
+                            hi=MAX_COUNT)
+    return Numerics(renormalize, **flags)
 
 
 def _frozen(x):

@@ -22,13 +22,13 @@ from numba import literally
 
 from ._jit import jit, jit_hot, jit_loop, stack_array
 from .geometry import contact_normal, next_collision, slab_collision, snap
+from .model import FIELD
 from .physics import collide, collide_slab
 from .rules import choose
 
-# bits of the record mask, in the order of SPEC §5
-F_TIME, F_POSITION, F_VELOCITY, F_SPIN, F_ORIENTATION, F_WALL, F_RANK = (1 << i for i in range(7))
-FIELD_BITS = {"time": F_TIME, "position": F_POSITION, "velocity": F_VELOCITY, "angular_velocity": F_SPIN,
-              "orientation": F_ORIENTATION, "wall": F_WALL, "rank": F_RANK}
+# bits of the record mask (rbx.model.FIELDS), as module constants so that Numba compiles them in
+F_TIME, F_POSITION, F_VELOCITY, F_SPIN, F_ORIENTATION, F_WALL, F_RANK = (
+    FIELD[f].bit for f in ("time", "position", "velocity", "angular_velocity", "orientation", "wall", "rank"))
 
 
 @jit_hot

@@ -85,8 +85,7 @@ def return_experiment(cfg, progress=None, _spin_scale=1.0):
     geom = cfg.geometry()
     state = _sample(cfg, geom, _spin_scale)
     initial = analysis.normal_angle(state["velocity"], state["angular_velocity"], state["normal"], R, kappa)
-    sim = Simulation(cfg, state=state)
-    sim.stop_wall = -1 if wall is None else wall
+    sim = Simulation(cfg, state=state, stop_wall=-1 if wall is None else wall)
     sim.run(_NullSink(), progress=progress)
     fin = sim.final_state()
     hit = fin["last_wall"]

@@ -25,7 +25,7 @@ import numpy as np
 import yaml
 
 from . import __version__
-from .simulate import FIELD_DTYPES, field_shapes
+from .model import FIELD
 
 SCHEMA_VERSION = 1
 CHUNK_BYTES = 1 << 18
@@ -73,13 +73,13 @@ class H5Sink:
             write_root_attrs(h5, cfg, geom, complete=False)
             g = h5.create_group("collisions")
             for f in cfg.output.record:
-                tail = field_shapes(n)[f]
-                dtype = FIELD_DTYPES.get(f, np.float64)
+                tail = FIELD[f].shape(n)
+                dtype = FIELD[f].dtype
                 per = int(np.prod(tail or (1,))) * np.dtype(dtype).itemsize
                 tchunk = min(M, 64)
                 rchunk = max(1, CHUNK_BYTES // (tchunk * per))
                 g.create_dataset(f, shape=(M, 0) + tail, maxshape=(M, None) + tail, dtype=dtype,
-                                 chunks=(tchunk, rchunk) + tail, fillvalue=-1 if dtype is np.int32 else np.nan)
+                                 chunks=(tchunk, rchunk) + tail, fillvalue=FIELD[f].fill)
             g.create_dataset("count", data=np.zeros(M, np.int64))
             g.create_dataset("step", shape=(0,), maxshape=(None,), dtype=np.int64, chunks=(4096,))
         self.g = h5["collisions"]

@@ -38,6 +38,8 @@ from fractions import Fraction
 
 import numpy as np
 
+from .model import roughness_direction
+
 FIELDS = ("time", "position", "velocity", "angular_velocity", "orientation", "wall", "rank")
 
 
@@ -242,7 +244,7 @@ class PreciseBilliard:
     # -- rules ------------------------------------------------------------------------------------------------------
     def _rule(self, rule):
         """Config rule objects (rbx.config Constant / Hemisphere / Random) -> nested tuples at this precision."""
-        from .config import Constant, Hemisphere
+        from .model import Constant, Hemisphere
         if isinstance(rule, Constant):
             return ("constant", rule.rank, rule.direction)
         if isinstance(rule, Hemisphere):
@@ -281,14 +283,10 @@ class PreciseBilliard:
     def _rough_direction(self, rule, wall, nu):
         """The unit roughness direction d of a 3D rank-1 rule at this wall."""
         kind, value = rule[2]
-        if kind == "deg":
-            t1, t2 = self.tangent_axes[wall]
-            th = self.deg(value)
-            return _axpy(self.ctx.sin(th), t2, [self.ctx.cos(th) * x for x in t1])
-        d = self.vec(value)
-        d = _axpy(-_dot(d, nu), nu, d)
-        norm = _norm(self.ctx, d)
-        return [x / norm for x in d]
+        t1, t2 = self.tangent_axes[wall]
+        ctx = self.ctx
+        return roughness_direction((kind, value if kind == "deg" else self.vec(value)), t1, t2,
+                                   cos=ctx.cos, sin=ctx.sin, sqrt=ctx.sqrt, radians=self.deg)
 
     # -- state ------------------------------------------------------------------------------------------------------
     @staticmethod

@@ -14,7 +14,8 @@ over from the config's initial state.
 import numpy as np
 
 from . import __version__
-from .config import RECORD_FIELDS, ConfigError, loads
+from .config import loads
+from .model import RECORD_FIELDS, ConfigError
 from .output import state_digest
 from .simulate import Simulation
 

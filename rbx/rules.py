@@ -11,7 +11,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._jit import jit, jit_hot
-from .config import Constant, Hemisphere, Random
+from .model import Constant, Hemisphere, Random, roughness_direction
 from .rng import uniform
 
 CONSTANT, HEMISPHERE, RANDOM = 0, 1, 2
@@ -31,10 +31,6 @@ class CompiledRules:
     uses_orientation: bool  # some hemisphere rule: the orientation must be followed
     uses_random: bool
     max_rank: int
-
-    def arrays(self):
-        return (self.root, self.kind, self.rank, self.first, self.nchild, self.children, self.cumprob, self.axis,
-                self.basis)
 
 
 def compile_rules(wall_rules, geom):
@@ -71,15 +67,7 @@ def compile_rules(wall_rules, geom):
         if kind == CONSTANT and direction is not None:
             for w in range(nw):
                 t1, t2 = geom.wall_list[w].tangents
-                if direction[0] == "deg":
-                    th = np.radians(direction[1])
-                    d = np.cos(th) * t1 + np.sin(th) * t2
-                else:
-                    v = np.asarray(direction[1], float)
-                    d = (v @ t1) * t1 + (v @ t2) * t2
-                    norm = np.linalg.norm(d)
-                    d = d / norm if norm > 0 else d
-                basis[i, w, 0] = d
+                basis[i, w, 0] = roughness_direction(direction, t1, t2)
     kinds = np.array([x[0] for x in nodes], np.int64)
     reach = _reachable(root, nodes, links)
     return CompiledRules(

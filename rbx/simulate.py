@@ -7,6 +7,8 @@ import numpy as np
 
 from . import engine
 from .geometry import END_TOLERANCE
+from .model import FIELD, FIELDS
+from .physics import energy, spin_matrix, spin_vector
 from .rng import PURPOSE_RULES, stream_key
 from .rules import compile_rules
 from .sampling import explicit_states, sample_billiard
@@ -15,8 +17,6 @@ from .sampling import explicit_states, sample_billiard
 BLOCK_WORK = 2_000_000
 #: values (float64) held in the record buffers of one block
 BLOCK_VALUES = 4_000_000
-#: default period (in collisions) of the projection onto the initial energy in rough scenes (docs/accuracy.md)
-RENORMALIZE_EVERY = 16
 
 
 def block_work(geom):
@@ -25,26 +25,23 @@ def block_work(geom):
     return max(1, int(BLOCK_WORK / (1 + len(geom.codes) / 8)))
 
 
-def field_shapes(n):
-    """Trailing shape of each recorded field in dimension n (SPEC §5)."""
-    return {"time": (), "position": (n,), "velocity": (n,), "angular_velocity": () if n == 2 else (3,),
-            "orientation": () if n == 2 else (3, 3), "wall": (), "rank": ()}
-
-
-FIELD_DTYPES = {"wall": np.int32, "rank": np.int32}
-
-
 class Simulation:
-    """The state of M trajectories of one validated config, advanced block by block."""
+    """The state of M trajectories of one validated experiment, advanced block by block.
 
-    def __init__(self, cfg, state=None):
+    ``state``: the state to start from (a resumed run, sampled states) instead of the experiment's initial one;
+    ``stop_wall``: end a trajectory right after it hits this wall (−1: never; the return-angle experiment);
+    ``force_bits`` / ``drop_bits``: bits engine.S_* to add to / take from what this run needs — scripts/bench.py
+    measures what each skip saves by making the kernel do the work anyway (the results stay the same). The
+    numerical options come from ``cfg.numerics`` (:class:`rbx.model.Numerics`)."""
+
+    def __init__(self, cfg, state=None, stop_wall=-1, force_bits=0, drop_bits=0):
         self.cfg = cfg
         self.geom = cfg.geometry()
         self.rules = compile_rules(cfg.wall_rules, self.geom)
         n = self.n = cfg.dimension
         M = self.M = cfg.run.trajectories
         self.record = cfg.output.record
-        self.mask = sum(engine.FIELD_BITS[f] for f in self.record)
+        self.mask = sum(FIELD[f].bit for f in self.record)
         # the orientation is followed only when a hemisphere rule or the recorded field needs it (SPEC §7)
         self.follow_orientation = self.rules.uses_orientation or "orientation" in self.record
         self.keys = np.array([stream_key(cfg.run.seed, j, PURPOSE_RULES) for j in range(M)], dtype=np.uint64)
@@ -52,7 +49,7 @@ class Simulation:
             state = self._initial_state()
         self.pos = np.ascontiguousarray(state["position"], dtype=float).reshape(M, n)
         self.vel = np.ascontiguousarray(state["velocity"], dtype=float).reshape(M, n)
-        self.W = np.array([_spin_matrix(w, n) for w in np.asarray(state["angular_velocity"], float)]).reshape(M, n, n)
+        self.W = np.array([spin_matrix(w, n) for w in np.asarray(state["angular_velocity"], float)]).reshape(M, n, n)
         orient = np.asarray(state["orientation"], float)
         self.theta = orient.reshape(M).copy() if n == 2 else np.zeros(M)
         self.A = orient.reshape(M, 3, 3).copy() if n == 3 else np.zeros((M, 3, 3))
@@ -64,21 +61,13 @@ class Simulation:
         self.last_rank = np.asarray(state.get("last_rank", np.zeros(M)), np.int64).copy()
         self.tol = END_TOLERANCE * self.geom.size
         kap, R = cfg.ball.kappa, cfg.ball.radius
-        self.energy0 = np.asarray(state.get("energy", 0.5 * np.sum(self.vel ** 2, axis=1)
-                                            + 0.25 * kap * R * R * np.sum(self.W ** 2, axis=(1, 2))), float).copy()
-        # numerical variants (docs/accuracy.md measures each): project back onto the initial energy every
-        # ``renormalize`` collisions of a rough scene (0: never; see engine.energy_factor); compensated summation
-        # of the time and the position; snapping the centre onto the wall at contact
-        self.renormalize = RENORMALIZE_EVERY
-        self.compensated = False
-        self.snap = False
+        self.energy0 = np.asarray(state["energy"] if "energy" in state else energy(self.vel, self.W, R, kap),
+                                  float).copy()
+        self.numerics = cfg.numerics
         self._comp = np.zeros((M, n + 1))
-        #: stop a trajectory right after it hits this wall (−1: never); used by the return-angle experiment
-        self.stop_wall = -1
-        #: bits engine.S_* to add to / take from what this run needs: scripts/bench.py measures what each skip
-        #: saves by making the kernel do the work anyway (the results stay the same: the bits only add work)
-        self.force_bits = 0
-        self.drop_bits = 0
+        self.stop_wall = int(stop_wall)
+        self.force_bits = int(force_bits)
+        self.drop_bits = int(drop_bits)
 
     def _initial_state(self):
         cfg = self.cfg
@@ -92,16 +81,13 @@ class Simulation:
         """The present state of every trajectory as one record: dict field -> (M, 1, …)."""
         M = self.M
         values = {"time": self.time, "position": self.pos, "velocity": self.vel,
-                  "angular_velocity": self.W[:, 1, 0] if self.n == 2 else
-                  np.stack([self.W[:, 2, 1], self.W[:, 0, 2], self.W[:, 1, 0]], axis=1),
-                  "orientation": self.theta if self.n == 2 else self.A,
+                  "angular_velocity": spin_vector(self.W), "orientation": self.theta if self.n == 2 else self.A,
                   "wall": self.last_wall, "rank": self.last_rank}
-        return {f: np.asarray(values[f]).reshape((M, 1) + field_shapes(self.n)[f]).astype(FIELD_DTYPES.get(f, float))
+        return {f: np.asarray(values[f]).reshape((M, 1) + FIELD[f].shape(self.n)).astype(FIELD[f].dtype)
                 for f in self.record}
 
     def final_state(self):
-        spin = self.W[:, 1, 0] if self.n == 2 else np.stack([self.W[:, 2, 1], self.W[:, 0, 2], self.W[:, 1, 0]], 1)
-        return {"time": self.time, "position": self.pos, "velocity": self.vel, "angular_velocity": spin,
+        return {"time": self.time, "position": self.pos, "velocity": self.vel, "angular_velocity": spin_vector(self.W),
                 "orientation": self.theta if self.n == 2 else self.A, "collisions": self.ncoll,
                 "draws": self.draws, "alive": self.alive, "last_wall": self.last_wall, "last_rank": self.last_rank,
                 "energy": self.energy0}
@@ -109,18 +95,16 @@ class Simulation:
     def block_buffers(self, records):
         """Record buffers for a block of ``records`` records per trajectory (zero-size for fields not recorded)."""
         M, n = self.M, self.n
-        flat = {"time": 1, "position": n, "velocity": n, "angular_velocity": 1 if n == 2 else 3,
-                "orientation": 1 if n == 2 else 9, "wall": 1, "rank": 1}
         bufs = {}
-        for f in ("time", "position", "velocity", "angular_velocity", "orientation", "wall", "rank"):
-            size = records if f in self.record else 0
-            dtype = FIELD_DTYPES.get(f, float)
-            bufs[f] = np.empty((M, size) if f in ("time", "wall", "rank") else (M, size, flat[f]), dtype=dtype)
+        for f in FIELDS:
+            size = records if f.name in self.record else 0
+            # scalar fields are (M, records); the others (M, records, values per record), flat
+            bufs[f.name] = np.empty((M, size) if f.kind == "scalar" else (M, size, f.size(n)), dtype=f.dtype)
         return bufs
 
     def records_per_block(self):
         every = self.cfg.output.every
-        per_record = 1 + sum(int(np.prod(field_shapes(self.n)[f] or (1,))) for f in self.record)
+        per_record = 1 + sum(FIELD[f].size(self.n) for f in self.record)
         by_memory = max(1, BLOCK_VALUES // (self.M * per_record))
         by_work = max(1, block_work(self.geom) // (self.M * every))
         return min(by_memory, by_work)
@@ -133,8 +117,8 @@ class Simulation:
         rough = r.max_rank > 0
         bits = engine.make_spec(
             self.n, orient=self.follow_orientation, spin=rough, tree=r.uses_orientation or r.uses_random,
-            record=bool(self.record), compensated=self.compensated,
-            snap=self.snap, slab=self.geom.slab, stop_wall=self.stop_wall >= 0)
+            record=bool(self.record), compensated=self.numerics.compensated,
+            snap=self.numerics.snap, slab=self.geom.slab, stop_wall=self.stop_wall >= 0)
         return (bits | self.force_bits) & ~self.drop_bits
 
     def advance(self, stop, bufs):
@@ -144,7 +128,7 @@ class Simulation:
         flags = self.spec()
         return engine.run_advance_all(
             stops, flags & engine.COMPILED_BITS, flags, self.stop_wall, self.cfg.output.every, self.mask,
-            int(self.renormalize),
+            int(self.numerics.renormalize),
             self.geom.codes, self.geom.walls, self.geom.params, self.tol, self.cfg.ball.radius, self.cfg.ball.kappa,
             r.root, r.kind, r.rank, r.first, r.children, r.cumprob, r.axis, r.basis,
             self.pos, self.vel, self.W, self.theta, self.A, self.time, self.ncoll, self.draws, self.alive,
@@ -181,8 +165,7 @@ class Simulation:
             nrec = self.advance(stop, bufs)
             if self.record:
                 b = int(nrec.max())
-                shapes = field_shapes(self.n)
-                block = {f: bufs[f][:, :b].reshape((self.M, b) + shapes[f]) for f in self.record}
+                block = {f: bufs[f][:, :b].reshape((self.M, b) + FIELD[f].shape(self.n)) for f in self.record}
                 _blank_tails(block, nrec, b)
                 sink.write(block, nrec)
             sink.checkpoint(self)
@@ -197,13 +180,7 @@ def _blank_tails(block, nrec, b):
     short = np.nonzero(nrec < b)[0]
     for j in short:
         for f, arr in block.items():
-            arr[j, nrec[j]:] = -1 if arr.dtype.kind == "i" else np.nan
-
-
-def _spin_matrix(w, n):
-    if n == 2:
-        return np.array([[0.0, -w], [w, 0.0]])
-    return np.array([[0.0, -w[2], w[1]], [w[2], 0.0, -w[0]], [-w[1], w[0], 0.0]])
+            arr[j, nrec[j]:] = FIELD[f].fill
 
 
 class MemorySink:

@@ -22,6 +22,7 @@ listed as not available (adding one is one line in VARIANTS).
 """
 import argparse
 import copy
+import dataclasses
 import math
 import os
 import platform
@@ -94,35 +95,25 @@ def make_config(base, collisions, **initial):
 
 
 def available_variants(cfg):
-    """The variants this engine has: every attribute exists, and a number other than 0/1 is given only to an
-    attribute whose default is a number, not a flag (``renormalize`` as a period)."""
-    sim = Simulation(cfg)
-
-    def has(attr, value):
-        if not hasattr(sim, attr):
-            return False
-        default = getattr(sim, attr)
-        return not (value not in (0, 1, True, False) and isinstance(default, bool))
-
-    return {k: v for k, v in VARIANTS.items() if all(has(a, x) for a, x in v.items())}
+    """The variants this engine has: every option is a field of :class:`rbx.model.Numerics`."""
+    fields = {f.name for f in dataclasses.fields(cfg.numerics)}
+    return {k: v for k, v in VARIANTS.items() if all(a in fields for a in v)}
 
 
 def engine_defaults(cfg):
-    """The engine's own settings of the attributes the variants touch -> {attribute: value}."""
-    sim = Simulation(cfg)
-    return {a: getattr(sim, a) for a in sorted({a for v in VARIANTS.values() for a in v}) if hasattr(sim, a)}
+    """The engine's own settings of the options the variants touch -> {option: value}."""
+    return {a: getattr(cfg.numerics, a) for a in sorted({a for v in VARIANTS.values() for a in v})
+            if hasattr(cfg.numerics, a)}
 
 
-def apply_variant(sim, variant):
-    for attr, value in variant.items():
-        default = getattr(sim, attr)
-        setattr(sim, attr, type(default)(value) if isinstance(default, (bool, int, float)) else value)
+def apply_variant(cfg, variant):
+    """The experiment ``cfg`` with the numerical options of ``variant`` -> a new experiment."""
+    return cfg.replace(numerics=dataclasses.replace(cfg.numerics, **variant))
 
 
 def engine_run(cfg, variant, state=None):
     """Run one config with a variant -> (final state of trajectory 0 as a dict of arrays, seconds in run)."""
-    sim = Simulation(cfg) if state is None else Simulation(cfg, state=state)
-    apply_variant(sim, variant)
+    sim = Simulation(apply_variant(cfg, variant), state=state)
     sink = MemorySink()
     t0 = time.perf_counter()
     sim.run(sink)
@@ -152,8 +143,7 @@ def energy_drift(base, N, variant, e0):
     c["run"]["collisions"] = int(N)
     c["output"] = {"record": ["velocity", "angular_velocity"], "every": every}
     cfg = config.from_dict(c)
-    sim = Simulation(cfg)
-    apply_variant(sim, variant)
+    sim = Simulation(apply_variant(cfg, variant))
     sink = MemorySink()
     sim.run(sink)
     k = int(sink.count[0])

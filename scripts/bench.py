@@ -11,6 +11,7 @@ number of collisions grown until one run lasts at least ``--seconds``; the table
 runs. ``--quick`` runs everything at tiny sizes (for tests/test_bench_smoke.py): its numbers mean nothing.
 """
 import argparse
+import dataclasses
 import math
 import os
 import platform
@@ -27,7 +28,8 @@ import numpy as np
 import yaml
 
 from rbx import config
-from rbx.simulate import RENORMALIZE_EVERY, MemorySink, Simulation
+from rbx.model import RENORMALIZE_EVERY
+from rbx.simulate import MemorySink, Simulation
 
 KAPPA, R = 0.5, 0.1
 
@@ -285,13 +287,12 @@ def rbx_run(d, threads=1, **variants):
     """A runner for :func:`measure`: the config mapping ``d`` for N collisions in all (split over its
     trajectories), timed around ``Simulation.run`` with a MemorySink."""
     M = d["run"]["trajectories"]
+    bits = {k: variants.pop(k) for k in ("force_bits", "drop_bits") if k in variants}
 
     def run(N):
         per = max(1, -(-N // M))
         cfg = config.from_dict({**d, "run": {**d["run"], "collisions": per}}, "<bench>")
-        sim = Simulation(cfg)
-        for k, v in variants.items():
-            setattr(sim, k, v)
+        sim = Simulation(cfg.replace(numerics=dataclasses.replace(cfg.numerics, **variants)), **bits)
         numba.set_num_threads(threads)
         sink = MemorySink()
         t0 = time.perf_counter()
@@ -794,8 +795,8 @@ def write_document(args, cmd, results, wall):
     # 6
     L += heading(args, "## 6. Numerical variants", "variants") + [
           "Speed only (their accuracy is in docs/accuracy.md): rough rule, one trajectory, nothing recorded; "
-          "`Simulation.renormalize` (period of the projection onto the initial energy, 0 = off), "
-          "`.compensated` (compensated summation of time and position), `.snap` (centre put on the wall at "
+          "`numerics.renormalize` (period of the projection onto the initial energy, 0 = off), "
+          "`numerics.compensated` (compensated summation of time and position), `numerics.snap` (centre put on the wall at "
           "contact). `relative` is the time per collision over the default's.", ""]
     rows = []
     for scene in VARIANT_SCENES:

@@ -298,15 +298,14 @@ def make(c, N, record=ALL):
 def variant_available(variant):
     if not variant:
         return True
-    sim = Simulation(make(BASE["strip"], 1, record=()))
-    return all(hasattr(sim, a) for a in variant)
+    numerics = make(BASE["strip"], 1, record=()).numerics
+    return all(hasattr(numerics, a) for a in variant)
 
 
 def run_records(c, N, variant=None):
     """-> (Config, records of trajectory 0 trimmed to its count, final state, alive)."""
     cf = make(c, N)
-    sim = Simulation(cf)
-    apply_variant(sim, variant or {})
+    sim = Simulation(apply_variant(cf, variant or {}))
     sink = MemorySink()
     sim.run(sink)
     k = int(sink.count[0])
@@ -354,8 +353,7 @@ def reversal(c, N, final, variant=None):
     state = {"position": np.array(final["position"])[None], "velocity": -np.array(final["velocity"])[None],
              "angular_velocity": -np.array(final["angular_velocity"])[None],
              "orientation": np.array(final["orientation"])[None]}
-    sim = Simulation(cf, state=state)
-    apply_variant(sim, variant or {})
+    sim = Simulation(apply_variant(cf, variant or {}), state=state)
     sink = MemorySink()
     sim.run(sink)
     back = {f: np.asarray(v)[0] for f, v in sink.final.items()}
@@ -603,16 +601,14 @@ def long_run(N, probe, log=print):
         row = {"variant": vname}
         cf = make(c, probe, record=())
         for attempt in range(2):                   # the first run compiles (or loads from the cache)
-            sim = Simulation(cf)
-            apply_variant(sim, variant)
+            sim = Simulation(apply_variant(cf, variant))
             t0 = time.perf_counter()
             sim.run(MemorySink())
             row["rate"] = probe / (time.perf_counter() - t0)
         log(f"  long run {vname}: {row['rate']:.3g} collisions/s on {probe:,}; {N:,} will take "
             f"~{N / row['rate']:.0f} s")
         cf = make(c, N, record=())
-        sim = Simulation(cf)
-        apply_variant(sim, variant)
+        sim = Simulation(apply_variant(cf, variant))
         sink = MemorySink()
         t0 = time.perf_counter()
         sim.run(sink)

@@ -103,9 +103,7 @@ def test_undoing_a_skip_keeps_the_orbit(i):
     d["run"]["collisions"] = 2000
     finals = []
     for undo in (False, True):
-        sim = Simulation(config.from_dict(d, "<bench>"))
-        if undo:
-            setattr(sim, attr, getattr(engine, bit))
+        sim = Simulation(config.from_dict(d, "<bench>"), **({attr: getattr(engine, bit)} if undo else {}))
         sink = MemorySink()
         sim.run(sink)
         finals.append(sink.final)

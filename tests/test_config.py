@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import yaml
 
-from rbx import config
+from rbx import config, model
 from rbx.config import ConfigError
 from rbx.output import config_yaml
 from tests.catalog import SCENES
@@ -45,7 +45,7 @@ def error_of(path_or_data, overrides=None):
 def test_a_valid_config_is_frozen(experiment):
     cfg = config.load(experiment)
     assert cfg.table_kind == "strip" and cfg.dimension == 2 and cfg.wall_names == ("bottom", "top")
-    assert cfg.run == config.Run(100, 2, 7)
+    assert cfg.run == model.RunSettings(100, 2, 7)
     assert cfg.output.record == ("time", "wall") and cfg.output.every == 2
     assert cfg.wall_rules == (config.Constant(1), config.Constant(1))
     with pytest.raises(dataclasses.FrozenInstanceError):
@@ -73,11 +73,11 @@ def test_defaults(experiment):
     data["table"] = {"kind": "strip", "width": 1}
     data["boundary"] = {"default": {"rule": "constant", "rank": 0}}
     cfg = config.from_dict(data)
-    assert cfg.run == config.Run(1000, 1, 0)
-    assert cfg.output == config.Output(None, config.RECORD_FIELDS, 1)
+    assert cfg.run == model.RunSettings(1000, 1, 0)
+    assert cfg.output == model.Output(None, model.RECORD_FIELDS, 1)
     # an empty section means its defaults too
     cfg = config.from_dict({**data, "run": None, "output": None})
-    assert cfg.run == config.Run(1000, 1, 0)
+    assert cfg.run == model.RunSettings(1000, 1, 0)
 
 
 def test_scientific_notation_is_a_number(experiment):
@@ -123,7 +123,7 @@ def test_errors_in_an_included_file_name_that_file(experiment, tmp_path):
 
 def test_overrides_win_and_name_the_option(experiment):
     cfg = config.load(experiment, {"collisions": 5, "trajectories": None, "seed": 3})
-    assert cfg.run == config.Run(5, 2, 3)
+    assert cfg.run == model.RunSettings(5, 2, 3)
     for name, value in (("collisions", 0), ("trajectories", -1), ("seed", -2), ("collisions", 2**70)):
         err = error_of(experiment, {name: value})
         assert err.file is None and err.key == f"--{name}" and str(err).startswith(f"--{name}: ")
@@ -159,3 +159,49 @@ def test_hints():
     assert "did you mean 'hemisphere'" in str(error_of({**data, "boundary": {"default": {"rule": "hemispere"}}}))
     err = error_of({**data, "initial": {"sampel": "billiard"}})
     assert err.key == "initial.sampel" and "did you mean 'sample'" in err.problem
+
+
+# ---- numerical options (config section `numerics`, rbx.model.Numerics) ---------------------------------------------
+
+def test_numerics_default_and_given(experiment, tmp_path):
+    assert config.load(experiment).numerics == model.Numerics(model.RENORMALIZE_EVERY, False, False)
+    assert "numerics" not in config.load(experiment).resolved        # files of runs without it read as before
+    path = tmp_path / "num.yaml"
+    path.write_text(STRIP + "numerics: {renormalize: 0, compensated: true, snap: true}\n")
+    cfg = config.load(path)
+    assert cfg.numerics == model.Numerics(0, True, True)
+    again = config.loads(config_yaml(cfg), "<stored>")                # what a run file stores reads back the same
+    assert again.numerics == cfg.numerics
+
+
+@pytest.mark.parametrize("text, key, problem", [
+    ("numerics: {renormalise: 3}", "numerics.renormalise", "did you mean 'renormalize'"),
+    ("numerics: {renormalize: -1}", "numerics.renormalize", "≥ 0"),
+    ("numerics: {renormalize: 1.5}", "numerics.renormalize", "integer"),
+    ("numerics: {snap: 1}", "numerics.snap", "true or false"),
+    ("numerics: [1]", "numerics", "mapping"),
+])
+def test_numerics_errors_name_the_key(tmp_path, experiment, text, key, problem):
+    path = tmp_path / "bad.yaml"
+    path.write_text(experiment.read_text() + text + "\n")
+    err = error_of(path)
+    assert err.key == key and problem in err.problem, str(err)
+
+
+def test_numerics_reach_the_engine(experiment):
+    # the options change what the kernel does: the energy projection off, the energy drifts by rounding; the
+    # replaced experiment records the options it ran with
+    from rbx.simulate import MemorySink, Simulation
+    cfg = config.load(experiment, {"collisions": 20000, "trajectories": 1}).replace(
+        output=model.Output(None, (), 1))
+    finals = {}
+    for period in (16, 0):
+        run = cfg.replace(numerics=model.Numerics(renormalize=period))
+        assert run.resolved["numerics"]["renormalize"] == period
+        sim = Simulation(run)
+        assert sim.numerics.renormalize == period
+        sink = MemorySink()
+        sim.run(sink)
+        finals[period] = sink.final
+    assert not np.array_equal(finals[16]["velocity"], finals[0]["velocity"])
+    np.testing.assert_allclose(finals[16]["velocity"], finals[0]["velocity"], rtol=1e-9)
