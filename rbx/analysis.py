@@ -535,9 +535,9 @@ class RunFile:
         return ds[idx, start:stop]
 
     def geometry(self):
-        from . import geometry
+        from . import tables
         table = {k: v for k, v in self.config["table"].items() if k != "kind"}
-        return geometry.build(self.table_kind, table, self.radius)
+        return tables.build(self.table_kind, table, self.radius)
 
     def scene(self):
         """A title naming the scene and rule: 'disc (R = 0.1, κ = 0.5) in a 2 × 1 rectangle · rough'."""
@@ -556,21 +556,11 @@ def _num(x):
     return f"{float(x):g}"
 
 
-_TABLE_PHRASES = {
-    "strip": lambda t: f"in a strip of width {_num(t['width'])}",
-    "circle": lambda t: f"in a circle of radius {_num(t['radius'])}",
-    "wedge": lambda t: f"in a {_num(t['angle_deg'])}° wedge",
-    "rectangle": lambda t: f"in a {_num(t['width'])} × {_num(t['height'])} rectangle",
-    "polygon": lambda t: f"in a polygon with {len(t['vertices'])} vertices",
-    "plates": lambda t: f"between plates {_num(t['gap'])} apart",
-    "box": lambda t: "in a " + " × ".join(_num(x) for x in t["size"]) + " box",
-}
-
-
 def describe_table(kind, t):
-    """'in a 2 × 1 rectangle', 'between plates 1 apart', …"""
+    """'in a 2 × 1 rectangle', 'between plates 1 apart', … (the ``phrase`` facet of the kind's record)."""
+    from . import tables
     try:
-        return _TABLE_PHRASES[kind](t)
+        return tables.kind(kind).phrase(t)
     except (KeyError, TypeError, ValueError):
         return f"in a {kind}"
 

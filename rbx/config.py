@@ -20,14 +20,11 @@ import types
 import numpy as np
 import yaml
 
-from . import geometry
+from . import tables
 from .model import (RECORD_FIELDS, Ball, ConfigError, Constant, Experiment, Hemisphere, Numerics, Output, Random,
                     RunSettings)
 from .physics import kappa_of
 
-TABLE_PARAMS = {"strip": ("width",), "circle": ("radius",), "wedge": ("angle_deg",), "rectangle": ("width", "height"),
-                "polygon": ("vertices",), "plates": ("gap",), "box": ("size",)}
-TABLE_DIM = {"strip": 2, "circle": 2, "wedge": 2, "rectangle": 2, "polygon": 2, "plates": 3, "box": 3}
 SECTIONS = ("table", "boundary", "ball", "initial", "run", "output", "numerics")
 #: command-line options that override config keys, and the option each one's errors name
 OVERRIDE_OPTIONS = {"collisions": "--collisions", "trajectories": "--trajectories", "seed": "--seed"}
@@ -116,6 +113,11 @@ class _Checker:
 
     def fail(self, key, problem):
         raise ConfigError(self.file, key, problem)
+
+    @staticmethod
+    def kind(value):
+        """How a value is named in a message: 'a list', "the text 'abc'", …"""
+        return _kind(value)
 
     def mapping(self, value, key, allowed, required=()):
         if not isinstance(value, dict):
@@ -239,7 +241,7 @@ def _from_dict(data, source, overrides):
     resolved = {}
 
     kind, tparams = _table(data["table"], base, c)
-    n = TABLE_DIM[kind]
+    n = tables.kind(kind).dimension
     resolved["table"] = {"kind": kind, **tparams}
     frozen_table = types.MappingProxyType({k: _frozen(v) for k, v in tparams.items()})
 
@@ -247,7 +249,7 @@ def _from_dict(data, source, overrides):
     resolved["ball"] = {"radius": radius, "inertia": inertia}
 
     try:
-        geom = geometry.build(kind, tparams, radius)
+        geom = tables.build(kind, tparams, radius)
     except Exception as exc:   # a degenerate table the checks above let through: still the user's input
         c.fail("table", f"cannot build the table: {exc}")
     _check_fits(kind, tparams, radius, geom, c)
@@ -332,11 +334,13 @@ def _table(value, base, c):
     table, table_file = _include(value, "table", base, c)
     tc = _Checker(table_file or c.file)
     prefix = "table" if table_file is None else ""
-    all_params = tuple(sorted({p for ps in TABLE_PARAMS.values() for p in ps}))
+    all_params = tuple(sorted({p for k in tables.KINDS.values() for p in k.params}))
     tc.mapping(table, prefix, ("kind",) + all_params, ("kind",))
-    kind = tc.choice(table["kind"], _join(prefix, "kind"), tuple(TABLE_PARAMS), "table kind")
-    tc.mapping(table, prefix, ("kind",) + TABLE_PARAMS[kind], ("kind",) + TABLE_PARAMS[kind])
-    return kind, _table_params(kind, table, tc, lambda k: _join(prefix, k))
+    kind = tc.choice(table["kind"], _join(prefix, "kind"), tuple(tables.KINDS), "table kind")
+    params = tuple(tables.kind(kind).params)
+    tc.mapping(table, prefix, ("kind",) + params, ("kind",) + params)
+    return kind, {name: check(table[name], tc, _join(prefix, name))
+                  for name, check in tables.kind(kind).params.items()}
 
 
 def _ball(ball, n, c):
@@ -405,81 +409,10 @@ def _output(out, base, c):
     return Output(opath, record, every)
 
 
-def _table_params(kind, t, c, key):
-    if kind in ("strip",):
-        return {"width": c.number(t["width"], key("width"), positive=True)}
-    if kind == "circle":
-        return {"radius": c.number(t["radius"], key("radius"), positive=True)}
-    if kind == "wedge":
-        return {"angle_deg": c.number(t["angle_deg"], key("angle_deg"), lo=0, hi=180, lo_open=True, hi_open=True)}
-    if kind == "rectangle":
-        return {"width": c.number(t["width"], key("width"), positive=True),
-                "height": c.number(t["height"], key("height"), positive=True)}
-    if kind == "plates":
-        return {"gap": c.number(t["gap"], key("gap"), positive=True)}
-    if kind == "box":
-        size = c.vector(t["size"], key("size"), 3)
-        for i, s in enumerate(size):
-            if s <= 0:
-                c.fail(f"{key('size')}[{i}]", f"must be positive, got {s:g}")
-        return {"size": list(size)}
-    V = t["vertices"]
-    if not isinstance(V, list) or len(V) < 3:
-        c.fail(key("vertices"), f"expected a list of at least 3 points [x, y], got {_kind(V)}"
-               + (f" of {len(V)}" if isinstance(V, list) else ""))
-    V = np.array([c.vector(p, f"{key('vertices')}[{i}]", 2) for i, p in enumerate(V)])
-    with np.errstate(over="ignore", invalid="ignore"):
-        area = 0.5 * np.sum(V[:, 0] * np.roll(V[:, 1], -1) - np.roll(V[:, 0], -1) * V[:, 1])
-    if not np.isfinite(area):
-        c.fail(key("vertices"), "coordinates too large (the area overflows)")
-    if np.any(np.all(np.roll(V, -1, axis=0) == V, axis=1)):
-        c.fail(key("vertices"), "two consecutive vertices coincide")
-    if _self_intersecting(V):
-        c.fail(key("vertices"), "the polygon crosses or touches itself")
-    if area <= 0:
-        c.fail(key("vertices"), "must be listed counter-clockwise (the signed area is not positive)")
-    return {"vertices": V.tolist()}
-
-
-def _self_intersecting(V):
-    """Whether two non-adjacent edges cross or touch (a vertex on another edge counts: the shrunk table of such
-    a polygon pinches to nothing there)."""
-    def cross(o, a, b):
-        return (a[0] - o[0]) * (b[1] - o[1]) - (a[1] - o[1]) * (b[0] - o[0])
-
-    def on_segment(p, a, b):
-        return min(a[0], b[0]) <= p[0] <= max(a[0], b[0]) and min(a[1], b[1]) <= p[1] <= max(a[1], b[1])
-
-    m = len(V)
-    for i in range(m):
-        a, b = V[i], V[(i + 1) % m]
-        for j in range(i + 2, m):
-            if i == 0 and j == m - 1:
-                continue
-            p, q = V[j], V[(j + 1) % m]
-            d1, d2 = cross(a, b, p), cross(a, b, q)
-            d3, d4 = cross(p, q, a), cross(p, q, b)
-            if d1 * d2 < 0 and d3 * d4 < 0:
-                return True
-            if (d1 == 0 and on_segment(p, a, b)) or (d2 == 0 and on_segment(q, a, b)) or \
-                    (d3 == 0 and on_segment(a, p, q)) or (d4 == 0 and on_segment(b, p, q)):
-                return True
-    return False
-
-
 def _check_fits(kind, p, R, geom, c):
-    where = "ball.radius"
-    if kind == "strip" and 2 * R >= p["width"]:
-        c.fail(where, f"a ball of radius {R:g} does not fit in a strip of width {p['width']:g}")
-    if kind == "plates" and 2 * R >= p["gap"]:
-        c.fail(where, f"a ball of radius {R:g} does not fit between plates {p['gap']:g} apart")
-    if kind == "circle" and R >= p["radius"]:
-        c.fail(where, f"a ball of radius {R:g} does not fit in a circle of radius {p['radius']:g}")
-    if kind == "box" and 2 * R >= min(p["size"]):
-        c.fail(where, f"a ball of radius {R:g} does not fit in a box of size {p['size']}")
-    if kind in ("rectangle", "polygon") and np.any(geom.lengths <= 0):
-        bad = int(np.argmin(geom.lengths))
-        c.fail(where, f"a ball of radius {R:g} does not fit in the {kind} (near wall '{geom.wall_names[bad]}')")
+    problem = tables.kind(kind).fits(p, R, geom)
+    if problem:
+        c.fail("ball.radius", f"a ball of radius {R:g} {problem}")
 
 
 def _rule(r, key, n, c, geom, wall_ids):
@@ -547,8 +480,8 @@ def _initial(init, n, c, geom, kind, R, kappa, names):
         if wall is not None:
             c.choice(wall, "initial.wall", names, "wall")
         idx = None if wall is None else names.index(wall)
-        if kind == "wedge":
-            c.fail("initial.wall" if wall else "initial.sample", "the wedge's walls are infinite: the billiard "
+        if not geom.can_sample:
+            c.fail("initial.wall" if wall else "initial.sample", f"the {kind}'s walls are infinite: the billiard "
                                                                  "measure on them cannot be normalised")
         return ("sample", idx), 1
     states = init if isinstance(init, list) else [init]

@@ -11,8 +11,8 @@ the index of the wall it belongs to and a row of packed float parameters:
 | ``CONVEX_ARC`` | 2D arc of radius ρ around a reflex vertex, centre kept outside | c = [0:2], first normal = [4:6], last normal = [8:10] (CCW), ρ = [12] |
 
 Adding a table kind = a builder here that lists its primitives (with ``Wall`` entries for names, tangent axes and
-sampling patches), plus a catalog entry in the tests. Adding a primitive kind = a code, its branch in
-:func:`collision_time` and :func:`contact_normal`, and its :func:`clearance`.
+sampling patches), registered with its other facets in :mod:`rbx.tables`. Adding a primitive kind = a code, its
+branch in :func:`collision_time`, :func:`contact_normal` and :func:`snap`, and its :func:`clearance`.
 """
 from dataclasses import dataclass, field
 
@@ -48,11 +48,13 @@ class Geometry:
     outline: np.ndarray | None = None          # 2D: the table's boundary polygon (for drawing), or None
     shrunk_outline: np.ndarray | None = None   # 2D: the shrunk table's boundary (for drawing), or None
     circle: tuple | None = None                # (radius, shrunk radius) for the circle table
-
-    @property
-    def slab(self):
-        """Two parallel walls (strip, plates): the engine takes :func:`slab_collision`'s closed form."""
-        return self.kind in ("strip", "plates")
+    table: dict | None = None                  # the kind's parameters (set by rbx.tables.build)
+    #: two parallel walls, primitives 0 (x_{n−1} = lo) and 1 (x_{n−1} = hi): the engine takes
+    #: :func:`slab_collision`'s closed form (strip, plates)
+    slab: bool = False
+    #: the billiard measure on the walls can be normalised (the patches are finite, or infinite only along a
+    #: symmetry of the table, as in a strip); not for a wedge
+    can_sample: bool = True
 
     @property
     def wall_names(self):
@@ -62,7 +64,7 @@ class Geometry:
         """Signed distance of centre positions (…, n) inside the shrunk table (≥ 0 inside) -> (…) array."""
         pts = np.asarray(points, dtype=float)
         out = np.full(pts.shape[:-1], np.inf)
-        if self.kind == "polygon" and np.any(self.codes != HALFSPACE):
+        if np.any((self.codes == SEGMENT) | (self.codes == CONVEX_ARC)):   # a non-convex polygon
             return _polygon_clearance(pts, self.outline, self.shrunk_radius)
         for code, row in zip(self.codes, self.params):
             n = self.dimension
@@ -117,19 +119,18 @@ def _flat_wall(name, origin, normal, axes, tangents=None):
                 [("flat", np.asarray(origin, float), np.asarray(normal, float), axes)])
 
 
-def build(kind, params, R):
-    """Geometry of table ``kind`` with its parameters (validated already) for a ball of radius R."""
-    return _BUILDERS[kind](params, R)
+# ---- builders of the table kinds (registered in rbx.tables): validated parameters, radius R -> Geometry -----------
 
-
-def _strip(p, R):
+def strip(p, R):
     w = p["width"]
     walls = [_flat_wall("bottom", (0, R), (0, 1), [((1, 0), np.inf)]),
              _flat_wall("top", (0, w - R), (0, -1), [((1, 0), np.inf)])]
-    return _halfspaces("strip", 2, R, [((0, 0), (0, 1)), ((0, w), (0, -1))], walls, w)
+    g = _halfspaces("strip", 2, R, [((0, 0), (0, 1)), ((0, w), (0, -1))], walls, w)
+    g.slab = True
+    return g
 
 
-def _circle(p, R):
+def circle(p, R):
     r = p["radius"]
     rho = r - R
     params = np.array([_row(2, (0, 0), (), (), rho)])
@@ -140,7 +141,7 @@ def _circle(p, R):
                     outline=r * circle, shrunk_outline=rho * circle, circle=(r, rho), shrunk_radius=R)
 
 
-def _wedge(p, R):
+def wedge(p, R):
     phi = np.radians(p["angle_deg"])
     d1 = np.array([np.cos(phi), np.sin(phi)])
     nu0, nu1 = np.array([0.0, 1.0]), np.array([np.sin(phi), -np.cos(phi)])
@@ -150,16 +151,17 @@ def _wedge(p, R):
     g = _halfspaces("wedge", 2, R, [((0, 0), nu0), ((0, 0), nu1)], walls, 1.0,
                     outline=np.array([far * np.array([1.0, 0.0]), [0.0, 0.0], far * d1]))
     g.shrunk_outline = np.array([apex + far * np.array([1.0, 0.0]), apex, apex + far * d1])
+    g.can_sample = False
     return g
 
 
-def _rectangle(p, R):
+def rectangle(p, R):
     w, h = p["width"], p["height"]
-    return _polygon({"vertices": [[0, 0], [w, 0], [w, h], [0, h]]}, R, kind="rectangle",
+    return polygon({"vertices": [[0, 0], [w, 0], [w, h], [0, h]]}, R, kind="rectangle",
                     names=["bottom", "right", "top", "left"])
 
 
-def _polygon(p, R, kind="polygon", names=None):
+def polygon(p, R, kind="polygon", names=None):
     V = np.asarray(p["vertices"], dtype=float)
     m = len(V)
     names = names or [f"edge{i}" for i in range(m)]
@@ -211,16 +213,18 @@ def _polygon(p, R, kind="polygon", names=None):
     return g
 
 
-def _plates(p, R):
+def plates(p, R):
     gap = p["gap"]
     axes = [((1, 0, 0), np.inf), ((0, 1, 0), np.inf)]
     tang = [(1, 0, 0), (0, 1, 0)]
     walls = [_flat_wall("bottom", (0, 0, R), (0, 0, 1), axes, tang),
              _flat_wall("top", (0, 0, gap - R), (0, 0, -1), axes, tang)]
-    return _halfspaces("plates", 3, R, [((0, 0, 0), (0, 0, 1)), ((0, 0, gap), (0, 0, -1))], walls, gap)
+    g = _halfspaces("plates", 3, R, [((0, 0, 0), (0, 0, 1)), ((0, 0, gap), (0, 0, -1))], walls, gap)
+    g.slab = True
+    return g
 
 
-def _box(p, R):
+def box(p, R):
     lx, ly, lz = p["size"]
     ex, ey, ez = np.eye(3)
     spec = [("left", ex, 0, (ey, ez)), ("right", -ex, lx, (ey, ez)), ("front", ey, 0, (ex, ez)),
@@ -235,11 +239,6 @@ def _box(p, R):
         origin = point + R * nu + R * (t1 + t2)
         walls.append(_flat_wall(name, origin, nu, [(t1, L @ t1 - 2 * R), (t2, L @ t2 - 2 * R)], (t1, t2)))
     return _halfspaces("box", 3, R, planes, walls, float(max(L)))
-
-
-_BUILDERS = {"strip": _strip, "circle": _circle, "wedge": _wedge, "rectangle": _rectangle, "polygon": _polygon,
-             "plates": _plates, "box": _box}
-TABLE_KINDS = tuple(_BUILDERS)
 
 
 @jit_hot

@@ -139,7 +139,7 @@ class Experiment:
 
     def geometry(self):
         """The shrunk table the centre moves in (:class:`rbx.geometry.Geometry`)."""
-        from .geometry import build
+        from .tables import build
         return build(self.table_kind, self.table, self.ball.radius)
 
     def replace(self, **changes):

@@ -10,10 +10,9 @@ from matplotlib import colormaps
 from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 
-from . import analysis
+from . import analysis, tables
+from .tables import SHRUNK_STYLE, TABLE_STYLE
 
-TABLE_STYLE = dict(color="0.15", lw=1.4)
-SHRUNK_STYLE = dict(color="0.45", lw=0.9, ls="--")
 MAX_LEGEND = 10
 
 
@@ -39,45 +38,44 @@ def _extent(paths, dims=2):
 
 
 def draw_table_2d(ax, geom, lo, hi):
-    """The table (solid) and the shrunk table seen by the centre (dashed) on 2D axes, to scale. Unbounded tables
-    are drawn over the data range [lo, hi] (and the axes limited to it)."""
-    R = geom.shrunk_radius
-    if geom.kind == "strip":
-        w = geom.size
-        for y, style in ((0.0, TABLE_STYLE), (w, TABLE_STYLE), (R, SHRUNK_STYLE), (w - R, SHRUNK_STYLE)):
-            ax.axhline(y, **style)
-        pad = 0.05 * max(hi[0] - lo[0], w)
-        ax.set_xlim(lo[0] - pad, hi[0] + pad)
-        ax.set_ylim(-0.1 * w, 1.1 * w)
-        return
-    if geom.kind == "wedge":
-        far = 10.0 * (np.max(np.abs(np.concatenate([lo, hi]))) + geom.size)
-        for line, style in ((geom.outline, TABLE_STYLE), (geom.shrunk_outline, SHRUNK_STYLE)):
-            apex = line[1]
-            rays = [apex + far * (p - apex) / np.linalg.norm(p - apex) for p in (line[0], line[2])]
-            ax.plot(*np.array([rays[0], apex, rays[1]]).T, **style)
-        span = max(np.max(hi - lo), geom.size)
-        ax.set_xlim(min(lo[0], 0.0) - 0.05 * span, max(hi[0], 0.0) + 0.05 * span)
-        ax.set_ylim(min(lo[1], 0.0) - 0.05 * span, max(hi[1], 0.0) + 0.05 * span)
-        return
-    if geom.kind in ("plates",):
-        return
-    if geom.kind == "box":  # horizontal projection of a box
-        lx, ly = _box_size(geom)[:2]
-        for (x0, y0, x1, y1), style in (((0, 0, lx, ly), TABLE_STYLE), ((R, R, lx - R, ly - R), SHRUNK_STYLE)):
-            ax.plot([x0, x1, x1, x0, x0], [y0, y0, y1, y1, y0], **style)
-        return
-    for line, style in ((geom.outline, TABLE_STYLE), (geom.shrunk_outline, SHRUNK_STYLE)):
-        if line is not None:
-            closed = np.vstack([line, line[:1]])
-            ax.plot(closed[:, 0], closed[:, 1], **style)
+    """The table (solid) and the shrunk table seen by the centre (dashed) on 2D axes, to scale; a 3D table as its
+    horizontal projection. Unbounded tables are drawn over the data range [lo, hi] (and the axes limited to it).
+    How each kind is drawn is a facet of its record in :mod:`rbx.tables`."""
+    tables.kind(geom.kind).draw(ax, geom, lo, hi)
 
 
-def _box_size(geom):
-    """(lx, ly, lz) of a box table, from its walls (right, back, top are at l − R)."""
+def draw_table_3d(ax, geom, lo, hi):
+    """The flat walls of a 3D table on 3D axes -> the (lo, hi) corners of the drawn region. A bounded face is
+    drawn as its outline (the table solid, the shrunk table dashed); an unbounded one (plates) as a translucent
+    plane over the data range [lo, hi]."""
     R = geom.shrunk_radius
-    origins = {w.name: w.patches[0][1] for w in geom.wall_list}
-    return np.array([origins["right"][0], origins["back"][1], origins["top"][2]]) + R
+    pad = 0.05 * max(float(np.max(hi - lo)), geom.size)
+    span_lo, span_hi = np.array(lo, float) - pad, np.array(hi, float) + pad
+    out_lo, out_hi = np.array(lo, float), np.array(hi, float)
+    for piece in tables.walls(geom.kind, geom.table):
+        p0, nu = np.array(piece.point, float), np.array(piece.normal, float)
+        t1, t2 = (np.array(t, float) for t in piece.tangents)
+        blo, bhi = np.array(piece.lo, float), np.array(piece.hi, float)
+        with np.errstate(invalid="ignore"):   # 0·inf along the axes a tangent does not use
+            a0, a1, b0, b1 = (float(np.sum(np.where(t != 0, x * t, 0.0))) for x, t in
+                              ((blo, t1), (bhi, t1), (blo, t2), (bhi, t2)))
+        if np.all(np.isfinite([a0, a1, b0, b1])):
+            for shift, style in ((0.0, TABLE_STYLE), (R, SHRUNK_STYLE)):
+                base = p0 + shift * nu
+                a = [a0 + shift, a1 - shift]
+                b = [b0 + shift, b1 - shift]
+                corners = [base - (base @ t1) * t1 - (base @ t2) * t2 + x * t1 + y * t2
+                           for x, y in ((a[0], b[0]), (a[1], b[0]), (a[1], b[1]), (a[0], b[1]), (a[0], b[0]))]
+                ax.plot(*np.array(corners).T, **style)
+                out_lo, out_hi = np.minimum(out_lo, np.min(corners, axis=0)), np.maximum(out_hi, np.max(corners,
+                                                                                                  axis=0))
+        else:
+            X, Y = np.meshgrid([span_lo @ t1, span_hi @ t1], [span_lo @ t2, span_hi @ t2])
+            pts = p0[None, None, :] - (p0 @ t1) * t1 - (p0 @ t2) * t2 + X[..., None] * t1 + Y[..., None] * t2
+            ax.plot_surface(pts[..., 0], pts[..., 1], pts[..., 2], color="0.5", alpha=0.18, linewidth=0)
+            k = int(np.argmax(np.abs(nu)))          # the plane bounds the drawn region only across itself
+            out_lo[k], out_hi[k] = min(out_lo[k], p0[k]), max(out_hi[k], p0[k])
+    return out_lo, out_hi
 
 
 # ---- orbits ----------------------------------------------------------------------------------------------------
@@ -114,24 +112,11 @@ def orbit3d_figure(paths, geom, title, labels=None, points_only=False):
     fig = _figure(11.0, 5.2, title)
     ax = fig.add_subplot(1, 2, 1, projection="3d")
     lo, hi = _extent(paths, 3)
-    R = geom.shrunk_radius
     style = dict(ls="none", marker=".", ms=2) if points_only else dict(lw=0.6)
     for i, p in enumerate(paths):
         ax.plot(p[:, 0], p[:, 1], p[:, 2], color=_colour(i), label=labels[i] if labels else None, **style)
-    if geom.kind == "plates":
-        gap = geom.size
-        pad = 0.05 * max(hi[0] - lo[0], hi[1] - lo[1], gap)
-        X, Y = np.meshgrid([lo[0] - pad, hi[0] + pad], [lo[1] - pad, hi[1] + pad])
-        for z, alpha in ((0.0, 0.18), (gap, 0.18)):
-            ax.plot_surface(X, Y, np.full_like(X, z), color="0.5", alpha=alpha, linewidth=0)
-        zlo, zhi = 0.0, gap
-    else:
-        size = _box_size(geom)
-        _box_edges(ax, np.zeros(3), size, TABLE_STYLE)
-        _box_edges(ax, np.full(3, R), size - R, SHRUNK_STYLE)
-        lo, hi = np.minimum(lo, 0.0), np.maximum(hi, size)
-        zlo, zhi = 0.0, size[2]
-    ranges = np.array([hi[0] - lo[0], hi[1] - lo[1], zhi - zlo])
+    lo, hi = draw_table_3d(ax, geom, lo, hi)
+    ranges = hi - lo
     ax.set_box_aspect(np.maximum(ranges, 0.2 * ranges.max()))  # to scale, unless a range is very thin
     ax.set_xlabel("x [L]")
     ax.set_ylabel("y [L]")
@@ -151,18 +136,6 @@ def orbit3d_figure(paths, geom, title, labels=None, points_only=False):
     if labels and len(paths) <= MAX_LEGEND:
         ax2.legend(fontsize=7, loc="best")
     return fig
-
-
-def _box_edges(ax, lo, hi, style):
-    for a in range(3):
-        b, c = [k for k in range(3) if k != a]
-        for u in (lo[b], hi[b]):
-            for w in (lo[c], hi[c]):
-                p, q = np.zeros(3), np.zeros(3)
-                p[a], q[a] = lo[a], hi[a]
-                p[b] = q[b] = u
-                p[c] = q[c] = w
-                ax.plot(*np.array([p, q]).T, **style)
 
 
 # ---- phase portraits -------------------------------------------------------------------------------------------

@@ -34,13 +34,13 @@ Nothing is projected back onto the energy: at 50 digits there is no drift to rem
 mpmath is imported lazily (it is a dev dependency: only the benchmark and the tests need this module).
 Speed: ~0.1 ms per collision in 2D at 50 digits, ~10⁴ times slower than the engine.
 """
+import math
 from fractions import Fraction
 
 import numpy as np
 
+from .model import RECORD_FIELDS as FIELDS  # the one table of record fields
 from .model import roughness_direction
-
-FIELDS = ("time", "position", "velocity", "angular_velocity", "orientation", "wall", "rank")
 
 
 def _mpmath():
@@ -168,63 +168,47 @@ class PreciseBilliard:
 
     # -- the table --------------------------------------------------------------------------------------------------
     def _build_table(self, t):
+        """The shrunk table at this precision from the table's wall pieces (:mod:`rbx.tables`): no kind is named."""
+        from . import tables
         ctx, R = self.ctx, self.R
-        kind = t["kind"]
-        zero, one = ctx.mpf(0), ctx.mpf(1)
+        params = {k: v for k, v in t.items() if k != "kind"}
         self.tangent_axes = {}
-        if kind == "strip":
-            w = self.num(t["width"])
-            self.prims = [_Flat(0, R, [zero, one]), _Flat(1, -(w - R), [zero, -one])]
-            self.scale = w
-        elif kind == "circle":
-            r = self.num(t["radius"])
-            self.prims = [_Rim(0, r - R)]
-            self.scale = r
-        elif kind == "wedge":
-            phi = self.deg(t["angle_deg"])
-            e1 = [ctx.cos(phi), ctx.sin(phi)]
-            nu1 = [e1[1], -e1[0]]                     # left normal of −e1: wall1 is walked towards the vertex
-            self.prims = [_Flat(0, R, [zero, one], [zero, zero], [one, zero], zero, None),
-                          _Flat(1, R, nu1, [zero, zero], e1, zero, None)]
-            self.scale = R
-        elif kind in ("rectangle", "polygon"):
-            if kind == "rectangle":
-                w, h = t["width"], t["height"]
-                verts = [[0, 0], [w, 0], [w, h], [0, h]]
-            else:
-                verts = t["vertices"]
-            V = [self.vec(p) for p in verts]
-            self.prims = self._polygon(V)
-            self.scale = max(max(abs(p[i] - q[i]) for p in V for q in V) for i in range(2))
-        elif kind == "plates":
-            g = self.num(t["gap"])
-            self.prims = [_Flat(0, R, [zero, zero, one]), _Flat(1, -(g - R), [zero, zero, -one])]
-            x, y = [one, zero, zero], [zero, one, zero]
-            self.tangent_axes = {0: (x, y), 1: (x, y)}
-            self.scale = g
-        elif kind == "box":
-            size = self.vec(t["size"])
-            E = [[one if i == j else zero for j in range(3)] for i in range(3)]
-            self.prims = []
-            for axis in range(3):
-                for side in range(2):
-                    sign = one if side == 0 else -one
-                    nu = [sign * e for e in E[axis]]
-                    c = R if side == 0 else -(size[axis] - R)
-                    lo = [R if i != axis else None for i in range(3)]
-                    hi = [size[i] - R if i != axis else None for i in range(3)]
-                    self.prims.append(_Flat(2 * axis + side, c, nu, lo=lo, hi=hi))
-            others = {0: (1, 2), 1: (0, 2), 2: (0, 1)}
-            for axis in range(3):
-                for side in range(2):
-                    self.tangent_axes[2 * axis + side] = (E[others[axis][0]], E[others[axis][1]])
-            self.scale = max(size)
-        else:
-            raise ValueError(f"unknown table kind {kind!r}")
+        self.prims = []
+        wall = 0
 
-    def _polygon(self, V):
+        def unit(d):
+            return self.vec(tables.unit(d, cos=ctx.cos, sin=ctx.sin, radians=self.deg) if d[0] == "deg" else d)
+
+        for piece in tables.walls(t["kind"], params):
+            if isinstance(piece, tables.Polygon):
+                V = [self.vec(p) for p in piece.vertices]
+                self.prims += self._polygon(V, first_wall=wall)
+                wall += len(piece.names)
+                continue
+            if isinstance(piece, tables.Circle):
+                assert tuple(piece.center) == (0.0, 0.0), "the precise loop's rim is centred at the origin"
+                self.prims.append(_Rim(wall, self.num(piece.radius) - R))       # centred at the origin
+            elif isinstance(piece, tables.Line):
+                p, e, nu = self.vec(piece.point), unit(piece.direction), unit(piece.normal)
+                bounded = math.isfinite(piece.s_min) or math.isfinite(piece.s_max)
+                self.prims.append(_Flat(wall, _dot(nu, p) + R, nu, p if bounded else None, e if bounded else None,
+                                        self.num(piece.s_min) if math.isfinite(piece.s_min) else None,
+                                        self.num(piece.s_max) if math.isfinite(piece.s_max) else None))
+            else:   # a plane: contact points within the table's box shrunk by R (the normal axis unbounded)
+                p, nu = self.vec(piece.point), self.vec(piece.normal)
+                lo = [self.num(x) + R if math.isfinite(x) else None for x in piece.lo]
+                hi = [self.num(x) - R if math.isfinite(x) else None for x in piece.hi]
+                bounded = any(x is not None for x in lo + hi)
+                self.prims.append(_Flat(wall, _dot(nu, p) + R, nu, lo=lo if bounded else None,
+                                        hi=hi if bounded else None))
+                self.tangent_axes[wall] = tuple(self.vec(x) for x in piece.tangents)
+            wall += 1
+        self.scale = self.num(tables.kind(t["kind"]).scale(params))
+
+    def _polygon(self, V, first_wall=0):
         """Offset segments of every edge (full length: at a convex corner the other offset line is reached
-        first) and an arc of radius R per reflex vertex, attributed to the edge leaving it."""
+        first) and an arc of radius R per reflex vertex, attributed to the edge leaving it (walls from
+        ``first_wall`` on)."""
         ctx, R = self.ctx, self.R
         m = len(V)
         prims = []
@@ -233,11 +217,11 @@ class PreciseBilliard:
             length = _norm(ctx, edge)
             e = [x / length for x in edge]
             nu = [-e[1], e[0]]
-            prims.append(_Flat(i, _dot(nu, V[i]) + R, nu, V[i], e, ctx.mpf(0), length))
+            prims.append(_Flat(first_wall + i, _dot(nu, V[i]) + R, nu, V[i], e, ctx.mpf(0), length))
         for i in range(m):
             e_in, e_out = _sub(V[i], V[i - 1]), _sub(V[(i + 1) % m], V[i])
             if e_in[0] * e_out[1] - e_in[1] * e_out[0] < 0:   # a clockwise turn of a CCW boundary: reflex
-                prims.append(_Reflex(i, V[i], R, [x / _norm(ctx, e_in) for x in e_in],
+                prims.append(_Reflex(first_wall + i, V[i], R, [x / _norm(ctx, e_in) for x in e_in],
                                      [x / _norm(ctx, e_out) for x in e_out]))
         return prims
 

@@ -28,7 +28,7 @@ import numpy as np
 import yaml
 
 from rbx import config
-from rbx.model import RENORMALIZE_EVERY
+from rbx.model import RECORD_FIELDS, RENORMALIZE_EVERY
 from rbx.simulate import MemorySink, Simulation
 
 KAPPA, R = 0.5, 0.1
@@ -209,7 +209,7 @@ HAND = {
     ("box", "specular"): lambda N: box_loop(0.5, 0.6, 0.4, 0.3, -0.5, 0.7, 1.0, 1.3, 0.8, N),
 }
 
-FIELDS = ("time", "position", "velocity", "angular_velocity", "orientation", "wall", "rank")
+FIELDS = RECORD_FIELDS
 FIELD_VALUES = {2: {"time": 1, "position": 2, "velocity": 2, "angular_velocity": 1, "orientation": 1, "wall": 0.5,
                     "rank": 0.5},
                 3: {"time": 1, "position": 3, "velocity": 3, "angular_velocity": 3, "orientation": 9, "wall": 0.5,

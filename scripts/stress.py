@@ -36,9 +36,10 @@ from accuracy import apply_variant, fmt, machine, source_state  # noqa: E402
 
 from rbx import config  # noqa: E402
 from rbx.geometry import CONCAVE_ARC, CONVEX_ARC, HALFSPACE, SEGMENT  # noqa: E402
+from rbx.model import RECORD_FIELDS  # noqa: E402
 from rbx.simulate import MemorySink, Simulation  # noqa: E402
 
-ALL = ("time", "position", "velocity", "angular_velocity", "orientation", "wall", "rank")
+ALL = RECORD_FIELDS
 TOL = 1e-12          # table and wall checks, relative to the table's size
 ENERGY_TOL = 1e-12   # energy drift allowed over a case
 ROUGH2 = {"default": {"rule": "constant", "rank": 1}}

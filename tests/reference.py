@@ -1,7 +1,8 @@
 """Slow, obviously-correct reference event loop for rough billiards.
 
-Pure Python + numpy, independent of the ``rbx`` package: it reads a config mapping shaped like the cases of
-``tests/data/trajectories.json`` and follows SPEC.md §1–3 and docs/conventions.md as literally as possible, for
+Pure Python + numpy, independent of the ``rbx`` engine: it reads a config mapping shaped like the cases of
+``tests/data/trajectories.json``, takes from rbx only the table's walls as data (the registry of table kinds,
+``rbx.tables.walls``: lines, planes, circles, polygons in the table's own coordinates) and follows SPEC.md §1–3 and docs/conventions.md as literally as possible, for
 any dimension n with the angular velocity held as an n×n antisymmetric matrix ``W``. Free flight: a ← a + τv,
 2D θ ← θ + τω, 3D A ← exp(τW)·A with exp summed as a Taylor series (the engine uses Rodrigues).
 
@@ -155,7 +156,7 @@ def left_normal(e):
     return np.array([-e[1], e[0]])
 
 
-def polygon_primitives(vertices, R):
+def polygon_primitives(vertices, R, first_wall=0):
     """Offset segments of every edge (full length, untrimmed: at convex corners the other offset line is always
     reached first) plus one arc per reflex vertex, attributed to the edge leaving it."""
     V = [np.asarray(p, dtype=float) for p in vertices]
@@ -168,13 +169,14 @@ def polygon_primitives(vertices, R):
         edge = V[(i + 1) % m] - V[i]
         length = float(np.linalg.norm(edge))
         e = edge / length
-        prims.append(Segment(i, V[i], e, left_normal(e), 0.0, length))
+        prims.append(Segment(first_wall + i, V[i], e, left_normal(e), 0.0, length))
     for i in range(m):
         e_in = V[i] - V[i - 1]
         e_out = V[(i + 1) % m] - V[i]
         cross = e_in[0] * e_out[1] - e_in[1] * e_out[0]
         if cross < 0:  # clockwise turn of a CCW boundary: interior angle > 180°, a reflex vertex
-            prims.append(ReflexArc(i, V[i], R, e_in / np.linalg.norm(e_in), e_out / np.linalg.norm(e_out)))
+            prims.append(ReflexArc(first_wall + i, V[i], R, e_in / np.linalg.norm(e_in),
+                                   e_out / np.linalg.norm(e_out)))
     return prims
 
 
@@ -182,87 +184,37 @@ class Table:
     """The table seen by the ball's centre: dimension, wall names (SPEC §2 order), primitives, tangent axes."""
 
     def __init__(self, spec, R):
+        # the walls as data from the registry of table kinds (rbx.tables): lines, planes, circles and polygons
+        # in the table's own coordinates; everything from here on (shrinking, collision times, normals) is this
+        # module's own
+        from rbx import tables
         kind = spec["kind"]
+        params = {k: v for k, v in spec.items() if k != "kind"}
         self.kind = kind
         self.R = R
-        inf = math.inf
         self.tangent_axes = {}
-        if kind == "strip":
-            w = float(spec["width"])
-            self.dim = 2
-            self.names = ["bottom", "top"]
-            self.primitives = [
-                Segment(0, [0.0, 0.0], [1.0, 0.0], [0.0, 1.0], -inf, inf),
-                Segment(1, [0.0, w], [1.0, 0.0], [0.0, -1.0], -inf, inf),
-            ]
-            self.scale = w
-        elif kind == "circle":
-            r = float(spec["radius"])
-            self.dim = 2
-            self.names = ["rim"]
-            self.primitives = [Rim(0, [0.0, 0.0], r - R)]
-            self.scale = r
-        elif kind == "wedge":
-            phi = math.radians(float(spec["angle_deg"]))
-            self.dim = 2
-            self.names = ["wall0", "wall1"]
-            e1 = np.array([math.cos(phi), math.sin(phi)])
-            self.primitives = [
-                Segment(0, [0.0, 0.0], [1.0, 0.0], [0.0, 1.0], 0.0, inf),
-                # wall1 is traversed towards the vertex by a CCW boundary, so its inward normal is left_normal(-e1)
-                Segment(1, [0.0, 0.0], e1, left_normal(-e1), 0.0, inf),
-            ]
-            self.scale = 1.0
-        elif kind == "rectangle":
-            w, h = float(spec["width"]), float(spec["height"])
-            self.dim = 2
-            self.names = ["bottom", "right", "top", "left"]
-            self.primitives = polygon_primitives([[0, 0], [w, 0], [w, h], [0, h]], R)
-            self.scale = max(w, h)
-        elif kind == "polygon":
-            verts = spec["vertices"]
-            self.dim = 2
-            self.names = ["edge%d" % i for i in range(len(verts))]
-            self.primitives = polygon_primitives(verts, R)
-            self.vertices = [np.asarray(p, dtype=float) for p in verts]
-            self.scale = max(float(np.linalg.norm(p)) for p in self.vertices)
-        elif kind == "plates":
-            g = float(spec["gap"])
-            self.dim = 3
-            self.names = ["bottom", "top"]
-            lo, hi = [-inf] * 3, [inf] * 3
-            self.primitives = [
-                Plane(0, [0, 0, 0], [0, 0, 1], lo, hi),
-                Plane(1, [0, 0, g], [0, 0, -1], lo, hi),
-            ]
-            x, y = np.eye(3)[0], np.eye(3)[1]
-            self.tangent_axes = {0: (x, y), 1: (x, y)}
-            self.scale = g
-        elif kind == "box":
-            size = [float(s) for s in spec["size"]]
-            self.dim = 3
-            self.names = ["left", "right", "front", "back", "bottom", "top"]
-            lo = [R, R, R]
-            hi = [s - R for s in size]
-            E = np.eye(3)
-            self.primitives = []
-            for axis in range(3):
-                for side in range(2):
-                    base = np.zeros(3)
-                    base[axis] = 0.0 if side == 0 else size[axis]
-                    normal = E[axis] * (1.0 if side == 0 else -1.0)
-                    plo, phi_ = list(lo), list(hi)
-                    plo[axis], phi_[axis] = -inf, inf  # the normal coordinate is fixed by the plane itself
-                    self.primitives.append(Plane(2 * axis + side, base, normal, plo, phi_))
-            others = {0: (1, 2), 1: (0, 2), 2: (0, 1)}
-            for axis in range(3):
-                t1, t2 = others[axis]
-                for side in range(2):
-                    self.tangent_axes[2 * axis + side] = (E[t1], E[t2])
-            self.scale = max(size)
-        else:
-            raise ValueError("unknown table kind %r" % kind)
-        self.scale = max(1.0, self.scale)
+        self.primitives = []
+        pieces = tables.walls(kind, params)
+        self.names = tables.wall_names(pieces)
+        self.dim = tables.kind(kind).dimension
+        wall = 0
+        for piece in pieces:
+            if isinstance(piece, tables.Polygon):
+                self.primitives += polygon_primitives(piece.vertices, R, first_wall=wall)
+                self.vertices = [np.asarray(p, dtype=float) for p in piece.vertices]
+                wall += len(piece.names)
+                continue
+            if isinstance(piece, tables.Circle):
+                self.primitives.append(Rim(wall, piece.center, float(piece.radius) - R))
+            elif isinstance(piece, tables.Line):
+                self.primitives.append(Segment(wall, piece.point, tables.unit(piece.direction),
+                                               tables.unit(piece.normal), piece.s_min, piece.s_max))
+            else:  # a plane: contact points within the table's box shrunk by R (±inf stays unbounded)
+                self.primitives.append(Plane(wall, piece.point, piece.normal, np.asarray(piece.lo, float) + R,
+                                             np.asarray(piece.hi, float) - R))
+                self.tangent_axes[wall] = tuple(np.asarray(t, dtype=float) for t in piece.tangents)
+            wall += 1
+        self.scale = max(1.0, float(tables.kind(kind).scale(params)))
 
 
 def collision_time(prim, a, v, R, scale):

@@ -5,13 +5,14 @@ import pytest
 
 from rbx import config
 from rbx.geometry import CONCAVE_ARC, CONVEX_ARC, HALFSPACE, SEGMENT
+from rbx.model import RECORD_FIELDS
 from rbx.physics import energy, spin_matrix
 from rbx.simulate import run_in_memory
 
 from catalog import SCENES, scene
 
 N = 100_000
-ALL = ("time", "position", "velocity", "angular_velocity", "orientation", "wall", "rank")
+ALL = RECORD_FIELDS
 
 
 def run(name, collisions=N, record=ALL):

@@ -4,6 +4,7 @@ import numpy as np
 import pytest
 
 from rbx import config
+from rbx.model import RECORD_FIELDS
 from rbx.rng import PURPOSE_RULES, uniforms
 from rbx.simulate import run_in_memory
 
@@ -17,7 +18,7 @@ COLLISIONS = 150
 #: collision ~85, so there the continuous fields are compared over the first 60.
 CONTINUOUS = 100
 CHAOTIC = {"box-hemisphere": 60, "star-polygon-hemisphere": 60}
-FIELDS = ("time", "position", "velocity", "angular_velocity", "orientation", "wall", "rank")
+FIELDS = RECORD_FIELDS
 
 
 @pytest.mark.parametrize("name", sorted(SCENES))

@@ -12,7 +12,7 @@ from rbx.simulate import run_in_memory
 
 from catalog import SCENES, scene
 
-FIELDS = ("time", "position", "velocity", "angular_velocity", "orientation", "wall", "rank")
+from rbx.model import RECORD_FIELDS as FIELDS
 SHORT = 60          # collisions compared field by field (the chaotic scenes stay within 1e-10 that long)
 DISCRETE = 150      # collisions whose walls and ranks must agree
 
