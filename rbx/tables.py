@@ -299,14 +299,15 @@ def _box_walls(p):
 
 
 def _fits_width(name, what):
+    """A ball fits between two parallel walls ``p[name]`` apart when 2R is less: ``what`` names them, with {}."""
     def fits(p, R, geom):
-        return f"does not fit {what} {_g(p[name])}" if 2 * R >= p[name] else None
+        return "does not fit " + what.format(_g(p[name])) if 2 * R >= p[name] else None
     return fits
 
 
 register(TableKind(
     "strip", 2, "infinite along x, walls y = 0 and y = width", {"width": positive},
-    walls=_strip_walls, build=geometry.strip, fits=_fits_width("width", "in a strip of width"),
+    walls=_strip_walls, build=geometry.strip, fits=_fits_width("width", "in a strip of width {}"),
     scale=lambda p: p["width"], phrase=lambda p: f"in a strip of width {_g(p['width'])}", draw=_draw_strip,
     example={"width": 1.0}))
 register(TableKind(
@@ -335,7 +336,7 @@ register(TableKind(
     example={"vertices": [[0.0, 0.0], [2.0, 0.0], [2.0, 1.0], [1.0, 1.0], [1.0, 2.0], [0.0, 2.0]]}))
 register(TableKind(
     "plates", 3, "infinite in x and y, walls z = 0 and z = gap", {"gap": positive},
-    walls=_plates_walls, build=geometry.plates, fits=_fits_width("gap", "between plates"),
+    walls=_plates_walls, build=geometry.plates, fits=_fits_width("gap", "between plates {} apart"),
     scale=lambda p: p["gap"], phrase=lambda p: f"between plates {_g(p['gap'])} apart", draw=_draw_nothing,
     example={"gap": 1.0}))
 register(TableKind(
