@@ -450,7 +450,8 @@ def _rule(r, key, n, c, geom, wall_ids):
         c.mapping(r, key, ("rule", "axis", "rough", "smooth"), ("axis", "rough", "smooth"))
         axis = c.nonzero_vector(r["axis"], _join(key, "axis"), n)
         norm = np.linalg.norm(axis)
-        if not np.isfinite(norm):   # huge components: normalise in two steps so that the norm does not overflow
+        if not np.isfinite(norm) or norm < 1e-150:
+            # huge or tiny components: normalise in two steps so that the norm neither overflows nor underflows
             axis = axis / np.max(np.abs(axis))
             norm = np.linalg.norm(axis)
         return Hemisphere(tuple(axis / norm), _rule(r["rough"], _join(key, "rough"), n, c, geom, wall_ids),
@@ -469,6 +470,24 @@ def _rule(r, key, n, c, geom, wall_ids):
 
 
 STATE_KEYS = ("position", "velocity", "angular_velocity", "orientation")
+#: the smallest initial kinetic energy accepted (10⁴ × the smallest normal float, 2.2e-308): below it the energy
+#: and the squares of speeds are subnormal or zero, and the energy projection divides by them
+MIN_ENERGY = 1e-304
+#: the largest square of a spin the kernels may meet (ω² in the energy; well below overflow)
+MAX_SPIN_SQUARE = 1e306
+
+
+def _check_spin_range(speed, spin, R, c, key):
+    """The kernels square spin components (the energy): a collision gives the ball spins of order |v|/R, so
+    (|v|/R)² and the initial ω² must stay finite — else the state becomes NaN, not just inexact. A radius so
+    small (or a spin so large) that they do not is refused. (The stress cases at speeds ×1e±150 stay inside.)"""
+    with np.errstate(all="ignore"):
+        reach = speed / R
+    if not reach * reach < MAX_SPIN_SQUARE:
+        c.fail("ball.radius", f"{R:g} is too small for speeds of {speed:.3g}: the spin of order |v|/R a collision "
+                              "gives the ball overflows when squared")
+    if not spin * spin < MAX_SPIN_SQUARE:
+        c.fail(key, f"too large: {spin:.3g} overflows when squared")
 
 
 def _initial(init, n, c, geom, kind, R, kappa, names):
@@ -483,6 +502,8 @@ def _initial(init, n, c, geom, kind, R, kappa, names):
         if not geom.can_sample:
             c.fail("initial.wall" if wall else "initial.sample", f"the {kind}'s walls are infinite: the billiard "
                                                                  "measure on them cannot be normalised")
+        # sampled states have unit speed in (v, R√κ·ω): |v| ≤ 1, |ω| ≤ 1/(R√κ)
+        _check_spin_range(1.0, 1.0 / (R * math.sqrt(kappa)), R, c, "ball.inertia")
         return ("sample", idx), 1
     states = init if isinstance(init, list) else [init]
     if not states:
@@ -506,6 +527,12 @@ def _initial(init, n, c, geom, kind, R, kappa, names):
             energy = 0.5 * (np.sum(vel * vel) + kappa * R * R * np.sum(np.square(spin)))
         if not np.isfinite(energy):
             c.fail(_join(key, "velocity"), "too large: the kinetic energy ½(|v|² + 2λ|ω|²) overflows")
+        if not energy >= MIN_ENERGY:
+            c.fail(_join(key, "velocity"), f"too small: the kinetic energy ½(|v|² + 2λ|ω|²) is {energy:.3g}, below "
+                                           f"{MIN_ENERGY:g}; flight times and energies would underflow (scale the "
+                                           "velocities up, or the unit of time down)")
+        _check_spin_range(float(np.linalg.norm(vel)), float(np.linalg.norm(spin)), R, c,
+                          _join(key, "angular_velocity"))
         with np.errstate(all="ignore"):
             clearance = float(geom.clearance(pos))
         if not clearance >= -1e-12 * geom.size:   # written so that a NaN fails too

@@ -205,3 +205,24 @@ def test_numerics_reach_the_engine(experiment):
         finals[period] = sink.final
     assert not np.array_equal(finals[16]["velocity"], finals[0]["velocity"])
     np.testing.assert_allclose(finals[16]["velocity"], finals[0]["velocity"], rtol=1e-9)
+
+
+def test_a_tiny_hemisphere_axis_is_normalised_not_nan():
+    # [1e-320, 0] has a norm that underflows to 0: normalised in two steps it is the unit vector (1, 0)
+    c = {"table": {"kind": "strip", "width": 1}, "ball": {"radius": 0.1},
+         "boundary": {"default": {"rule": "hemisphere", "axis": [1e-320, 0], "rough": {"rule": "constant", "rank": 1},
+                                  "smooth": {"rule": "constant", "rank": 0}}},
+         "initial": {"position": [0, 0.5], "velocity": [0.6, 0.8]}}
+    assert config.from_dict(c).wall_rules[0].axis == (1.0, 0.0)
+
+
+@pytest.mark.parametrize("scale", [1e-150, 1e150])
+def test_extreme_speeds_inside_the_limits_run_without_nan(scale):
+    from rbx.simulate import run_in_memory
+    c = {"table": {"kind": "rectangle", "width": 1, "height": 1}, "ball": {"radius": 0.1},
+         "boundary": {"default": {"rule": "constant", "rank": 1}},
+         "initial": {"position": [0.5, 0.5], "velocity": [0.6 * scale, 0.8 * scale], "angular_velocity": scale},
+         "run": {"collisions": 2000}, "output": {"record": ["time", "velocity", "angular_velocity"]}}
+    rec, count, final = run_in_memory(config.from_dict(c))
+    assert count[0] == 2001 and final["alive"][0]
+    assert all(np.all(np.isfinite(v)) for v in rec.values())
