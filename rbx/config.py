@@ -38,14 +38,39 @@ PROBABILITY_SUM_TOLERANCE = 1e-9
 # ---- YAML -----------------------------------------------------------------------------------------------------
 
 class _Loader(yaml.SafeLoader):
-    """Safe YAML with two fixes for configs: ``1e6`` is a number (YAML 1.2; PyYAML reads it as text) and a key
-    given twice in one mapping is an error (PyYAML keeps the last one silently)."""
+    """Safe YAML with numbers read by the rules of YAML 1.2 (its core schema), not PyYAML's YAML 1.1: ``1e6`` is
+    a number (1.1: text), ``010`` is ten (1.1: octal 8), ``1:30`` is text (1.1: sexagesimal 90), ``0o17`` octal,
+    ``0x1f`` hexadecimal (``1_000`` is still a thousand); and a key given twice in one mapping is an error (PyYAML keeps the last one silently)."""
 
 
+_INT, _FLOAT = "tag:yaml.org,2002:int", "tag:yaml.org,2002:float"
+_Loader.yaml_implicit_resolvers = {
+    first: [(tag, rx) for tag, rx in resolvers if tag not in (_INT, _FLOAT)]
+    for first, resolvers in yaml.SafeLoader.yaml_implicit_resolvers.items()}
+_Loader.add_implicit_resolver(_INT, re.compile(r"^(?:[-+]?[0-9][0-9_]*|0o[0-7]+|0x[0-9a-fA-F]+)$"),
+                              list("-+0123456789"))
 _Loader.add_implicit_resolver(
-    "tag:yaml.org,2002:float",
-    re.compile(r"^[-+]?(?:[0-9][0-9_]*)(?:[eE][-+]?[0-9]+)$"),
-    list("-+0123456789"))
+    _FLOAT, re.compile(r"^(?:[-+]?(?:\.[0-9]+|[0-9][0-9_]*(?:\.[0-9_]*)?)(?:[eE][-+]?[0-9]+)?|[-+]?\.(?:inf|Inf|INF)"
+                       r"|\.(?:nan|NaN|NAN))$"), list("-+0123456789."))
+
+#: the longest integer read (Python refuses to convert more than 4300 digits, with a traceback)
+MAX_INT_DIGITS = 4000
+
+
+def _construct_int(loader, node):
+    text = loader.construct_scalar(node).replace("_", "")     # 1_000_000: digits grouped, as in Python
+    digits = text.lstrip("+-")
+    if len(digits) > MAX_INT_DIGITS:
+        raise yaml.constructor.ConstructorError(None, None, f"an integer of {len(digits)} digits is too long",
+                                                node.start_mark)
+    if digits.startswith("0o"):
+        return int(text.replace("0o", "", 1), 8)
+    if digits.startswith("0x"):
+        return int(text, 16)
+    return int(text, 10)
+
+
+_Loader.add_constructor(_INT, _construct_int)
 
 
 def _construct_mapping(loader, node, deep=False):

@@ -226,3 +226,10 @@ def test_extreme_speeds_inside_the_limits_run_without_nan(scale):
     rec, count, final = run_in_memory(config.from_dict(c))
     assert count[0] == 2001 and final["alive"][0]
     assert all(np.all(np.isfinite(v)) for v in rec.values())
+
+
+def test_numbers_follow_yaml_1_2():
+    # a leading zero is decimal (YAML 1.1: octal), 0o/0x prefixes as in YAML 1.2, digits may be grouped with _
+    data = config.parse_yaml("a: 010\nb: 0o17\nc: 0x1f\nd: 1_000_000\ne: 1e6\nf: 1:30\ng: .5\n", "f")
+    assert data == {"a": 10, "b": 15, "c": 31, "d": 1000000, "e": 1e6, "f": "1:30", "g": 0.5}
+    assert isinstance(data["e"], float) and isinstance(data["d"], int)

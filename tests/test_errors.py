@@ -79,6 +79,13 @@ CASES = {
     "yaml-top-text": ({"exp.yaml": "just words\n"}, None, [], "exp.yaml", None, "expected a mapping"),
     "yaml-duplicate-key": ({"exp.yaml": yaml.safe_dump(BASE) + "run: {collisions: 5}\n"}, None, [], "exp.yaml",
                            None, "duplicate key 'run'"),
+    # YAML 1.1 number forms are not numbers here (1:30 was read as 90, 010 as 8): YAML 1.2 rules
+    "yaml-sexagesimal": ({"exp.yaml": yaml.safe_dump({k: v for k, v in BASE.items() if k != "run"})
+                                      + "run: {collisions: 1:30}\n"}, None, [], "exp.yaml", "run.collisions",
+                         "expected an integer, got the text '1:30'"),
+    "yaml-long-integer": ({"exp.yaml": yaml.safe_dump({k: v for k, v in BASE.items() if k != "run"})
+                                       + "run: {collisions: " + "9" * 5000 + "}\n"}, None, [], "exp.yaml", None,
+                          "5000 digits is too long"),
     "not-utf8": ({"exp.yaml": b"table: \xff\xfe\n"}, None, [], "exp.yaml", None, "UTF-8"),
     "config-missing": ({}, None, ["nope.yaml"], "nope.yaml", None, "file not found"),
     "config-is-dir": ({"adir/x.yaml": "a: 1"}, None, ["adir"], "adir", None, "directory"),
