@@ -92,10 +92,59 @@ def _construct_mapping(loader, node, deep=False):
 _Loader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
 
 
-def parse_yaml(text, file, key=None):
-    """YAML text -> data, or :class:`ConfigError` naming ``file`` and the line of a syntax error."""
+#: the most values a config may hold once its YAML aliases are expanded: a real experiment has a few hundred;
+#: aliases nested 20 deep (each naming the one before twice) expand to a million and took minutes to validate
+MAX_CONFIG_VALUES = 100_000
+
+
+def expanded_size(data, limit=MAX_CONFIG_VALUES):
+    """How many values ``data`` holds with every shared (aliased) part counted each time it is used -> int,
+    counting stops past ``limit``; ``inf`` for a part that contains itself (`&a [*a]`). Linear in the number of
+    distinct objects (shared parts are counted once each)."""
+    memo = {}
+
+    def size(x):
+        if not isinstance(x, (dict, list, tuple)):
+            return 1
+        key = id(x)
+        if key in memo:
+            if memo[key] is None:
+                raise _Cycle
+            return memo[key]
+        memo[key] = None             # being counted: meeting it again inside itself is a cycle
+        items = list(x.keys()) + list(x.values()) if isinstance(x, dict) else x
+        total = 1
+        for item in items:
+            total += size(item)
+            if total > limit:
+                break
+        memo[key] = total
+        return total
+
     try:
-        return yaml.load(text, Loader=_Loader)
+        return size(data)
+    except _Cycle:
+        return math.inf
+
+
+class _Cycle(Exception):
+    pass
+
+
+def _check_size(data, file, key=None):
+    n = expanded_size(data)
+    if n == math.inf:
+        raise ConfigError(file, key, "the config is nested too deeply (an alias that refers to itself?)")
+    if n > MAX_CONFIG_VALUES:
+        raise ConfigError(file, key, f"the config holds more than {MAX_CONFIG_VALUES:,} values once its YAML aliases "
+                                     "are expanded (a bomb of nested aliases?)")
+
+
+def parse_yaml(text, file, key=None):
+    """YAML text -> data, or :class:`ConfigError` naming ``file`` and the line of a syntax error (or a config
+    whose aliases expand beyond :data:`MAX_CONFIG_VALUES`)."""
+    try:
+        data = yaml.load(text, Loader=_Loader)
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
@@ -103,6 +152,8 @@ def parse_yaml(text, file, key=None):
         raise ConfigError(file, key, f"YAML syntax error: {where}{problem}") from None
     except RecursionError:
         raise ConfigError(file, key, "the YAML is nested too deeply") from None
+    _check_size(data, file, key)
+    return data
 
 
 def _read_yaml(path, key=None):
@@ -250,6 +301,7 @@ def loads(text, source, overrides=None):
 def from_dict(data, source="<config>", overrides=None):
     """Validate a config mapping (paths relative to ``source``'s folder) -> :class:`rbx.model.Experiment`."""
     try:
+        _check_size(data, source)
         return _from_dict(data, str(source), overrides or {})
     except RecursionError:
         # a YAML alias that contains itself (`&a [*a]`) would otherwise recurse without end

@@ -233,3 +233,14 @@ def test_numbers_follow_yaml_1_2():
     data = config.parse_yaml("a: 010\nb: 0o17\nc: 0x1f\nd: 1_000_000\ne: 1e6\nf: 1:30\ng: .5\n", "f")
     assert data == {"a": 10, "b": 15, "c": 31, "d": 1000000, "e": 1e6, "f": "1:30", "g": 0.5}
     assert isinstance(data["e"], float) and isinstance(data["d"], int)
+
+
+def test_expanded_size_counts_shared_parts_each_time():
+    leaf = [1, 2]
+    assert config.expanded_size({"a": leaf, "b": leaf}) == 1 + 2 * (1 + 2) + 2     # the dict, two lists, two keys
+    loop = []
+    loop.append(loop)                                                             # `&a [*a]`
+    assert config.expanded_size(loop) == float("inf")
+    with pytest.raises(ConfigError) as info:
+        config.from_dict({"table": loop})
+    assert "refers to itself" in info.value.problem

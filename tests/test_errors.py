@@ -86,6 +86,10 @@ CASES = {
     "yaml-long-integer": ({"exp.yaml": yaml.safe_dump({k: v for k, v in BASE.items() if k != "run"})
                                        + "run: {collisions: " + "9" * 5000 + "}\n"}, None, [], "exp.yaml", None,
                           "5000 digits is too long"),
+    # an alias bomb: 20 rules each naming the one before twice expand to a million values (took minutes)
+    "yaml-alias-bomb": ({"exp.yaml": yaml.safe_dump(BASE) + "defs:\n  - &a0 {rule: constant, rank: 1}\n" + "".join(
+        f"  - &a{i} {{rule: hemisphere, axis: [0, 1], rough: *a{i - 1}, smooth: *a{i - 1}}}\n" for i in range(1, 21))},
+        None, [], "exp.yaml", None, "aliases are expanded"),
     "not-utf8": ({"exp.yaml": b"table: \xff\xfe\n"}, None, [], "exp.yaml", None, "UTF-8"),
     "config-missing": ({}, None, ["nope.yaml"], "nope.yaml", None, "file not found"),
     "config-is-dir": ({"adir/x.yaml": "a: 1"}, None, ["adir"], "adir", None, "directory"),
