@@ -397,7 +397,7 @@ def _include(value, key, base, c):
     if isinstance(value, str):
         if not value.strip():
             c.fail(key, "expected a file name or a mapping, got an empty text")
-        path = os.path.normpath(os.path.join(base, value))
+        path = os.path.normpath(os.path.join(base, os.path.expanduser(value)))
         if not os.path.exists(path):
             c.fail(key, f"file not found: {path}")
         return _read_yaml(path), path
@@ -471,7 +471,10 @@ def _output(out, base, c):
     if opath is not None:
         if not isinstance(opath, str) or not opath.strip():
             c.fail("output.path", f"expected a file name, got {_kind(opath)}")
-        opath = os.path.normpath(os.path.join(base, opath))
+        if opath.endswith(("/", os.sep)):
+            c.fail("output.path", f"'{opath}' names a folder; give a file name such as {opath.rstrip('/')}/run.h5")
+        # ~ is the home folder, as in a shell (it used to create a folder named '~')
+        opath = os.path.normpath(os.path.join(base, os.path.expanduser(opath)))
     record = out.get("record", list(RECORD_FIELDS))
     if record is None:
         record = []

@@ -244,3 +244,13 @@ def test_expanded_size_counts_shared_parts_each_time():
     with pytest.raises(ConfigError) as info:
         config.from_dict({"table": loop})
     assert "refers to itself" in info.value.problem
+
+
+def test_paths_expand_the_home_folder_and_refuse_folders(experiment, monkeypatch, tmp_path):
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    text = experiment.read_text()
+    experiment.write_text(text.replace("path: runs/strip.h5", "path: ~/runs/x.h5"))
+    assert config.load(experiment).output.path == str(tmp_path / "home" / "runs" / "x.h5")
+    experiment.write_text(text.replace("path: runs/strip.h5", "path: runs/"))
+    err = error_of(experiment)
+    assert err.key == "output.path" and "names a folder" in err.problem
