@@ -10,6 +10,8 @@
 """
 import hashlib
 import os
+import sys
+import tempfile
 
 import numba
 from numba import types
@@ -19,21 +21,48 @@ from numba.np.arrayobj import make_array, populate_array
 
 #: every module that defines kernels (tests/test_jit.py checks the list is complete)
 KERNEL_MODULES = ("_jit", "engine", "geometry", "physics", "rng", "rules")
+#: modules whose values the kernels compile in as constants (the record bits of rbx.model.FIELDS): the cache key
+#: covers them too
+KERNEL_CONSTANTS = ("model",)
 
 
 def kernel_source_hash():
     h = hashlib.sha256(numba.__version__.encode())
     here = os.path.dirname(os.path.abspath(__file__))
-    for name in KERNEL_MODULES:
+    for name in KERNEL_MODULES + KERNEL_CONSTANTS:
         with open(os.path.join(here, name + ".py"), "rb") as f:
             h.update(f.read())
     return h.hexdigest()[:16]
 
 
+def _writable(folder):
+    """Whether compiled kernels can be stored in ``folder`` (made if missing; a probe file written and removed)."""
+    try:
+        os.makedirs(folder, mode=0o700, exist_ok=True)
+        fd, probe = tempfile.mkstemp(dir=folder, prefix=".probe-")
+        os.close(fd)
+        os.remove(probe)
+        return True
+    except OSError:
+        return False
+
+
 def _cache_dir():
+    """The kernel cache folder, keyed by the kernels' source. If it cannot be written (a read-only or invalid
+    ``NUMBA_CACHE_DIR``, a read-only home), a private folder in the temporary directory keyed the same way, with
+    one warning line: Numba's own fallback, the package's ``__pycache__``, is keyed by file timestamps only and
+    served stale kernels after an edit of an inlined helper."""
+    name = "numba-" + kernel_source_hash()
     base = os.environ.get("NUMBA_CACHE_DIR") or os.path.join(
         os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache"), "rbx")
-    return os.path.join(base, "numba-" + kernel_source_hash())
+    folder = os.path.join(base, name)
+    if _writable(folder):
+        return folder
+    private = os.path.join(tempfile.gettempdir(), f"rbx-{os.getuid() if hasattr(os, 'getuid') else 'user'}", name)
+    if not (_writable(private) and (not hasattr(os, "getuid") or os.stat(private).st_uid == os.getuid())):
+        private = tempfile.mkdtemp(prefix=f"rbx-{name}-")
+    sys.stderr.write(f"rbx: warning: cannot write the kernel cache {folder}; compiled kernels go to {private}\n")
+    return private
 
 
 # read by Numba when a kernel is decorated below (its cache locator), so it must be set before any of them

@@ -1,0 +1,42 @@
+"""The kernel cache (rbx/_jit.py): keyed by the kernels' source, and a folder that cannot be written falls back to
+a private temporary folder keyed the same way, with one warning line — never to Numba's own fallback (the
+package's __pycache__, keyed by file timestamps only, which served stale kernels after an edit)."""
+import os
+import subprocess
+import sys
+
+import h5py
+import numpy as np
+
+from rbx import _jit
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+CONFIG = os.path.join(ROOT, "configs", "examples", "strip.yaml")
+RBX = os.path.join(os.path.dirname(sys.executable), "rbx")
+
+
+def _run(tmp_path, out, env_changes):
+    env = dict(os.environ, **env_changes)
+    return subprocess.run([RBX, "simulate", CONFIG, "-o", str(out), "--force",
+                           "--collisions", "200", "--quiet"], capture_output=True, text=True, env=env, timeout=300,
+                          cwd=tmp_path)
+
+
+def test_the_cache_key_covers_the_kernels_and_their_constants():
+    assert set(_jit.KERNEL_MODULES) >= {"engine", "geometry", "physics", "rng", "rules", "_jit"}
+    assert "model" in _jit.KERNEL_CONSTANTS       # engine compiles the record bits of rbx.model.FIELDS in
+    assert _jit.kernel_source_hash() in _jit.numba.config.CACHE_DIR
+
+
+def test_an_unwritable_cache_falls_back_to_a_private_folder(tmp_path):
+    blocker = tmp_path / "not-a-folder"
+    blocker.write_text("a file where the cache folder should be")
+    good = _run(tmp_path, tmp_path / "good.h5", {})
+    bad = _run(tmp_path, tmp_path / "bad.h5", {"NUMBA_CACHE_DIR": str(blocker / "cache")})
+    assert good.returncode == 0 and bad.returncode == 0, bad.stderr
+    warnings = [line for line in bad.stderr.splitlines() if line.startswith("rbx: warning: cannot write the kernel")]
+    assert len(warnings) == 1, bad.stderr
+    assert "numba-" + _jit.kernel_source_hash() in warnings[0]    # the fallback is keyed like the normal folder
+    with h5py.File(tmp_path / "good.h5") as a, h5py.File(tmp_path / "bad.h5") as b:
+        for f in a["collisions"]:
+            np.testing.assert_array_equal(a["collisions"][f][...], b["collisions"][f][...])
