@@ -7,13 +7,11 @@
   coordinates of the boundary map (arc length s, sin of the angle to the normal);
 - diffusion: mean-square displacement and the diffusion coefficient with a confidence interval, growth
   exponents of excursions, the exact expected MSD of the random-rank strip, and the velocity an orbit between
-  parallel walls keeps forever (the part of its state that no collision map can change);
-- reading an rbx HDF5 file (SPEC §5) with one-line errors for the CLI (:class:`RunFileError`).
+  parallel walls keeps forever (the part of its state that no collision map can change).
 
 Units: lengths in the table's unit L, times in the unit T of the config's velocities; a "step" is one collision.
 """
 import math
-import os
 from dataclasses import dataclass
 
 import numpy as np
@@ -440,113 +438,6 @@ def _rule_directions(rule, nu, wall, n):
     direction = ("deg", float(rule["direction_deg"])) if "direction_deg" in rule else \
         ("vector", [float(x) for x in rule["direction"]])
     return [np.array(roughness_direction(direction, t1, t2))]
-
-
-# ---- reading runs ----------------------------------------------------------------------------------------------
-
-
-class RunFileError(Exception):
-    """A file that cannot be read as an rbx run: ``<file>: <problem>``."""
-
-    def __init__(self, file, problem):
-        self.file, self.problem = str(file), problem
-        super().__init__(f"{file}: {problem}")
-
-
-REQUIRED_ATTRS = ("dimension", "config", "table_kind", "radius", "kappa", "wall_names")
-
-
-class RunFile:
-    """An rbx HDF5 run (SPEC §5), opened read-only and checked: ``with RunFile(path) as run: run.read(...)``."""
-
-    def __init__(self, path):
-        import h5py
-        import yaml
-        self.path = str(path)
-        if not os.path.exists(self.path):
-            raise RunFileError(self.path, "file not found")
-        if os.path.isdir(self.path):
-            raise RunFileError(self.path, "is a directory, not an HDF5 file")
-        try:
-            self.h5 = h5py.File(self.path, "r")
-        except OSError:
-            raise RunFileError(self.path, "not an HDF5 file (or unreadable)") from None
-        try:
-            a = self.h5.attrs
-            missing = [k for k in REQUIRED_ATTRS if k not in a]
-            if missing:
-                raise RunFileError(self.path, f"not an rbx run: no root attribute '{missing[0]}'")
-            if "collisions" not in self.h5:
-                what = " (it holds return angles from rbx histogram)" if "returns" in self.h5 else ""
-                raise RunFileError(self.path, f"not an rbx run: no group 'collisions'{what}")
-            g = self.h5["collisions"]
-            for k in ("count", "step"):
-                if k not in g:
-                    raise RunFileError(self.path, f"not an rbx run: no dataset 'collisions/{k}'")
-            self.dimension = int(a["dimension"])
-            self.table_kind = _text(a["table_kind"])
-            self.wall_names = [_text(x) for x in a["wall_names"]]
-            self.radius = float(a["radius"])
-            self.kappa = float(a["kappa"])
-            self.complete = bool(a.get("complete", True))
-            try:
-                self.config = yaml.safe_load(_text(a["config"]))
-            except yaml.YAMLError:
-                raise RunFileError(self.path, "the root attribute 'config' is not valid YAML") from None
-            if not isinstance(self.config, dict) or not isinstance(self.config.get("table"), dict):
-                raise RunFileError(self.path, "the root attribute 'config' has no resolved 'table' mapping")
-            self.fields = [k for k in g if k not in ("count", "step")]
-            self.count = g["count"][...]
-            self.steps = g["step"][...]
-            self.trajectories = len(self.count)
-            self.records = len(self.steps)
-            every = self.config.get("output", {}).get("every", 1) if isinstance(self.config.get("output"), dict) \
-                else 1
-            self.every = int(every or 1)
-        except Exception:
-            self.h5.close()
-            raise
-
-    def __enter__(self):
-        return self
-
-    def __exit__(self, *exc):
-        self.close()
-
-    def close(self):
-        self.h5.close()
-
-    def require(self, fields, why):
-        """Raise a RunFileError unless every field was recorded."""
-        missing = [f for f in fields if f not in self.fields]
-        if missing:
-            raise RunFileError(self.path, f"has no collisions/{missing[0]}: {why} needs "
-                                          f"{', '.join(fields)} (list them in output.record)")
-
-    def read(self, field, trajectories, records=slice(None)):
-        """One recorded field for the given trajectories (sorted list) and record slice -> (len, T, …) array."""
-        ds = self.h5["collisions"][field]
-        idx = sorted(trajectories)
-        if idx == list(range(idx[0], idx[-1] + 1)):
-            idx = slice(idx[0], idx[-1] + 1)       # a contiguous block reads much faster than a point selection
-        start, stop, stride = records.indices(ds.shape[1])
-        if stride != 1:
-            return ds[idx, start:stop][:, ::stride]
-        return ds[idx, start:stop]
-
-    def geometry(self):
-        from . import tables
-        table = {k: v for k, v in self.config["table"].items() if k != "kind"}
-        return tables.build(self.table_kind, table, self.radius)
-
-    def scene(self):
-        """A title naming the scene and rule: 'disc (R = 0.1, κ = 0.5) in a 2 × 1 rectangle · rough'."""
-        return scene_title(self.dimension, self.table_kind, self.config.get("table", {}), self.radius, self.kappa,
-                           self.config.get("boundary", {}), self.wall_names)
-
-
-def _text(x):
-    return x.decode() if isinstance(x, bytes) else str(x)
 
 
 # ---- describing scenes -----------------------------------------------------------------------------------------

@@ -7,7 +7,8 @@ billiard measure predicts: density ∝ cos φ·sin^(d−2) φ, distribution func
 
 The return map of a wall is the first-return map of the boundary map to that wall, so it preserves the billiard
 measure restricted to the wall whenever the boundary map preserves it (Theorem `invariance`). The post-collision
-state is the one compared: it is the state the boundary map acts on.
+state is the one compared: it is the state the boundary map acts on. The file of ``rbx histogram`` (group
+``returns/``) is written and read by :mod:`rbx.runfile` (``write_returns``, ``read_returns``).
 """
 import dataclasses
 import time
@@ -110,36 +111,3 @@ def first_flight_times(cfg, _spin_scale=1.0):
     sim.run(_NullSink())
     fin = sim.final_state()
     return np.where(fin["collisions"] > 0, fin["time"], np.inf)
-
-
-def write_returns(path, cfg, result):
-    """Write the experiment to a new HDF5 file (via ``path.partial``, renamed at the end).
-
-    Root attributes as for ``rbx simulate`` (SPEC §5); group ``returns/``: ``angle`` (K,) return angles [rad],
-    ``trajectory`` (K,) their trajectory indices, ``collisions`` (K,) collisions to return, ``initial_angle``
-    (M,) sampled angles; attributes ``ks_statistic``, ``ks_pvalue``, ``wall``, ``samples``, ``returned``,
-    ``not_returned``, ``velocity_dimension``, ``predicted_density``, ``predicted_cdf``, ``seconds``."""
-    import os
-
-    from .output import open_for_writing, temporary_path, write_root_attrs
-
-    geom = cfg.geometry()
-    with open_for_writing(path) as h5:
-        write_root_attrs(h5, cfg, geom, complete=True)
-        g = h5.create_group("returns")
-        g.create_dataset("angle", data=result.angle)
-        g.create_dataset("trajectory", data=np.nonzero(result.returned)[0].astype(np.int64))
-        g.create_dataset("collisions", data=result.collisions[result.returned].astype(np.int64))
-        g.create_dataset("initial_angle", data=result.initial_angle)
-        ga = g.attrs
-        ga["wall"] = "" if result.wall is None else geom.wall_names[result.wall]
-        ga["samples"] = result.samples
-        ga["returned"] = result.samples - result.not_returned
-        ga["not_returned"] = result.not_returned
-        ga["velocity_dimension"] = result.d
-        ga["predicted_density"] = f"{result.d - 1}·cos φ·sin^{result.d - 2} φ"
-        ga["predicted_cdf"] = f"sin^{result.d - 1} φ"
-        ga["ks_statistic"] = result.ks_statistic
-        ga["ks_pvalue"] = result.ks_pvalue
-        ga["seconds"] = result.seconds
-    os.replace(temporary_path(path), path)

@@ -14,9 +14,8 @@ over from the config's initial state.
 import numpy as np
 
 from . import __version__
-from .config import loads
-from .model import RECORD_FIELDS, ConfigError
-from .output import state_digest
+from .model import ConfigError
+from .runfile import state_digest
 from .simulate import Simulation
 
 #: what ``final/`` must hold to continue (Simulation takes the rest from the config)
@@ -24,48 +23,34 @@ STATE_KEYS = ("time", "position", "velocity", "angular_velocity", "orientation",
               "last_wall", "last_rank")
 
 
-def read_config(h5, source):
-    """The validated config stored in a run file -> :class:`rbx.config.Config`; errors name ``source``."""
-    text = h5.attrs["config"]
-    if isinstance(text, bytes):
-        text = text.decode("utf-8", "replace")
-    if not isinstance(text, str):
-        raise ConfigError(source, "config", "the root attribute is not YAML text")
-    try:
-        return loads(text, source)
-    except ConfigError as exc:
-        raise ConfigError(source, f"config: {exc.key}" if exc.key else "config", exc.problem) from None
-
-
-def load(h5, source):
-    """Read an incomplete run (the file is only read) -> (Simulation, write_initial, done).
+def load(run, source):
+    """Read an incomplete run (a :class:`rbx.runfile.Run` opened from its file; the file is only read) ->
+    (Simulation, write_initial, done).
 
     ``done``: collisions already made by the trajectories still running; ``write_initial``: True when the file
     has no saved state yet and the run starts over. Raises :class:`rbx.config.ConfigError` (naming ``source``)
     if the file does not hold a run that can be continued. Then call :func:`make_consistent` on a writable copy."""
-    cfg = read_config(h5, source)
+    cfg = run.experiment
 
     def damaged(key, problem):
         return ConfigError(source, key, f"{problem}; the file cannot be resumed")
 
-    if int(h5.attrs["dimension"]) != cfg.dimension:
-        raise damaged("dimension", f"is {int(h5.attrs['dimension'])} but the stored config is {cfg.dimension}D")
-    g = h5.get("collisions")
-    if g is None or "count" not in g or "step" not in g:
-        raise damaged("collisions", "missing or without count/step")
-    recorded = tuple(f for f in RECORD_FIELDS if f in g)
+    if run.dimension != cfg.dimension:
+        raise damaged("dimension", f"is {run.dimension} but the stored config is {cfg.dimension}D")
+    recorded = run.fields
     if recorded != cfg.output.record:
         raise damaged("collisions", f"holds {', '.join(recorded) or 'no fields'} but the config records "
                                     f"{', '.join(cfg.output.record) or 'no fields'}")
     M = cfg.run.trajectories
+    g = run.h5["collisions"]
     for f in recorded + ("count",):
         if g[f].shape[0] != M:
             raise damaged(f"collisions/{f}", f"has {g[f].shape[0]} trajectories, the config {M}")
 
-    fin = h5.get("final")
-    if fin is None or any(k not in fin for k in STATE_KEYS):
+    if any(k not in run.final for k in STATE_KEYS):
         return Simulation(cfg), True, 0
-    state = {k: fin[k][...] for k in fin}
+    state = {k: np.array(v) for k, v in run.final.items()}
+    fin = run.h5["final"]
     for k in STATE_KEYS:
         if state[k].shape[:1] != (M,):
             raise damaged(f"final/{k}", f"has shape {state[k].shape}, expected {M} trajectories first")
@@ -139,11 +124,9 @@ def _reset(h5, g, cfg):
         del h5["final"]
 
 
-def version_note(h5):
+def version_note(run):
     """A warning if the file was written by another rbx version (its records may then differ in the last bits)."""
-    written = h5.attrs.get("rbx_version")
-    if isinstance(written, bytes):
-        written = written.decode()
+    written = run.attrs.get("rbx_version")
     if written != __version__:
         return f"written by rbx {written}, continued with rbx {__version__}"
     return None

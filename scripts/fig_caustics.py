@@ -13,7 +13,7 @@ from matplotlib.figure import Figure as MplFigure
 
 from figlib import Figure, arguments
 from rbx import orbits
-from rbx.analysis import RunFile
+from rbx.runfile import Run
 from rbx.plotting import draw_table_2d
 
 SHOWN = 160          # segments drawn in the orbit panel
@@ -23,7 +23,7 @@ COLOURS = ("tab:red", "tab:blue")
 
 def read_circle_run(path):
     """-> (positions, velocities, spins) per trajectory (each cut at its count), geometry, title, R, κ."""
-    with RunFile(path) as run:
+    with Run.open(path) as run:
         run.require(["position", "velocity", "angular_velocity"], "the caustics measurement")
         if run.table_kind != "circle":
             raise SystemExit(f"{path}: expected a run in a circle table, got {run.table_kind}")

@@ -18,7 +18,7 @@ from matplotlib.figure import Figure as MplFigure
 
 from figlib import Figure, arguments
 from rbx import analysis
-from rbx.analysis import RunFile
+from rbx.runfile import Run
 
 SCALES = (1e-3, 3e-2, 1.0)      # fractions of the run drawn in the three panels (10³, 3·10⁴, 10⁶ collisions)
 MEMORY_FROM = 100               # "long range": lags from 100 collisions ...
@@ -29,7 +29,7 @@ FLIGHT_SPREAD = 1e-9            # relative spread of the flight times that count
 
 def read_orbit(path):
     """-> (steps, time, x, rank, run title) of trajectory 0 of a strip run recorded at every collision."""
-    with RunFile(path) as run:
+    with Run.open(path) as run:
         run.require(["time", "position", "rank"], "the x-against-step figure")
         if run.table_kind != "strip":
             raise SystemExit(f"{path}: expected a run in a strip, got {run.table_kind}")
@@ -39,7 +39,7 @@ def read_orbit(path):
         t = run.read("time", [0])[0, :c]
         x = run.read("position", [0])[0, :c, 0]
         rank = run.read("rank", [0])[0, :c]
-        return run.steps[:c], t, x, rank, run.scene()
+        return run.step[:c], t, x, rank, run.scene()
 
 
 def autocorrelation(v, maxlag):

@@ -23,7 +23,7 @@ from scipy import stats
 from fig_graph import SCALES, draw_memory, draw_scales, orbit_measures, read_orbit, record_orbit
 from figlib import Figure, arguments
 from rbx import analysis
-from rbx.analysis import RunFile
+from rbx.runfile import Run
 
 FIT_FROM = 0.1          # the diffusion fit uses the last 90% of the run
 MEMORYLESS = 0.02       # largest |ρ| at long lags for "no memory" (noise: ~0.006 on 10⁶ collisions)
@@ -43,7 +43,7 @@ def rank_one_probability(boundary):
 
 
 def read_ensemble(path):
-    with RunFile(path) as run:
+    with Run.open(path) as run:
         run.require(["position"], "the mean-square displacement")
         if run.table_kind != "strip":
             raise SystemExit(f"{path}: expected a run in a strip, got {run.table_kind}")
@@ -51,7 +51,7 @@ def read_ensemble(path):
         if "sample" in init:
             raise SystemExit(f"{path}: the ensemble must start from one state (see the caption)")
         x = run.read("position", list(range(run.trajectories)))[:, :, 0]
-        return dict(steps=run.steps.astype(float), x=x, init=init, width=float(run.config["table"]["width"]),
+        return dict(steps=run.step.astype(float), x=x, init=init, width=float(run.config["table"]["width"]),
                     R=run.radius, kappa=run.kappa, p=rank_one_probability(run.config["boundary"]),
                     title=run.scene())
 
@@ -60,7 +60,7 @@ def split_runs(paths):
     """-> (orbit path, ensemble path): the run with one trajectory is the orbit."""
     counts = {}
     for p in paths:
-        with RunFile(p) as run:
+        with Run.open(p) as run:
             counts[p] = run.trajectories
     orbit = [p for p in paths if counts[p] == 1]
     ensemble = [p for p in paths if counts[p] > 1]

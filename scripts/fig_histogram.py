@@ -12,28 +12,27 @@ the start angles of the other half (odd), independent samples that must follow t
 preserved (two-sample KS p ≈ 0.88). Why these parameters: the paper's table shape, ball and sample size; the bottom
 wall is the paper's face x₂ = 0; seed 1 is fixed so the figure is reproducible.
 """
-import h5py
 import numpy as np
 from matplotlib.figure import Figure as MplFigure
 from scipy import stats
 
 from figlib import Figure, arguments
 from rbx import analysis
+from rbx.runfile import FileError
+from rbx.runfile import read_returns as read_returns_file
 
 P_PASS = 0.01       # KS p-value below which the law is rejected
 
 
 def read_returns(path):
-    with h5py.File(path, "r") as h5:
-        if "returns" not in h5:
-            raise SystemExit(f"{path}: not a file written by rbx histogram (no group 'returns')")
-        g = h5["returns"]
-        a = g.attrs
-        return dict(angle=g["angle"][...], initial=g["initial_angle"][...], collisions=g["collisions"][...],
-                    trajectory=g["trajectory"][...],
-                    d=int(a["velocity_dimension"]), samples=int(a["samples"]), not_returned=int(a["not_returned"]),
-                    wall=str(a["wall"]), kappa=float(h5.attrs["kappa"]), radius=float(h5.attrs["radius"]),
-                    table=str(h5.attrs["table_kind"]))
+    try:
+        r = read_returns_file(path)
+    except FileError as exc:
+        raise SystemExit(str(exc)) from None
+    a = r["attrs"]
+    return dict(angle=r["angle"], initial=r["initial_angle"], collisions=r["collisions"], trajectory=r["trajectory"],
+                d=int(r["velocity_dimension"]), samples=int(r["samples"]), not_returned=int(r["not_returned"]),
+                wall=str(r["wall"]), kappa=float(a["kappa"]), radius=float(a["radius"]), table=str(a["table_kind"]))
 
 
 def ks_band(n, level):

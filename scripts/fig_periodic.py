@@ -18,7 +18,7 @@ from matplotlib.figure import Figure as MplFigure
 
 from figlib import Figure, arguments
 from rbx import orbits
-from rbx.analysis import RunFile
+from rbx.runfile import Run
 from rbx.plotting import draw_table_2d
 
 TYPICAL_SHOWN = 200
@@ -33,7 +33,7 @@ def initial_spin(config, j=0):
 
 def read_wedge_run(path, need):
     """-> dict with the fields of trajectory 0 cut at its count, and what the figure needs to know of the run."""
-    with RunFile(path) as run:
+    with Run.open(path) as run:
         run.require(need, "the wedge figure")
         if run.table_kind != "wedge":
             raise SystemExit(f"{path}: expected a run in a wedge, got {run.table_kind}")

@@ -18,7 +18,7 @@ from matplotlib.figure import Figure as MplFigure
 
 from figlib import Figure, arguments
 from rbx import analysis
-from rbx.analysis import RunFile
+from rbx.runfile import Run
 
 SHOWN_3D = 200       # collisions drawn in space
 SHOWN_2D = 60        # collisions drawn as a path in the horizontal projection
@@ -28,12 +28,12 @@ BOUNDED_TAMSD = 0.1  # growth exponent of the time-averaged MSD that counts as b
 
 def read_plates_orbit(path):
     """-> dict: steps, time, position (T, 3) of trajectory 0, the run's geometry, start, radius, κ, boundary."""
-    with RunFile(path) as run:
+    with Run.open(path) as run:
         run.require(["time", "position"], "the horizontal excursion")
         if run.table_kind != "plates":
             raise SystemExit(f"{path}: expected a run between plates, got {run.table_kind}")
         c = int(run.count[0])
-        return dict(steps=run.steps[:c], time=run.read("time", [0])[0, :c], position=run.read("position", [0])[0, :c],
+        return dict(steps=run.step[:c], time=run.read("time", [0])[0, :c], position=run.read("position", [0])[0, :c],
                     geom=run.geometry(), init=run.config["initial"], R=run.radius, kappa=run.kappa,
                     boundary=run.config["boundary"], title=run.scene(), every=run.every, name=path)
 

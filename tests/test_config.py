@@ -9,7 +9,7 @@ import yaml
 
 from rbx import config, model
 from rbx.config import ConfigError
-from rbx.output import config_yaml
+from rbx.runfile import config_yaml
 from tests.catalog import SCENES
 
 STRIP = """\

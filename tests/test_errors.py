@@ -21,7 +21,7 @@ from click.testing import CliRunner
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
-from rbx.cli.common import UserError, open_run
+from rbx.runfile import FileError, Run
 from rbx.cli.main import cli
 
 RBX = str(Path(sys.executable).with_name("rbx"))
@@ -366,7 +366,7 @@ def test_relative_table_and_output_paths_resolve_from_the_config_folder(tmp_path
     assert result.exit_code == 2 and result.stderr.strip() == "rbx: exp/out.h5: exists; use --force to overwrite it"
 
 
-# ---- --resume of files that cannot be resumed, and the open_run helper of plot/histogram --------------------------
+# ---- --resume of files that cannot be resumed, and the reader of plot, resume and the API (rbx.runfile.Run) -------
 
 def make_files(folder):
     """Files that are not rbx runs: missing, text, an HDF5 file of something else, a run without positions."""
@@ -390,23 +390,24 @@ OPEN_RUN_CASES = {"missing.h5": "file not found", "text.h5": "not an HDF5 file",
 
 
 @pytest.mark.parametrize("name", list(OPEN_RUN_CASES))
-def test_open_run_names_the_file(name, tmp_path):
+def test_reading_a_run_names_the_file(name, tmp_path):
     make_files(tmp_path)
     path = tmp_path / name
-    with pytest.raises(UserError) as info:
-        open_run(str(path))
+    with pytest.raises(FileError) as info:
+        Run.open(str(path))
     assert os.path.basename(str(path)) in str(info.value) or name == "."
     assert OPEN_RUN_CASES[name] in str(info.value)
 
 
-def test_open_run_names_a_missing_dataset(tmp_path):
+def test_reading_a_run_names_a_missing_dataset(tmp_path):
     make_files(tmp_path)
-    with pytest.raises(UserError) as info:
-        open_run(str(tmp_path / "out.h5"), need=("collisions/time", "collisions/position"))
+    run = Run.open(str(tmp_path / "out.h5"))
+    with pytest.raises(FileError) as info:
+        run.require(("time", "position"), "this test")
     msg = str(info.value)
     assert "out.h5" in msg and "collisions/position" in msg and "add 'position' to output.record" in msg
-    with open_run(str(tmp_path / "out.h5"), need=("collisions/time",)) as f:
-        assert f["collisions/time"].shape[0] == 2
+    run.require(("time",), "this test")
+    assert run.time.shape[0] == 2 and run.read("time").shape[0] == 2
 
 
 @pytest.mark.parametrize("name, args, problem", [

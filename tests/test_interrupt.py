@@ -21,7 +21,7 @@ import yaml
 from click.testing import CliRunner
 
 import rbx.cli.common as common
-import rbx.output as output
+import rbx.runfile as runfile
 import rbx.simulate as simulate
 from rbx.cli.main import cli
 from tests.catalog import SCENES
@@ -254,18 +254,18 @@ def test_resume_of_a_run_stopped_before_its_first_block(tmp_path, monkeypatch):
     """The signal arrives while record 0 is written: no block ran, there is no final/ yet; resume starts over."""
     exp = write_config(tmp_path, scene("strip-random", 500, 2, 3))
     assert invoke(exp, "-o", tmp_path / "ref.h5").exit_code == 0
-    write = output.H5Sink.write
+    write = runfile.H5Sink.write
 
     def write_then_signal(self, block, nrec):
         write(self, block, nrec)
         os.kill(os.getpid(), signal.SIGINT)
 
-    monkeypatch.setattr(output.H5Sink, "write", write_then_signal)
+    monkeypatch.setattr(runfile.H5Sink, "write", write_then_signal)
     res = invoke(exp, "-o", tmp_path / "run.h5")
     assert res.exit_code == 130
     cut = read_run(tmp_path / "run.h5")
     assert "final/collisions" not in cut and list(cut["collisions/count"]) == [1, 1]
-    monkeypatch.setattr(output.H5Sink, "write", write)
+    monkeypatch.setattr(runfile.H5Sink, "write", write)
     assert invoke("--resume", tmp_path / "run.h5").exit_code == 0
     assert_same_records(read_run(tmp_path / "run.h5"), read_run(tmp_path / "ref.h5"))
 
@@ -300,7 +300,7 @@ def test_resume_refuses_a_state_that_does_not_match_its_records(damage, tmp_path
     with h5py.File(tmp_path / "run.h5", "r+") as f:
         f["final/time"][0] += 1.0
         if damage == "state-and-digest":
-            f["final"].attrs["digest"] = output.state_digest({k: f["final"][k][...] for k in f["final"]})
+            f["final"].attrs["digest"] = runfile.state_digest({k: f["final"][k][...] for k in f["final"]})
     res = invoke("--resume", tmp_path / "run.h5")
     assert res.exit_code == 2
     line, = res.stderr.strip().splitlines()

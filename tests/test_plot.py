@@ -19,6 +19,7 @@ from rbx import analysis
 from rbx.cli.main import cli
 from rbx.cli.plot import make_figure
 from rbx.cli.common import UserError
+from rbx.runfile import Run
 
 ROUGH = "{rule: constant, rank: 1}"
 RUNS = {
@@ -144,7 +145,7 @@ def test_default_figure_path_beside_the_run(runs, tmp_path):
 
 
 def read(path, *fields):
-    with analysis.RunFile(path) as run:
+    with Run.open(path) as run:
         traj = list(range(run.trajectories))
         return run, run.geometry(), [run.read(f, traj) for f in fields]
 
@@ -239,9 +240,9 @@ def test_diffusion_figure_reports_the_fit(runs):
     left, right = labelled(fig)
     legend = " ".join(t.get_text() for t in left.get_legend().get_texts())
     assert "D = " in legend and "95% CI" in legend
-    with analysis.RunFile(runs["random"]) as run:
+    with Run.open(runs["random"]) as run:
         x = run.read("position", list(range(run.trajectories)))[..., 0]
-        fit = analysis.fit_diffusion(run.steps.astype(float), x)
+        fit = analysis.fit_diffusion(run.step.astype(float), x)
     assert fit.low < fit.coefficient < fit.high and fit.coefficient > 0
     assert f"{fit.coefficient:.4g}" in legend
 

@@ -1,9 +1,11 @@
-"""What every command shares: the user-error convention (exit 2, one line), opening run files, the progress bar.
+"""What every command shares: the user-error convention (exit 2, one line), the progress bar. (Run files are
+opened with :class:`rbx.runfile.Run`; its :class:`rbx.runfile.FileError` becomes a user error here.)
 
 A user error is printed as ``rbx: <file>: <key>: <problem>`` on stderr (the parts that apply) and the command
 exits with code 2, without a traceback (``--debug`` adds one). Commands built with ``cls=Command`` print click's
 own usage errors (a bad option value, a missing argument) the same way.
 """
+import contextlib
 import os
 import sys
 import time
@@ -46,8 +48,19 @@ def fail(file, key, problem):
 
 
 def from_config_error(exc):
-    """A :class:`rbx.config.ConfigError` as a :class:`UserError`."""
+    """A :class:`rbx.config.ConfigError` (or :class:`rbx.runfile.FileError`) as a :class:`UserError`."""
     return UserError(exc.file, exc.key, exc.problem)
+
+
+@contextlib.contextmanager
+def user_errors():
+    """Turn the library's user errors (a bad config, a file that is not what is needed) into :class:`UserError`."""
+    from ..model import ConfigError
+    from ..runfile import FileError
+    try:
+        yield
+    except (ConfigError, FileError) as exc:
+        raise from_config_error(exc) from None
 
 
 def report_and_exit(exc, debug):
@@ -76,67 +89,6 @@ class Command(click.Command):
                 line = f"{info_name}: {exc.format_message()} (see '{name} --help')"
             click.echo(f"rbx: {line}", err=True)
             raise click.exceptions.Exit(EXIT_USER_ERROR) from None
-
-
-# ---- run files ----------------------------------------------------------------------------------------------
-
-#: root attributes every rbx run file has (SPEC §5)
-RUN_ATTRS = ("rbx_version", "dimension", "config", "complete")
-
-
-def open_run(path, need=(), mode="r"):
-    """Open an rbx HDF5 run file -> ``h5py.File`` (use it in a ``with``), or raise :class:`UserError` naming the file.
-
-    Checks that the file exists, is HDF5, is an rbx run (root attributes ``rbx_version``, ``dimension``,
-    ``config``, ``complete``) of a schema this rbx can read, and holds every dataset or group in ``need``
-    (e.g. ``("collisions/position", "collisions/count")`` or ``("returns/angle",)``). An incomplete run opens
-    fine: callers that care look at ``f.attrs["complete"]``.
-    """
-    import h5py
-
-    from ..output import SCHEMA_VERSION
-
-    if not os.path.exists(path):
-        raise UserError(path, None, "file not found")
-    if os.path.isdir(path):
-        raise UserError(path, None, "is a directory, not an HDF5 file")
-    try:
-        is_hdf5 = h5py.is_hdf5(path)
-    except OSError as exc:
-        raise UserError(path, None, f"cannot read: {exc.strerror or exc}") from None
-    if not is_hdf5:
-        raise UserError(path, None, "not an HDF5 file (is it the right file? rbx writes .h5 files)")
-    try:
-        f = h5py.File(path, mode)
-    except OSError as exc:
-        raise UserError(path, None, f"cannot open the HDF5 file (damaged or locked by another program?): "
-                                    f"{_first_line(exc)}") from None
-    try:
-        missing = [a for a in RUN_ATTRS if a not in f.attrs]
-        if missing:
-            raise UserError(path, None, f"not an rbx run file (no root attribute '{missing[0]}')")
-        schema = int(f.attrs.get("schema_version", 1))
-        if schema > SCHEMA_VERSION:
-            raise UserError(path, "schema_version", f"is {schema}: written by a newer rbx (this one reads up to "
-                                                    f"{SCHEMA_VERSION}); upgrade rbx")
-        for name in need:
-            if name not in f:
-                field = name.rsplit("/", 1)[-1]
-                why = (f" (the run did not record it: add '{field}' to output.record)"
-                       if name.startswith("collisions/") and field not in ("count", "step") else "")
-                raise UserError(path, name, f"not in this file{why}")
-    except UserError:
-        f.close()
-        raise
-    except Exception as exc:   # a damaged file can fail on the first read rather than on opening
-        f.close()
-        raise UserError(path, None, f"cannot read the HDF5 file (damaged?): {_first_line(exc)}") from None
-    return f
-
-
-def _first_line(exc):
-    text = str(exc).strip()
-    return text.splitlines()[0] if text else type(exc).__name__
 
 
 # ---- progress -----------------------------------------------------------------------------------------------

@@ -32,7 +32,8 @@ def _histogram(config, out, trajectories, seed, force, quiet):
     from .. import config as cfgmod
     from .. import plotting
     from ..analysis import scene_title
-    from ..histogram import return_experiment, write_returns
+    from ..histogram import return_experiment
+    from ..runfile import write_returns
 
     overrides = {k: v for k, v in (("trajectories", trajectories), ("seed", seed)) if v is not None}
     try:

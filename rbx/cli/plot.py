@@ -5,7 +5,7 @@ import os
 import click
 import numpy as np
 
-from .common import UserError, report_and_exit
+from .common import UserError, report_and_exit, user_errors
 
 KINDS = ("orbit", "orbit3d", "phase", "series", "diffusion")
 #: --coordinate name -> (field, component or None, axis label, dimensions where it exists)
@@ -66,20 +66,16 @@ def make_figure(run_file, kind, records=slice(None), trajectories=None, **option
 
     ``trajectories``: text as for --trajectories, or None for the kind's default; ``options``: colour,
     coordinate, scales, fit_from. Problems with the file or the selection raise :class:`UserError`."""
-    from ..analysis import RunFile, RunFileError
+    from ..runfile import Run
 
-    try:
-        run = RunFile(run_file)
-    except RunFileError as exc:
-        raise UserError(exc.file, None, exc.problem) from None
-    with run:
-        traj = parse_trajectories(trajectories, run.trajectories, DEFAULT_TRAJECTORIES[kind], run.path)
-        try:
-            return _BUILDERS[kind](run, records, traj, **options)
-        except RunFileError as exc:
-            raise UserError(exc.file, None, exc.problem) from None
-        except ValueError as exc:
-            raise UserError(run.path, None, str(exc)) from None
+    with user_errors():
+        run = Run.open(run_file)
+        with run:
+            traj = parse_trajectories(trajectories, run.trajectories, DEFAULT_TRAJECTORIES[kind], run.path)
+            try:
+                return _BUILDERS[kind](run, records, traj, **options)
+            except ValueError as exc:
+                raise UserError(run.path, None, str(exc)) from None
 
 
 # ---- options ---------------------------------------------------------------------------------------------------
@@ -147,7 +143,7 @@ def _span(items):
 
 
 def _title(run, what, traj, rec):
-    steps = run.steps[rec]
+    steps = run.step[rec]
     trange = f"trajectory {traj[0]}" if len(traj) == 1 else f"trajectories {_span(traj)}"
     srange = f"collisions {steps.min()}–{steps.max()}" if len(steps) else "no records"
     extra = "" if run.complete else " · INCOMPLETE RUN"
@@ -171,9 +167,8 @@ def _orbit(run, rec, traj, **_):
 
 def _orbit3d(run, rec, traj, **_):
     from .. import plotting
-    from ..analysis import RunFileError
     if run.dimension != 3:
-        raise RunFileError(run.path, "orbit3d needs a 3D run (plates or box); this one is 2D: use --kind orbit")
+        raise UserError(run.path, None, "orbit3d needs a 3D run (plates or box); this one is 2D: use --kind orbit")
     return plotting.orbit3d_figure(_paths(run, rec, traj), run.geometry(), _title(run, "orbit", traj, rec),
                                    labels=[f"trajectory {j}" for j in traj], points_only=run.every > 1)
 
@@ -185,7 +180,7 @@ def _phase(run, rec, traj, colour="trajectory", **_):
     pos = run.read("position", traj, rec)
     vel = run.read("velocity", traj, rec)
     spin = run.read("angular_velocity", traj, rec)
-    steps = np.broadcast_to(run.steps[rec], wall.shape)
+    steps = np.broadcast_to(run.step[rec], wall.shape)
     which = np.broadcast_to(np.arange(len(traj))[:, None], wall.shape)
     at = wall >= 0                                     # records made at a collision (not record 0, not past the end)
     wall, pos, vel, spin, steps, which = wall[at], pos[at], vel[at], spin[at], steps[at], which[at]
@@ -228,10 +223,9 @@ def _phase(run, rec, traj, colour="trajectory", **_):
 
 
 def _coordinate(run, name, traj, rec):
-    from ..analysis import RunFileError
     field, comp, label, dims = COORDINATES[name]
     if run.dimension not in dims:
-        raise RunFileError(run.path, f"--coordinate {name} does not exist in a {run.dimension}D run")
+        raise UserError(run.path, None, f"--coordinate {name} does not exist in a {run.dimension}D run")
     run.require([field], f"--coordinate {name}")
     data = run.read(field, traj, rec)
     return (data if comp is None else data[..., comp]), label
@@ -240,7 +234,7 @@ def _coordinate(run, name, traj, rec):
 def _series(run, rec, traj, coordinate="x", scales=(0.01, 0.1, 1.0), **_):
     from .. import plotting
     values, label = _coordinate(run, coordinate, traj, rec)
-    return plotting.series_figure(run.steps[rec], list(values), _title(run, f"{coordinate} against step", traj, rec),
+    return plotting.series_figure(run.step[rec], list(values), _title(run, f"{coordinate} against step", traj, rec),
                                   label, labels=[f"trajectory {j}" for j in traj], scales=scales,
                                   points_only=run.every > 1)
 
@@ -250,7 +244,7 @@ def _diffusion(run, rec, traj, coordinate="x", fit_from=0.1, **_):
     if len(traj) < 2:
         raise ValueError("the diffusion plot needs an ensemble: at least 2 trajectories")
     x, _ = _coordinate(run, coordinate, traj, rec)
-    steps = run.steps[rec].astype(float)
+    steps = run.step[rec].astype(float)
     if len(steps) < 3:
         raise ValueError("the diffusion plot needs at least 3 records")
     t = steps - steps[0]

@@ -8,14 +8,12 @@ checkpointed and closed cleanly. Either way the run ends by renaming ``OUT.h5.pa
 143). An existing ``OUT.h5`` is replaced only with ``--force``. ``--resume`` continues such a file to its
 requested length and writes the same records as an uninterrupted run.
 """
-import contextlib
 import os
 import signal
-import threading
 
 import click
 
-from .common import Command, Progress, UserError, display_path, from_config_error, report_and_exit
+from .common import Command, Progress, UserError, display_path, report_and_exit, user_errors
 
 OVERRIDES = ("collisions", "trajectories", "seed")
 
@@ -33,15 +31,18 @@ OVERRIDES = ("collisions", "trajectories", "seed")
 @click.option("--debug", is_flag=True, help="Show a traceback with user errors.")
 def simulate(config, out, collisions, trajectories, seed, resume, force, quiet, debug):
     """Run the experiment CONFIG (YAML) and write its trajectories to HDF5."""
+    from ..api import StopFlag
+
     stop = StopFlag()
     overrides = {"collisions": collisions, "trajectories": trajectories, "seed": seed}
     # the handlers go in first, so that Ctrl-C while numba loads is a clean stop too, never a traceback
     with stop.installed():
         try:
-            if resume is not None:
-                code = _resume(config, resume, out, overrides, force, quiet, stop)
-            else:
-                code = _simulate(config, out, overrides, force, quiet, stop)
+            with user_errors():
+                if resume is not None:
+                    code = _resume(config, resume, out, overrides, force, quiet, stop)
+                else:
+                    code = _simulate(config, out, overrides, force, quiet, stop)
         except UserError as exc:
             report_and_exit(exc, debug)
         except KeyboardInterrupt:   # raised by StopFlag only while setting up, before any file is written
@@ -54,33 +55,27 @@ def simulate(config, out, collisions, trajectories, seed, resume, force, quiet, 
 
 def _simulate(config, out, overrides, force, quiet, stop):
     from .. import config as cfgmod
-    from ..output import open_for_writing, temporary_path
+    from ..api import check_target, compile_kernels, run_to_file
     from ..simulate import Simulation
 
     if config is None:
         raise UserError(None, "CONFIG", "missing: give an experiment config (YAML), or --resume RUN.h5")
-    try:
-        cfg = cfgmod.load(config, overrides)
-    except cfgmod.ConfigError as exc:
-        raise from_config_error(exc) from None
+    cfg = cfgmod.load(config, overrides)
     path = os.path.abspath(out) if out else cfg.output.path
     if path is None:
         raise UserError(config, "output.path", "no output file: give output.path in the config or -o OUT.h5")
-    _check_target(path, force, "-o" if out else "output.path", cfg.source)
+    key = "-o" if out else "output.path"
+    check_target(path, force, cfg, key=key, file=None if out else cfg.source, force_hint="--force")
     _check_memory(cfg, overrides)
     try:
         sim = Simulation(cfg)
     except MemoryError:
         file, key = (None, "--trajectories") if overrides["trajectories"] else (cfg.source, "run.trajectories")
         raise UserError(file, key, f"{cfg.run.trajectories} trajectories do not fit in the free memory") from None
-    _compile(sim)
+    compile_kernels(sim)
     if stop.start_running():
         raise KeyboardInterrupt
-    try:
-        h5 = open_for_writing(path)
-    except OSError as exc:
-        raise UserError(temporary_path(path), None, f"cannot write: {exc.strerror or exc}") from None
-    return _execute(sim, h5, temporary_path(path), path, stop, quiet, fresh=True, done=0)
+    return _execute(sim, path, stop, quiet, 0, lambda **how: run_to_file(sim, path, **how))
 
 
 def _resume(config, run_file, out, overrides, force, quiet, stop):
@@ -88,10 +83,9 @@ def _resume(config, run_file, out, overrides, force, quiet, stop):
 
     import h5py
 
-    from ..config import ConfigError
-    from ..output import temporary_path
+    from ..api import check_target, compile_kernels
     from ..resume import load, make_consistent, version_note
-    from .common import open_run
+    from ..runfile import Run, stream, temporary_path
 
     if config is not None:
         raise UserError(None, "--resume", "give either CONFIG or --resume RUN.h5, not both")
@@ -105,25 +99,24 @@ def _resume(config, run_file, out, overrides, force, quiet, stop):
     path = os.path.abspath(out) if out else default
     tmp = temporary_path(path)
     in_place = tmp == source
-    with open_run(run_file, need=("collisions/count", "collisions/step")) as f:
-        if bool(f.attrs["complete"]):
-            click.echo(f"rbx: {display_path(run_file)}: the run is complete; nothing to resume", err=True)
-            return 0
-        note = version_note(f)
+    run = Run.open(run_file)
+    if run.complete:
+        click.echo(f"rbx: {display_path(run_file)}: the run is complete; nothing to resume", err=True)
+        return 0
+    note = version_note(run)
+    with run:
         try:
-            sim, write_initial, done = load(f, run_file)
-        except ConfigError as exc:
-            raise from_config_error(exc) from None
+            sim, write_initial, done = load(run, run_file)
         except MemoryError:
             raise UserError(run_file, "run.trajectories", "the trajectories do not fit in the free memory") from None
     if path != source:
-        _check_target(path, force, "-o", None, partial_ok=in_place)
+        check_target(path, force, None, key="-o", partial_ok=in_place, force_hint="--force")
     if os.path.exists(tmp) and not force and not in_place:
         raise UserError(tmp, None, "exists: another run may be writing it, or an earlier one was killed; "
                                    "remove it or use --force")
     if note:
         click.echo(f"rbx: {display_path(run_file)}: warning: {note}", err=True)
-    _compile(sim)
+    compile_kernels(sim)
     if stop.start_running():
         raise KeyboardInterrupt
     # work on a copy (unless resuming a .partial): if this attempt dies badly, the file it started from is intact
@@ -142,35 +135,26 @@ def _resume(config, run_file, out, overrides, force, quiet, stop):
         if not in_place:
             os.remove(tmp)
         raise
-    return _execute(sim, h5, tmp, path, stop, quiet, fresh=False, done=done, write_initial=write_initial)
+    return _execute(sim, path, stop, quiet, done, lambda **how: stream(sim, h5, tmp, path, fresh=False,
+                                                                       write_initial=write_initial, **how))
 
 
-def _compile(sim):
-    """Compile (or load from the cache) the kernels now, while Ctrl-C can still abort at once: a first compile
-    takes several seconds, and once the run has started a signal is only seen between blocks."""
-    sim.advance(0, sim.block_buffers(0))   # no trajectory is below collision 0: nothing moves
+def _execute(sim, path, stop, quiet, done, start):
+    """Run ``sim`` into ``path`` with ``start(progress=, should_stop=, report=)`` (:func:`rbx.api.run_to_file`
+    for a new run, :func:`rbx.runfile.stream` for a resumed one: the same code as the API) -> exit code.
 
-
-def _execute(sim, h5, tmp, path, stop, quiet, fresh, done, write_initial=None):
-    """Run ``sim`` into the open file ``h5`` (at ``tmp``), then rename it to ``path`` -> exit code.
-
-    The rename happens however the run ends (complete, interrupted, or an unexpected error), so ``path`` always
-    holds every record computed so far, and ``complete`` says whether that is all of them (SPEC §4)."""
-    from ..output import H5Sink
-
+    The file is renamed from ``.partial`` to ``path`` however the run ends (complete, interrupted, or an
+    unexpected error), so ``path`` always holds every record computed so far, and ``complete`` says whether that
+    is all of them (SPEC §4)."""
     progress = Progress("simulate", quiet=quiet, start=done)
     complete = False
     failure = None
     try:
-        with h5:
-            sink = H5Sink(h5, sim.cfg, sim.geom, fresh=fresh)
-            complete = sim.run(sink, progress=progress, should_stop=stop, write_initial=write_initial)
-            h5.attrs["complete"] = bool(complete)
+        complete = start(progress=progress, should_stop=stop, report=lambda m: click.echo(f"rbx: {m}", err=True))
     except OSError as exc:   # disk full, file system gone: not a bug, and nothing a traceback would explain
         failure = exc
     finally:
         progress.close()
-        _rename(tmp, path)
     if failure is not None:
         click.echo(f"rbx: {display_path(path)}: writing failed: {failure}; the file holds the records written "
                    "before (complete = false)", err=True)
@@ -182,31 +166,6 @@ def _execute(sim, h5, tmp, path, stop, quiet, fresh, done, write_initial=None):
                    f"Continue with: rbx simulate --resume {display_path(path)}", err=True)
         return 128 + stop.signum
     return 0
-
-
-def _rename(tmp, path):
-    try:
-        os.replace(tmp, path)
-    except OSError as exc:
-        click.echo(f"rbx: {display_path(path)}: cannot rename {display_path(tmp)} to it: {exc.strerror or exc}; "
-                   f"the records are in {display_path(tmp)}", err=True)
-
-
-def _check_target(path, force, key, config_source, partial_ok=False):
-    """Refuse to overwrite an existing file (or the config itself, or a run still writing) without --force."""
-    from ..output import temporary_path
-
-    file = None if key == "-o" else config_source
-    if os.path.isdir(path):
-        raise UserError(file, key, f"{display_path(path)} is a directory; give a file name such as run.h5")
-    if config_source and os.path.exists(path) and os.path.samefile(path, config_source):
-        raise UserError(file, key, f"{display_path(path)} is the config file itself")
-    if os.path.exists(path) and not force:
-        raise UserError(path, None, "exists; use --force to overwrite it")
-    tmp = temporary_path(path)
-    if os.path.exists(tmp) and not force and not partial_ok:
-        raise UserError(tmp, None, "exists: another run may be writing it, or an earlier one was killed "
-                                   "(try: rbx simulate --resume " + display_path(tmp) + "); remove it or use --force")
 
 
 #: bytes of state per trajectory, generously (position, velocity, spin and orientation matrices, counters, key)
@@ -226,40 +185,3 @@ def _check_memory(cfg, overrides):
         file, key = (None, "--trajectories") if overrides.get("trajectories") else (cfg.source, "run.trajectories")
         raise UserError(file, key, f"{M} trajectories need about {need / 2**30:.3g} GiB of memory, more than this "
                                    f"machine has ({available / 2**30:.3g} GiB)")
-
-
-class StopFlag:
-    """SIGINT/SIGTERM while setting up: KeyboardInterrupt at once (nothing is written yet). While running: a flag
-    that the run polls between blocks, so the file is checkpointed and closed cleanly.
-
-    A second signal while running does not abort harder: the kernels hand back control only between blocks
-    (well under a second each), and aborting in the middle of an HDF5 write could damage the file."""
-
-    def __init__(self):
-        self.signum = 0
-        self.running = False
-
-    def __call__(self):
-        return self.signum != 0
-
-    def start_running(self):
-        """Switch from aborting to flagging -> True if a signal came already (then abort instead)."""
-        self.running = True
-        return self()
-
-    def _handler(self, signum, frame):
-        self.signum = self.signum or signum
-        if not self.running:
-            raise KeyboardInterrupt
-
-    @contextlib.contextmanager
-    def installed(self):
-        if threading.current_thread() is not threading.main_thread():   # signal handlers live in the main thread
-            yield
-            return
-        old = {s: signal.signal(s, self._handler) for s in (signal.SIGINT, signal.SIGTERM)}
-        try:
-            yield
-        finally:
-            for s, h in old.items():
-                signal.signal(s, h)

@@ -1,0 +1,584 @@
+"""The run file (SPEC §5): everything rbx writes to or reads from HDF5, in one module.
+
+Writing: the root attributes (:data:`ROOT_ATTRS`, one list for run files and return-angle files), the
+``collisions/`` datasets made from :data:`rbx.model.FIELDS` (each with its ``units`` and ``description`` as dataset
+attributes), the streaming writer :class:`H5Sink`, the checkpoint digest (:func:`state_digest`), the
+``OUT.h5.partial`` → ``OUT.h5`` lifecycle (:func:`check_target`, :func:`create`, :func:`stream`) and the
+``returns/`` group of ``rbx histogram`` (:func:`write_returns`). Reading: one class, :class:`Run`, for ``rbx plot``,
+``rbx simulate --resume``, the figure scripts and the Python API (:func:`rbx.open`), and the same class holds a run
+made in memory (:func:`rbx.simulate` without ``output``); :func:`read_returns` reads ``returns/``. A file that is
+not what the caller needs raises :class:`FileError` (``<file>: <key>: <problem>``; the CLI prints it as one line
+and exits 2).
+
+Layout (T trajectories, N records; trajectory axis first):
+
+| path | shape (2D / 3D) | dtype | meaning |
+|---|---|---|---|
+| ``/`` attrs | | | :data:`ROOT_ATTRS`: ``rbx_version``, ``dimension``, ``config`` (resolved YAML), ``complete``, ``schema_version``, ``table_kind``, ``wall_names``, ``radius``, ``kappa``, ``collisions_requested`` |
+| ``collisions/time`` | (T, N) | f8 | time of the record |
+| ``collisions/position``, ``velocity`` | (T, N, n) | f8 | centre and its velocity |
+| ``collisions/angular_velocity`` | (T, N) / (T, N, 3) | f8 | space-frame ω |
+| ``collisions/orientation`` | (T, N) / (T, N, 3, 3) | f8 | continuous angle θ / rotation matrix A |
+| ``collisions/wall``, ``rank`` | (T, N) | i4 | wall index hit (−1 for record 0), roughness rank used |
+| ``collisions/count`` | (T,) | i8 | records written for each trajectory (rows past it are NaN / −1) |
+| ``collisions/step`` | (N,) | i8 | collision number of each record (0, every, 2·every, …) |
+| ``final/*`` | (T, …) | | last state of every trajectory, its ``collisions`` and ``draws`` counts and ``alive`` flag (for ``--resume``); attribute ``digest``: hash of the state, see :func:`state_digest` |
+| ``returns/angle`` | (K,) | f8 | ``rbx histogram`` files only (no ``collisions/``): return angles φ; see :func:`write_returns` |
+
+Only the fields in ``output.record`` are present. Every ``collisions/`` dataset carries the attributes ``units``
+and ``description`` (from :data:`rbx.model.FIELDS`). Datasets grow along the record axis in chunks, so memory does
+not grow with the run's length; ``count`` and ``final/`` are rewritten after every block and the file is flushed,
+so an interrupted run leaves a readable file with ``complete = False``.
+"""
+import contextlib
+import hashlib
+import os
+
+import numpy as np
+import yaml
+
+from . import __version__
+from .model import FIELD, FIELDS, RECORD_FIELDS, ConfigError
+
+SCHEMA_VERSION = 1
+CHUNK_BYTES = 1 << 18
+
+#: the root attributes of every rbx file (run or return angles) -> meaning. The first four are SPEC §5's; a file
+#: without them is not an rbx file. ``schema_version`` is read as 1 when absent.
+ROOT_ATTRS = {
+    "rbx_version": "version of rbx that wrote the file",
+    "dimension": "n: 2 (disc in a planar table) or 3 (ball)",
+    "config": "the fully resolved experiment (tables and boundaries inlined, paths absolute) as YAML text",
+    "complete": "False while the run is written and when it was interrupted",
+    "schema_version": f"version of this layout ({SCHEMA_VERSION})",
+    "table_kind": "strip, circle, wedge, rectangle, polygon, plates or box",
+    "wall_names": "the table's walls, in wall order (the index in collisions/wall)",
+    "radius": "ball radius R [L]",
+    "kappa": "κ = 2λ/R² of the ball's mass distribution",
+    "collisions_requested": "run.collisions: the length the run was asked for",
+}
+SPEC_ATTRS = ("rbx_version", "dimension", "config", "complete")
+#: the datasets of collisions/ besides the record fields -> (units, description)
+INDEX_DATASETS = {"count": ("1", "records written for each trajectory (rows past it are NaN / −1)"),
+                  "step": ("1", "collision number of each record (0, every, 2·every, …)")}
+
+
+class FileError(Exception):
+    """A file that cannot be read or written as asked: ``<file>: <key>: <problem>`` (the parts that apply)."""
+
+    def __init__(self, file, key, problem):
+        self.file = None if file is None else str(file)
+        self.key, self.problem = key, problem
+        super().__init__(": ".join(x for x in (self.file, key, problem) if x))
+
+
+# ---- writing ---------------------------------------------------------------------------------------------------
+
+def config_yaml(cfg):
+    """The experiment's resolved config as the YAML text stored in the root attribute ``config``."""
+    return yaml.safe_dump(_plain(cfg.resolved), sort_keys=False)
+
+
+def _plain(x):
+    if isinstance(x, dict):
+        return {k: _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_plain(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return x.tolist()
+    if isinstance(x, np.generic):
+        return x.item()
+    return x
+
+
+def root_attrs(cfg, complete):
+    """The values of :data:`ROOT_ATTRS` for an experiment -> dict (written to files, held by in-memory runs)."""
+    values = {"rbx_version": __version__, "dimension": cfg.dimension, "config": config_yaml(cfg),
+              "complete": bool(complete), "schema_version": SCHEMA_VERSION, "table_kind": cfg.table_kind,
+              "wall_names": list(cfg.wall_names), "radius": cfg.ball.radius, "kappa": cfg.ball.kappa,
+              "collisions_requested": cfg.run.collisions}
+    assert tuple(values) == tuple(ROOT_ATTRS)
+    return values
+
+
+def write_root_attrs(h5, cfg, complete):
+    import h5py
+    for k, v in root_attrs(cfg, complete).items():
+        h5.attrs[k] = np.array(v, dtype=h5py.string_dtype()) if k == "wall_names" else v
+
+
+class H5Sink:
+    """Streams the records of a :class:`rbx.simulate.Simulation` into an open HDF5 file (``fresh``: a new file,
+    whose attributes and datasets are created here; else a file being resumed)."""
+
+    def __init__(self, h5, cfg, fresh=True):
+        self.h5 = h5
+        M, n = cfg.run.trajectories, cfg.dimension
+        self.every = cfg.output.every
+        if fresh:
+            write_root_attrs(h5, cfg, complete=False)
+            g = h5.create_group("collisions")
+            for name in cfg.output.record:
+                f = FIELD[name]
+                tail = f.shape(n)
+                per = int(np.prod(tail or (1,))) * np.dtype(f.dtype).itemsize
+                tchunk = min(M, 64)
+                rchunk = max(1, CHUNK_BYTES // (tchunk * per))
+                ds = g.create_dataset(name, shape=(M, 0) + tail, maxshape=(M, None) + tail, dtype=f.dtype,
+                                      chunks=(tchunk, rchunk) + tail, fillvalue=f.fill)
+                ds.attrs["units"], ds.attrs["description"] = f.units, f.description
+            g.create_dataset("count", data=np.zeros(M, np.int64))
+            g.create_dataset("step", shape=(0,), maxshape=(None,), dtype=np.int64, chunks=(4096,))
+            for name, (units, text) in INDEX_DATASETS.items():
+                g[name].attrs["units"], g[name].attrs["description"] = units, text
+        self.g = h5["collisions"]
+
+    def write(self, block, nrec):
+        g = self.g
+        b = next(iter(block.values())).shape[1]
+        start = g["step"].shape[0]
+        for f, arr in block.items():
+            ds = g[f]
+            ds.resize(start + b, axis=1)
+            ds[:, start:start + b] = arr
+        g["step"].resize(start + b, axis=0)
+        g["step"][start:] = np.arange(start, start + b) * self.every
+        g["count"][...] = g["count"][...] + nrec
+
+    def checkpoint(self, sim):
+        # flush first: the block's records reach the file before the state that accounts for them
+        self.h5.flush()
+        fin = self.h5.require_group("final")
+        state = sim.final_state()
+        for k, v in state.items():
+            v = np.asarray(v)
+            if k in fin and fin[k].shape == v.shape:
+                fin[k][...] = v
+            else:
+                if k in fin:
+                    del fin[k]
+                fin.create_dataset(k, data=v)
+        fin.attrs["digest"] = state_digest(state)
+        self.h5.flush()
+
+
+def state_digest(state):
+    """A hash of a final state (dict of arrays). A process killed outright (SIGKILL, power loss) can leave
+    ``final/`` half rewritten; ``--resume`` recomputes this hash and refuses such a state instead of continuing
+    from a mixture of two blocks."""
+    h = hashlib.blake2b(digest_size=16)
+    for k in sorted(state):
+        a = np.ascontiguousarray(state[k])
+        h.update(f"{k}:{a.dtype.str}:{a.shape}:".encode())
+        h.update(a.tobytes())
+    return h.hexdigest()
+
+
+# ---- the .partial lifecycle --------------------------------------------------------------------------------------
+
+def temporary_path(path):
+    """Where a run writes until it stops: beside the target, renamed over it at the end."""
+    return f"{path}.partial"
+
+
+def check_target(path, force, key, file=None, config_source=None, partial_ok=False, force_hint="--force"):
+    """Refuse to write ``path`` when it is a folder or the config itself, or (without ``force``) when it exists or
+    a run may still be writing its ``.partial``. Raises :class:`FileError`; ``key``/``file`` name where the path
+    came from (``-o``, ``output.path``, ``output``), ``force_hint`` how to force (``--force``, ``force=True``)."""
+    show = _display(path)
+    if os.path.isdir(path):
+        raise FileError(file, key, f"{show} is a directory; give a file name such as run.h5")
+    if config_source and os.path.exists(path) and os.path.exists(config_source) \
+            and os.path.samefile(path, config_source):
+        raise FileError(file, key, f"{show} is the config file itself")
+    if os.path.exists(path) and not force:
+        raise FileError(path, None, f"exists; use {force_hint} to overwrite it")
+    tmp = temporary_path(path)
+    if os.path.exists(tmp) and not force and not partial_ok:
+        raise FileError(tmp, None, "exists: another run may be writing it, or an earlier one was killed "
+                                   f"(try: rbx simulate --resume {_display(tmp)}); remove it or use {force_hint}")
+
+
+def create(path):
+    """Open ``path.partial`` for a new run (folders made as needed) -> ``h5py.File``. OSError if it cannot."""
+    import h5py
+    os.makedirs(os.path.dirname(os.path.abspath(path)) or ".", exist_ok=True)
+    return h5py.File(temporary_path(path), "w")
+
+
+def stream(sim, h5, tmp, path, *, fresh=True, progress=None, should_stop=None, write_initial=None, report=None):
+    """Run ``sim`` into the open file ``h5`` (at ``tmp``), mark it complete or not, close it and rename it to
+    ``path`` -> True if the run finished (False: ``should_stop()`` said stop).
+
+    The rename happens however the run ends (complete, interrupted, an error), so ``path`` always holds every
+    record computed so far and ``complete`` says whether that is all of them (SPEC §4). A rename that fails is
+    passed to ``report(message)`` (the records are then in ``tmp``). Errors writing (OSError) propagate."""
+    try:
+        with h5:
+            sink = H5Sink(h5, sim.cfg, fresh=fresh)
+            complete = sim.run(sink, progress=progress, should_stop=should_stop, write_initial=write_initial)
+            h5.attrs["complete"] = bool(complete)
+        return complete
+    finally:
+        try:
+            os.replace(tmp, path)
+        except OSError as exc:
+            if report is not None:
+                report(f"{_display(path)}: cannot rename {_display(tmp)} to it: {exc.strerror or exc}; the records "
+                       f"are in {_display(tmp)}")
+
+
+def _display(path):
+    """A path as the user would write it: relative to the working directory when it lies below it."""
+    path = str(path)
+    if not os.path.isabs(path):
+        return path
+    try:
+        rel = os.path.relpath(path)
+    except ValueError:   # another drive (Windows)
+        return path
+    return path if rel.startswith("..") else rel
+
+
+# ---- opening a file for reading ----------------------------------------------------------------------------------
+
+def _open_h5(path, mode="r"):
+    """Open an existing HDF5 file -> ``h5py.File``, or raise :class:`FileError` saying why not."""
+    import h5py
+    path = str(path)
+    if not os.path.exists(path):
+        raise FileError(path, None, "file not found")
+    if os.path.isdir(path):
+        raise FileError(path, None, "is a directory, not an HDF5 file")
+    try:
+        is_hdf5 = h5py.is_hdf5(path)
+    except OSError as exc:
+        raise FileError(path, None, f"cannot read: {exc.strerror or exc}") from None
+    if not is_hdf5:
+        raise FileError(path, None, "not an HDF5 file (or unreadable)")
+    try:
+        return h5py.File(path, mode)
+    except OSError as exc:
+        raise FileError(path, None, f"cannot open the HDF5 file (damaged or locked by another program?): "
+                                    f"{_first_line(exc)}") from None
+
+
+def _check_rbx_file(f, path, group):
+    """An rbx file of a schema this rbx reads, holding ``group`` (``collisions`` or ``returns``)."""
+    if group == "collisions" and "collisions" not in f and "returns" in f:
+        raise FileError(path, None, "not an rbx run: it holds return angles from rbx histogram (returns/), no "
+                                    "collisions/")
+    missing = [a for a in SPEC_ATTRS if a not in f.attrs]
+    if missing:
+        raise FileError(path, None, f"not an rbx run file (no root attribute '{missing[0]}')")
+    schema = int(f.attrs.get("schema_version", 1))
+    if schema > SCHEMA_VERSION:
+        raise FileError(path, "schema_version", f"is {schema}: written by a newer rbx (this one reads up to "
+                                                f"{SCHEMA_VERSION}); upgrade rbx")
+    missing = [a for a in ROOT_ATTRS if a not in f.attrs and a != "schema_version"]
+    if missing:
+        raise FileError(path, None, f"not an rbx run file (no root attribute '{missing[0]}')")
+    if group not in f:
+        raise FileError(path, None, f"not an rbx {'run' if group == 'collisions' else 'return-angle'} file "
+                                    f"(no group '{group}/')")
+    if group == "collisions":
+        for k in INDEX_DATASETS:
+            if k not in f["collisions"]:
+                raise FileError(path, f"collisions/{k}", "not in this file (a damaged run?)")
+
+
+def _first_line(exc):
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
+def _text(x):
+    return x.decode("utf-8", "replace") if isinstance(x, bytes) else str(x)
+
+
+def _attr(v):
+    """An HDF5 attribute as plain Python (text, list of text, number, bool)."""
+    if isinstance(v, bytes):
+        return v.decode("utf-8", "replace")
+    if isinstance(v, np.ndarray):
+        return [_attr(x) for x in v.tolist()]
+    if isinstance(v, np.generic):
+        return v.item()
+    return v
+
+
+def read_experiment(config_text, source):
+    """The validated experiment of a stored ``config`` attribute -> :class:`rbx.model.Experiment`; a config that
+    does not validate raises :class:`rbx.model.ConfigError` naming ``source`` and ``config: <key>``."""
+    from .config import loads
+    if not isinstance(config_text, str):
+        raise ConfigError(source, "config", "the root attribute is not YAML text")
+    try:
+        return loads(config_text, source)
+    except ConfigError as exc:
+        raise ConfigError(source, f"config: {exc.key}" if exc.key else "config", exc.problem) from None
+
+
+# ---- the one reader ---------------------------------------------------------------------------------------------
+
+class Run:
+    """A run: its records (the ``collisions/`` datasets of SPEC §5 by name), final state and experiment.
+
+    File-backed (:meth:`open`, :func:`rbx.open`) or in memory (:meth:`from_memory`, :func:`rbx.simulate` without
+    ``output``); both behave the same. ``run.position``, ``run.time``, … are read-only numpy arrays shaped as in
+    the file (trajectory axis first; rows past ``count[j]`` are NaN / −1); ``run.read(field, trajectories,
+    records)`` reads a part of one. Metadata: ``count``, ``step``, ``final`` (dict of arrays), ``complete``,
+    ``experiment`` (validated from the stored config), ``config`` (the stored config as a dict), ``attrs`` (the
+    root attributes), ``fields`` (what was recorded), ``dimension``, ``table_kind``, ``wall_names``, ``radius``,
+    ``kappa``, ``every``, ``trajectories``, ``records``, ``path`` (None in memory).
+
+    A file-backed run opens its file for each read; ``with run: …`` keeps it open for many reads (and gives
+    ``run.h5``, the open ``h5py.File``)."""
+
+    def __init__(self, attrs, count, step, final, fields, path=None, arrays=None, experiment=None):
+        self.attrs = attrs
+        self.path = path
+        self.count, self.step = _frozen(count), _frozen(step)
+        self.final = {k: _frozen(v) for k, v in final.items()}
+        self.fields = tuple(fields)
+        self._arrays = {} if arrays is None else {k: _frozen(v) for k, v in arrays.items()}
+        self._experiment = experiment
+        self._h5, self._depth = None, 0
+        self.dimension = int(attrs["dimension"])
+        self.table_kind = str(attrs["table_kind"])
+        self.wall_names = list(attrs["wall_names"])
+        self.radius, self.kappa = float(attrs["radius"]), float(attrs["kappa"])
+        self.complete = bool(attrs["complete"])
+        source = path or "<run>"
+        try:
+            self.config = yaml.safe_load(attrs["config"])
+        except yaml.YAMLError:
+            raise FileError(source, "config", "the root attribute is not valid YAML") from None
+        if not isinstance(self.config, dict) or not isinstance(self.config.get("table"), dict):
+            raise FileError(source, "config", "the root attribute has no resolved 'table' mapping")
+        out = self.config.get("output")
+        self.every = int((out.get("every", 1) if isinstance(out, dict) else 1) or 1)
+        self.trajectories, self.records = len(self.count), len(self.step)
+
+    # -- making one --------------------------------------------------------------------------------------------
+    @classmethod
+    def open(cls, path):
+        """Read the run file at ``path`` (checked: an rbx run of a schema this rbx reads) -> :class:`Run`.
+        Raises :class:`FileError`."""
+        path = str(path)
+        with _open_h5(path) as f:
+            try:
+                _check_rbx_file(f, path, "collisions")
+                g = f["collisions"]
+                attrs = {k: _attr(f.attrs[k]) for k in f.attrs}
+                fields = [k for k in RECORD_FIELDS if k in g]
+                fin = f.get("final")
+                final = {} if fin is None else {k: fin[k][...] for k in fin}
+                return cls(attrs, g["count"][...], g["step"][...], final, fields, path=path)
+            except FileError:
+                raise
+            except Exception as exc:   # a damaged file can fail on the first read rather than on opening
+                raise FileError(path, None, f"cannot read the HDF5 file (damaged?): {_first_line(exc)}") from None
+
+    @classmethod
+    def from_memory(cls, experiment, sink, complete):
+        """The run of ``experiment`` collected by a :class:`rbx.simulate.MemorySink` -> :class:`Run`."""
+        M = experiment.run.trajectories
+        arrays = sink.records
+        count = np.zeros(M, np.int64) if sink.count is None else np.asarray(sink.count, np.int64)
+        nrec = next(iter(arrays.values())).shape[1] if arrays else 0
+        step = np.arange(nrec, dtype=np.int64) * experiment.output.every
+        attrs = root_attrs(experiment, complete)
+        return cls(attrs, count, step, sink.final or {}, [f for f in RECORD_FIELDS if f in arrays], arrays=arrays,
+                   experiment=experiment)
+
+    # -- reading -----------------------------------------------------------------------------------------------
+    def __enter__(self):
+        if self.path is not None:
+            if self._h5 is None:
+                self._h5 = _open_h5(self.path)
+            self._depth += 1
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self):
+        if self._h5 is not None:
+            self._depth -= 1
+            if self._depth <= 0:
+                self._h5.close()
+                self._h5, self._depth = None, 0
+
+    @property
+    def h5(self):
+        """The open ``h5py.File`` inside ``with run:`` (file-backed runs)."""
+        if self._h5 is None:
+            raise RuntimeError("run.h5 exists only inside 'with run:' for a run read from a file")
+        return self._h5
+
+    @contextlib.contextmanager
+    def _reading(self):
+        if self._h5 is not None:
+            yield self._h5["collisions"]
+        else:
+            with _open_h5(self.path) as f:
+                yield f["collisions"]
+
+    def require(self, fields, why):
+        """Raise :class:`FileError` unless every field in ``fields`` was recorded (``why``: what needs them)."""
+        missing = [f for f in fields if f not in self.fields]
+        if missing:
+            f = missing[0]
+            raise FileError(self.path or "<run>", f"collisions/{f}",
+                            f"not in this file: {why} needs {', '.join(fields)} (the run did not record it: add "
+                            f"'{f}' to output.record)")
+
+    def read(self, field, trajectories=None, records=slice(None)):
+        """One recorded field for some trajectories (None: all; else a sorted list) and a record slice ->
+        (len(trajectories), records, …) array."""
+        self.require([field], f"reading '{field}'")
+        idx = slice(None) if trajectories is None else sorted(trajectories)
+        if isinstance(idx, list) and idx == list(range(idx[0], idx[-1] + 1)):
+            idx = slice(idx[0], idx[-1] + 1)       # a contiguous block reads much faster than a point selection
+        if self.path is None or field in self._arrays:
+            data = self._arrays[field]
+            return data[idx][:, records]
+        with self._reading() as g:
+            ds = g[field]
+            start, stop, stride = records.indices(ds.shape[1])
+            if stride != 1:
+                return ds[idx, start:stop][:, ::stride]
+            return ds[idx, start:stop]
+
+    def __getattr__(self, name):
+        if name in FIELD and not name.startswith("_"):
+            if name not in self.fields:
+                raise AttributeError(f"{self.path or 'this run'}: the run did not record '{name}' (recorded: "
+                                     f"{', '.join(self.fields) or 'nothing'}; add it to output.record)")
+            if name not in self._arrays:
+                with self._reading() as g:
+                    self._arrays[name] = _frozen(g[name][...])
+            return self._arrays[name]
+        raise AttributeError(f"'Run' object has no attribute '{name}'")
+
+    def __dir__(self):
+        return sorted(set(super().__dir__()) | set(self.fields))
+
+    def __repr__(self):
+        where = self.path or "in memory"
+        return (f"<rbx.Run {where}: {self.table_kind}, {self.trajectories} trajectories × {self.records} records "
+                f"of {', '.join(self.fields) or 'nothing'}{'' if self.complete else ', INCOMPLETE'}>")
+
+    @property
+    def experiment(self):
+        """The validated :class:`rbx.model.Experiment` of the stored config (raises ConfigError if it does not
+        validate with this rbx)."""
+        if self._experiment is None:
+            self._experiment = read_experiment(self.attrs["config"], self.path or "<run>")
+        return self._experiment
+
+    def geometry(self):
+        """The shrunk table the centre moved in (:class:`rbx.geometry.Geometry`)."""
+        from . import tables
+        table = {k: v for k, v in self.config["table"].items() if k != "kind"}
+        return tables.build(self.table_kind, table, self.radius)
+
+    def scene(self):
+        """A title naming the scene and rule: 'disc (R = 0.1, κ = 0.5) in a 2 × 1 rectangle · rough'."""
+        from .analysis import scene_title
+        return scene_title(self.dimension, self.table_kind, self.config.get("table", {}), self.radius, self.kappa,
+                           self.config.get("boundary", {}), self.wall_names)
+
+    def to_xarray(self):
+        """The records as an ``xarray.Dataset`` (needs the optional extra ``rbx[xarray]``).
+
+        One variable per recorded field with dimensions ``trajectory``, ``record`` and, for vectors and the 3D
+        spin, ``axis`` (x, y[, z]); the 3D orientation matrix has ``axis`` (row: space frame) and ``axis2``
+        (column: body frame). Variable ``count`` (trajectory); coordinates ``trajectory``, ``record``, ``step``
+        (the collision number of each record, along ``record``), ``axis``, ``axis2``. Each variable carries
+        ``units`` and ``description`` (:data:`rbx.model.FIELDS`); the dataset's attributes are the root
+        attributes of the file (``config``, ``complete``, …)."""
+        try:
+            import xarray as xr
+        except ImportError:
+            raise ImportError("Run.to_xarray needs xarray: pip install 'rbx[xarray]'") from None
+        n = self.dimension
+        names = ["x", "y", "z"][:n]
+        tails = {0: (), 1: ("axis",), 2: ("axis", "axis2")}
+        data = {}
+        for name in self.fields:
+            f = FIELD[name]
+            values = getattr(self, name)
+            data[name] = xr.Variable(("trajectory", "record") + tails[len(f.shape(n))], values,
+                                     attrs={"units": f.units, "description": f.description})
+        units, text = INDEX_DATASETS["count"]
+        data["count"] = xr.Variable(("trajectory",), self.count, attrs={"units": units, "description": text})
+        coords = {"trajectory": np.arange(self.trajectories), "record": np.arange(self.records),
+                  "step": ("record", self.step, {"units": "1", "description": INDEX_DATASETS["step"][1]}),
+                  "axis": names}
+        if n == 3 and "orientation" in self.fields:
+            coords["axis2"] = names
+        attrs = {k: int(v) if isinstance(v, bool) else v for k, v in self.attrs.items()}   # netCDF has no bool
+        return xr.Dataset(data, coords=coords, attrs=attrs)
+
+
+def _frozen(a):
+    a = np.asarray(a)
+    if a.flags.writeable:
+        a = a.view()
+        a.flags.writeable = False
+    return a
+
+
+# ---- returns/ (rbx histogram) -----------------------------------------------------------------------------------
+
+#: attributes of returns/ -> meaning
+RETURNS_ATTRS = {
+    "wall": "the wall sampled and returned to ('': the whole boundary, next collision)",
+    "samples": "states sampled (M)", "returned": "of them, returned within run.collisions",
+    "not_returned": "the others", "velocity_dimension": "d = n + n(n−1)/2",
+    "predicted_density": "density of φ the invariance of the billiard measure predicts",
+    "predicted_cdf": "its distribution function", "ks_statistic": "Kolmogorov–Smirnov D against it",
+    "ks_pvalue": "its p-value", "seconds": "time the experiment took",
+}
+
+
+def write_returns(path, cfg, result):
+    """Write a return-angle experiment (:class:`rbx.histogram.Returns`) to a new HDF5 file (via ``path.partial``,
+    renamed at the end).
+
+    Root attributes :data:`ROOT_ATTRS`; group ``returns/``: ``angle`` (K,) return angles [rad], ``trajectory``
+    (K,) their trajectory indices, ``collisions`` (K,) collisions to return, ``initial_angle`` (M,) sampled
+    angles; attributes :data:`RETURNS_ATTRS`."""
+    names = cfg.wall_names
+    with create(path) as h5:
+        write_root_attrs(h5, cfg, complete=True)
+        g = h5.create_group("returns")
+        g.create_dataset("angle", data=result.angle)
+        g.create_dataset("trajectory", data=np.nonzero(result.returned)[0].astype(np.int64))
+        g.create_dataset("collisions", data=result.collisions[result.returned].astype(np.int64))
+        g.create_dataset("initial_angle", data=result.initial_angle)
+        values = {"wall": "" if result.wall is None else names[result.wall], "samples": result.samples,
+                  "returned": result.samples - result.not_returned, "not_returned": result.not_returned,
+                  "velocity_dimension": result.d,
+                  "predicted_density": f"{result.d - 1}·cos φ·sin^{result.d - 2} φ",
+                  "predicted_cdf": f"sin^{result.d - 1} φ", "ks_statistic": result.ks_statistic,
+                  "ks_pvalue": result.ks_pvalue, "seconds": result.seconds}
+        assert set(values) == set(RETURNS_ATTRS)
+        g.attrs.update(values)
+    os.replace(temporary_path(path), path)
+
+
+def read_returns(path):
+    """Read a file written by ``rbx histogram`` -> dict: the ``returns/`` datasets (``angle``, ``trajectory``,
+    ``collisions``, ``initial_angle``), its attributes (:data:`RETURNS_ATTRS`) and ``attrs`` (the root
+    attributes). Raises :class:`FileError`."""
+    path = str(path)
+    with _open_h5(path) as f:
+        _check_rbx_file(f, path, "returns")
+        g = f["returns"]
+        out = {k: g[k][...] for k in g}
+        out.update({k: _attr(v) for k, v in g.attrs.items()})
+        out["attrs"] = {k: _attr(f.attrs[k]) for k in f.attrs}
+    return out
