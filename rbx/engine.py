@@ -2,7 +2,21 @@
 
 Three tiers (STYLE, after stumpy): :mod:`rbx.simulate` validates and allocates → :func:`run_advance_all` runs
 slices of the trajectories on a thread pool through :func:`advance_all` (``nogil``; each trajectory writes only its
-own slots) → :func:`advance`, the serial loop of one trajectory. Kernels take arrays and scalars only.
+own slots) → :func:`advance`, the serial loop of one trajectory. Kernels take arrays and scalars only, in five
+named groups (module-level named tuples, so that Numba types them and its disk cache finds them again):
+
+- :class:`Table`: the shrunk table's primitives (codes, wall of each primitive, parameters) and the flight
+  tolerance;
+- :class:`Rules`: the rule trees flattened into arrays (:meth:`rbx.rules.CompiledRules.kernel_arrays`);
+- :class:`Settings`: the run's scalars (all ``spec`` bits, stop wall, record stride and mask, renormalisation
+  period, the ball's R and κ);
+- :class:`State`: the state of the M trajectories, one row each, read and written in place;
+- :class:`Records`: the block's record buffers, one per field of :data:`rbx.model.FIELDS`, named as the fields.
+
+Beside them go only the per-call arguments (the trajectories' slice, their collision targets, ``spec`` — a
+compile-time literal, see :data:`COMPILED_BITS` — and the record counts). A named tuple of arrays costs nothing in
+the loop: Numba passes its members as separate arguments, and :func:`advance` is compiled without the runtime, so
+reading a member is no reference count.
 
 Per collision (ARCHITECTURE.md, "The event loop"):
  1. ``next_collision``: the smallest flight time over the shrunk table's primitives (inf: the trajectory escapes
@@ -15,6 +29,7 @@ Per collision (ARCHITECTURE.md, "The event loop"):
  6. every ``every``-th collision, the requested fields go to the trajectory's row of the block buffers.
 """
 from concurrent.futures import ThreadPoolExecutor
+from typing import NamedTuple
 
 import numba
 import numpy as np
@@ -22,13 +37,83 @@ from numba import literally
 
 from ._jit import jit, jit_hot, jit_loop, stack_array
 from .geometry import contact_normal, next_collision, slab_collision, snap
-from .model import FIELD
+from .model import FIELD, FIELDS
 from .physics import collide, collide_slab
 from .rules import choose
+
+try:                # Numba's fingerprint of a value's type (private: see _entry_point)
+    from numba._dispatcher import compute_fingerprint
+except ImportError:  # pragma: no cover
+    compute_fingerprint = None
 
 # bits of the record mask (rbx.model.FIELDS), as module constants so that Numba compiles them in
 F_TIME, F_POSITION, F_VELOCITY, F_SPIN, F_ORIENTATION, F_WALL, F_RANK = (
     FIELD[f].bit for f in ("time", "position", "velocity", "angular_velocity", "orientation", "wall", "rank"))
+
+
+class Table(NamedTuple):
+    """The shrunk table (:class:`rbx.geometry.Geometry`) as the kernels read it."""
+    codes: np.ndarray       # (P,) int64: the kind of each primitive (geometry's codes)
+    prim_wall: np.ndarray   # (P,) int64: the wall each primitive belongs to
+    params: np.ndarray      # (P, k) float64: each primitive's parameters
+    tol: float              # flights shorter than this do not count (END_TOLERANCE × the table's size)
+
+
+class Rules(NamedTuple):
+    """The rule trees of the walls as arrays (:class:`rbx.rules.CompiledRules`; :func:`rbx.rules.choose`)."""
+    root: np.ndarray        # (walls,) root node of each wall
+    kind: np.ndarray        # (nodes,) node kind
+    rank: np.ndarray        # (nodes,) roughness rank (constant nodes)
+    first: np.ndarray       # (nodes,) first child in ``children``
+    children: np.ndarray    # (links,) child nodes
+    cumprob: np.ndarray     # (links,) cumulative probabilities (random nodes)
+    axis: np.ndarray        # (nodes, n) body-frame axis (hemisphere nodes)
+    basis: np.ndarray       # (nodes, walls, n-1, n) roughness basis (constant nodes)
+
+
+class Settings(NamedTuple):
+    """The run's scalars."""
+    flags: int              # every bit S_* of the run; the kernel takes the run-time ones (RUNTIME_BITS) from here
+    stop_wall: int          # with S_STOP_WALL, a trajectory ends right after hitting this wall
+    every: int              # record every ``every``-th collision
+    mask: int               # which fields are recorded: the bits of rbx.model.FIELDS
+    renorm_every: int       # rescale onto the initial energy every so many rough collisions (0: never)
+    R: float                # the ball's radius
+    kappa: float            # the ball's inertia coefficient κ
+
+
+class State(NamedTuple):
+    """The state of M trajectories, row j for trajectory j, advanced in place."""
+    pos: np.ndarray         # (M, n) centre
+    vel: np.ndarray         # (M, n) velocity
+    W: np.ndarray           # (M, n, n) spin matrix (antisymmetric)
+    theta: np.ndarray       # (M,) 2D orientation angle
+    A: np.ndarray           # (M, 3, 3) 3D orientation (body to space)
+    time: np.ndarray        # (M,)
+    ncoll: np.ndarray       # (M,) int64 collisions made
+    draws: np.ndarray       # (M,) int64 random draws used
+    alive: np.ndarray       # (M,) bool: not escaped, not stopped
+    keys: np.ndarray        # (M,) uint64 random stream keys
+    last_wall: np.ndarray   # (M,) int64 wall of the last collision (−1: none yet)
+    last_rank: np.ndarray   # (M,) int64 rank of the rule at the last collision
+    energy0: np.ndarray     # (M,) initial energy (the renormalisation's target)
+    comp: np.ndarray        # (M, n+1) rounding errors carried by compensated summation (position, time)
+
+
+class Records(NamedTuple):
+    """The record buffers of one block, one per field of :data:`rbx.model.FIELDS` (same names, same order): slot
+    (j, r) is trajectory j's r-th record of the block. A field not recorded has a buffer of size 0."""
+    time: np.ndarray              # (M, b)
+    position: np.ndarray          # (M, b, n)
+    velocity: np.ndarray          # (M, b, n)
+    angular_velocity: np.ndarray  # (M, b, 1 or 3)
+    orientation: np.ndarray       # (M, b, 1 or 9)
+    wall: np.ndarray              # (M, b) int32
+    rank: np.ndarray              # (M, b) int32
+
+
+assert Records._fields == tuple(f.name for f in FIELDS)
+
 
 
 @jit_hot
@@ -93,35 +178,34 @@ def scale_state(v, W, f, n):
 
 
 @jit_hot
-def write_record(j, r, mask, t, a, v, W, theta, A, wall, rank, o_time, o_pos, o_vel, o_spin, o_orient, o_wall,
-                 o_rank, n):
-    """Write the requested fields of one state into slot (j, r) of the block buffers."""
+def write_record(j, r, mask, t, a, v, W, theta, A, wall, rank, out, n):
+    """Write the requested fields of one state into slot (j, r) of the block buffers ``out`` (:class:`Records`)."""
     if mask & F_TIME:
-        o_time[j, r] = t
+        out.time[j, r] = t
     if mask & F_POSITION:
         for i in range(n):
-            o_pos[j, r, i] = a[i]
+            out.position[j, r, i] = a[i]
     if mask & F_VELOCITY:
         for i in range(n):
-            o_vel[j, r, i] = v[i]
+            out.velocity[j, r, i] = v[i]
     if mask & F_SPIN:
         if n == 2:
-            o_spin[j, r, 0] = W[1, 0]
+            out.angular_velocity[j, r, 0] = W[1, 0]
         else:
-            o_spin[j, r, 0] = W[2, 1]
-            o_spin[j, r, 1] = W[0, 2]
-            o_spin[j, r, 2] = W[1, 0]
+            out.angular_velocity[j, r, 0] = W[2, 1]
+            out.angular_velocity[j, r, 1] = W[0, 2]
+            out.angular_velocity[j, r, 2] = W[1, 0]
     if mask & F_ORIENTATION:
         if n == 2:
-            o_orient[j, r, 0] = theta
+            out.orientation[j, r, 0] = theta
         else:
             for i in range(3):
                 for k in range(3):
-                    o_orient[j, r, 3 * i + k] = A[i, k]
+                    out.orientation[j, r, 3 * i + k] = A[i, k]
     if mask & F_WALL:
-        o_wall[j, r] = wall
+        out.wall[j, r] = wall
     if mask & F_RANK:
-        o_rank[j, r] = rank
+        out.rank[j, r] = rank
 
 
 #: bits of ``spec``, the compile-time description of what a run needs (SPEC §7: skip what a scene does not need).
@@ -169,20 +253,25 @@ def kahan_add(s, comp, j, i, x):
 
 
 @jit_loop
-def advance(j, stop, spec, flags, stop_wall, every, mask, renorm_every, codes, prim_wall, params, tol, R, kappa,
-            root, kind, rank, first, children, cumprob, axis, basis,
-            pos, vel, W, theta, A, time, ncoll, draws, alive, keys, last_wall, last_rank, energy0, comp,
-            o_time, o_pos, o_vel, o_spin, o_orient, o_wall, o_rank):
-    """Run trajectory j until it has made ``stop`` collisions in all -> records written to row j.
+def advance(j, stop, spec, table, rules, settings, state, out):
+    """Run trajectory j until it has made ``stop`` collisions in all -> records written to row j of ``out``.
 
-    It ends early (``alive[j] = False``) when no wall lies ahead (an escape) or, if ``stop_wall ≥ 0``, right
-    after a collision with that wall (the return loop of the invariant-measure experiment). With
-    ``S_COMPENSATED``, ``comp[j]`` carries the rounding errors of the position (0…n−1) and time (n) sums."""
+    ``table``, ``rules``, ``settings``, ``state``, ``out``: the groups :class:`Table`, :class:`Rules`,
+    :class:`Settings`, :class:`State`, :class:`Records`; ``spec``: the compiled bits, a literal. It ends early
+    (``state.alive[j] = False``) when no wall lies ahead (an escape) or, with ``S_STOP_WALL``, right after a
+    collision with ``settings.stop_wall`` (the return loop of the invariant-measure experiment). With
+    ``S_COMPENSATED``, ``state.comp[j]`` carries the rounding errors of the position (0…n−1) and time (n) sums.
+
+    Compiled without the Numba runtime (:data:`rbx._jit.jit_loop`): reading a member of a group is no reference
+    count, and the members used per collision are taken into locals once, here."""
     literally(spec)
     n = 3 if spec & S_DIM3 else 2
     # ``spec``: the compiled bits (a literal); ``flags``: all bits, of which the run-time ones are taken. For a
     # compiled bit, ``flags & RUNTIME_BITS & bit`` folds to 0, so ``on & bit`` is a constant and its branch goes.
-    on = spec | (flags & RUNTIME_BITS)
+    on = spec | (settings.flags & RUNTIME_BITS)
+    codes, prim_wall, params, tol = table.codes, table.prim_wall, table.params, table.tol
+    R, kappa, every, renorm_every = settings.R, settings.kappa, settings.every, settings.renorm_every
+    comp = state.comp
     # the trajectory's state in the kernel's own stack frame (registers, once n is a constant): see stack_array
     a = stack_array(3, (n,))
     v = stack_array(3, (n,))
@@ -193,22 +282,22 @@ def advance(j, stop, spec, flags, stop_wall, every, mask, renorm_every, codes, p
     E = stack_array(9, (3, 3))
     tmp = stack_array(9, (3, 3))
     for i in range(n):
-        a[i] = pos[j, i]
-        v[i] = vel[j, i]
+        a[i] = state.pos[j, i]
+        v[i] = state.vel[j, i]
         for k in range(n):
-            Wj[i, k] = W[j, i, k]
+            Wj[i, k] = state.W[j, i, k]
     if on & S_ORIENT:
         for i in range(3):
             for k in range(3):
-                Aj[i, k] = A[j, i, k]
-    th = theta[j]
-    t = time[j]
-    c = ncoll[j]
-    d = draws[j]
-    key = keys[j]
-    w = last_wall[j]
-    rk = last_rank[j]
-    e0 = energy0[j]
+                Aj[i, k] = state.A[j, i, k]
+    th = state.theta[j]
+    t = state.time[j]
+    c = state.ncoll[j]
+    d = state.draws[j]
+    key = state.keys[j]
+    w = state.last_wall[j]
+    rk = state.last_rank[j]
+    e0 = state.energy0[j]
     half_inv_e0 = 0.5 / e0
     nrec = 0
     until_record = every - c % every           # collisions to the next record
@@ -220,7 +309,7 @@ def advance(j, stop, spec, flags, stop_wall, every, mask, renorm_every, codes, p
         else:
             tau, p = next_collision(codes, params, a, v, tol, n)
         if p < 0:
-            alive[j] = False
+            state.alive[j] = False
             break
         # 2. free flight
         if on & S_COMPENSATED:
@@ -253,10 +342,11 @@ def advance(j, stop, spec, flags, stop_wall, every, mask, renorm_every, codes, p
         # 4. rule
         w = prim_wall[p]
         if on & S_TREE:
-            node, d = choose(w, nu, Aj, th, key, d, root, kind, first, children, cumprob, axis, n)
+            node, d = choose(w, nu, Aj, th, key, d, rules.root, rules.kind, rules.first, rules.children,
+                             rules.cumprob, rules.axis, n)
         else:
-            node = root[w]
-        rk = rank[node]
+            node = rules.root[w]
+        rk = rules.rank[node]
         # 5. collision map
         # Without spin arithmetic (a specular-only scene) the map is called with rank 0, a constant: only its
         # reflection is compiled. Every renorm_every-th rough collision, the factor onto the initial energy is
@@ -272,9 +362,9 @@ def advance(j, stop, spec, flags, stop_wall, every, mask, renorm_every, codes, p
                     until_renorm = renorm_every
                     f = energy_factor(v, Wj, R, kappa, e0, half_inv_e0, n)
         if on & S_SLAB:
-            collide_slab(v, Wj, nu[n - 1], R, kappa, map_rank, basis, node, w, work, n)
+            collide_slab(v, Wj, nu[n - 1], R, kappa, map_rank, rules.basis, node, w, work, n)
         else:
-            collide(v, Wj, nu, R, kappa, map_rank, basis, node, w, work, n)
+            collide(v, Wj, nu, R, kappa, map_rank, rules.basis, node, w, work, n)
         if f != 0.0:
             scale_state(v, Wj, f, n)
         c += 1
@@ -283,46 +373,44 @@ def advance(j, stop, spec, flags, stop_wall, every, mask, renorm_every, codes, p
             until_record -= 1
             if until_record == 0:
                 until_record = every
-                write_record(j, nrec, mask, t, a, v, Wj, th, Aj, w, rk, o_time, o_pos, o_vel, o_spin, o_orient,
-                             o_wall, o_rank, n)
+                write_record(j, nrec, settings.mask, t, a, v, Wj, th, Aj, w, rk, out, n)
                 nrec += 1
         if on & S_STOP_WALL:
-            if w == stop_wall:
-                alive[j] = False
+            if w == settings.stop_wall:
+                state.alive[j] = False
                 break
     for i in range(n):
-        pos[j, i] = a[i]
-        vel[j, i] = v[i]
+        state.pos[j, i] = a[i]
+        state.vel[j, i] = v[i]
         for k in range(n):
-            W[j, i, k] = Wj[i, k]
+            state.W[j, i, k] = Wj[i, k]
     if on & S_ORIENT:
         for i in range(3):
             for k in range(3):
-                A[j, i, k] = Aj[i, k]
-    theta[j] = th
-    time[j] = t
-    ncoll[j] = c
-    draws[j] = d
-    last_wall[j] = w
-    last_rank[j] = rk
+                state.A[j, i, k] = Aj[i, k]
+    state.theta[j] = th
+    state.time[j] = t
+    state.ncoll[j] = c
+    state.draws[j] = d
+    state.last_wall[j] = w
+    state.last_rank[j] = rk
     return nrec
 
 
 @jit
-def advance_all(j0, j1, stop, spec, flags, stop_wall, every, mask, renorm_every, codes, prim_wall, params, tol, R,
-                kappa, root, kind, rank, first, children, cumprob, axis, basis,
-                pos, vel, W, theta, A, time, ncoll, draws, alive, keys, last_wall, last_rank, energy0, comp,
-                o_time, o_pos, o_vel, o_spin, o_orient, o_wall, o_rank, nrec):
-    """Advance the live trajectories j0 ≤ j < j1 to ``stop[j]`` collisions -> records written per trajectory,
-    their number in ``nrec[j]``. Compiled ``nogil``: :func:`run_advance_all` runs slices of the trajectories on
-    several threads at once (each writes only its own rows)."""
+def advance_all(j0, j1, stop, spec, table, rules, settings, state, out, nrec):
+    """Advance the live trajectories j0 ≤ j < j1 to ``stop[j]`` collisions -> records written per trajectory into
+    ``out``, their number in ``nrec[j]``.
+
+    ``table``, ``rules``, ``settings``, ``state``, ``out``: :class:`Table`, :class:`Rules`, :class:`Settings`,
+    :class:`State`, :class:`Records`; ``spec``: the compiled bits (``settings.flags & COMPILED_BITS``), a literal.
+    Compiled ``nogil``: :func:`run_advance_all` runs slices of the trajectories on several threads at once (each
+    writes only its own rows)."""
     literally(spec)
+    alive = state.alive
     for j in range(j0, j1):
         if alive[j]:
-            nrec[j] = advance(j, stop[j], spec, flags, stop_wall, every, mask, renorm_every, codes, prim_wall, params,
-                              tol, R, kappa, root, kind, rank, first, children, cumprob, axis, basis,
-                              pos, vel, W, theta, A, time, ncoll, draws, alive, keys, last_wall, last_rank, energy0,
-                              comp, o_time, o_pos, o_vel, o_spin, o_orient, o_wall, o_rank)
+            nrec[j] = advance(j, stop[j], spec, table, rules, settings, state, out)
 
 
 _POOL = [None, 0]           # a thread pool and its size, made on first use
@@ -336,32 +424,63 @@ def _pool(threads):
     return _POOL[0]
 
 
-def run_advance_all(*args):
-    """Advance every live trajectory (arguments as :func:`advance_all` takes them after ``j0, j1``, without
-    ``nrec``) on ``numba.get_num_threads()`` threads -> records written per trajectory (M,).
+#: (spec, fingerprint of the other arguments' types) -> the compiled entry point of advance_all for them
+_ENTRY = {}
+
+
+def _entry_point(stop, spec, groups, nrec):
+    """The compiled entry point of :func:`advance_all` for these arguments (compiled or loaded on first use).
+
+    Its key in ``advance_all.overloads`` is the tuple of Numba types of the arguments, with ``spec`` as a literal;
+    ``numba.typeof`` of the groups' 34 arrays takes ~0.2 ms, 2–3 % of a block of the rough strip, so the entry
+    point is looked up first by Numba's own fingerprint of the arguments' types (the key of its dispatcher's type
+    cache: class and field names, dtypes, dimensions, layouts, writability; ~3 µs)."""
+    try:
+        key = (spec, compute_fingerprint((stop, groups, nrec)))
+    except (TypeError, ValueError, NotImplementedError):     # a value it cannot fingerprint, or no such function
+        key = None
+    entry = _ENTRY.get(key)
+    if entry is None:
+        sig = ((numba.types.int64, numba.types.int64, numba.typeof(stop), numba.types.literal(spec))
+               + tuple(numba.typeof(g) for g in groups) + (numba.typeof(nrec),))
+        cres = advance_all.overloads.get(sig)
+        if cres is None:
+            advance_all(0, 0, stop, spec, *groups, nrec)    # compiles (or loads) the specialisation; runs nothing
+            cres = advance_all.overloads[sig]
+        entry = cres.entry_point
+        if key is not None:
+            _ENTRY[key] = entry
+    return entry
+
+
+def run_advance_all(stop, table, rules, settings, state, out):
+    """Advance every live trajectory j to ``stop[j]`` collisions on ``numba.get_num_threads()`` threads -> records
+    written per trajectory (M,).
+
+    ``table``, ``rules``, ``settings``, ``state``, ``out``: :class:`Table`, :class:`Rules`, :class:`Settings`,
+    :class:`State` (M trajectories), :class:`Records`. The compiled bits ``spec = settings.flags & COMPILED_BITS``
+    select the specialisation.
 
     The trajectories are cut into slices (8 per thread, so that slices of short trajectories even out), each run
     by the compiled entry point of the specialisation on a thread of a pool; the kernel releases the GIL. Why not
     ``prange``: a parallel kernel takes ~15 s to compile against ~5 s for a serial one, for every combination of
-    compiled bits in use. Why the entry point: ``spec`` is a literal, and resolving a literal argument through the
-    dispatcher costs ~10 ms per call (it re-types the call every time); the entry point costs ~5 µs. The first call
-    of a specialisation goes through the dispatcher (which compiles it or loads it from the cache). Each
-    trajectory's numbers depend only on its own state and stream, never on the slicing or the thread count."""
-    M = args[21].shape[0]                       # pos
+    compiled bits in use. Why the entry point (:func:`_entry_point`): ``spec`` is a literal, and resolving a literal
+    argument through the dispatcher costs ~10 ms per call (it re-types the call every time); a call through the
+    entry point, groups built, costs ~12 µs in all (``Simulation.advance`` with nothing to do). The first call of a specialisation goes through the dispatcher (which compiles it or loads it from the
+    cache). Each trajectory's numbers depend only on its own state and stream, never on the slicing or the thread
+    count."""
+    M = state.pos.shape[0]
+    spec = int(settings.flags) & COMPILED_BITS
     nrec = np.zeros(M, np.int64)
-    full = (0, M) + args + (nrec,)
-    sig = tuple(numba.types.literal(x) if i == 3 else numba.typeof(x) for i, x in enumerate(full))
-    cres = advance_all.overloads.get(sig)
-    if cres is None:
-        advance_all(0, 0, *args, nrec)           # compiles (or loads) the specialisation; runs nothing
-        cres = advance_all.overloads[sig]
+    groups = (table, rules, settings, state, out)
+    entry = _entry_point(stop, spec, groups, nrec)
     threads = max(1, min(numba.get_num_threads(), M))
     if threads == 1:
-        cres.entry_point(*full)
+        entry(0, M, stop, spec, *groups, nrec)
         return nrec
     cuts = np.linspace(0, M, min(M, 8 * threads) + 1).astype(np.int64)
-    jobs = [_pool(threads).submit(cres.entry_point, int(a), int(b), *args, nrec) for a, b in zip(cuts[:-1], cuts[1:])
-            if b > a]
+    jobs = [_pool(threads).submit(entry, int(a), int(b), stop, spec, *groups, nrec)
+            for a, b in zip(cuts[:-1], cuts[1:]) if b > a]
     for job in jobs:
         job.result()
     return nrec

@@ -32,6 +32,12 @@ class CompiledRules:
     uses_random: bool
     max_rank: int
 
+    def kernel_arrays(self):
+        """The arrays the kernels read, as the group :class:`rbx.engine.Rules`."""
+        from .engine import Rules       # here: rbx.engine imports this module
+        return Rules(root=self.root, kind=self.kind, rank=self.rank, first=self.first, children=self.children,
+                     cumprob=self.cumprob, axis=self.axis, basis=self.basis)
+
 
 def compile_rules(wall_rules, geom):
     """Flatten one rule per wall (config objects) into :class:`CompiledRules`; equal rules share nodes."""

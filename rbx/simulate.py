@@ -123,18 +123,17 @@ class Simulation:
 
     def advance(self, stop, bufs):
         """Advance every live trajectory to ``stop`` collisions in all -> records written per trajectory (M,)."""
-        r = self.rules
-        stops = np.full(self.M, stop, np.int64)
-        flags = self.spec()
-        return engine.run_advance_all(
-            stops, flags & engine.COMPILED_BITS, flags, self.stop_wall, self.cfg.output.every, self.mask,
-            int(self.numerics.renormalize),
-            self.geom.codes, self.geom.walls, self.geom.params, self.tol, self.cfg.ball.radius, self.cfg.ball.kappa,
-            r.root, r.kind, r.rank, r.first, r.children, r.cumprob, r.axis, r.basis,
-            self.pos, self.vel, self.W, self.theta, self.A, self.time, self.ncoll, self.draws, self.alive,
-            self.keys, self.last_wall, self.last_rank, self.energy0, self._comp,
-            bufs["time"], bufs["position"], bufs["velocity"], bufs["angular_velocity"], bufs["orientation"],
-            bufs["wall"], bufs["rank"])
+        geom, ball = self.geom, self.cfg.ball
+        table = engine.Table(codes=geom.codes, prim_wall=geom.walls, params=geom.params, tol=float(self.tol))
+        settings = engine.Settings(flags=int(self.spec()), stop_wall=self.stop_wall, every=int(self.cfg.output.every),
+                                   mask=int(self.mask), renorm_every=int(self.numerics.renormalize),
+                                   R=float(ball.radius), kappa=float(ball.kappa))
+        state = engine.State(pos=self.pos, vel=self.vel, W=self.W, theta=self.theta, A=self.A, time=self.time,
+                             ncoll=self.ncoll, draws=self.draws, alive=self.alive, keys=self.keys,
+                             last_wall=self.last_wall, last_rank=self.last_rank, energy0=self.energy0,
+                             comp=self._comp)
+        return engine.run_advance_all(np.full(self.M, stop, np.int64), table, self.rules.kernel_arrays(), settings,
+                                      state, engine.Records(**bufs))
 
     def run(self, sink, progress=None, should_stop=None, write_initial=None):
         """Run to ``run.collisions`` collisions, streaming records to ``sink`` -> True if complete.
