@@ -1,4 +1,5 @@
-"""The one place that decides how rbx compiles its kernels (STYLE: one module owns the jit policy).
+"""The one place that decides how rbx compiles its kernels (STYLE: one module owns the jit policy; tests/test_jit.py
+fails if any other module under rbx/ calls Numba's jit decorators or sets ``fastmath`` or ``parallel``).
 
 - ``cache=True``: compiled kernels are stored on disk so a second run starts in well under a second. Numba checks
   only the timestamp of a kernel's *own* file, not of the helpers inlined into it from other modules, so an edited
@@ -19,7 +20,8 @@ from numba.core import cgutils
 from numba.extending import intrinsic
 from numba.np.arrayobj import make_array, populate_array
 
-#: every module that defines kernels (tests/test_jit.py checks the list is complete)
+#: every module that defines kernels (tests/test_jit.py checks that each module under rbx/ importing this one is
+#: listed)
 KERNEL_MODULES = ("_jit", "engine", "geometry", "physics", "rng", "rules")
 #: modules whose values the kernels compile in as constants (the record bits of rbx.model.FIELDS): the cache key
 #: covers them too

@@ -1,0 +1,96 @@
+"""The jit policy and the kernels' interface (rbx/_jit.py, rbx/engine.py).
+
+- rbx/_jit.py alone decides how kernels are compiled: no other module under rbx/ calls Numba's jit decorators or
+  sets compile options (fast-math, parallel) of its own, and every module that defines kernels is in
+  ``_jit.KERNEL_MODULES`` (the kernel cache is keyed by their source).
+- The event loop takes its arrays and scalars in a few named groups (engine.Table, Rules, Settings, State,
+  Records), not 40-odd positional arguments: the signatures are pinned here so that the grouping cannot
+  silently regress.
+"""
+import inspect
+import os
+import re
+
+import numpy as np
+
+from rbx import _jit, config, engine
+from rbx.model import RECORD_FIELDS
+from rbx.simulate import Simulation, run_in_memory
+
+PACKAGE = os.path.dirname(os.path.abspath(_jit.__file__))
+STRIP = os.path.join(os.path.dirname(PACKAGE), "configs", "examples", "strip.yaml")
+#: text that only rbx/_jit.py may contain: a jit decorator or a compile option set elsewhere escapes the policy
+FORBIDDEN = ("njit(", "numba.njit", "@njit", "@numba.jit", "numba.jit(", "fastmath=", "parallel=True")
+
+
+def _modules():
+    """(module name relative to rbx, source text) for every .py file under rbx/."""
+    for folder, _, files in os.walk(PACKAGE):
+        for name in sorted(files):
+            if name.endswith(".py"):
+                path = os.path.join(folder, name)
+                rel = os.path.relpath(path, PACKAGE)[:-3].replace(os.sep, ".")
+                with open(path, encoding="utf-8") as f:
+                    yield rel, f.read()
+
+
+def test_only_jit_module_sets_the_jit_policy():
+    found = [(mod, pattern) for mod, text in _modules() if mod != "_jit"
+             for pattern in FORBIDDEN if pattern in text]
+    assert not found, f"jit decorators or options outside rbx/_jit.py: {found}"
+
+
+def test_the_forbidden_patterns_are_found():
+    # the scan above reads the files as text; make sure it does read them and would catch the policy's own lines
+    sources = dict(_modules())
+    assert "engine" in sources and "cli.main" in sources
+    assert any(p in sources["_jit"] for p in FORBIDDEN)
+
+
+def test_every_kernel_module_is_in_the_cache_key():
+    uses_jit = {mod for mod, text in _modules() if re.search(r"from \.+_jit import|import _jit\b", text)}
+    assert uses_jit <= set(_jit.KERNEL_MODULES), uses_jit - set(_jit.KERNEL_MODULES)
+    assert "engine" in uses_jit
+
+
+def test_the_loop_is_compiled_without_the_runtime():
+    assert engine.advance.targetoptions.get("_nrt") is False      # jit_loop
+    assert engine.write_record.targetoptions.get("_nrt") is False  # jit_hot, inlined into the loop
+
+
+def _params(f):
+    return list(inspect.signature(getattr(f, "py_func", f)).parameters)
+
+
+def test_the_kernels_take_named_groups():
+    groups = ["table", "rules", "settings", "state", "out"]
+    assert _params(engine.advance_all) == ["j0", "j1", "stop", "spec"] + groups + ["nrec"]
+    assert _params(engine.advance) == ["j", "stop", "spec"] + groups
+    assert _params(engine.run_advance_all) == ["stop"] + groups
+    assert len(_params(engine.advance_all)) <= 10
+
+
+def test_the_groups():
+    assert engine.Records._fields == RECORD_FIELDS             # one buffer per record field, in FIELDS order
+    assert engine.Table._fields == ("codes", "prim_wall", "params", "tol")
+    assert engine.Rules._fields == ("root", "kind", "rank", "first", "children", "cumprob", "axis", "basis")
+    assert set(engine.Settings._fields) == {"flags", "stop_wall", "every", "mask", "renorm_every", "R", "kappa"}
+    assert "pos" in engine.State._fields and len(engine.State._fields) == 14
+    for group in (engine.Table, engine.Rules, engine.Settings, engine.State, engine.Records):
+        assert group.__module__ == "rbx.engine"    # module level: Numba's disk cache finds the types again
+
+
+def test_the_entry_point_is_found_by_the_fingerprint_of_the_types(monkeypatch):
+    """run_advance_all finds the compiled entry point by Numba's fingerprint of the arguments' types (a few µs)
+    instead of typing them (~0.2 ms a block); without the fingerprint it types them, with the same results."""
+    cfg = config.load(STRIP, {"collisions": 300})
+    spec = Simulation(cfg).spec() & engine.COMPILED_BITS
+    records, count, final = run_in_memory(cfg)
+    assert any(key is not None and key[0] == spec for key in engine._ENTRY)
+    monkeypatch.setattr(engine, "compute_fingerprint", None)
+    records2, count2, final2 = run_in_memory(cfg)
+    np.testing.assert_array_equal(count, count2)
+    for f in records:
+        np.testing.assert_array_equal(records[f], records2[f])
+    for k in final:
+        np.testing.assert_array_equal(final[k], final2[k])
