@@ -75,7 +75,7 @@ def simulate(experiment, *, collisions=None, trajectories=None, seed=None, outpu
     Ctrl-C (SIGINT) while a file is written stops the run between blocks: the file is closed and renamed, marked
     ``complete = False`` (``rbx simulate --resume`` continues it), then KeyboardInterrupt is raised."""
     from .runfile import Run
-    from .simulate import MemorySink, Simulation
+    from .simulation import MemorySink, Simulation
     overrides = {k: v for k, v in (("collisions", collisions), ("trajectories", trajectories), ("seed", seed))
                  if v is not None}
     exp = load(experiment, overrides or None)

@@ -1,6 +1,6 @@
 """The event loop (njit): free flight to the next wall, choose the rule, apply the collision map, record.
 
-Three tiers (STYLE, after stumpy): :mod:`rbx.simulate` validates and allocates → :func:`run_advance_all` runs
+Three tiers (STYLE, after stumpy): :mod:`rbx.simulation` validates and allocates → :func:`run_advance_all` runs
 slices of the trajectories on a thread pool through :func:`advance_all` (``nogil``; each trajectory writes only its
 own slots) → :func:`advance`, the serial loop of one trajectory. Kernels take arrays and scalars only, in five
 named groups (module-level named tuples, so that Numba types them and its disk cache finds them again):
@@ -232,7 +232,7 @@ RUNTIME_BITS = ~COMPILED_BITS
 
 def make_spec(n, orient=False, spin=True, tree=False, record=False, compensated=False, snap=False,
               slab=False, stop_wall=False):
-    """The ``spec`` bits from flags (:class:`rbx.simulate.Simulation` derives them from the config)."""
+    """The ``spec`` bits from flags (:class:`rbx.simulation.Simulation` derives them from the config)."""
     flags = ((n == 3, S_DIM3), (orient, S_ORIENT), (spin, S_SPIN), (tree, S_TREE), (record, S_RECORD),
              (compensated, S_COMPENSATED), (snap, S_SNAP), (slab, S_SLAB),
              (stop_wall, S_STOP_WALL))

@@ -18,7 +18,7 @@ import numpy as np
 
 from . import analysis
 from .sampling import sample_billiard
-from .simulate import Simulation
+from .simulation import Simulation
 
 
 class _NullSink:

@@ -6,7 +6,7 @@ Everything else reads these: :mod:`rbx.config` validates YAML into them, the eng
 and the tests walk it. Nothing here imports a loader, h5py or numba.
 
 How to add a record field: one :class:`Field` row in :data:`FIELDS` (its bit is its position), its write in
-``engine.write_record`` and its value in ``simulate.Simulation.current_record``; config, HDF5 layout, API and
+``engine.write_record`` and its value in ``simulation.Simulation.current_record``; config, HDF5 layout, API and
 tests pick it up from the table.
 """
 import dataclasses

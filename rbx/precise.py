@@ -277,7 +277,7 @@ class PreciseBilliard:
     def _config_initial(data, trajectory):
         init = data["initial"]
         if isinstance(init, dict) and "sample" in init:
-            raise ValueError("a sampled initial state: pass initial= (e.g. a state from rbx.simulate.Simulation)")
+            raise ValueError("a sampled initial state: pass initial= (e.g. a state from rbx.simulation.Simulation)")
         states = init if isinstance(init, list) else [init]
         return states[trajectory % len(states)]
 

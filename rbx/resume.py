@@ -16,7 +16,7 @@ import numpy as np
 from . import __version__
 from .model import ConfigError
 from .runfile import state_digest
-from .simulate import Simulation
+from .simulation import Simulation
 
 #: what ``final/`` must hold to continue (Simulation takes the rest from the config)
 STATE_KEYS = ("time", "position", "velocity", "angular_velocity", "orientation", "collisions", "draws", "alive",

@@ -108,7 +108,7 @@ def write_root_attrs(h5, cfg, complete):
 
 
 class H5Sink:
-    """Streams the records of a :class:`rbx.simulate.Simulation` into an open HDF5 file (``fresh``: a new file,
+    """Streams the records of a :class:`rbx.simulation.Simulation` into an open HDF5 file (``fresh``: a new file,
     whose attributes and datasets are created here; else a file being resumed)."""
 
     def __init__(self, h5, cfg, fresh=True):
@@ -382,7 +382,7 @@ class Run:
 
     @classmethod
     def from_memory(cls, experiment, sink, complete):
-        """The run of ``experiment`` collected by a :class:`rbx.simulate.MemorySink` -> :class:`Run`."""
+        """The run of ``experiment`` collected by a :class:`rbx.simulation.MemorySink` -> :class:`Run`."""
         M = experiment.run.trajectories
         arrays = sink.records
         count = np.zeros(M, np.int64) if sink.count is None else np.asarray(sink.count, np.int64)

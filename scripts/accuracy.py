@@ -33,7 +33,7 @@ import time
 import numpy as np
 
 from rbx import config
-from rbx.simulate import MemorySink, Simulation
+from rbx.simulation import MemorySink, Simulation
 
 ROUGH2 = {"default": {"rule": "constant", "rank": 1}}
 ROUGH3 = {"default": {"rule": "constant", "rank": 2}}

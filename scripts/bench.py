@@ -29,7 +29,7 @@ import yaml
 
 from rbx import config
 from rbx.model import RECORD_FIELDS, RENORMALIZE_EVERY
-from rbx.simulate import MemorySink, Simulation
+from rbx.simulation import MemorySink, Simulation
 
 KAPPA, R = 0.5, 0.1
 

@@ -37,7 +37,7 @@ from accuracy import apply_variant, fmt, machine, source_state  # noqa: E402
 from rbx import config  # noqa: E402
 from rbx.geometry import CONCAVE_ARC, CONVEX_ARC, HALFSPACE, SEGMENT  # noqa: E402
 from rbx.model import RECORD_FIELDS  # noqa: E402
-from rbx.simulate import MemorySink, Simulation  # noqa: E402
+from rbx.simulation import MemorySink, Simulation  # noqa: E402
 
 ALL = RECORD_FIELDS
 TOL = 1e-12          # table and wall checks, relative to the table's size
@@ -664,7 +664,7 @@ def write(path, results, long_rows, cmd, seconds, quick):
         lines.append(f"- BROKEN **{r['name']}** ({r['group']}): " + "; ".join(r["problems"]) + ".")
     if broken:
         import yaml
-        lines += ["", "Reproducers (run with `rbx simulate`, or `rbx.simulate.run_in_memory(rbx.config.from_dict(…))`"
+        lines += ["", "Reproducers (run with `rbx simulate`, or `rbx.simulation.run_in_memory(rbx.config.from_dict(…))`"
                       "; a variant is set on the Simulation before `run`):", ""]
         seen = set()
         for r in broken:

@@ -97,7 +97,7 @@ def test_bench_writes_its_document(tmp_path):
 def test_undoing_a_skip_keeps_the_orbit(i):
     # section 8 compares the kernel with and without each skip: only the work may differ, not the orbit
     from rbx import config, engine
-    from rbx.simulate import MemorySink, Simulation
+    from rbx.simulation import MemorySink, Simulation
     scene, rule, _, attr, bit = bench.SKIPS[i]
     d = bench.scene_dict(scene, rule)
     d["run"]["collisions"] = 2000
@@ -113,7 +113,7 @@ def test_undoing_a_skip_keeps_the_orbit(i):
 
 @pytest.mark.parametrize("scene,rule", list(bench.HAND))
 def test_hand_written_loops_agree_with_rbx(scene, rule):
-    from rbx.simulate import run_in_memory
+    from rbx.simulation import run_in_memory
     _, _, final = run_in_memory(bench.rbx_config(scene, 1000, rule))
     s = final["time"][0] + final["position"][0].sum() + final["velocity"][0].sum()
     if rule != "specular":      # the specular loops carry no spin

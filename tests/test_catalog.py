@@ -7,7 +7,7 @@ from rbx import config
 from rbx.geometry import CONCAVE_ARC, CONVEX_ARC, HALFSPACE, SEGMENT
 from rbx.model import RECORD_FIELDS
 from rbx.physics import energy, spin_matrix
-from rbx.simulate import run_in_memory
+from rbx.simulation import run_in_memory
 
 from catalog import SCENES, scene
 

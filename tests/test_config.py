@@ -191,7 +191,7 @@ def test_numerics_errors_name_the_key(tmp_path, experiment, text, key, problem):
 def test_numerics_reach_the_engine(experiment):
     # the options change what the kernel does: the energy projection off, the energy drifts by rounding; the
     # replaced experiment records the options it ran with
-    from rbx.simulate import MemorySink, Simulation
+    from rbx.simulation import MemorySink, Simulation
     cfg = config.load(experiment, {"collisions": 20000, "trajectories": 1}).replace(
         output=model.Output(None, (), 1))
     finals = {}
@@ -218,7 +218,7 @@ def test_a_tiny_hemisphere_axis_is_normalised_not_nan():
 
 @pytest.mark.parametrize("scale", [1e-150, 1e150])
 def test_extreme_speeds_inside_the_limits_run_without_nan(scale):
-    from rbx.simulate import run_in_memory
+    from rbx.simulation import run_in_memory
     c = {"table": {"kind": "rectangle", "width": 1, "height": 1}, "ball": {"radius": 0.1},
          "boundary": {"default": {"rule": "constant", "rank": 1}},
          "initial": {"position": [0.5, 0.5], "velocity": [0.6 * scale, 0.8 * scale], "angular_velocity": scale},

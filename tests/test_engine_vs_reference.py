@@ -6,7 +6,7 @@ import pytest
 from rbx import config
 from rbx.model import RECORD_FIELDS
 from rbx.rng import PURPOSE_RULES, uniforms
-from rbx.simulate import run_in_memory
+from rbx.simulation import run_in_memory
 
 from catalog import SCENES, scene
 from reference import reference_run

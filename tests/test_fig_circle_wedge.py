@@ -12,7 +12,7 @@ import pytest
 import yaml
 
 from rbx import config, orbits
-from rbx.simulate import run_in_memory
+from rbx.simulation import run_in_memory
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 EXPERIMENTS = os.path.join(ROOT, "configs", "experiments")

@@ -18,7 +18,7 @@ import pytest
 from rbx import analysis, config
 from rbx.histogram import return_experiment
 from rbx.physics import collision_map, spin_vector
-from rbx.simulate import run_in_memory
+from rbx.simulation import run_in_memory
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 EXPERIMENTS = os.path.join(ROOT, "configs", "experiments")

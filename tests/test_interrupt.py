@@ -22,7 +22,7 @@ from click.testing import CliRunner
 
 import rbx.cli.common as common
 import rbx.runfile as runfile
-import rbx.simulate as simulate
+import rbx.simulation as simulate
 from rbx.cli.main import cli
 from tests.catalog import SCENES
 
@@ -151,7 +151,7 @@ def test_real_interrupt_then_real_resume_equals_an_uninterrupted_run(tmp_path):
     size (so the block boundaries differ too), and compare with an uninterrupted run."""
     cfg = strip_random(60_000, trajectories=3, every=7, record=("time", "position", "angular_velocity", "wall", "rank"))
     write_config(tmp_path, cfg)
-    small_blocks = ("import sys, rbx.simulate as s; s.BLOCK_WORK = 600; from rbx.cli.main import cli; "
+    small_blocks = ("import sys, rbx.simulation as s; s.BLOCK_WORK = 600; from rbx.cli.main import cli; "
                     "cli(sys.argv[1:], prog_name='rbx')")
     args = [sys.executable, "-c", small_blocks, "simulate", "exp.yaml", "-o", "run.h5"]
     res, _ = start_and_signal(args, tmp_path / "run.h5.partial", signal.SIGINT, tmp_path, delay=0.3)
@@ -314,7 +314,7 @@ def test_a_killed_run_resumes_exactly_or_is_refused(tmp_path):
     write_config(tmp_path, cfg)
     assert invoke(tmp_path / "exp.yaml", "-o", tmp_path / "ref.h5").exit_code == 0
     reference = read_run(tmp_path / "ref.h5")
-    small_blocks = ("import sys, rbx.simulate as s; s.BLOCK_WORK = 3000; from rbx.cli.main import cli; "
+    small_blocks = ("import sys, rbx.simulation as s; s.BLOCK_WORK = 3000; from rbx.cli.main import cli; "
                     "cli(sys.argv[1:], prog_name='rbx')")
     outcomes = []
     for delay in (0.05, 0.2, 0.35):

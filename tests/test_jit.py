@@ -15,7 +15,7 @@ import numpy as np
 
 from rbx import _jit, config, engine
 from rbx.model import RECORD_FIELDS
-from rbx.simulate import Simulation, run_in_memory
+from rbx.simulation import Simulation, run_in_memory
 
 PACKAGE = os.path.dirname(os.path.abspath(_jit.__file__))
 STRIP = os.path.join(os.path.dirname(PACKAGE), "configs", "examples", "strip.yaml")

@@ -3,7 +3,7 @@ import numpy as np
 import pytest
 
 from rbx import config
-from rbx.simulate import run_in_memory
+from rbx.simulation import run_in_memory
 
 from catalog import scene
 

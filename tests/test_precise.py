@@ -8,7 +8,7 @@ import pytest
 
 from rbx import config
 from rbx.precise import PreciseBilliard, deviation, precise_run
-from rbx.simulate import run_in_memory
+from rbx.simulation import run_in_memory
 
 from catalog import SCENES, scene
 

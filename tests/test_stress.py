@@ -20,7 +20,7 @@ import stress  # noqa: E402
 
 from rbx import config  # noqa: E402
 from rbx.config import ConfigError  # noqa: E402
-from rbx.simulate import run_in_memory  # noqa: E402
+from rbx.simulation import run_in_memory  # noqa: E402
 
 L_SHAPE = [[0, 0], [2, 0], [2, 2], [1, 2], [1, 1], [0, 1]]
 

@@ -10,7 +10,7 @@ from matplotlib.figure import Figure
 
 from rbx import config, tables
 from rbx.model import RECORD_FIELDS
-from rbx.simulate import run_in_memory
+from rbx.simulation import run_in_memory
 
 from catalog import SCENES
 from reference import reference_run

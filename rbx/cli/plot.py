@@ -7,6 +7,7 @@ import numpy as np
 
 from .common import UserError, report_and_exit, user_errors
 
+#: the plot kinds (``--kind``); kind K is drawn by the function ``_K`` below
 KINDS = ("orbit", "orbit3d", "phase", "series", "diffusion")
 #: --coordinate name -> (field, component or None, axis label, dimensions where it exists)
 COORDINATES = {
@@ -255,4 +256,5 @@ def _diffusion(run, rec, traj, coordinate="x", fit_from=0.1, **_):
                                      _title(run, f"diffusion along {coordinate}", traj, rec), coordinate=coordinate)
 
 
-_BUILDERS = {"orbit": _orbit, "orbit3d": _orbit3d, "phase": _phase, "series": _series, "diffusion": _diffusion}
+#: each plot kind is drawn by the function ``_<kind>`` of this module
+_BUILDERS = {kind: globals()["_" + kind] for kind in KINDS}

@@ -56,7 +56,7 @@ def simulate(config, out, collisions, trajectories, seed, resume, force, quiet, 
 def _simulate(config, out, overrides, force, quiet, stop):
     from .. import config as cfgmod
     from ..api import check_target, compile_kernels, run_to_file
-    from ..simulate import Simulation
+    from ..simulation import Simulation
 
     if config is None:
         raise UserError(None, "CONFIG", "missing: give an experiment config (YAML), or --resume RUN.h5")
