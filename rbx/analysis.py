@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .model import roughness_direction
+from .model import Constant, Hemisphere, Random, roughness_direction, rule_leaves
 
 # ---- the billiard measure (paper §2.7) -------------------------------------------------------------------------
 
@@ -402,42 +402,31 @@ def conserved_drift(velocity, angular_velocity, rough, R, kappa):
     return drift - (drift @ normal) * normal
 
 
-def rough_directions(boundary, geom):
-    """Every (ν, d) pair a boundary config (the resolved mapping of a run file) can use on the flat walls of a
-    table -> list: constant rank n−1 gives the wall's tangent axes, rank 1 its direction (``direction_deg`` from
-    the wall's first tangent axis, or ``direction`` projected onto the wall), random and hemisphere rules every
-    choice. For 2D walls the one tangent direction is Jν."""
+def rough_directions(wall_rules, geom):
+    """Every (ν, d) pair the rules of a table's walls (``Experiment.wall_rules``, one per wall) can use on its flat
+    walls -> list: constant rank n−1 gives the wall's tangent axes, rank 1 its roughness direction, random and
+    hemisphere rules every choice. For 2D walls the one tangent direction is Jν."""
     n = geom.dimension
-    walls = boundary.get("walls") or {}
     out = []
-    for wall in geom.wall_list:
-        rule = walls.get(wall.name, boundary.get("default"))
+    for wall, rule in zip(geom.wall_list, wall_rules):
         for patch in wall.patches:
             if patch[0] != "flat":
                 raise ValueError("rough_directions handles flat walls only")
             nu = np.asarray(patch[2], float)
-            for d in _rule_directions(rule, nu, wall, n):
-                out.append((nu, d))
+            for leaf in rule_leaves(rule):
+                out.extend((nu, d) for d in _leaf_directions(leaf, nu, wall, n))
     return out
 
 
-def _rule_directions(rule, nu, wall, n):
-    kind = rule.get("rule")
-    if kind == "random":
-        return [d for c in rule["choices"] for d in _rule_directions(c, nu, wall, n)]
-    if kind == "hemisphere":
-        return _rule_directions(rule["rough"], nu, wall, n) + _rule_directions(rule["smooth"], nu, wall, n)
-    rank = int(rule.get("rank", 0))
-    if rank == 0:
+def _leaf_directions(leaf, nu, wall, n):
+    if leaf.rank == 0:
         return []
     if n == 2:
         return [np.array([-nu[1], nu[0]])]
     t1, t2 = (np.asarray(t, float) for t in wall.tangents)
-    if rank == 2:
+    if leaf.rank == 2:
         return [t1, t2]
-    direction = ("deg", float(rule["direction_deg"])) if "direction_deg" in rule else \
-        ("vector", [float(x) for x in rule["direction"]])
-    return [np.array(roughness_direction(direction, t1, t2))]
+    return [np.array(roughness_direction(leaf.direction, t1, t2))]
 
 
 # ---- describing scenes -----------------------------------------------------------------------------------------
@@ -456,44 +445,45 @@ def describe_table(kind, t):
         return f"in a {kind}"
 
 
-def describe_rule(r, n):
-    """A short name for a rule mapping of the config (SPEC §3): 'specular', 'rough', 'rank 1 at 60°', …"""
-    if not isinstance(r, dict):
-        return "?"
-    kind = r.get("rule")
-    if kind == "constant":
-        rank = int(r.get("rank", 0))
-        if rank == 0:
+def describe_rule(rule, n):
+    """A short name for a rule (``rbx.model`` Constant / Hemisphere / Random): 'specular', 'rough',
+    'rank 1 at 60°', 'hemisphere rough/specular', 'random (specular 0.5, rough 0.5)'."""
+    if isinstance(rule, Constant):
+        if rule.rank == 0:
             return "specular"
-        if rank == n - 1:
-            return "rough" if n == 2 else f"rough (rank {rank})"
-        if "direction_deg" in r:
-            return f"rank {rank} at {_num(r['direction_deg'])}°"
-        if "direction" in r:
-            return f"rank {rank} along ({', '.join(_num(x) for x in r['direction'])})"
-        return f"rank {rank}"
-    if kind == "hemisphere":
-        return f"hemisphere {describe_rule(r.get('rough'), n)}/{describe_rule(r.get('smooth'), n)}"
-    if kind == "random":
-        parts = [f"{describe_rule(c, n)} {_num(p)}" for c, p in zip(r.get("choices", []), r.get("probabilities", []))]
-        return "random (" + ", ".join(parts) + ")"
-    return str(kind)
+        if rule.rank == n - 1:
+            return "rough" if n == 2 else f"rough (rank {rule.rank})"
+        if rule.direction is None:
+            return f"rank {rule.rank}"
+        kind, value = rule.direction
+        if kind == "deg":
+            return f"rank {rule.rank} at {_num(value)}°"
+        return f"rank {rule.rank} along ({', '.join(_num(x) for x in value)})"
+    if isinstance(rule, Hemisphere):
+        return f"hemisphere {describe_rule(rule.rough, n)}/{describe_rule(rule.smooth, n)}"
+    if isinstance(rule, Random):
+        return "random (" + ", ".join(f"{describe_rule(c, n)} {_num(p)}"
+                                      for c, p in zip(rule.choices, rule.probabilities)) + ")"
+    return "?"
 
 
-def describe_boundary(b, wall_names, n):
-    if not isinstance(b, dict):
-        return "?"
-    walls = b.get("walls") or {}
-    default = b.get("default")
-    if not walls:
-        return describe_rule(default, n)
-    parts = [f"{w}: {describe_rule(walls[w], n)}" for w in wall_names if w in walls]
-    if default is not None and len(walls) < len(wall_names):
-        parts.append(f"others: {describe_rule(default, n)}")
-    return ", ".join(parts)
+def describe_boundary(wall_rules, wall_names, n):
+    """The rules of the walls: one name when all walls share it; else each wall's, or — when most walls share one
+    rule — the walls whose rule differs, then 'others: …'."""
+    names = [describe_rule(r, n) for r in wall_rules]
+    common = max(names, key=names.count)
+    if names.count(common) == len(names):
+        return common
+    if 2 * names.count(common) <= len(names):
+        return ", ".join(f"{w}: {d}" for w, d in zip(wall_names, names))
+    parts = [f"{w}: {d}" for w, d in zip(wall_names, names) if d != common]
+    return ", ".join(parts + [f"others: {common}"])
 
 
-def scene_title(n, kind, table, R, kappa, boundary, wall_names):
+def scene_title(experiment):
+    """'disc (R = 0.1, κ = 0.5) in a 2 × 1 rectangle · rough' for an :class:`rbx.model.Experiment`."""
+    n = experiment.dimension
     ball = "disc" if n == 2 else "ball"
-    return (f"{ball} (R = {_num(R)}, κ = {kappa:.3g}) {describe_table(kind, table)} · "
-            f"{describe_boundary(boundary, wall_names, n)}")
+    return (f"{ball} (R = {_num(experiment.ball.radius)}, κ = {experiment.ball.kappa:.3g}) "
+            f"{describe_table(experiment.table_kind, experiment.table)} · "
+            f"{describe_boundary(experiment.wall_rules, experiment.wall_names, n)}")

@@ -480,15 +480,12 @@ class Run:
 
     def geometry(self):
         """The shrunk table the centre moved in (:class:`rbx.geometry.Geometry`)."""
-        from . import tables
-        table = {k: v for k, v in self.config["table"].items() if k != "kind"}
-        return tables.build(self.table_kind, table, self.radius)
+        return self.experiment.geometry()
 
     def scene(self):
         """A title naming the scene and rule: 'disc (R = 0.1, κ = 0.5) in a 2 × 1 rectangle · rough'."""
         from .analysis import scene_title
-        return scene_title(self.dimension, self.table_kind, self.config.get("table", {}), self.radius, self.kappa,
-                           self.config.get("boundary", {}), self.wall_names)
+        return scene_title(self.experiment)
 
     def to_xarray(self):
         """The records as an ``xarray.Dataset`` (needs the optional extra ``rbx[xarray]``).

@@ -27,7 +27,7 @@ BOUNDED_TAMSD = 0.1  # growth exponent of the time-averaged MSD that counts as b
 
 
 def read_plates_orbit(path):
-    """-> dict: steps, time, position (T, 3) of trajectory 0, the run's geometry, start, radius, κ, boundary."""
+    """-> dict: steps, time, position (T, 3) of trajectory 0, the run's geometry, start, radius, κ, wall rules."""
     with Run.open(path) as run:
         run.require(["time", "position"], "the horizontal excursion")
         if run.table_kind != "plates":
@@ -35,7 +35,7 @@ def read_plates_orbit(path):
         c = int(run.count[0])
         return dict(steps=run.step[:c], time=run.read("time", [0])[0, :c], position=run.read("position", [0])[0, :c],
                     geom=run.geometry(), init=run.config["initial"], R=run.radius, kappa=run.kappa,
-                    boundary=run.config["boundary"], title=run.scene(), every=run.every, name=path)
+                    rules=run.experiment.wall_rules, title=run.scene(), every=run.every, name=path)
 
 
 def plates_measures(o, first=1000):
@@ -48,7 +48,7 @@ def plates_measures(o, first=1000):
     lags_coll = np.unique(np.round(np.geomspace(max(10, o["every"]), max(N // 100, 20 * o["every"]), 16)
                                    / o["every"]).astype(int)) * o["every"]
     tamsd = analysis.time_averaged_msd(xy, lags_coll // o["every"])
-    rough = analysis.rough_directions(o["boundary"], o["geom"])
+    rough = analysis.rough_directions(o["rules"], o["geom"])
     init = o["init"]
     drift = analysis.conserved_drift(init["velocity"], init["angular_velocity"], rough, o["R"], o["kappa"])[:2]
     measured = (xy[-1] - xy[1]) / (t[-1] - t[1])

@@ -20,6 +20,8 @@ import numpy as np
 from matplotlib.figure import Figure as MplFigure
 from matplotlib.ticker import MaxNLocator
 
+from rbx.model import Constant, Hemisphere, Random
+
 from fig_plate import plates_measures, read_plates_orbit, record_plates
 from figlib import Figure, arguments
 
@@ -34,27 +36,19 @@ NAMES = {"both-random": "both plates rank 1, directions drawn from 0°, 60°, 12
          "rank2-rank2": "both plates rank 2 (Figure plate, for comparison)"}
 
 
-def uses_random(rule):
-    """True if a boundary config (or rule) draws at random anywhere."""
-    if isinstance(rule, dict):
-        return rule.get("rule") == "random" or any(uses_random(v) for v in rule.values())
-    if isinstance(rule, list):
-        return any(uses_random(v) for v in rule)
-    return False
+def uses_random(rules):
+    """True if any of the wall rules (``Experiment.wall_rules``) draws at random anywhere."""
+    def walk(rule):
+        if isinstance(rule, Random):
+            return True
+        return isinstance(rule, Hemisphere) and (walk(rule.rough) or walk(rule.smooth))
+    return any(walk(r) for r in rules)
 
 
-def kind_of(boundary, geom):
-    """'both-random' | 'constant-random' | 'rank2-rank1' | 'rank2-rank2' from a plates boundary config."""
-    walls = boundary.get("walls") or {}
-    rules = [walls.get(w.name, boundary.get("default")) for w in geom.wall_list]     # bottom, top
-    desc = []
-    for r in rules:
-        if r.get("rule") == "random":
-            desc.append("random")
-        elif r.get("rule") == "constant":
-            desc.append(f"rank{r.get('rank')}")
-        else:
-            desc.append("other")
+def kind_of(rules):
+    """'both-random' | 'constant-random' | 'rank2-rank1' | 'rank2-rank2' from the plates' wall rules (bottom, top)."""
+    desc = ["random" if isinstance(r, Random) else f"rank{r.rank}" if isinstance(r, Constant) else "other"
+            for r in rules]
     bottom, top = desc
     if bottom == top == "random":
         return "both-random"
@@ -73,7 +67,7 @@ def main():
     scenes = {}
     for path in args.data:
         o = read_plates_orbit(path)
-        scenes[kind_of(o["boundary"], o["geom"])] = (o, plates_measures(o))
+        scenes[kind_of(o["rules"])] = (o, plates_measures(o))
     title = next(iter(scenes.values()))[0]["title"].split(" · ")[0]
 
     for k in PLACES:

@@ -17,6 +17,7 @@ import pytest
 
 from rbx import analysis, config
 from rbx.histogram import return_experiment
+from rbx.model import Constant
 from rbx.physics import collision_map, spin_vector
 from rbx.simulation import run_in_memory
 
@@ -46,7 +47,7 @@ def plates_orbit(name, collisions):
     cfg, rec = run(name, collisions=collisions)
     o = dict(steps=np.arange(rec["position"].shape[1]) * cfg.output.every, time=rec["time"][0],
              position=rec["position"][0], geom=cfg.geometry(), init=cfg.resolved["initial"], R=cfg.ball.radius,
-             kappa=cfg.ball.kappa, boundary=cfg.resolved["boundary"], every=cfg.output.every)
+             kappa=cfg.ball.kappa, rules=cfg.wall_rules, every=cfg.output.every)
     return o, plates_measures(o)
 
 
@@ -145,7 +146,7 @@ def test_roughrank_has_the_paper_three_conditions_and_the_reference():
     kinds = set()
     for name in ROUGHRANK:
         cfg = config.load(os.path.join(EXPERIMENTS, "roughrank", name))
-        kinds.add(kind_of(cfg.resolved["boundary"], cfg.geometry()))
+        kinds.add(kind_of(cfg.wall_rules))
         assert cfg.resolved["initial"] == config.load(os.path.join(EXPERIMENTS, "plate.yaml")).resolved["initial"]
     assert kinds == {"both-random", "constant-random", "rank2-rank1", "rank2-rank2"}
 
@@ -153,7 +154,7 @@ def test_roughrank_has_the_paper_three_conditions_and_the_reference():
 @pytest.mark.parametrize("name", ROUGHRANK)
 def test_roughrank_growth_and_drift(name):
     o, m = plates_orbit(f"roughrank/{name}", 100_000)
-    kind = kind_of(o["boundary"], o["geom"])
+    kind = kind_of(o["rules"])
     if kind == "rank2-rank2":
         assert m["exponent"] < 0.01 and m["eN"] <= 1.001 * m["e1"]
         return
@@ -163,7 +164,7 @@ def test_roughrank_growth_and_drift(name):
     if drifts:
         assert m["exponent"] > 0.99 and m["tamsd_exponent"] > 1.95
         assert m["drift_error"] < 0.01
-    if uses_random(o["boundary"]):
+    if uses_random(o["rules"]):
         assert 0.85 < m["rest_tamsd_exponent"] < 1.15            # what is left is a random walk
     else:
         assert m["rest_exponent"] < 0.01                         # what is left is bounded
@@ -174,8 +175,8 @@ def test_conserved_drift_is_left_alone_by_every_collision_map():
     (rbx.physics) for every (wall, direction) pair the rules can use, and changed by a map outside them."""
     R, kappa = 0.1, 0.4
     geom = config.load(os.path.join(EXPERIMENTS, "plate.yaml")).geometry()
-    boundary = config.load(os.path.join(EXPERIMENTS, "roughrank", "constant-random.yaml")).resolved["boundary"]
-    rough = analysis.rough_directions(boundary, geom)
+    rules = config.load(os.path.join(EXPERIMENTS, "roughrank", "constant-random.yaml")).wall_rules
+    rough = analysis.rough_directions(rules, geom)
     assert len(rough) == 4                                       # bottom: 0°, 60°, 120°; top: 0°
     K = analysis.slip_constraints(rough, R, kappa)
     z = np.array([0.3, -0.5, 0.7, 0.04, 0.09, -0.02])           # (v, R√κ·ω), v_z = 0.7
@@ -194,7 +195,7 @@ def test_conserved_drift_is_left_alone_by_every_collision_map():
     v3, _ = collision_map(v, w, np.array([0, 0, -1.0]), R, kappa, 1, np.array([[0, 1.0, 0], [0, 0, 0]]))
     assert np.linalg.norm(v3[:2] - v[:2]) > 1e-3
     # rank 2 on both plates: nothing horizontal is conserved
-    both = analysis.rough_directions({"default": {"rule": "constant", "rank": 2}}, geom)
+    both = analysis.rough_directions((Constant(2), Constant(2)), geom)
     assert np.linalg.norm(analysis.conserved_drift(z[:3], z[3:], both, R, kappa)[:2]) < 1e-12
 
 

@@ -106,3 +106,19 @@ def test_a_new_kind_is_one_registration(monkeypatch):
     with pytest.raises(config.ConfigError) as info:
         config.from_dict({**c, "table": {"kind": "triangle", "side": -1}})
     assert info.value.key == "table.side"
+
+
+def test_scene_titles_name_table_and_rules_from_the_model():
+    from rbx.analysis import scene_title
+    base = {"table": {"kind": "rectangle", "width": 2, "height": 1}, "ball": {"radius": 0.1},
+            "initial": {"sample": "billiard"}}
+    rough = {"rule": "constant", "rank": 1}
+    assert scene_title(config.from_dict({**base, "boundary": {"default": rough}})) == \
+        "disc (R = 0.1, κ = 0.5) in a 2 × 1 rectangle · rough"
+    mixed = {"default": rough, "walls": {"top": {"rule": "constant", "rank": 0}}}
+    assert scene_title(config.from_dict({**base, "boundary": mixed})).endswith("· top: specular, others: rough")
+    plates = config.from_dict({"table": {"kind": "plates", "gap": 1}, "ball": {"radius": 0.1},
+                               "initial": {"sample": "billiard"},
+                               "boundary": {"default": {"rule": "constant", "rank": 2},
+                                            "walls": {"bottom": {"rule": "constant", "rank": 1, "direction_deg": 30}}}})
+    assert scene_title(plates).endswith("· bottom: rank 1 at 30°, top: rough (rank 2)")

@@ -61,8 +61,7 @@ def _histogram(config, out, trajectories, seed, force, quiet):
 
     names = cfg.wall_names
     wall = "the whole boundary (next collision)" if result.wall is None else f"wall '{names[result.wall]}'"
-    title = scene_title(cfg.dimension, cfg.table_kind, cfg.resolved["table"], cfg.ball.radius, cfg.ball.kappa,
-                        cfg.resolved["boundary"], names)
+    title = scene_title(cfg)
     fig = plotting.histogram_figure(result.angle, result.d, result.ks_statistic, result.ks_pvalue,
                                     f"{title}\nreturn angles to {wall}: {len(result.angle)} of {result.samples} "
                                     f"billiard-measure samples")
