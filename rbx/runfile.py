@@ -185,7 +185,7 @@ def check_target(path, force, key, file=None, config_source=None, partial_ok=Fal
     """Refuse to write ``path`` when it is a folder or the config itself, or (without ``force``) when it exists or
     a run may still be writing its ``.partial``. Raises :class:`FileError`; ``key``/``file`` name where the path
     came from (``-o``, ``output.path``, ``output``), ``force_hint`` how to force (``--force``, ``force=True``)."""
-    show = _display(path)
+    show = display_path(path)
     if os.path.isdir(path):
         raise FileError(file, key, f"{show} is a directory; give a file name such as run.h5")
     if config_source and os.path.exists(path) and os.path.exists(config_source) \
@@ -196,7 +196,7 @@ def check_target(path, force, key, file=None, config_source=None, partial_ok=Fal
     tmp = temporary_path(path)
     if os.path.exists(tmp) and not force and not partial_ok:
         raise FileError(tmp, None, "exists: another run may be writing it, or an earlier one was killed "
-                                   f"(try: rbx simulate --resume {_display(tmp)}); remove it or use {force_hint}")
+                                   f"(try: rbx simulate --resume {display_path(tmp)}); remove it or use {force_hint}")
 
 
 def create(path):
@@ -224,18 +224,20 @@ def stream(sim, h5, tmp, path, *, fresh=True, progress=None, should_stop=None, w
             os.replace(tmp, path)
         except OSError as exc:
             if report is not None:
-                report(f"{_display(path)}: cannot rename {_display(tmp)} to it: {exc.strerror or exc}; the records "
-                       f"are in {_display(tmp)}")
+                report(f"{display_path(path)}: cannot rename {display_path(tmp)} to it: {exc.strerror or exc}; the records "
+                       f"are in {display_path(tmp)}")
 
 
-def _display(path):
+def display_path(path):
     """A path as the user would write it: relative to the working directory when it lies below it."""
+    if path is None:
+        return None
     path = str(path)
     if not os.path.isabs(path):
         return path
     try:
         rel = os.path.relpath(path)
-    except ValueError:   # another drive (Windows)
+    except (ValueError, OSError):   # another drive (Windows); a working directory that was deleted
         return path
     return path if rel.startswith("..") else rel
 

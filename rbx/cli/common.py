@@ -6,7 +6,6 @@ exits with code 2, without a traceback (``--debug`` adds one). Commands built wi
 own usage errors (a bad option value, a missing argument) the same way.
 """
 import contextlib
-import os
 import sys
 import time
 
@@ -16,17 +15,10 @@ EXIT_USER_ERROR = 2
 
 
 def display_path(path):
-    """A path as the user would write it: relative to the working directory when it lies below it."""
-    if path is None:
-        return None
-    path = str(path)
-    if not os.path.isabs(path):
-        return path
-    try:
-        rel = os.path.relpath(path)
-    except ValueError:   # another drive (Windows)
-        return path
-    return path if rel.startswith("..") else rel
+    """A path as the user would write it (:func:`rbx.runfile.display_path`; imported when first needed, so that
+    ``--help`` stays instant)."""
+    from ..runfile import display_path as display
+    return display(path)
 
 
 class UserError(Exception):
