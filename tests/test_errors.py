@@ -501,3 +501,14 @@ def test_random_configs_never_give_a_traceback(text, tmp_path_factory):
     else:
         with h5py.File(out) as f:
             assert bool(f.attrs["complete"])
+
+
+def test_a_deleted_working_directory_is_one_line(tmp_path):
+    gone = tmp_path / "gone"
+    gone.mkdir()
+    script = f"import os, subprocess, sys; os.chdir({str(gone)!r}); os.rmdir({str(gone)!r}); " \
+             f"r = subprocess.run([{RBX!r}, 'simulate', 'x.yaml'], capture_output=True, text=True); " \
+             "sys.stdout.write(str(r.returncode) + '\\n' + r.stderr)"
+    res = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
+    code, *err = res.stdout.splitlines()
+    assert code == "2" and err == ["rbx: the working directory no longer exists; change to an existing folder"]

@@ -1,4 +1,5 @@
 """``rbx``: the command-line entry point (SPEC §4)."""
+import os
 import sys
 
 import click
@@ -16,10 +17,16 @@ def cli():
 
 
 cli.add_command(simulate)
-for _command in (plot.plot, histogram.histogram): cli.add_command(_command)
+for _command in (plot.plot, histogram.histogram):
+    cli.add_command(_command)
 
 
 def main():
+    try:
+        os.getcwd()
+    except OSError:   # deleted under us: relative paths mean nothing, and Numba's compiler needs it too
+        sys.stderr.write("rbx: the working directory no longer exists; change to an existing folder\n")
+        sys.exit(2)
     try:
         cli(prog_name="rbx")
     except KeyboardInterrupt:   # Ctrl-C before a command installed its own handler (e.g. while importing)
