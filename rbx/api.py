@@ -22,7 +22,7 @@ import warnings
 # nothing heavy at import: the CLI takes StopFlag from here before it installs its signal handlers
 __all__ = ["load", "simulate", "open"]
 
-_OVERRIDES = ("collisions", "trajectories", "seed")
+_OVERRIDES = ("collisions", "trajectories", "seed", "max_size")
 
 
 def load(path_or_dict, overrides=None):
@@ -47,8 +47,9 @@ def _api_keys(make):
     try:
         return make()
     except ConfigError as exc:
-        if exc.file is None and exc.key and exc.key.startswith("--") and exc.key[2:] in _OVERRIDES:
-            raise ConfigError(None, exc.key[2:], exc.problem) from None
+        name = (exc.key or "").lstrip("-").replace("-", "_")
+        if exc.file is None and exc.key and exc.key.startswith("--") and name in _OVERRIDES:
+            raise ConfigError(None, name, exc.problem) from None
         raise
 
 
@@ -57,17 +58,19 @@ def _override(experiment, overrides):
     from . import config
     if experiment.resolved is not None:   # validate the new values exactly as a config would be
         checked = _api_keys(lambda: config.from_dict(experiment.resolved, experiment.source, overrides))
-        run = checked.run
+        run, output = checked.run, checked.output
     else:
-        run = dataclasses.replace(experiment.run, **overrides)
-    return experiment.replace(run=run)
+        run = dataclasses.replace(experiment.run, **{k: v for k, v in overrides.items() if k != "max_size"})
+        output = dataclasses.replace(experiment.output, **{k: v for k, v in overrides.items() if k == "max_size"})
+    return experiment.replace(run=run, output=output)
 
 
 def simulate(experiment, *, collisions=None, trajectories=None, seed=None, output=None, force=False,
-             progress=False):
+             progress=False, max_size=None):
     """Run an experiment (an :class:`~rbx.model.Experiment`, a config path or a dict) -> :class:`Run`.
 
-    ``collisions``, ``trajectories``, ``seed`` override ``run.*``. With ``output=None`` the run is kept in memory;
+    ``collisions``, ``trajectories``, ``seed`` override ``run.*``, ``max_size`` ``output.max_size`` (bytes or a
+    text such as '50 GB'). With ``output=None`` the run is kept in memory;
     else it is streamed to that HDF5 file as ``rbx simulate -o`` does (written as ``output.partial``, renamed at
     the end; an existing file is replaced only with ``force=True``) and read back. ``progress``: True for a
     progress bar on stderr, or a callable ``progress(done, total)``.
@@ -76,8 +79,8 @@ def simulate(experiment, *, collisions=None, trajectories=None, seed=None, outpu
     ``complete = False`` (``rbx simulate --resume`` continues it), then KeyboardInterrupt is raised."""
     from .runfile import Run
     from .simulation import MemorySink, Simulation
-    overrides = {k: v for k, v in (("collisions", collisions), ("trajectories", trajectories), ("seed", seed))
-                 if v is not None}
+    overrides = {k: v for k, v in (("collisions", collisions), ("trajectories", trajectories), ("seed", seed),
+                                   ("max_size", max_size)) if v is not None}
     exp = load(experiment, overrides or None)
     bar = _progress(progress)
     try:
@@ -123,11 +126,16 @@ def _progress(progress):
 
 # ---- running into a file: shared with `rbx simulate` -------------------------------------------------------------
 
-def check_target(path, force, experiment, key="output", file=None, force_hint="force=True", partial_ok=False):
-    """Refuse to write ``path`` (see :func:`rbx.runfile.check_target`): raises :class:`FileError`."""
+def check_target(path, force, experiment, key="output", file=None, force_hint="force=True", partial_ok=False,
+                 size_key=None):
+    """Refuse to write ``path`` (see :func:`rbx.runfile.check_target`), or a run whose file would exceed
+    ``output.max_size`` or the free disk space (:func:`rbx.runfile.check_size`): raises :class:`FileError`."""
+    from .runfile import check_size
     from .runfile import check_target as check
     check(path, force, key, file=file, config_source=experiment.source if experiment is not None else None,
           partial_ok=partial_ok, force_hint=force_hint)
+    if experiment is not None:
+        check_size(experiment, path, size_key)
 
 
 def compile_kernels(sim):

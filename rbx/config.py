@@ -21,13 +21,17 @@ import numpy as np
 import yaml
 
 from . import tables
-from .model import (RECORD_FIELDS, Ball, ConfigError, Constant, Experiment, Hemisphere, Numerics, Output, Random,
-                    RunSettings)
+from .model import (DEFAULT_MAX_SIZE, RECORD_FIELDS, Ball, ConfigError, Constant, Experiment, Hemisphere,
+                    Numerics, Output, Random, RunSettings)
 from .physics import kappa_of
 
 SECTIONS = ("table", "boundary", "ball", "initial", "run", "output", "numerics")
 #: command-line options that override config keys, and the option each one's errors name
-OVERRIDE_OPTIONS = {"collisions": "--collisions", "trajectories": "--trajectories", "seed": "--seed"}
+OVERRIDE_OPTIONS = {"collisions": "--collisions", "trajectories": "--trajectories", "seed": "--seed",
+                    "max_size": "--max-size"}
+#: units of a size (output.max_size, --max-size)
+SIZE_UNITS = {"": 1, "b": 1, "kb": 1e3, "mb": 1e6, "gb": 1e9, "tb": 1e12, "pb": 1e15,
+              "kib": 2**10, "mib": 2**20, "gib": 2**30, "tib": 2**40, "pib": 2**50}
 #: counters are int64 in the kernels; anything near this is a typo, not a run anyone can wait for
 MAX_COUNT = 2**62
 MAX_SEED = 2**63 - 1
@@ -346,8 +350,10 @@ def _from_dict(data, source, overrides):
     resolved["initial"] = data["initial"]
     resolved["run"] = {"collisions": collisions, "trajectories": trajectories, "seed": seed}
 
-    output = _output(_section(data, "output"), base, c)
+    output = _output(_section(data, "output"), base, c, overrides)
     resolved["output"] = {"path": output.path, "record": list(output.record), "every": output.every}
+    if output.max_size != DEFAULT_MAX_SIZE:   # stored only when given, as numerics
+        resolved["output"]["max_size"] = output.max_size
 
     numerics = _numerics(_section(data, "numerics"), c)
     if "numerics" in data:   # stored only when given, so that files of runs without it read the same as before
@@ -465,8 +471,8 @@ def _boundary(value, base, c, n, geom, kind):
     return per_wall, plain
 
 
-def _output(out, base, c):
-    c.mapping(out, "output", ("path", "record", "every"))
+def _output(out, base, c, overrides):
+    c.mapping(out, "output", ("path", "record", "every", "max_size"))
     opath = out.get("path")
     if opath is not None:
         if not isinstance(opath, str) or not opath.strip():
@@ -486,7 +492,26 @@ def _output(out, base, c):
                    + _hint(f, RECORD_FIELDS, "fields"))
     record = tuple(f for f in RECORD_FIELDS if f in record)
     every = c.integer(out.get("every", 1), "output.every", lo=1, hi=MAX_COUNT)
-    return Output(opath, record, every)
+    if overrides.get("max_size") is not None:
+        max_size = parse_size(overrides["max_size"], _Checker(None), OVERRIDE_OPTIONS["max_size"])
+    else:
+        max_size = parse_size(out.get("max_size", DEFAULT_MAX_SIZE), c, "output.max_size")
+    return Output(opath, record, every, max_size)
+
+
+def parse_size(value, c, key):
+    """A size in bytes: a number, or a text such as '20 GB', '1.5 TiB', '500MB' -> float (positive)."""
+    if isinstance(value, str):
+        m = re.fullmatch(r"\s*([0-9.eE+-]+)\s*([A-Za-z]*)\s*", value)
+        unit = m.group(2).lower() if m else None
+        if not m or unit not in SIZE_UNITS:
+            c.fail(key, f"expected a size such as 20 GB, 500 MiB or a number of bytes, got {_kind(value)}")
+        try:
+            number = float(m.group(1))
+        except ValueError:
+            c.fail(key, f"expected a size such as 20 GB, 500 MiB or a number of bytes, got {_kind(value)}")
+        return c.number(number, key, positive=True) * SIZE_UNITS[unit]
+    return c.number(value, key, positive=True)
 
 
 def _check_fits(kind, p, R, geom, c):

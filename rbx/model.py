@@ -95,12 +95,18 @@ class RunSettings:
     seed: int
 
 
+#: the largest run file written unless asked for more (``output.max_size``, ``--max-size``): 10 GiB
+DEFAULT_MAX_SIZE = 10 * 2**30
+
+
 @dataclass(frozen=True)
 class Output:
-    """Where the run goes (None: nowhere given), which fields are recorded (in :data:`FIELDS` order), every k-th."""
+    """Where the run goes (None: nowhere given), which fields are recorded (in :data:`FIELDS` order), every k-th,
+    and the largest file (bytes) the run may write: a larger estimate is refused before anything is written."""
     path: str | None
     record: tuple
     every: int
+    max_size: float = DEFAULT_MAX_SIZE
 
 
 #: default period (in collisions) of the projection onto the initial energy in rough scenes (docs/accuracy.md)

@@ -180,6 +180,49 @@ def state_digest(state):
 
 # ---- the .partial lifecycle --------------------------------------------------------------------------------------
 
+def estimated_size(cfg):
+    """Bytes a run of ``cfg`` writes, about: every recorded field of every record of every trajectory (a trajectory
+    may end early, so this is the most), the final state, and chunk rounding across trajectories -> int."""
+    M, n = cfg.run.trajectories, cfg.dimension
+    records = cfg.run.collisions // cfg.output.every + 1
+    per_record = sum(FIELD[f].size(n) * np.dtype(FIELD[f].dtype).itemsize for f in cfg.output.record)
+    state = M * (4 * n + n * n + 9 + 8) * 8                 # final/: the state and its counters, generously
+    steps = records * 8 if cfg.output.record else 0          # collisions/step
+    return int(M * records * per_record * 1.05 + steps + state + (1 << 20))
+
+
+def format_size(nbytes):
+    """'2.3 TB', '512 MB', … (decimal units, as disks are sold)."""
+    for unit, scale in (("PB", 1e15), ("TB", 1e12), ("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if nbytes >= scale:
+            return f"{nbytes / scale:.3g} {unit}"
+    return f"{int(nbytes)} bytes"
+
+
+def check_size(cfg, path, key_file=None):
+    """Refuse a run whose file would be larger than ``output.max_size`` or than the free space where it goes:
+    raises :class:`FileError` before anything is written. ``key_file``: (file, key) the limit is named by."""
+    import shutil
+    need = estimated_size(cfg)
+    if need > cfg.output.max_size:
+        file, key = key_file or (cfg.source, "output.max_size")
+        raise FileError(file, key, f"the run would write about {format_size(need)} "
+                                   f"({cfg.run.trajectories} trajectories × {cfg.run.collisions // cfg.output.every + 1}"
+                                   f" records of {', '.join(cfg.output.record)}), more than the limit "
+                                   f"{format_size(cfg.output.max_size)}; raise output.max_size or --max-size if that "
+                                   "is meant")
+    folder = os.path.dirname(os.path.abspath(path)) or "."
+    while not os.path.isdir(folder) and os.path.dirname(folder) != folder:
+        folder = os.path.dirname(folder)                   # the folder is made later: ask its nearest parent
+    try:
+        free = shutil.disk_usage(folder).free
+    except OSError:
+        return
+    if need > free:
+        raise FileError(path, None, f"the run would write about {format_size(need)} but the disk has "
+                                    f"{format_size(free)} free")
+
+
 def temporary_path(path):
     """Where a run writes until it stops: beside the target, renamed over it at the end."""
     return f"{path}.partial"

@@ -292,3 +292,20 @@ def test_example_notebook_runs(tmp_path, monkeypatch):
         exec(compile(code, f"api.ipynb cell {i}", "exec"), namespace)
     import matplotlib.pyplot as plt
     plt.close("all")
+
+
+def test_a_run_larger_than_the_free_space_is_refused_before_writing(tmp_path, monkeypatch):
+    import shutil
+    from collections import namedtuple
+    usage = namedtuple("usage", "total used free")
+    monkeypatch.setattr(shutil, "disk_usage", lambda path: usage(10**9, 10**9 - 10**6, 10**6))   # 1 MB free
+    out = tmp_path / "run.h5"
+    with pytest.raises(rbx.FileError) as info:
+        rbx.simulate(scene("strip-rough", collisions=100_000), output=out)
+    assert "the disk has 1 MB free" in str(info.value)
+    assert not out.exists() and not (tmp_path / "run.h5.partial").exists()
+    # within the limit and the space: written, and the estimate was not below what was written
+    monkeypatch.undo()
+    run = rbx.simulate(scene("strip-rough", collisions=20_000), output=out, max_size="10 MB")
+    from rbx.runfile import estimated_size
+    assert run.complete and out.stat().st_size <= estimated_size(run.experiment)

@@ -154,6 +154,12 @@ CASES = {
     "position-nan": ({}, setp("initial.position", [0.0, math.nan]), [], "exp.yaml", "initial.position[1]", "finite"),
     "position-3-numbers": ({}, setp("initial.position", [0, 0.5, 0]), [], "exp.yaml", "initial.position",
                            "expected 2 numbers"),
+    # the output-size guard: refused before anything is written, with the estimate
+    "output-too-large": ({}, setp("run.collisions", 10**15), [], "exp.yaml", "output.max_size",
+                         "more than the limit"),
+    "max-size-too-small": ({}, None, ["--max-size", "1 kB"], None, "--max-size", "more than the limit 1 kB"),
+    "max-size-option-bad": ({}, None, ["--max-size", "lots"], None, "--max-size", "expected a size"),
+    "max-size-key-bad": ({}, setp("output.max_size", -3), [], "exp.yaml", "output.max_size", "positive"),
     "velocity-zero": ({}, setp("initial.velocity", [0, 0]), [], "exp.yaml", "initial.velocity", "non-zero"),
     # values so small or large that the state would become NaN (they used to run to NaN and exit 0)
     "velocity-underflows": ({}, setp("initial.velocity", [1e-300, 0]), [], "exp.yaml", "initial.velocity",

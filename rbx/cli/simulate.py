@@ -24,17 +24,19 @@ OVERRIDES = ("collisions", "trajectories", "seed")
 @click.option("--collisions", type=int, help="Override run.collisions.")
 @click.option("--trajectories", type=int, help="Override run.trajectories.")
 @click.option("--seed", type=int, help="Override run.seed.")
+@click.option("--max-size", "max_size", metavar="SIZE",
+              help="Largest file the run may write (e.g. 50GB; default: output.max_size, 10 GiB).")
 @click.option("--resume", metavar="RUN.h5",
               help="Continue the interrupted run in RUN.h5 to its requested length (in place, or into -o).")
 @click.option("--force", is_flag=True, help="Overwrite an existing output file.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--debug", is_flag=True, help="Show a traceback with user errors.")
-def simulate(config, out, collisions, trajectories, seed, resume, force, quiet, debug):
+def simulate(config, out, collisions, trajectories, seed, max_size, resume, force, quiet, debug):
     """Run the experiment CONFIG (YAML) and write its trajectories to HDF5."""
     from ..api import StopFlag
 
     stop = StopFlag()
-    overrides = {"collisions": collisions, "trajectories": trajectories, "seed": seed}
+    overrides = {"collisions": collisions, "trajectories": trajectories, "seed": seed, "max_size": max_size}
     # the handlers go in first, so that Ctrl-C while numba loads is a clean stop too, never a traceback
     with stop.installed():
         try:
@@ -65,8 +67,9 @@ def _simulate(config, out, overrides, force, quiet, stop):
     if path is None:
         raise UserError(config, "output.path", "no output file: give output.path in the config or -o OUT.h5")
     key = "-o" if out else "output.path"
-    check_target(path, force, cfg, key=key, file=None if out else cfg.source, force_hint="--force")
     _check_memory(cfg, overrides)
+    check_target(path, force, cfg, key=key, file=None if out else cfg.source, force_hint="--force",
+                 size_key=(None, "--max-size") if overrides["max_size"] is not None else None)
     try:
         sim = Simulation(cfg)
     except MemoryError:
