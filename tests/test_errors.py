@@ -518,3 +518,29 @@ def test_a_deleted_working_directory_is_one_line(tmp_path):
     res = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
     code, *err = res.stdout.splitlines()
     assert code == "2" and err == ["rbx: the working directory no longer exists; change to an existing folder"]
+
+
+
+@pytest.mark.parametrize("args, key, problem", [
+    (["plot", "x.h5", "--kind", "orbit", "--dpi", "100000"], "--dpi", "not in the range"),
+    (["plot", "x.h5", "--kind", "orbt"], "--kind", "is not one of"),
+    (["histogram"], "CONFIG", "Missing argument"),
+    # -o '' used output.path silently; -o newdir/ wrote a file named newdir
+    (["simulate", "{config}", "-o", ""], "-o", "an empty file name"),
+    (["simulate", "{config}", "-o", "newdir/"], "-o", "names a folder"),
+])
+def test_usage_mistakes_of_every_command_are_one_line(tmp_path, args, key, problem):
+    config = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "configs", "examples",
+                          "strip.yaml")
+    res = subprocess.run([RBX] + [a.format(config=config) for a in args], capture_output=True, text=True,
+                         timeout=120, cwd=tmp_path)
+    assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
+    assert not (tmp_path / "newdir").exists()
+    assert res.stderr.startswith(f"rbx: {key}: ") and problem in res.stderr
+
+
+def test_a_bad_numba_num_threads_is_one_line(tmp_path):
+    env = dict(os.environ, NUMBA_NUM_THREADS="0")
+    res = subprocess.run([RBX, "simulate", "x.yaml"], capture_output=True, text=True, timeout=120, cwd=tmp_path,
+                         env=env)
+    assert res.returncode == 2 and res.stderr == "rbx: NUMBA_NUM_THREADS: must be a positive integer, got '0'\n"

@@ -75,7 +75,7 @@ class Command(click.Command):
             if isinstance(exc, click.BadParameter) and exc.param is not None and exc.ctx is not None:
                 # the option or argument as the key: rbx: --collisions: 'abc' is not a valid integer.
                 where = ", ".join(x.strip("'") for x in exc.param.get_error_hint(exc.ctx).split(" / "))
-                line = f"{where}: {exc.message}"
+                line = f"{where}: {exc.message or exc.format_message()}"
             else:
                 name = exc.ctx.command_path if exc.ctx is not None else info_name
                 line = f"{info_name}: {exc.format_message()} (see '{name} --help')"

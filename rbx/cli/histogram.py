@@ -3,10 +3,10 @@ import os
 
 import click
 
-from .common import Progress, UserError, report_and_exit
+from .common import Command, Progress, UserError, report_and_exit
 
 
-@click.command()
+@click.command(cls=Command)
 @click.argument("config", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", "out", type=click.Path(dir_okay=False),
               help="Figure to write (default: output.path with .png).")

@@ -27,6 +27,11 @@ def main():
     except OSError:   # deleted under us: relative paths mean nothing, and Numba's compiler needs it too
         sys.stderr.write("rbx: the working directory no longer exists; change to an existing folder\n")
         sys.exit(2)
+    threads = os.environ.get("NUMBA_NUM_THREADS")
+    if threads is not None and not (threads.strip().isdigit() and int(threads) >= 1):
+        # Numba itself fails with a traceback when it reads this at import
+        sys.stderr.write(f"rbx: NUMBA_NUM_THREADS: must be a positive integer, got '{threads}'\n")
+        sys.exit(2)
     try:
         cli(prog_name="rbx")
     except KeyboardInterrupt:   # Ctrl-C before a command installed its own handler (e.g. while importing)

@@ -5,7 +5,7 @@ import os
 import click
 import numpy as np
 
-from .common import UserError, report_and_exit, user_errors
+from .common import Command, UserError, report_and_exit, user_errors
 
 #: the plot kinds (``--kind``); kind K is drawn by the function ``_K`` below
 KINDS = ("orbit", "orbit3d", "phase", "series", "diffusion")
@@ -22,7 +22,7 @@ COORDINATES = {
 DEFAULT_TRAJECTORIES = {"orbit": 10, "orbit3d": 10, "phase": 20, "series": 1, "diffusion": None}
 
 
-@click.command()
+@click.command(cls=Command)
 @click.argument("run_file", metavar="OUT.h5", type=click.Path())
 @click.option("--kind", required=True, type=click.Choice(KINDS), help="Which picture.")
 @click.option("-o", "--output", "out", type=click.Path(dir_okay=False),
@@ -39,7 +39,8 @@ DEFAULT_TRAJECTORIES = {"orbit": 10, "orbit3d": 10, "phase": 20, "series": 1, "d
               help="series: fractions of the run shown in the panels.")
 @click.option("--fit-from", default=0.1, show_default=True, type=float,
               help="diffusion: fit the MSD over steps ≥ this fraction of the last step.")
-@click.option("--dpi", default=150, show_default=True, type=int, help="Resolution of raster figures.")
+@click.option("--dpi", default=150, show_default=True, type=click.IntRange(10, 1200),
+              help="Resolution of raster figures (10 to 1200; 100 000 used to exhaust the memory).")
 @click.option("--debug", is_flag=True, help="Show a traceback with user errors.")
 def plot(run_file, kind, out, records, trajectories, colour, coordinate, scales, fit_from, dpi, debug):
     """Draw a picture of the run OUT.h5 (written by rbx simulate)."""

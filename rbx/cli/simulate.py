@@ -62,8 +62,12 @@ def _simulate(config, out, overrides, force, quiet, stop):
 
     if config is None:
         raise UserError(None, "CONFIG", "missing: give an experiment config (YAML), or --resume RUN.h5")
+    if out is not None and not out.strip():
+        raise UserError(None, "-o", "an empty file name (give OUT.h5, or leave -o out to use output.path)")
+    if out is not None and out.endswith(("/", os.sep)):
+        raise UserError(None, "-o", f"'{out}' names a folder; give a file name such as {out.rstrip('/')}/run.h5")
     cfg = cfgmod.load(config, overrides)
-    path = os.path.abspath(out) if out else cfg.output.path
+    path = os.path.abspath(os.path.expanduser(out)) if out else cfg.output.path
     if path is None:
         raise UserError(config, "output.path", "no output file: give output.path in the config or -o OUT.h5")
     key = "-o" if out else "output.path"
