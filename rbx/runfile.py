@@ -128,8 +128,10 @@ class H5Sink:
                 # trajectories × 3 collisions a 577 MB file for 5.3 MB of records)
                 rchunk = min(records, max(1, CHUNK_BYTES // (min(M, 64) * per)))
                 tchunk = min(M, max(1, CHUNK_BYTES // (rchunk * per)))
+                # fletcher32: a checksum per chunk, checked on every read, so that changed bytes on disk are an
+                # error rather than silently different numbers
                 ds = g.create_dataset(name, shape=(M, 0) + tail, maxshape=(M, None) + tail, dtype=f.dtype,
-                                      chunks=(tchunk, rchunk) + tail, fillvalue=f.fill)
+                                      chunks=(tchunk, rchunk) + tail, fillvalue=f.fill, fletcher32=True)
                 ds.attrs["units"], ds.attrs["description"] = f.units, f.description
             g.create_dataset("count", data=np.zeros(M, np.int64))
             g.create_dataset("step", shape=(0,), maxshape=(None,), dtype=np.int64, chunks=(4096,))
@@ -468,11 +470,16 @@ class Run:
 
     @contextlib.contextmanager
     def _reading(self):
-        if self._h5 is not None:
-            yield self._h5["collisions"]
-        else:
-            with _open_h5(self.path) as f:
-                yield f["collisions"]
+        try:
+            if self._h5 is not None:
+                yield self._h5["collisions"]
+            else:
+                with _open_h5(self.path) as f:
+                    yield f["collisions"]
+        except (OSError, KeyError, ValueError) as exc:
+            # a chunk whose Fletcher-32 checksum does not match (its bytes changed on disk), or a damaged header
+            raise FileError(self.path, "collisions", f"damaged: cannot read the records ({_first_line(exc)})") \
+                from None
 
     def require(self, fields, why):
         """Raise :class:`FileError` unless every field in ``fields`` was recorded (``why``: what needs them)."""

@@ -309,3 +309,22 @@ def test_a_run_larger_than_the_free_space_is_refused_before_writing(tmp_path, mo
     run = rbx.simulate(scene("strip-rough", collisions=20_000), output=out, max_size="10 MB")
     from rbx.runfile import estimated_size
     assert run.complete and out.stat().st_size <= estimated_size(run.experiment)
+
+
+def test_changed_bytes_on_disk_are_a_clear_error_not_other_numbers(tmp_path):
+    # every record dataset carries a Fletcher-32 checksum per chunk: bytes zeroed inside a complete file (a bad
+    # disk, a truncated copy) make the read fail with one clear error instead of returning zeros
+    out = tmp_path / "run.h5"
+    rbx.simulate(scene("strip-rough", collisions=20_000), output=out)
+    with h5py.File(out) as f:
+        ds = f["collisions/velocity"]
+        assert ds.fletcher32
+        chunk = ds.id.get_chunk_info(0)
+    with open(out, "r+b") as fh:
+        fh.seek(chunk.byte_offset + chunk.size // 2)
+        fh.write(b"\0" * 64)
+    run = rbx.open(out)
+    np.testing.assert_array_equal(run.position.shape, (1, 20_001, 2))       # the other fields still read
+    with pytest.raises(rbx.FileError) as info:
+        run.velocity
+    assert "damaged" in str(info.value) and str(out) in str(info.value)
