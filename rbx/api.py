@@ -97,7 +97,7 @@ def simulate(experiment, *, collisions=None, trajectories=None, seed=None, outpu
             compile_kernels(sim)
             if stop.start_running():
                 raise KeyboardInterrupt
-            run_to_file(sim, path, progress=bar, should_stop=stop,
+            run_to_file(sim, path, progress=bar, should_stop=stop, force=force,
                         report=lambda message: warnings.warn(message, RuntimeWarning, stacklevel=3))
         if stop():
             raise KeyboardInterrupt(f"interrupted; {output} holds the records so far (complete = false)")
@@ -144,17 +144,19 @@ def compile_kernels(sim):
     sim.advance(0, sim.block_buffers(0))   # no trajectory is below collision 0: nothing moves
 
 
-def run_to_file(sim, path, *, progress=None, should_stop=None, report=None):
+def run_to_file(sim, path, *, progress=None, should_stop=None, report=None, force=False):
     """Run a new ``sim`` into ``path`` through ``path.partial`` -> True if it finished (see
-    :func:`rbx.runfile.stream`). Raises :class:`FileError` if the file cannot be created, OSError if writing
-    fails midway (the file then holds what was written, ``complete = False``)."""
+    :func:`rbx.runfile.stream`; ``force``: replace an existing ``path``). Raises :class:`FileError` if the file
+    cannot be created, OSError if writing fails midway (the file then holds what was written, ``complete =
+    False``)."""
     from .runfile import FileError, create, stream, temporary_path
     tmp = temporary_path(path)
     try:
-        h5 = create(path)
+        h5 = create(path, force=force)
     except OSError as exc:
         raise FileError(tmp, None, f"cannot write: {exc.strerror or exc}") from None
-    return stream(sim, h5, tmp, path, fresh=True, progress=progress, should_stop=should_stop, report=report)
+    return stream(sim, h5, tmp, path, fresh=True, progress=progress, should_stop=should_stop, report=report,
+                  replace=force)
 
 
 class StopFlag:

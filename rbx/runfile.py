@@ -248,20 +248,48 @@ def check_target(path, force, key, file=None, config_source=None, partial_ok=Fal
                                    f"(try: rbx simulate --resume {display_path(tmp)}); remove it or use {force_hint}")
 
 
-def create(path):
-    """Open ``path.partial`` for a new run (folders made as needed) -> ``h5py.File``. OSError if it cannot."""
+def create(path, force=False):
+    """Open ``path.partial`` for a new run (folders made as needed) -> ``h5py.File``. OSError if it cannot.
+
+    The ``.partial`` is created exclusively (O_EXCL, not HDF5's file locking, which is often off on shared file
+    systems): of two runs started on one output, the second fails here instead of both writing one file. With
+    ``force`` a leftover ``.partial`` is removed first."""
     import h5py
     os.makedirs(os.path.dirname(os.path.abspath(path)) or ".", exist_ok=True)
-    return h5py.File(temporary_path(path), "w")
+    tmp = temporary_path(path)
+    if force and os.path.exists(tmp):
+        os.remove(tmp)
+    try:
+        return h5py.File(tmp, "w-")
+    except (FileExistsError, OSError) as exc:
+        if os.path.exists(tmp):
+            raise FileError(tmp, None, "exists: another run is writing it (or was killed); remove it or use "
+                                       "--force") from None
+        raise exc
 
 
-def stream(sim, h5, tmp, path, *, fresh=True, progress=None, should_stop=None, write_initial=None, report=None):
+def _is_complete_run(path):
+    import h5py
+    try:
+        with h5py.File(path, "r") as f:
+            return bool(f.attrs.get("complete", False))
+    except Exception:   # noqa: BLE001 - not an rbx run, or damaged: not a result worth keeping over the new one
+        return False
+
+
+def stream(sim, h5, tmp, path, *, fresh=True, progress=None, should_stop=None, write_initial=None, report=None,
+           replace=False):
     """Run ``sim`` into the open file ``h5`` (at ``tmp``), mark it complete or not, close it and rename it to
     ``path`` -> True if the run finished (False: ``should_stop()`` said stop).
 
-    The rename happens however the run ends (complete, interrupted, an error), so ``path`` always holds every
-    record computed so far and ``complete`` says whether that is all of them (SPEC §4). A rename that fails is
-    passed to ``report(message)`` (the records are then in ``tmp``). Errors writing (OSError) propagate."""
+    The rename happens however the run ends (complete, interrupted, an error), so the records computed so far
+    are in ``path`` and ``complete`` says whether that is all of them (SPEC §4), with two exceptions that keep
+    what is already there: a run that did not finish never replaces a *complete* ``path`` (``--force`` then
+    Ctrl-C used to leave a fragment in place of a finished result), and without ``replace`` (``--force``) a
+    ``path`` that appeared while this run was writing (another run) is not replaced either. Either way the
+    records stay in ``tmp``: said through ``report(message)`` for an unfinished run, a :class:`FileError` for a
+    finished one. A rename that fails is passed to ``report``. Errors writing (OSError) propagate."""
+    complete = False
     try:
         with h5:
             sink = H5Sink(h5, sim.cfg, fresh=fresh)
@@ -269,12 +297,42 @@ def stream(sim, h5, tmp, path, *, fresh=True, progress=None, should_stop=None, w
             h5.attrs["complete"] = bool(complete)
         return complete
     finally:
-        try:
+        _publish(tmp, path, complete, replace, report)
+
+
+def _publish(tmp, path, complete, replace, report):
+    """Rename ``tmp`` to ``path`` by the rules of :func:`stream`."""
+    def say(message):
+        if report is not None:
+            report(message)
+
+    if not complete and os.path.exists(path) and _is_complete_run(path):
+        say(f"{display_path(path)}: kept: it holds a complete run and this one did not finish; the records so far "
+            f"are in {display_path(tmp)}")
+        return
+    try:
+        if replace:
             os.replace(tmp, path)
-        except OSError as exc:
-            if report is not None:
-                report(f"{display_path(path)}: cannot rename {display_path(tmp)} to it: {exc.strerror or exc}; the records "
-                       f"are in {display_path(tmp)}")
+        else:
+            try:
+                os.link(tmp, path)      # fails if path exists: no run's file is replaced without --force
+            except FileExistsError:
+                raise
+            except OSError:             # a file system without hard links: check, then rename (not atomic)
+                if os.path.exists(path):
+                    raise FileExistsError(path) from None
+                os.replace(tmp, path)
+                return
+            os.remove(tmp)
+    except FileExistsError:
+        message = (f"appeared while this run was writing (another run?) and was not replaced; the records are in "
+                   f"{display_path(tmp)}")
+        if complete:
+            raise FileError(path, None, message) from None
+        say(f"{display_path(path)}: {message}")
+    except OSError as exc:
+        say(f"{display_path(path)}: cannot rename {display_path(tmp)} to it: {exc.strerror or exc}; the records "
+            f"are in {display_path(tmp)}")
 
 
 def display_path(path):

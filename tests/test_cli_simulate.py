@@ -126,3 +126,53 @@ def test_a_short_wide_run_makes_a_file_the_size_of_its_records(tmp_path):
         stored += sum(f["final"][k].size * f["final"][k].dtype.itemsize for k in f["final"])
         assert f["collisions/position"].shape == (20000, 4, 2)
     assert os.path.getsize(out) < 2 * stored, (os.path.getsize(out), stored)
+
+
+# ---- what is already on disk is kept (issue 13: races, --force then Ctrl-C) ---------------------------------------
+
+def _tiny_run(tmp_path, name, complete=True):
+    import rbx
+    from rbx import runfile
+    out = tmp_path / name
+    rbx.simulate(os.path.join(ROOT, "configs", "examples", "strip.yaml"), collisions=50, output=out)
+    if not complete:
+        with h5py.File(out, "r+") as f:
+            f.attrs["complete"] = False
+    return out, runfile
+
+
+def test_a_second_run_on_the_same_output_cannot_open_its_partial(tmp_path):
+    from rbx import runfile
+    first = runfile.create(str(tmp_path / "run.h5"))
+    try:
+        with pytest.raises(runfile.FileError) as info:
+            runfile.create(str(tmp_path / "run.h5"))          # exclusive creation, whatever HDF5's locking
+        assert "another run is writing it" in str(info.value)
+    finally:
+        first.close()
+
+
+def test_an_unfinished_run_never_replaces_a_complete_result(tmp_path):
+    old, runfile = _tiny_run(tmp_path, "run.h5")
+    before = old.read_bytes()
+    fragment, _ = _tiny_run(tmp_path, "fragment.h5", complete=False)
+    tmp = runfile.temporary_path(str(old))
+    os.replace(fragment, tmp)
+    said = []
+    runfile._publish(tmp, str(old), complete=False, replace=True, report=said.append)   # --force, then Ctrl-C
+    assert old.read_bytes() == before and os.path.exists(tmp) and "kept" in said[0]
+
+
+def test_a_file_that_appeared_meanwhile_is_not_replaced_without_force(tmp_path):
+    other, runfile = _tiny_run(tmp_path, "run.h5")             # written by another run while ours ran
+    before = other.read_bytes()
+    ours, _ = _tiny_run(tmp_path, "ours.h5")
+    tmp = runfile.temporary_path(str(other))
+    os.replace(ours, tmp)
+    with pytest.raises(runfile.FileError) as info:
+        runfile._publish(tmp, str(other), complete=True, replace=False, report=None)
+    assert "appeared while this run was writing" in str(info.value)
+    assert other.read_bytes() == before and os.path.exists(tmp)
+    ours_inode = os.stat(tmp).st_ino
+    runfile._publish(tmp, str(other), complete=True, replace=True, report=None)     # with --force: replaced
+    assert not os.path.exists(tmp) and os.stat(other).st_ino == ours_inode

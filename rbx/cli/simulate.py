@@ -82,7 +82,7 @@ def _simulate(config, out, overrides, force, quiet, stop):
     compile_kernels(sim)
     if stop.start_running():
         raise KeyboardInterrupt
-    return _execute(sim, path, stop, quiet, 0, lambda **how: run_to_file(sim, path, **how))
+    return _execute(sim, path, stop, quiet, 0, lambda **how: run_to_file(sim, path, force=force, **how))
 
 
 def _resume(config, run_file, out, overrides, force, quiet, stop):
@@ -143,7 +143,8 @@ def _resume(config, run_file, out, overrides, force, quiet, stop):
             os.remove(tmp)
         raise
     return _execute(sim, path, stop, quiet, done, lambda **how: stream(sim, h5, tmp, path, fresh=False,
-                                                                       write_initial=write_initial, **how))
+                                                                       write_initial=write_initial,
+                                                                       replace=force or path == source, **how))
 
 
 def _execute(sim, path, stop, quiet, done, start):
@@ -153,6 +154,8 @@ def _execute(sim, path, stop, quiet, done, start):
     The file is renamed from ``.partial`` to ``path`` however the run ends (complete, interrupted, or an
     unexpected error), so ``path`` always holds every record computed so far, and ``complete`` says whether that
     is all of them (SPEC §4)."""
+    from ..runfile import temporary_path
+
     progress = Progress("simulate", quiet=quiet, start=done)
     complete = False
     failure = None
@@ -168,9 +171,10 @@ def _execute(sim, path, stop, quiet, done, start):
         return 1
     if not complete:
         made = int(sim.ncoll[sim.alive].min()) if sim.alive.any() else sim.cfg.run.collisions
-        click.echo(f"rbx: {display_path(path)}: interrupted by {signal.Signals(stop.signum).name} after {made} of "
+        where = temporary_path(path) if os.path.exists(temporary_path(path)) else path   # kept apart: see stream
+        click.echo(f"rbx: {display_path(where)}: interrupted by {signal.Signals(stop.signum).name} after {made} of "
                    f"{sim.cfg.run.collisions} collisions; the file holds every record so far (complete = false). "
-                   f"Continue with: rbx simulate --resume {display_path(path)}", err=True)
+                   f"Continue with: rbx simulate --resume {display_path(where)}", err=True)
         return 128 + stop.signum
     return 0
 
