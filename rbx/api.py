@@ -132,7 +132,8 @@ def check_target(path, force, experiment, key="output", file=None, force_hint="f
     ``output.max_size`` or the free disk space (:func:`rbx.runfile.check_size`): raises :class:`FileError`."""
     from .runfile import check_size
     from .runfile import check_target as check
-    check(path, force, key, file=file, config_source=experiment.source if experiment is not None else None,
+    check(path, force, key, file=file,
+          config_source=(experiment.source,) + tuple(experiment.includes) if experiment is not None else None,
           partial_ok=partial_ok, force_hint=force_hint)
     if experiment is not None:
         check_size(experiment, path, size_key)

@@ -190,6 +190,7 @@ class _Checker:
 
     def __init__(self, file):
         self.file = file
+        self.included = []     # files the config names (table, boundary), in the order met
 
     def fail(self, key, problem):
         raise ConfigError(self.file, key, problem)
@@ -363,7 +364,7 @@ def _from_dict(data, source, overrides):
     return Experiment(source=source, dimension=n, table_kind=kind, table=frozen_table,
                       wall_rules=tuple(per_wall), wall_names=tuple(names), ball=Ball(radius, inertia, kappa),
                       initial=initial, run=RunSettings(collisions, trajectories, seed), output=output,
-                      numerics=numerics, resolved=resolved)
+                      numerics=numerics, resolved=resolved, includes=tuple(c.included))
 
 
 def _numerics(section, c):
@@ -406,6 +407,7 @@ def _include(value, key, base, c):
         path = os.path.normpath(os.path.join(base, os.path.expanduser(value)))
         if not os.path.exists(path):
             c.fail(key, f"file not found: {path}")
+        c.included.append(path)
         return _read_yaml(path), path
     if not isinstance(value, dict):
         c.fail(key, f"expected a file name or a mapping, got {_kind(value)}")

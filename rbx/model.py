@@ -142,6 +142,8 @@ class Experiment:
     output: Output = None
     numerics: Numerics = Numerics()
     resolved: dict = field(default=None, hash=False, compare=False)
+    #: the files the config names (its table and boundary files): a run's output must never overwrite them
+    includes: tuple = field(default=(), compare=False)
 
     def geometry(self):
         """The shrunk table the centre moves in (:class:`rbx.geometry.Geometry`)."""

@@ -231,15 +231,18 @@ def temporary_path(path):
 
 
 def check_target(path, force, key, file=None, config_source=None, partial_ok=False, force_hint="--force"):
-    """Refuse to write ``path`` when it is a folder or the config itself, or (without ``force``) when it exists or
+    """Refuse to write ``path`` when it is a folder, the config or a file it includes (``config_source``: the
+    config's path, or a sequence of it and its includes), or (without ``force``) when it exists or
     a run may still be writing its ``.partial``. Raises :class:`FileError`; ``key``/``file`` name where the path
     came from (``-o``, ``output.path``, ``output``), ``force_hint`` how to force (``--force``, ``force=True``)."""
     show = display_path(path)
     if os.path.isdir(path):
         raise FileError(file, key, f"{show} is a directory; give a file name such as run.h5")
-    if config_source and os.path.exists(path) and os.path.exists(config_source) \
-            and os.path.samefile(path, config_source):
-        raise FileError(file, key, f"{show} is the config file itself")
+    sources = [config_source] if isinstance(config_source, str) else list(config_source or ())
+    for i, source in enumerate(sources):
+        if source and os.path.exists(path) and os.path.exists(source) and os.path.samefile(path, source):
+            raise FileError(file, key, f"{show} is the config file itself" if i == 0 else
+                            f"{show} is a file the config includes ({display_path(source)})")
     if os.path.exists(path) and not force:
         raise FileError(path, None, f"exists; use {force_hint} to overwrite it")
     tmp = temporary_path(path)

@@ -258,6 +258,8 @@ CASES = {
     "option-trajectories-memory": ({}, None, ["--trajectories", str(10**14)], None, "--trajectories", "memory"),
     "output-is-directory": ({"adir/x": "x"}, None, ["-o", "adir"], None, "-o", "is a directory"),
     "output-is-config": ({}, None, ["-o", "exp.yaml"], None, "-o", "is the config file itself"),
+    # with --force it used to overwrite the table's YAML with HDF5
+    "output-is-included-table": ({}, None, ["-o", "tables/strip.yaml"], None, "-o", "a file the config includes"),
     # existing files
     "output-exists": ({}, None, ["<no --force>"], "out.h5", None, "exists; use --force"),
     "partial-exists": ({"fresh.h5.partial": "a run in progress"}, None, ["<no --force>", "-o", "fresh.h5"],
