@@ -374,3 +374,21 @@ def test_a_signal_during_the_last_block_still_completes_the_run(tmp_path, monkey
     res = invoke(exp, "-o", tmp_path / "run.h5")
     assert res.exit_code == 0, res.stderr
     assert bool(read_run(tmp_path / "run.h5")["attrs"]["complete"])
+
+
+@pytest.mark.parametrize("delay", [0.15, 1.5])
+def test_ctrl_c_in_histogram_and_while_starting_is_one_line_and_130(tmp_path, delay):
+    # 10⁷ samples: a long experiment, so the signal lands while importing or setting up (0.15 s) or running;
+    # click used to print 'Aborted!' and exit 1, and the import phase a KeyboardInterrupt traceback
+    cfg = {"table": {"kind": "rectangle", "width": 2, "height": 1}, "ball": {"radius": 0.1},
+           "boundary": {"default": {"rule": "constant", "rank": 1}}, "initial": {"sample": "billiard", "wall": "bottom"},
+           "run": {"trajectories": 10**7, "collisions": 1000}, "output": {"path": "ret.h5"}}
+    (tmp_path / "h.yaml").write_text(yaml.safe_dump(cfg))
+    proc = subprocess.Popen([RBX, "histogram", "h.yaml", "-o", "h.png", "--quiet"], cwd=tmp_path,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    time.sleep(delay)
+    assert proc.poll() is None
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130 and "Traceback" not in err and err.count("\n") == 1, err
+    assert err.startswith("rbx: interrupted") and not (tmp_path / "h.png").exists()

@@ -55,6 +55,13 @@ def user_errors():
         raise from_config_error(exc) from None
 
 
+def interrupted_exit():
+    """Ctrl-C in a command that writes nothing until it is done (plot, histogram): one line, exit 130 (click
+    would print 'Aborted!' and exit 1)."""
+    click.echo("rbx: interrupted by SIGINT; nothing written", err=True)
+    sys.exit(130)
+
+
 def report_and_exit(exc, debug):
     """Print a user error as one line on stderr and exit 2 (with the traceback too under ``--debug``)."""
     if debug:

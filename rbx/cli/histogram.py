@@ -3,7 +3,7 @@ import os
 
 import click
 
-from .common import Command, Progress, UserError, report_and_exit
+from .common import Command, Progress, UserError, interrupted_exit, report_and_exit
 
 
 @click.command(cls=Command)
@@ -26,6 +26,8 @@ def histogram(config, out, trajectories, seed, force, quiet, debug):
         _histogram(config, out, trajectories, seed, force, quiet)
     except UserError as exc:
         report_and_exit(exc, debug)
+    except KeyboardInterrupt:
+        interrupted_exit()
 
 
 def _histogram(config, out, trajectories, seed, force, quiet):

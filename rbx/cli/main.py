@@ -1,5 +1,6 @@
 """``rbx``: the command-line entry point (SPEC §4)."""
 import os
+import signal
 import sys
 
 import click
@@ -22,6 +23,7 @@ for _command in (plot.plot, histogram.histogram):
 
 
 def main():
+    signal.signal(signal.SIGINT, signal.default_int_handler)   # imported: Ctrl-C is a KeyboardInterrupt again
     try:
         os.getcwd()
     except OSError:   # deleted under us: relative paths mean nothing, and Numba's compiler needs it too

@@ -5,7 +5,7 @@ import os
 import click
 import numpy as np
 
-from .common import Command, UserError, report_and_exit, user_errors
+from .common import Command, UserError, interrupted_exit, report_and_exit, user_errors
 
 #: the plot kinds (``--kind``); kind K is drawn by the function ``_K`` below
 KINDS = ("orbit", "orbit3d", "phase", "series", "diffusion")
@@ -48,6 +48,8 @@ def plot(run_file, kind, out, records, trajectories, colour, coordinate, scales,
         path = _plot(run_file, kind, out, records, trajectories, colour, coordinate, scales, fit_from, dpi)
     except UserError as exc:
         report_and_exit(exc, debug)
+    except KeyboardInterrupt:
+        interrupted_exit()
     click.echo(f"wrote {path}")
 
 
