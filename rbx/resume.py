@@ -15,7 +15,7 @@ import numpy as np
 
 from . import __version__
 from .model import ConfigError
-from .runfile import state_digest
+from .runfile import STATE_GROUPS, latest_state
 from .simulation import Simulation
 
 #: what ``final/`` must hold to continue (Simulation takes the rest from the config)
@@ -47,16 +47,15 @@ def load(run, source):
         if g[f].shape[0] != M:
             raise damaged(f"collisions/{f}", f"has {g[f].shape[0]} trajectories, the config {M}")
 
-    if any(k not in run.final for k in STATE_KEYS):
+    state, slot, verified = latest_state(run.h5)
+    if any(k not in state for k in STATE_KEYS):
         return Simulation(cfg), True, 0
-    state = {k: np.array(v) for k, v in run.final.items()}
-    fin = run.h5["final"]
+    state = {k: np.array(v) for k, v in state.items()}
     for k in STATE_KEYS:
         if state[k].shape[:1] != (M,):
-            raise damaged(f"final/{k}", f"has shape {state[k].shape}, expected {M} trajectories first")
-    digest = fin.attrs.get("digest")
-    if digest is not None and digest != state_digest(state):
-        raise damaged("final", "the last saved state is incomplete (the process was killed while writing it)")
+            raise damaged(f"{slot}/{k}", f"has shape {state[k].shape}, expected {M} trajectories first")
+    if not verified:
+        raise damaged(slot, "the last saved state is incomplete (the process was killed while writing it)")
     collisions = state["collisions"].astype(np.int64)
     alive = state["alive"].astype(bool)
     running = np.unique(collisions[alive])
@@ -99,6 +98,14 @@ def make_consistent(h5, sim, write_initial):
         _reset(h5, g, sim.cfg)
     else:
         _cut_back(g, sim.cfg, sim.ncoll)
+        # keep only the state slot it continues from: a slot a kill left unverified must be the next one written,
+        # never the one this run's records now rest on
+        _, used, _ = latest_state(h5)
+        for name in STATE_GROUPS:
+            if name != used and name in h5:
+                del h5[name]
+        if used is not None and used != "final":
+            h5.move(used, "final")
 
 
 def _cut_back(g, cfg, collisions):
@@ -120,8 +127,9 @@ def _reset(h5, g, cfg):
         g[f].resize(0, axis=1)
     g["step"].resize(0, axis=0)
     g["count"][...] = 0
-    if "final" in h5:
-        del h5["final"]
+    for name in STATE_GROUPS:
+        if name in h5:
+            del h5[name]
 
 
 def version_note(run):

@@ -22,7 +22,8 @@ Layout (T trajectories, N records; trajectory axis first):
 | ``collisions/wall``, ``rank`` | (T, N) | i4 | wall index hit (−1 for record 0), roughness rank used |
 | ``collisions/count`` | (T,) | i8 | records written for each trajectory (rows past it are NaN / −1) |
 | ``collisions/step`` | (N,) | i8 | collision number of each record (0, every, 2·every, …) |
-| ``final/*`` | (T, …) | | last state of every trajectory, its ``collisions`` and ``draws`` counts and ``alive`` flag (for ``--resume``); attribute ``digest``: hash of the state, see :func:`state_digest` |
+| ``final/*`` | (T, …) | | the last state of every trajectory, its ``collisions`` and ``draws`` counts and ``alive`` flag (for ``--resume``); attributes ``sequence`` and ``digest`` (hash of the state, see :func:`state_digest`) |
+| ``final_previous/*`` | (T, …) | | the state one block earlier: each checkpoint writes there, verifies, then swaps the two names, so a process killed at any instant leaves one verified state (:func:`latest_state`) |
 | ``returns/angle`` | (K,) | f8 | ``rbx histogram`` files only (no ``collisions/``): return angles φ; see :func:`write_returns` |
 
 Only the fields in ``output.record`` are present. Every ``collisions/`` dataset carries the attributes ``units``
@@ -152,20 +153,67 @@ class H5Sink:
         g["count"][...] = g["count"][...] + nrec
 
     def checkpoint(self, sim):
+        """Save the state that accounts for the records written so far. It is written into ``final_previous``
+        (the older state), verified by its digest, and only then are the two groups' names swapped, so ``final``
+        is the newest state and a process killed at any point leaves at least one verified state (see
+        :func:`latest_state`)."""
         # flush first: the block's records reach the file before the state that accounts for them
         self.h5.flush()
-        fin = self.h5.require_group("final")
+        sequence = max(_slot_sequence(self.h5, name) for name in STATE_GROUPS) + 1
+        fin = self.h5.require_group("final_previous")
         state = sim.final_state()
         for k, v in state.items():
             v = np.asarray(v)
-            if k in fin and fin[k].shape == v.shape:
+            if k in fin and fin[k].shape == v.shape and fin[k].dtype == v.dtype:
                 fin[k][...] = v
             else:
                 if k in fin:
                     del fin[k]
                 fin.create_dataset(k, data=v)
-        fin.attrs["digest"] = state_digest(state)
+        fin.attrs["sequence"] = sequence
+        fin.attrs["digest"] = state_digest(state)     # last: until it is written the group does not verify
         self.h5.flush()
+        if "final" in self.h5:
+            self.h5.move("final", "final_swap")
+        self.h5.move("final_previous", "final")
+        if "final_swap" in self.h5:
+            self.h5.move("final_swap", "final_previous")
+        self.h5.flush()
+
+
+#: the groups that may hold a saved state: ``final`` (the newest), ``final_previous`` (the one before), and
+#: ``final_swap`` (only while their names are swapped); :func:`latest_state` takes the newest that verifies
+STATE_GROUPS = ("final", "final_previous", "final_swap")
+
+
+def _slot_sequence(h5, name):
+    try:
+        return int(h5[name].attrs.get("sequence", 0)) if name in h5 else -1
+    except Exception:   # noqa: BLE001 - a slot damaged by a kill: the one to overwrite
+        return -1
+
+
+def latest_state(h5):
+    """The run's saved state -> (dict of arrays, group name, verified): the newest group of :data:`STATE_GROUPS`
+    whose digest matches its arrays; if none does, the newest readable one with ``verified`` False; ({}, None,
+    True) when nothing was saved yet. A slot without a digest (older files) counts as verified."""
+    found = []
+    for name in STATE_GROUPS:
+        try:
+            g = h5[name] if name in h5 else None
+            if g is None:
+                continue
+            state = {k: g[k][...] for k in g}
+            digest = g.attrs.get("digest")
+            ok = digest is None or digest == state_digest(state)
+            found.append((ok, int(g.attrs.get("sequence", 0)), name, state))
+        except Exception:   # noqa: BLE001 - unreadable after a kill: not a candidate
+            continue
+    if not found:
+        return {}, None, True
+    found.sort(key=lambda x: (x[0], x[1]), reverse=True)
+    ok, _, name, state = found[0]
+    return state, name, ok
 
 
 def state_digest(state):
@@ -484,8 +532,7 @@ class Run:
                 g = f["collisions"]
                 attrs = {k: _attr(f.attrs[k]) for k in f.attrs}
                 fields = [k for k in RECORD_FIELDS if k in g]
-                fin = f.get("final")
-                final = {} if fin is None else {k: fin[k][...] for k in fin}
+                final, _, _ = latest_state(f)
                 return cls(attrs, g["count"][...], g["step"][...], final, fields, path=path)
             except FileError:
                 raise
