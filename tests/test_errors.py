@@ -527,6 +527,9 @@ def test_a_deleted_working_directory_is_one_line(tmp_path):
     (["plot", "x.h5", "--kind", "orbit", "--dpi", "100000"], "--dpi", "not in the range"),
     (["plot", "x.h5", "--kind", "orbt"], "--kind", "is not one of"),
     (["histogram"], "CONFIG", "Missing argument"),
+    # memory: the histogram's sample count and a plot's trajectory range are checked before anything is allocated
+    (["histogram", "{config}", "--trajectories", "1000000000"], "--trajectories", "GiB of memory"),
+    (["plot", "{run}", "--kind", "orbit", "--trajectories", "0-100000000000"], "--trajectories", "does not exist"),
     # -o '' used output.path silently; -o newdir/ wrote a file named newdir
     (["simulate", "{config}", "-o", ""], "-o", "an empty file name"),
     (["simulate", "{config}", "-o", "newdir/"], "-o", "names a folder"),
@@ -534,11 +537,16 @@ def test_a_deleted_working_directory_is_one_line(tmp_path):
 def test_usage_mistakes_of_every_command_are_one_line(tmp_path, args, key, problem):
     config = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "configs", "examples",
                           "strip.yaml")
-    res = subprocess.run([RBX] + [a.format(config=config) for a in args], capture_output=True, text=True,
-                         timeout=120, cwd=tmp_path)
+    if "{run}" in args:
+        run = tmp_path / "run.h5"
+        assert subprocess.run([RBX, "simulate", config, "-o", str(run), "--collisions", "20", "--quiet"],
+                              timeout=120).returncode == 0
+    hist = os.path.join(os.path.dirname(config), "..", "experiments", "histogram.yaml")
+    res = subprocess.run([RBX] + [a.format(config=hist if args[0] == "histogram" else config, run=tmp_path / "run.h5")
+                                  for a in args], capture_output=True, text=True, timeout=120, cwd=tmp_path)
     assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
     assert not (tmp_path / "newdir").exists()
-    assert res.stderr.startswith(f"rbx: {key}: ") and problem in res.stderr
+    assert (res.stderr.startswith(f"rbx: {key}: ") or f": {key}: " in res.stderr) and problem in res.stderr
 
 
 def test_a_bad_numba_num_threads_is_one_line(tmp_path):

@@ -55,6 +55,27 @@ def user_errors():
         raise from_config_error(exc) from None
 
 
+#: bytes per trajectory, generously: the state (position, velocity, spin and orientation matrices, counters, key)
+#: for a run; for the return-angle experiment also its draws and results
+BYTES_PER_TRAJECTORY = {"simulate": 400, "histogram": 1200}
+
+
+def check_memory(cfg, overrides, command="simulate"):
+    """Refuse an ensemble whose state alone would not fit in this machine's memory, rather than spend minutes
+    setting it up and then crash (``rbx histogram`` with 10⁹ samples died with MemoryError)."""
+    import os
+    M = cfg.run.trajectories
+    try:
+        available = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):   # not a POSIX system: let the allocation decide
+        return
+    need = M * BYTES_PER_TRAJECTORY[command]
+    if need > available:
+        file, key = (None, "--trajectories") if overrides.get("trajectories") else (cfg.source, "run.trajectories")
+        raise UserError(file, key, f"{M} trajectories need about {need / 2**30:.3g} GiB of memory, more than this "
+                                   f"machine has ({available / 2**30:.3g} GiB)")
+
+
 def interrupted_exit():
     """Ctrl-C in a command that writes nothing until it is done (plot, histogram): one line, exit 130 (click
     would print 'Aborted!' and exit 1)."""

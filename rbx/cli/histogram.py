@@ -3,7 +3,7 @@ import os
 
 import click
 
-from .common import Command, Progress, UserError, interrupted_exit, report_and_exit
+from .common import Command, Progress, UserError, check_memory, interrupted_exit, report_and_exit
 
 
 @click.command(cls=Command)
@@ -42,6 +42,7 @@ def _histogram(config, out, trajectories, seed, force, quiet):
         cfg = cfgmod.load(config, overrides)
     except cfgmod.ConfigError as exc:
         raise UserError(exc.file, exc.key, exc.problem) from None
+    check_memory(cfg, overrides, "histogram")
     if cfg.initial[0] != "sample":
         raise UserError(config, "initial", "rbx histogram samples its states: use initial: {sample: billiard, "
                                            "wall: NAME}")

@@ -111,8 +111,12 @@ def parse_trajectories(text, available, default, file):
     try:
         for part in text.split(","):
             if "-" in part.strip()[1:]:
-                a, b = part.split("-", 1)
-                out.update(range(int(a), int(b) + 1))
+                a, b = (int(x) for x in part.split("-", 1))
+                for j in (a, b):
+                    if j < 0 or j >= available:   # checked before the range is made: 0-10¹¹ filled the memory
+                        raise UserError(file, "--trajectories", f"trajectory {j} does not exist (the run has "
+                                                                f"{available}: 0–{available - 1})")
+                out.update(range(a, b + 1))
             else:
                 out.add(int(part))
     except ValueError:

@@ -13,7 +13,7 @@ import signal
 
 import click
 
-from .common import Command, Progress, UserError, display_path, report_and_exit, user_errors
+from .common import Command, Progress, UserError, check_memory, display_path, report_and_exit, user_errors
 
 OVERRIDES = ("collisions", "trajectories", "seed")
 
@@ -71,7 +71,7 @@ def _simulate(config, out, overrides, force, quiet, stop):
     if path is None:
         raise UserError(config, "output.path", "no output file: give output.path in the config or -o OUT.h5")
     key = "-o" if out else "output.path"
-    _check_memory(cfg, overrides)
+    check_memory(cfg, overrides)
     check_target(path, force, cfg, key=key, file=None if out else cfg.source, force_hint="--force",
                  size_key=(None, "--max-size") if overrides["max_size"] is not None else None)
     try:
@@ -179,20 +179,4 @@ def _execute(sim, path, stop, quiet, done, start):
     return 0
 
 
-#: bytes of state per trajectory, generously (position, velocity, spin and orientation matrices, counters, key)
-BYTES_PER_TRAJECTORY = 400
 
-
-def _check_memory(cfg, overrides):
-    """Refuse an ensemble whose state alone would not fit in this machine's memory, rather than spend minutes
-    setting it up and then crash."""
-    M = cfg.run.trajectories
-    try:
-        available = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):   # not a POSIX system: let the allocation decide
-        return
-    need = M * BYTES_PER_TRAJECTORY
-    if need > available:
-        file, key = (None, "--trajectories") if overrides.get("trajectories") else (cfg.source, "run.trajectories")
-        raise UserError(file, key, f"{M} trajectories need about {need / 2**30:.3g} GiB of memory, more than this "
-                                   f"machine has ({available / 2**30:.3g} GiB)")
