@@ -76,7 +76,7 @@ def main():
         o, m = scenes[k]
         record_plates(fig, m, prefix=f"{k}: ")
     for k, (o, m) in scenes.items():
-        random = uses_random(o["boundary"])
+        random = uses_random(o["rules"])
         if k == "rank2-rank2":
             fig.check(f"{k}: bounded: growth exponent of the excursion", m["exponent"], "<=", BOUNDED)
             continue

@@ -244,3 +244,21 @@ def test_simulate_then_figure_script(tmp_path):
     import json
     record = json.loads((tmp_path / "plate.json").read_text())
     assert record["label"] == "plate" and record["checks"] and all(c["ok"] for c in record["checks"])
+
+
+def test_roughrank_script_end_to_end(tmp_path):
+    # the four runs, shortened: the script must read them and draw (its checks may or may not hold on 4000
+    # collisions; a traceback — a run file read the wrong way — is what this catches)
+    rbx = os.path.join(os.path.dirname(sys.executable), "rbx")
+    runs = []
+    for name in ROUGHRANK:
+        h5 = tmp_path / name.replace(".yaml", ".h5")
+        sim = subprocess.run([rbx, "simulate", os.path.join(EXPERIMENTS, "roughrank", name), "-o", str(h5),
+                              "--collisions", "4000", "--quiet"], capture_output=True, text=True, timeout=300)
+        assert sim.returncode == 0, sim.stderr
+        runs.append(str(h5))
+    png = tmp_path / "roughrank.png"
+    fig = subprocess.run([sys.executable, os.path.join(ROOT, "scripts", "fig_roughrank.py"), *runs, "-o", str(png)],
+                         capture_output=True, text=True, timeout=300, cwd=ROOT, env={**os.environ, "MPLBACKEND": "Agg"})
+    assert "Traceback" not in fig.stderr and fig.returncode in (0, 1), fig.stderr
+    assert png.stat().st_size > 10_000
