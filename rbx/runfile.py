@@ -64,6 +64,21 @@ INDEX_DATASETS = {"count": ("1", "records written for each trajectory (rows past
                   "step": ("1", "collision number of each record (0, every, 2·every, …)")}
 
 
+#: room kept free on the disk beyond a block's records, its new chunks and the state, for HDF5's metadata
+DISK_MARGIN = 256 << 10
+
+
+class DiskFull(OSError):
+    """The disk has no room for the next block: the run stops between blocks, its file intact and resumable."""
+
+    def __init__(self, message):
+        import errno
+        super().__init__(errno.ENOSPC, message)
+
+    def __str__(self):
+        return self.strerror
+
+
 class FileError(Exception):
     """A file that cannot be read or written as asked: ``<file>: <key>: <problem>`` (the parts that apply)."""
 
@@ -139,8 +154,11 @@ class H5Sink:
             for name, (units, text) in INDEX_DATASETS.items():
                 g[name].attrs["units"], g[name].attrs["description"] = units, text
         self.g = h5["collisions"]
+        #: bytes of one saved state, twice over (the new one is written beside the last), for the space check
+        self.state_bytes = 2 * M * (4 * n + n * n + 9 + 8) * 8
 
     def write(self, block, nrec):
+        self._check_space(sum(a.nbytes for a in block.values()))
         g = self.g
         b = next(iter(block.values())).shape[1]
         start = g["step"].shape[0]
@@ -152,6 +170,22 @@ class H5Sink:
         g["step"][start:] = np.arange(start, start + b) * self.every
         g["count"][...] = g["count"][...] + nrec
 
+    def _check_space(self, nbytes):
+        """Stop with :class:`DiskFull` before a write the disk has no room for (the block, the state and a margin
+        for HDF5's metadata): HDF5 meeting ENOSPC mid-write left the file half-updated and h5py crashed
+        (a segmentation fault) closing it. Checked, the run stops between blocks like an interrupted one: the last
+        checkpoint is intact and the file can be resumed once there is space."""
+        import shutil
+        try:
+            free = shutil.disk_usage(os.path.dirname(os.path.abspath(self.h5.filename)) or ".").free
+        except OSError:
+            return
+        # a write can allocate a whole new chunk in every dataset, and HDF5 adds its metadata
+        need = nbytes + self.state_bytes + 2 * CHUNK_BYTES * len(self.g) + DISK_MARGIN
+        if free < need:
+            raise DiskFull(f"the disk is full: {format_size(free)} free, the next block needs about "
+                           f"{format_size(need)}")
+
     def checkpoint(self, sim):
         """Save the state that accounts for the records written so far. It is written into ``final_previous``
         (the older state), verified by its digest, and only then are the two groups' names swapped, so ``final``
@@ -162,6 +196,7 @@ class H5Sink:
         sequence = max(_slot_sequence(self.h5, name) for name in STATE_GROUPS) + 1
         fin = self.h5.require_group("final_previous")
         state = sim.final_state()
+        self._check_space(0)
         for k, v in state.items():
             v = np.asarray(v)
             if k in fin and fin[k].shape == v.shape and fin[k].dtype == v.dtype:

@@ -8,6 +8,7 @@ checkpointed and closed cleanly. Either way the run ends by renaming ``OUT.h5.pa
 143). An existing ``OUT.h5`` is replaced only with ``--force``. ``--resume`` continues such a file to its
 requested length and writes the same records as an uninterrupted run.
 """
+import errno
 import os
 import signal
 
@@ -134,6 +135,10 @@ def _resume(config, run_file, out, overrides, force, quiet, stop):
     except OSError as exc:
         if os.path.exists(tmp) and not in_place:
             os.remove(tmp)
+        if exc.errno == errno.ENOSPC:      # not the user's input: the disk is still full
+            click.echo(f"rbx: {display_path(tmp)}: the disk is full: no room to continue the run; free some "
+                       f"space and resume again ({display_path(run_file)} is unchanged)", err=True)
+            return 1
         raise UserError(tmp, None, f"cannot write: {exc.strerror or exc}") from None
     try:
         make_consistent(h5, sim, write_initial)
@@ -154,7 +159,7 @@ def _execute(sim, path, stop, quiet, done, start):
     The file is renamed from ``.partial`` to ``path`` however the run ends (complete, interrupted, or an
     unexpected error), so ``path`` always holds every record computed so far, and ``complete`` says whether that
     is all of them (SPEC §4)."""
-    from ..runfile import temporary_path
+    from ..runfile import DiskFull, temporary_path
 
     progress = Progress("simulate", quiet=quiet, start=done)
     complete = False
@@ -166,8 +171,14 @@ def _execute(sim, path, stop, quiet, done, start):
     finally:
         progress.close()
     if failure is not None:
-        click.echo(f"rbx: {display_path(path)}: writing failed: {failure}; the file holds the records written "
-                   "before (complete = false)", err=True)
+        where = temporary_path(path) if os.path.exists(temporary_path(path)) else path
+        if isinstance(failure, DiskFull):
+            click.echo(f"rbx: {display_path(where)}: {failure}; the run stopped, the file holds every record up to "
+                       "its last checkpoint (complete = false). Free some space, then continue with: "
+                       f"rbx simulate --resume {display_path(where)}", err=True)
+        else:
+            click.echo(f"rbx: {display_path(where)}: writing failed: {failure}; the file holds the records "
+                       "written before (complete = false)", err=True)
         return 1
     if not complete:
         made = int(sim.ncoll[sim.alive].min()) if sim.alive.any() else sim.cfg.run.collisions
