@@ -52,7 +52,7 @@ ROOT_ATTRS = {
     "config": "the fully resolved experiment (tables and boundaries inlined, paths absolute) as YAML text",
     "complete": "False while the run is written and when it was interrupted",
     "schema_version": f"version of this layout ({SCHEMA_VERSION})",
-    "table_kind": "strip, circle, wedge, rectangle, polygon, plates or box",
+    "table_kind": "the table kind (a record of the registry rbx.tables)",
     "wall_names": "the table's walls, in wall order (the index in collisions/wall)",
     "radius": "ball radius R [L]",
     "kappa": "κ = 2λ/R² of the ball's mass distribution",
