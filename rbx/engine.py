@@ -435,10 +435,12 @@ def _entry_point(stop, spec, groups, nrec):
     ``numba.typeof`` of the groups' 34 arrays takes ~0.2 ms, 2–3 % of a block of the rough strip, so the entry
     point is looked up first by Numba's own fingerprint of the arguments' types (the key of its dispatcher's type
     cache: class and field names, dtypes, dimensions, layouts, writability; ~3 µs)."""
-    try:
-        key = (spec, compute_fingerprint((stop, groups, nrec)))
-    except (TypeError, ValueError, NotImplementedError):     # a value it cannot fingerprint, or no such function
-        key = None
+    key = None
+    if compute_fingerprint is not None:            # absent from a Numba without it: the typeof path alone
+        try:
+            key = (spec, compute_fingerprint((stop, groups, nrec)))
+        except (TypeError, ValueError, NotImplementedError):
+            pass    # Numba raises NotImplementedError for a value whose type it cannot fingerprint: typeof below
     entry = _ENTRY.get(key)
     if entry is None:
         sig = ((numba.types.int64, numba.types.int64, numba.typeof(stop), numba.types.literal(spec))
@@ -466,8 +468,8 @@ def run_advance_all(stop, table, rules, settings, state, out):
     ``prange``: a parallel kernel takes ~15 s to compile against ~5 s for a serial one, for every combination of
     compiled bits in use. Why the entry point (:func:`_entry_point`): ``spec`` is a literal, and resolving a literal
     argument through the dispatcher costs ~10 ms per call (it re-types the call every time); a call through the
-    entry point, groups built, costs ~12 µs in all (``Simulation.advance`` with nothing to do). The first call of a specialisation goes through the dispatcher (which compiles it or loads it from the
-    cache). Each trajectory's numbers depend only on its own state and stream, never on the slicing or the thread
+    entry point, groups built, costs ~12 µs in all (``Simulation.advance`` with nothing to do). The first
+    call of a specialisation goes through the dispatcher (which compiles it or loads it from the cache). Each trajectory's numbers depend only on its own state and stream, never on the slicing or the thread
     count."""
     M = state.pos.shape[0]
     spec = int(settings.flags) & COMPILED_BITS
