@@ -199,10 +199,11 @@ class H5Sink:
         self._check_space(0)
         for k, v in state.items():
             v = np.asarray(v)
-            if k in fin and fin[k].shape == v.shape and fin[k].dtype == v.dtype:
-                fin[k][...] = v
+            ds = fin.get(k)               # one lookup: group access is most of a checkpoint's Python time
+            if ds is not None and ds.shape == v.shape and ds.dtype == v.dtype:
+                ds[...] = v
             else:
-                if k in fin:
+                if ds is not None:
                     del fin[k]
                 fin.create_dataset(k, data=v)
         fin.attrs["sequence"] = sequence
