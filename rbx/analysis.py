@@ -16,7 +16,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .model import Constant, Hemisphere, Random, roughness_direction, rule_leaves
+from .model import Constant, Exit, Hemisphere, Random, roughness_direction, rule_leaves
 
 # ---- the billiard measure (paper §2.7) -------------------------------------------------------------------------
 
@@ -419,7 +419,7 @@ def rough_directions(wall_rules, geom):
 
 
 def _leaf_directions(leaf, nu, wall, n):
-    if leaf.rank == 0:
+    if leaf.rank <= 0:          # specular, or an exit (rank −1): no roughness direction
         return []
     if n == 2:
         return [np.array([-nu[1], nu[0]])]
@@ -461,6 +461,8 @@ def describe_rule(rule, n):
         return f"rank {rule.rank} along ({', '.join(_num(x) for x in value)})"
     if isinstance(rule, Hemisphere):
         return f"hemisphere {describe_rule(rule.rough, n)}/{describe_rule(rule.smooth, n)}"
+    if isinstance(rule, Exit):
+        return "exit"
     if isinstance(rule, Random):
         return "random (" + ", ".join(f"{describe_rule(c, n)} {_num(p)}"
                                       for c, p in zip(rule.choices, rule.probabilities)) + ")"

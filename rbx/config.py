@@ -21,7 +21,7 @@ import numpy as np
 import yaml
 
 from . import tables
-from .model import (DEFAULT_MAX_SIZE, RECORD_FIELDS, Ball, ConfigError, Constant, Experiment, Hemisphere,
+from .model import (DEFAULT_MAX_SIZE, RECORD_FIELDS, Ball, ConfigError, Constant, Exit, Experiment, Hemisphere,
                     Numerics, Output, Random, RunSettings)
 from .physics import kappa_of
 
@@ -526,10 +526,13 @@ def _rule(r, key, n, c, geom, wall_ids):
     """Validate a rule (recursively); ``wall_ids``: the walls it applies to, for checking 3D directions."""
     if not isinstance(r, dict):
         c.fail(key, f"expected a rule mapping such as {{rule: constant, rank: 1}}, got {_kind(r)}")
-    kinds = ("constant", "hemisphere", "random")
+    kinds = ("constant", "hemisphere", "random", "exit")
     if "rule" not in r:
         c.fail(_join(key, "rule"), f"missing required key (one of: {', '.join(kinds)})")
     kind = c.choice(r["rule"], _join(key, "rule"), kinds, "rule")
+    if kind == "exit":
+        c.mapping(r, key, ("rule",))
+        return Exit()
     if kind == "constant":
         c.mapping(r, key, ("rule", "rank", "direction_deg", "direction"), ("rank",))
         rank = c.integer(r["rank"], _join(key, "rank"), lo=0, hi=n - 1)

@@ -50,6 +50,13 @@ class Random:
     probabilities: tuple
 
 
+@dataclass(frozen=True)
+class Exit:
+    """The wall is a hole (SPEC §3): a trajectory that reaches it records that contact (no collision map; its
+    rank is recorded as −1) and ends there. Open billiards: escape and return times (SPEC §10)."""
+    rank = -1           # a class attribute, not a field: every exit is the same rule
+
+
 def roughness_direction(direction, t1, t2, cos=math.cos, sin=math.sin, sqrt=math.sqrt, radians=math.radians):
     """The unit roughness direction of a 3D rank-1 rule on a flat wall with orthonormal tangent axes t1, t2 -> list.
 
@@ -70,8 +77,9 @@ def roughness_direction(direction, t1, t2, cos=math.cos, sin=math.sin, sqrt=math
 
 
 def rule_leaves(rule):
-    """Every constant rule a rule can reach (hemisphere: both sides; random: every choice), in order -> list."""
-    if isinstance(rule, Constant):
+    """Every leaf rule (constant or exit) a rule can reach (hemisphere: both sides; random: every choice), in order
+    -> list."""
+    if isinstance(rule, (Constant, Exit)):
         return [rule]
     kids = (rule.rough, rule.smooth) if isinstance(rule, Hemisphere) else rule.choices
     return [leaf for k in kids for leaf in rule_leaves(k)]

@@ -1,9 +1,10 @@
 """Boundary rules as data: a rule tree per wall, flattened into arrays for the kernels (SPEC §3).
 
 Node kinds: ``CONSTANT`` (a roughness rank and, for 3D rank 1, a direction), ``HEMISPHERE`` (children: rough,
-smooth; picked by the contact point in the ball's body frame) and ``RANDOM`` (children with cumulative
-probabilities; one uniform draw per visit). :func:`choose` walks a wall's tree at a collision and returns the
-constant node that applies. Adding a rule kind = a code, a branch in :func:`choose`, a case in
+smooth; picked by the contact point in the ball's body frame), ``RANDOM`` (children with cumulative
+probabilities; one uniform draw per visit) and ``EXIT`` (the wall is a hole: the trajectory ends at the contact,
+no map applied; its rank is −1). :func:`choose` walks a wall's tree at a collision and returns the leaf (constant
+or exit node) that applies. Adding a rule kind = a code, a branch in :func:`choose`, a case in
 :func:`compile_rules` and in the config validation.
 """
 from dataclasses import dataclass
@@ -11,17 +12,17 @@ from dataclasses import dataclass
 import numpy as np
 
 from ._jit import jit, jit_hot
-from .model import Constant, Hemisphere, Random, roughness_direction
+from .model import Constant, Exit, Hemisphere, Random, roughness_direction
 from .rng import uniform
 
-CONSTANT, HEMISPHERE, RANDOM = 0, 1, 2
+CONSTANT, HEMISPHERE, RANDOM, EXIT = 0, 1, 2, 3
 
 
 @dataclass
 class CompiledRules:
     root: np.ndarray        # (walls,) root node of each wall
     kind: np.ndarray        # (nodes,) node kind
-    rank: np.ndarray        # (nodes,) roughness rank (CONSTANT nodes)
+    rank: np.ndarray        # (nodes,) roughness rank (CONSTANT nodes; −1 for EXIT nodes)
     first: np.ndarray       # (nodes,) index of the first child in ``children``
     nchild: np.ndarray      # (nodes,)
     children: np.ndarray    # (links,) child node indices
@@ -31,6 +32,7 @@ class CompiledRules:
     uses_orientation: bool  # some hemisphere rule: the orientation must be followed
     uses_random: bool
     max_rank: int
+    uses_exit: bool = False  # some wall can be an exit
 
     def kernel_arrays(self):
         """The arrays the kernels read, as the group :class:`rbx.engine.Rules`."""
@@ -53,6 +55,8 @@ def compile_rules(wall_rules, geom):
         nodes.append(None)
         if isinstance(rule, Constant):
             nodes[idx] = (CONSTANT, rule.rank, 0, 0, np.zeros(n), rule.direction)
+        elif isinstance(rule, Exit):
+            nodes[idx] = (EXIT, -1, 0, 0, np.zeros(n), None)
         else:
             kids = (rule.rough, rule.smooth) if isinstance(rule, Hemisphere) else rule.choices
             probs = (0.0, 0.0) if isinstance(rule, Hemisphere) else np.cumsum(rule.probabilities)
@@ -83,7 +87,7 @@ def compile_rules(wall_rules, geom):
         cumprob=np.array([l[1] for l in links] or [0.0], float),
         axis=np.array([x[4] for x in nodes]).reshape(m, n), basis=basis,
         uses_orientation=bool(np.any(kinds[reach] == HEMISPHERE)), uses_random=bool(np.any(kinds[reach] == RANDOM)),
-        max_rank=int(max(nodes[i][1] for i in reach)))
+        max_rank=int(max(nodes[i][1] for i in reach)), uses_exit=bool(np.any(kinds[reach] == EXIT)))
 
 
 def _reachable(root, nodes, links):
@@ -100,14 +104,14 @@ def _reachable(root, nodes, links):
 
 @jit_hot
 def choose(wall, nu, A, theta, key, draws, root, kind, first, children, cumprob, axis, n):
-    """Walk the rule tree of ``wall`` -> (constant node, number of draws used so far).
+    """Walk the rule tree of ``wall`` -> (leaf node: a constant or an exit node, number of draws used so far).
 
     Hemisphere: the contact point in the body frame is b = Aᵀ(−ν) (2D: −ν rotated by −θ); rough iff b·axis > 0,
     i.e. iff ν·(A·axis) < 0. Random: draw number ``draws`` of the stream ``key`` picks the first child whose
     cumulative probability exceeds it.
     """
     node = root[wall]
-    while kind[node] != CONSTANT:
+    while kind[node] == HEMISPHERE or kind[node] == RANDOM:
         if kind[node] == HEMISPHERE:
             s = 0.0
             if n == 2:
