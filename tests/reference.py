@@ -2,16 +2,19 @@
 
 Pure Python + numpy, independent of the ``rbx`` engine: it reads a config mapping shaped like the cases of
 ``tests/data/trajectories.json``, takes from rbx only the table's walls as data (the registry of table kinds,
-``rbx.tables.walls``: lines, planes, circles, polygons in the table's own coordinates) and follows SPEC.md §1–3 and docs/conventions.md as literally as possible, for
-any dimension n with the angular velocity held as an n×n antisymmetric matrix ``W``. Free flight: a ← a + τv,
-2D θ ← θ + τω, 3D A ← exp(τW)·A with exp summed as a Taylor series (the engine uses Rodrigues).
+``rbx.tables.walls``: lines, planes, circles, polygons, boundaries of segments and arcs, spheres, cylinders and a
+periodic lattice, in the table's own coordinates; ``rbx.tables.dimension``) and follows SPEC.md §1–3, §8 and
+docs/conventions.md as literally as possible, for any dimension n with the angular velocity held as an n×n
+antisymmetric matrix ``W``. Free flight: a ← a + τv, 2D θ ← θ + τω, 3D A ← exp(τW)·A with exp summed as a Taylor
+series (the engine uses Rodrigues).
 
     reference_run(config, uniforms=None) -> list[dict]
 
 Record 0 is the initial state (wall −1, rank 0), record i the state just after collision i. Each record has
 ``time, position, velocity, angular_velocity, orientation, wall, rank``; 2D angular velocity / orientation are
 floats (ω, continuous angle θ), 3D ones a length-3 list (ω) and a 3×3 nested list (A, body → space).
-The run stops early (fewer records) when no wall lies ahead (escape).
+The run stops early (fewer records) when no wall lies ahead (escape), and at a wall whose rule is ``exit``: that
+contact is recorded with no map applied (wall = that wall, rank = −1) and the trajectory ends there.
 
 Collision map (SPEC §1, the paper's eq. (update) in the space frame), at a wall with unit normal ν pointing into
 the free region:
@@ -19,12 +22,34 @@ the free region:
     v' = v − 2(v·ν)ν + Δv_t,  W' = W + (Δv_t rᵀ − r Δv_tᵀ)/(2λ),  2λ = κR²,  α = κ/(1+κ),
 with P the orthogonal projector onto the roughness subspace (rank 0: 0; rank n−1: I − ννᵀ; 3D rank 1: ddᵀ).
 
-Collision times: the centre moves in the table shrunk by R. Every wall contributes primitives of that shrunk
-table (offset lines/planes with an extent, the circle of radius r − R, and for each reflex polygon vertex an arc
-of radius R around it, attributed to the edge leaving that vertex). For each primitive we solve for the time the
-centre line a + t·v meets it while moving into it (v·ν < 0 at the hit point), keep it if the hit point lies on
-the primitive's extent, and take the smallest time, exact ties going to the lower wall index. A point that
-rounding left a hair outside a primitive it is moving into is hit at time 0 (conventions: corners, grazing).
+Collision times: the centre moves in the table shrunk by R, the points at distance ≥ R from every wall. A
+collision is the first time the centre comes within R of a wall, i.e. reaches the set of points at distance
+exactly R from it, moving closer. Every wall contributes primitives that cover that set where the centre can
+reach it:
+
+* a straight wall (a line, a polygon edge, a boundary segment): its offset by R towards the table, restricted to
+  the points whose foot on the wall lies on the wall (offset lines/planes with an extent);
+* a round wall: the concentric circle, sphere or cylinder of radius r − R (the table inside it: the circle
+  table, a focusing ``ccw`` arc, the 3D sphere, a cylinder's side) or r + R (the table outside it: a dispersing
+  ``cw`` arc, a disc or sphere obstacle); an arc only over its own angular extent (which may exceed 180°);
+* a joint of a polygon or boundary where it turns clockwise (a reflex joint: judged by the tangents of the two
+  pieces there; a tangent joint is not reflex): the circle of radius R about the joint, over the fan where the
+  joint is the nearest point of both pieces, (x − joint)·t_in ≥ 0 and (x − joint)·t_out ≤ 0 (t_in, t_out the
+  unit tangents of the pieces arriving at and leaving the joint); it belongs to the piece leaving the joint.
+  (At a convex joint the centre reaches one of the pieces' offsets first, and at a first contact with a joint
+  the joint must be the nearest point of both pieces: the fan holds every such contact.)
+
+For each primitive we solve for the time the centre line a + t·v meets it while moving into it (v·ν < 0 at the
+hit point), keep it if the hit point lies on the primitive's extent, and take the smallest time, exact ties
+going to the lower wall index. A point that rounding left a hair outside a primitive it is moving into is hit at
+time 0 (conventions: corners, grazing).
+
+A periodic table (a ``Lattice`` cell lo ≤ x ≤ hi: opposite sides identified, not walls) repeats its obstacles
+with period hi − lo; positions stay unfolded. The flight is cut into windows of one cell's smallest side; in a
+window every image whose grown obstacle meets the window's bounding box is tested (the integer shifts k with
+c + k·period within reach of the box, by floor/ceil: no image that could be hit is left out), and the first
+window holding a hit gives the collision. A flight that meets nothing within ``LATTICE_MAX_WINDOWS`` windows (a
+flight along a corridor of an infinite-horizon gas) is an escape.
 """
 
 import math
@@ -37,6 +62,10 @@ DISTANCE_TOLERANCE = 1e-10
 # Slack on the extent of a primitive (relative to the scene's length scale): only decides which of two
 # primitives meeting tangentially (segment end / reflex arc) reports a hit at their junction.
 EXTENT_TOLERANCE = 1e-12
+# A joint whose unit tangents have a cross product above −this is not reflex (tangent joints are not).
+TANGENT_TOLERANCE = 1e-12
+# A periodic flight that meets no obstacle within this many windows (each one cell's smallest side long) escapes.
+LATTICE_MAX_WINDOWS = 100_000
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -180,13 +209,94 @@ def polygon_primitives(vertices, R, first_wall=0):
     return prims
 
 
+class RoundWall:
+    """A round wall of the shrunk table: the circle (2D), sphere (3D) or, with ``axes = 2`` in 3D, the cylinder
+    with axis ∥ z, |x − centre| = radius over the first ``axes`` coordinates (radius already shrunk or grown).
+    ``inside``: the free region is inside it (normal ν = (centre − x)/|x − centre|, hit where the line leaves
+    it); else outside (ν = (x − centre)/|x − centre|, hit where the line enters it). ``arc``: None (the whole
+    circle) or (first angle, span) of a 2D arc, counter-clockwise from the first angle, span in (0, 2π)."""
+
+    def __init__(self, wall, centre, radius, inside, axes=None, arc=None):
+        self.wall = wall
+        self.centre = np.asarray(centre, dtype=float)
+        self.radius = float(radius)
+        self.inside = bool(inside)
+        self.axes = len(self.centre) if axes is None else axes
+        self.arc = arc
+
+    def shifted(self, offset):
+        """The same wall moved by ``offset`` (a periodic image)."""
+        return RoundWall(self.wall, self.centre + offset, self.radius, self.inside, self.axes, self.arc)
+
+    def on_extent(self, q, tol):
+        """Whether the direction of q from the centre lies on the arc (within the length ``tol``)."""
+        if self.arc is None:
+            return True
+        first, span = self.arc
+        rel = q[:2] - self.centre
+        delta = (math.atan2(rel[1], rel[0]) - first) % (2.0 * math.pi)
+        slack = tol / self.radius
+        return delta <= span + slack or delta >= 2.0 * math.pi - slack
+
+
+def arc_geometry(piece):
+    """A boundary arc -> (centre, radius, (first angle, span) counter-clockwise, unit tangent at its start, unit
+    tangent at its end), the tangents in the direction the boundary is traversed."""
+    c = np.asarray(piece.center, dtype=float)
+    s, e = np.asarray(piece.start, dtype=float) - c, np.asarray(piece.end, dtype=float) - c
+    radius = float(np.linalg.norm(s))
+    a_s, a_e = math.atan2(s[1], s[0]), math.atan2(e[1], e[0])
+    ccw = piece.turn == "ccw"
+    first = a_s if ccw else a_e                                   # a cw arc is the ccw arc from its end
+    span = ((a_e - a_s) if ccw else (a_s - a_e)) % (2.0 * math.pi)
+
+    def tangent(r):
+        u = r / np.linalg.norm(r)
+        return np.array([-u[1], u[0]]) if ccw else np.array([u[1], -u[0]])
+    return c, radius, (first, span), tangent(s), tangent(e)
+
+
+def boundary_primitives(pieces, R, first_wall=0):
+    """The shrunk table of a closed counter-clockwise boundary of segments and arcs (see the module docstring):
+    each piece's offset towards the table with its extent, and an arc of radius R about every reflex joint,
+    attributed to the piece leaving it."""
+    from rbx import tables
+    prims, starts, ends = [], [], []
+    for i, piece in enumerate(pieces):
+        wall = first_wall + i
+        if isinstance(piece, tables.Segment):
+            p0, p1 = np.asarray(piece.start, dtype=float), np.asarray(piece.end, dtype=float)
+            length = float(np.linalg.norm(p1 - p0))
+            e = (p1 - p0) / length
+            prims.append(Segment(wall, p0, e, left_normal(e), 0.0, length))
+            starts.append(e)
+            ends.append(e)
+        elif isinstance(piece, tables.Arc):
+            c, radius, arc, t_start, t_end = arc_geometry(piece)
+            if piece.turn == "ccw":          # focusing: the table inside its circle, which shrinks by R
+                if radius > R:
+                    prims.append(RoundWall(wall, c, radius - R, True, arc=arc))
+            else:                            # dispersing: the table outside, the circle grows by R
+                prims.append(RoundWall(wall, c, radius + R, False, arc=arc))
+            starts.append(t_start)
+            ends.append(t_end)
+        else:
+            raise TypeError(piece)
+    m = len(pieces)
+    for i in range(m):
+        t_in, t_out = ends[i - 1], starts[i]
+        if t_in[0] * t_out[1] - t_in[1] * t_out[0] < -TANGENT_TOLERANCE:   # turns clockwise: reflex
+            prims.append(ReflexArc(first_wall + i, pieces[i].start, R, t_in, t_out))
+    return prims
+
+
 class Table:
     """The table seen by the ball's centre: dimension, wall names (SPEC §2 order), primitives, tangent axes."""
 
     def __init__(self, spec, R):
-        # the walls as data from the registry of table kinds (rbx.tables): lines, planes, circles and polygons
-        # in the table's own coordinates; everything from here on (shrinking, collision times, normals) is this
-        # module's own
+        # the walls as data from the registry of table kinds (rbx.tables): lines, planes, circles, polygons,
+        # boundaries, spheres, cylinders and a lattice in the table's own coordinates; everything from here on
+        # (shrinking, collision times, normals) is this module's own
         from rbx import tables
         kind = spec["kind"]
         params = {k: v for k, v in spec.items() if k != "kind"}
@@ -194,26 +304,47 @@ class Table:
         self.R = R
         self.tangent_axes = {}
         self.primitives = []
+        self.lattice = None     # (lo, period) of a periodic table; its primitives then repeat (self.periodic)
+        self.periodic = []
         pieces = tables.walls(kind, params)
         self.names = tables.wall_names(pieces)
-        self.dim = tables.kind(kind).dimension
+        self.dim = tables.dimension(kind, params)
         wall = 0
         for piece in pieces:
+            if isinstance(piece, tables.Lattice):
+                lo = np.asarray(piece.lo, dtype=float)
+                self.lattice = (lo, np.asarray(piece.hi, dtype=float) - lo)
+                continue
             if isinstance(piece, tables.Polygon):
                 self.primitives += polygon_primitives(piece.vertices, R, first_wall=wall)
                 self.vertices = [np.asarray(p, dtype=float) for p in piece.vertices]
                 wall += len(piece.names)
                 continue
+            if isinstance(piece, tables.Boundary):
+                self.primitives += boundary_primitives(piece.pieces, R, first_wall=wall)
+                wall += len(piece.pieces)
+                continue
             if isinstance(piece, tables.Circle):
                 self.primitives.append(Rim(wall, piece.center, float(piece.radius) - R))
+            elif isinstance(piece, tables.Sphere):
+                radius = float(piece.radius) - R if piece.inside else float(piece.radius) + R
+                self.primitives.append(RoundWall(wall, piece.center, radius, piece.inside))
+            elif isinstance(piece, tables.Cylinder):
+                self.primitives.append(RoundWall(wall, piece.center, float(piece.radius) - R, True, axes=2))
             elif isinstance(piece, tables.Line):
                 self.primitives.append(Segment(wall, piece.point, tables.unit(piece.direction),
                                                tables.unit(piece.normal), piece.s_min, piece.s_max))
-            else:  # a plane: contact points within the table's box shrunk by R (±inf stays unbounded)
+            elif isinstance(piece, tables.Plane):   # contact points within the table's box shrunk by R
                 self.primitives.append(Plane(wall, piece.point, piece.normal, np.asarray(piece.lo, float) + R,
                                              np.asarray(piece.hi, float) - R))
                 self.tangent_axes[wall] = tuple(np.asarray(t, dtype=float) for t in piece.tangents)
+            else:
+                raise TypeError(piece)
             wall += 1
+        if self.lattice is not None:       # every wall of a periodic table repeats: only round obstacles do here
+            if not all(isinstance(p, RoundWall) and not p.inside for p in self.primitives):
+                raise TypeError("a lattice holds only obstacles here")
+            self.periodic, self.primitives = self.primitives, []
         self.scale = max(1.0, float(tables.kind(kind).scale(params)))
 
 
@@ -292,6 +423,49 @@ def collision_time(prim, a, v, R, scale):
         if float(rel @ prim.e_in) < -ext_tol or float(rel @ prim.e_out) > ext_tol:
             return math.inf, None
         return t, q
+    if isinstance(prim, RoundWall):
+        m = prim.axes
+        p = a[:m] - prim.centre
+        w = v[:m]
+        vv = float(w @ w)
+        if vv == 0.0:
+            return math.inf, None
+        b = float(p @ w)                                  # > 0: moving away from the centre
+        r = math.sqrt(float(p @ p))
+        C = (r - prim.radius) * (r + prim.radius)         # |p|² − radius², without cancelling the squares
+        disc = b * b - vv * C
+        if prim.inside:
+            d = prim.radius - r                           # > 0 on the free side (inside)
+            clamped = False
+            if disc < 0.0:                                # the line misses the circle
+                if not -dist_tol <= d:
+                    return math.inf, None
+                disc, clamped = 0.0, True                 # a hair outside: it counts as on the circle
+            root = math.sqrt(disc)
+            t = (-b + root) / vv if b <= 0.0 else -C / (b + root)   # the larger root, cancellation-free
+            if t < 0.0:                                   # behind: only a point a hair outside moving out
+                if d < -dist_tol:
+                    return math.inf, None
+                t = 0.0
+            q = a + t * v
+            if not clamped and t > 0.0 and not float((q[:m] - prim.centre) @ w) > 0.0:
+                return math.inf, None                     # tangent: a grazing flight does not touch it
+        else:
+            d = r - prim.radius                           # > 0 on the free side (outside)
+            if not b < 0.0:                               # moving away from the centre: never enters
+                return math.inf, None
+            if d < 0.0:
+                if d < -dist_tol:                         # inside the circle, off the arc: nothing to enter
+                    return math.inf, None
+                t = 0.0                                   # a hair inside, moving in: hit now
+            else:
+                if disc <= 0.0:                           # misses, or tangent (grazing): no contact
+                    return math.inf, None
+                t = C / (-b + math.sqrt(disc))            # the smaller root, cancellation-free (b < 0)
+            q = a + t * v
+        if not prim.on_extent(q, ext_tol):
+            return math.inf, None
+        return t, q
     raise TypeError(prim)
 
 
@@ -302,19 +476,58 @@ def wall_normal(prim, q):
     if isinstance(prim, Rim):
         x = prim.centre - q
         return x / np.linalg.norm(x)
+    if isinstance(prim, RoundWall):
+        x = np.zeros(len(q))
+        x[:prim.axes] = q[:prim.axes] - prim.centre
+        if prim.inside:
+            x = -x
+        return x / np.linalg.norm(x)
     x = q - prim.vertex
     return x / np.linalg.norm(x)
 
 
-def next_collision(table, a, v):
-    """(t, wall, primitive, hit point) of the next collision, or (inf, -1, None, None) if none lies ahead."""
-    best = (math.inf, -1, None, None)
-    for prim in table.primitives:
-        t, q = collision_time(prim, a, v, table.R, table.scale)
+def _first_hit(prims, a, v, R, scale, best):
+    for prim in prims:
+        t, q = collision_time(prim, a, v, R, scale)
         if t == math.inf:
             continue
         if (t, prim.wall) < (best[0], best[1]):
             best = (t, prim.wall, prim, q)
+    return best
+
+
+def lattice_images(table, p0, p1):
+    """Every periodic image of the lattice's primitives whose grown obstacle meets the box spanned by the points
+    p0, p1 -> list of primitives (shifted copies)."""
+    lo_box, hi_box = np.minimum(p0, p1), np.maximum(p0, p1)
+    period = table.lattice[1]
+    out = []
+    for prim in table.periodic:
+        ranges = [range(math.ceil((lo_box[j] - prim.radius - prim.centre[j]) / period[j]),
+                        math.floor((hi_box[j] + prim.radius - prim.centre[j]) / period[j]) + 1)
+                  for j in range(len(period))]
+        for k in np.array(np.meshgrid(*ranges, indexing="ij")).reshape(len(period), -1).T:
+            out.append(prim.shifted(k * period))
+    return out
+
+
+def next_collision(table, a, v):
+    """(t, wall, primitive, hit point) of the next collision, or (inf, -1, None, None) if none lies ahead."""
+    best = _first_hit(table.primitives, a, v, table.R, table.scale, (math.inf, -1, None, None))
+    if table.lattice is None or not table.periodic:
+        return best
+    speed = float(np.linalg.norm(v))
+    if speed == 0.0:
+        return best
+    window = float(np.min(table.lattice[1])) / speed
+    for k in range(LATTICE_MAX_WINDOWS):
+        t0, t1 = k * window, (k + 1) * window
+        if best[0] <= t0:
+            break
+        # every hit in [t0, t1] is on an image meeting this stretch of the flight; times are from a, unwindowed
+        best = _first_hit(lattice_images(table, a + t0 * v, a + t1 * v), a, v, table.R, table.scale, best)
+        if best[0] <= t1:
+            break
     return best
 
 
@@ -337,11 +550,11 @@ def kappa_of(inertia, n):
 
 
 def resolve_rule(rule, nu, A, n, uniforms):
-    """Walk a rule tree to a `constant` leaf. Each `random` node consumes one uniform draw; `hemisphere` tests
+    """Walk a rule tree to a `constant` or `exit` leaf. Each `random` node consumes one uniform draw; `hemisphere` tests
     b = Aᵀ(−ν) (contact point in the body frame) against its axis: rough if b·axis > 0."""
     while True:
         kind = rule["rule"]
-        if kind == "constant":
+        if kind in ("constant", "exit"):
             return rule
         if kind == "hemisphere":
             b = A.T @ (-nu)
@@ -427,8 +640,11 @@ def _record(n, time, a, v, W, A, theta, wall, rank):
     }
 
 
-def reference_run(config, uniforms=None):
-    """Follow one trajectory for config['run']['collisions'] collisions; see the module docstring."""
+def reference_run(config, uniforms=None, start=None, collisions=None):
+    """Follow one trajectory for config['run']['collisions'] (or ``collisions``) collisions; see the module
+    docstring. ``start``: a record to start from instead of the config's initial state (its time, position,
+    velocity, angular velocity, orientation — 3D: the matrix — and wall), e.g. one of the engine's records, to
+    follow a chaotic orbit one collision at a time from the engine's own states."""
     ball = config["ball"]
     R = float(ball["radius"])
     table = Table(config["table"], R)
@@ -445,7 +661,7 @@ def reference_run(config, uniforms=None):
     if uniforms is not None:
         uniforms = iter(uniforms)
 
-    init = config["initial"]
+    init = config["initial"] if start is None else start
     a = np.asarray(init["position"], dtype=float)
     v = np.asarray(init["velocity"], dtype=float)
     W = angular_velocity_matrix(init.get("angular_velocity", 0.0 if n == 2 else [0.0, 0.0, 0.0]), n)
@@ -454,10 +670,12 @@ def reference_run(config, uniforms=None):
         A = None
     else:
         theta = None
-        A = rodrigues(init.get("orientation", [0.0, 0.0, 0.0]))
-    time = 0.0
-    records = [_record(n, time, a, v, W, A, theta, -1, 0)]
-    for _ in range(int(config["run"]["collisions"])):
+        o = init.get("orientation", [0.0, 0.0, 0.0])
+        A = np.array(o, dtype=float) if np.ndim(o) == 2 else rodrigues(o)
+    time = float(init.get("time", 0.0)) if start is not None else 0.0
+    records = [_record(n, time, a, v, W, A, theta, -1 if start is None else start.get("wall", -1),
+                       0 if start is None else start.get("rank", 0))]
+    for _ in range(int(config["run"]["collisions"] if collisions is None else collisions)):
         tau, wall, prim, q = next_collision(table, a, v)
         if tau == math.inf:
             break  # escape: nothing ahead
@@ -473,6 +691,9 @@ def reference_run(config, uniforms=None):
         # collision
         nu = wall_normal(prim, q)
         leaf = resolve_rule(rules[wall], nu, A_now, n, uniforms)
+        if leaf["rule"] == "exit":      # a hole: the contact is recorded as it is, and the trajectory ends
+            records.append(_record(n, time, a, v, W, A, theta, wall, -1))
+            break
         P, rank = rough_projector(leaf, nu, n, table.tangent_axes.get(wall))
         v, W = collide(v, W, nu, P, R, kappa)
         records.append(_record(n, time, a, v, W, A, theta, wall, rank))
