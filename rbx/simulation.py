@@ -5,7 +5,7 @@ Memory stays flat: a block holds at most a few million values whatever the run's
 """
 import numpy as np
 
-from . import engine
+from . import engine, rules
 from .geometry import END_TOLERANCE
 from .model import FIELD, FIELDS
 from .physics import energy, spin_matrix, spin_vector
@@ -68,6 +68,8 @@ class Simulation:
         self.stop_wall = int(stop_wall)
         self.force_bits = int(force_bits)
         self.drop_bits = int(drop_bits)
+        #: a :class:`rbx.cluster.Cluster` to run the blocks on (None: this machine's threads)
+        self.cluster = None
 
     def _initial_state(self):
         cfg = self.cfg
@@ -94,13 +96,7 @@ class Simulation:
 
     def block_buffers(self, records):
         """Record buffers for a block of ``records`` records per trajectory (zero-size for fields not recorded)."""
-        M, n = self.M, self.n
-        bufs = {}
-        for f in FIELDS:
-            size = records if f.name in self.record else 0
-            # scalar fields are (M, records); the others (M, records, values per record), flat
-            bufs[f.name] = np.empty((M, size) if f.kind == "scalar" else (M, size, f.size(n)), dtype=f.dtype)
-        return bufs
+        return record_buffers(self.record, self.n, self.M, records)
 
     def records_per_block(self):
         every = self.cfg.output.every
@@ -118,22 +114,35 @@ class Simulation:
         bits = engine.make_spec(
             self.n, orient=self.follow_orientation, spin=rough, tree=r.uses_orientation or r.uses_random,
             record=bool(self.record), compensated=self.numerics.compensated,
-            snap=self.numerics.snap, slab=self.geom.slab, stop_wall=self.stop_wall >= 0)
+            snap=self.numerics.snap, slab=self.geom.slab, stop_wall=self.stop_wall >= 0,
+            periodic=self.geom.lattice is not None, exit=bool(np.any(r.kind == rules.EXIT)))
         return (bits | self.force_bits) & ~self.drop_bits
 
-    def advance(self, stop, bufs):
-        """Advance every live trajectory to ``stop`` collisions in all -> records written per trajectory (M,)."""
+    def kernel_groups(self):
+        """What every trajectory of the run shares, as the kernels take it -> (engine.Table, engine.Rules,
+        engine.Settings). Plain arrays and scalars: :mod:`rbx.cluster` sends them to the workers as they are."""
         geom, ball = self.geom, self.cfg.ball
-        table = engine.Table(codes=geom.codes, prim_wall=geom.walls, params=geom.params, tol=float(self.tol))
+        table = engine.make_table(geom, self.tol)
         settings = engine.Settings(flags=int(self.spec()), stop_wall=self.stop_wall, every=int(self.cfg.output.every),
                                    mask=int(self.mask), renorm_every=int(self.numerics.renormalize),
                                    R=float(ball.radius), kappa=float(ball.kappa))
-        state = engine.State(pos=self.pos, vel=self.vel, W=self.W, theta=self.theta, A=self.A, time=self.time,
-                             ncoll=self.ncoll, draws=self.draws, alive=self.alive, keys=self.keys,
-                             last_wall=self.last_wall, last_rank=self.last_rank, energy0=self.energy0,
-                             comp=self._comp)
-        return engine.run_advance_all(np.full(self.M, stop, np.int64), table, self.rules.kernel_arrays(), settings,
-                                      state, engine.Records(**bufs))
+        return table, self.rules.kernel_arrays(), settings
+
+    def state_group(self):
+        """The M trajectories' state as the kernels take it -> engine.State of this simulation's own arrays
+        (writing into a row writes into the simulation)."""
+        return engine.State(pos=self.pos, vel=self.vel, W=self.W, theta=self.theta, A=self.A, time=self.time,
+                            ncoll=self.ncoll, draws=self.draws, alive=self.alive, keys=self.keys,
+                            last_wall=self.last_wall, last_rank=self.last_rank, energy0=self.energy0,
+                            comp=self._comp)
+
+    def advance(self, stop, bufs):
+        """Advance every live trajectory to ``stop`` collisions in all -> records written per trajectory (M,)."""
+        return advance_state(self.kernel_groups(), self.state_group(), stop, bufs)
+
+    def finished(self):
+        """Whether the run is done: every trajectory still running has made ``run.collisions`` collisions."""
+        return not self.alive.any() or int(self.ncoll[self.alive].min()) >= self.cfg.run.collisions
 
     def run(self, sink, progress=None, should_stop=None, write_initial=None):
         """Run to ``run.collisions`` collisions, streaming records to ``sink`` -> True if complete.
@@ -142,13 +151,32 @@ class Simulation:
         ``sink.checkpoint(sim)`` follows each block. ``should_stop()`` is polled before each block.
         ``write_initial``: write record 0 first (default: when no trajectory has collided yet; a resumed run
         whose file holds record 0 already passes False).
-        """
-        total = self.cfg.run.collisions
-        every = self.cfg.output.every
+
+        The blocks come from this machine's thread pool, or, with ``self.cluster`` set (a
+        :class:`rbx.cluster.Cluster`), from the workers of a Dask cluster: the same blocks, the same sink."""
         if write_initial is None:
             write_initial = bool(np.all(self.ncoll == 0))
         if self.record and write_initial:
             sink.write(self.current_record(), np.ones(self.M, np.int64))
+        blocks = (self._blocks(should_stop, progress) if self.cluster is None
+                  else self.cluster.blocks(self, should_stop, progress))
+        try:
+            for block, nrec in blocks:
+                if block is not None:
+                    sink.write(block, nrec)
+                sink.checkpoint(self)
+        finally:
+            blocks.close()        # a cluster's tasks still running are cancelled
+        if not self.finished():
+            return False
+        sink.checkpoint(self)
+        return True
+
+    def _blocks(self, should_stop=None, progress=None):
+        """The local blocks of a run: advance on this machine's threads -> yields (block or None, nrec) per block,
+        the state advanced to its end; ``progress(done, total)`` once each is checkpointed."""
+        total = self.cfg.run.collisions
+        every = self.cfg.output.every
         if self.record:
             per = self.records_per_block()
             bufs = self.block_buffers(per)
@@ -159,20 +187,44 @@ class Simulation:
         done = int(self.ncoll[self.alive].min()) if self.alive.any() else total
         while done < total and self.alive.any():
             if should_stop is not None and should_stop():
-                return False
+                return
             stop = min(total, (done // step + 1) * step) if self.record else min(total, done + step)
             nrec = self.advance(stop, bufs)
-            if self.record:
-                b = int(nrec.max())
-                block = {f: bufs[f][:, :b].reshape((self.M, b) + FIELD[f].shape(self.n)) for f in self.record}
-                _blank_tails(block, nrec, b)
-                sink.write(block, nrec)
-            sink.checkpoint(self)
+            yield (records_block(bufs, nrec, self.record, self.n) if self.record else None), nrec
             done = stop
             if progress is not None:
                 progress(done, total)
-        sink.checkpoint(self)
-        return True
+
+
+def record_buffers(record, n, M, records):
+    """Record buffers (engine.Records fields) for M trajectories and ``records`` records each, zero-size for the
+    fields not in ``record``."""
+    bufs = {}
+    for f in FIELDS:
+        size = records if f.name in record else 0
+        # scalar fields are (M, records); the others (M, records, values per record), flat
+        bufs[f.name] = np.empty((M, size) if f.kind == "scalar" else (M, size, f.size(n)), dtype=f.dtype)
+    return bufs
+
+
+def advance_state(groups, state, stop, bufs):
+    """Advance the live trajectories of ``state`` (engine.State) to ``stop`` collisions with the kernel groups
+    ``(table, rules, settings)`` of :meth:`Simulation.kernel_groups` -> records written per trajectory.
+
+    A row's numbers depend only on the row (its stream key is in ``state.keys``): the same code advances a whole
+    run here and a slice of it on a cluster's worker (:mod:`rbx.cluster`)."""
+    table, rules, settings = groups
+    M = state.pos.shape[0]
+    return engine.run_advance_all(np.full(M, stop, np.int64), table, rules, settings, state, engine.Records(**bufs))
+
+
+def records_block(bufs, nrec, record, n):
+    """The records of a block: dict field -> (M, b, …) views of the buffers, b = nrec.max(), rows past
+    ``nrec[j]`` filled with NaN / −1."""
+    b = int(nrec.max()) if len(nrec) else 0
+    block = {f: bufs[f][:, :b].reshape((len(nrec), b) + FIELD[f].shape(n)) for f in record}
+    _blank_tails(block, nrec, b)
+    return block
 
 
 def _blank_tails(block, nrec, b):
