@@ -66,7 +66,7 @@ def _override(experiment, overrides):
 
 
 def simulate(experiment, *, collisions=None, trajectories=None, seed=None, output=None, force=False,
-             progress=False, max_size=None):
+             progress=False, max_size=None, scheduler=None, slices=None, task_collisions=None):
     """Run an experiment (an :class:`~rbx.model.Experiment`, a config path or a dict) -> :class:`Run`.
 
     ``collisions``, ``trajectories``, ``seed`` override ``run.*``, ``max_size`` ``output.max_size`` (bytes or a
@@ -76,24 +76,34 @@ def simulate(experiment, *, collisions=None, trajectories=None, seed=None, outpu
     progress bar on stderr, or a callable ``progress(done, total)``.
 
     Ctrl-C (SIGINT) while a file is written stops the run between blocks: the file is closed and renamed, marked
-    ``complete = False`` (``rbx simulate --resume`` continues it), then KeyboardInterrupt is raised."""
+    ``complete = False`` (``rbx simulate --resume`` continues it), then KeyboardInterrupt is raised.
+
+    ``scheduler``: run the trajectories on the workers of a Dask cluster (SPEC §11; needs ``rbx[cluster]``): its
+    scheduler's address (``tcp://host:8786``), the JSON file it wrote (``--scheduler-file``) or a
+    ``distributed.Client``. The result is the local run's, bit for bit. ``slices`` (tasks per round) and
+    ``task_collisions`` (collisions per task) tune how the run is cut (docs/cluster.md). An unreachable scheduler
+    raises :class:`rbx.cluster.SchedulerUnreachable`, a task that fails mid-run :class:`rbx.cluster.ClusterError`
+    (a file then holds every round finished before, ``complete = False``)."""
     from .runfile import Run
     from .simulation import MemorySink, Simulation
     overrides = {k: v for k, v in (("collisions", collisions), ("trajectories", trajectories), ("seed", seed),
                                    ("max_size", max_size)) if v is not None}
     exp = load(experiment, overrides or None)
+    if scheduler is None and (slices is not None or task_collisions is not None):
+        raise TypeError("slices and task_collisions cut a run for a cluster: give scheduler too")
     bar = _progress(progress)
     try:
         if output is None:
             sim = Simulation(exp)
-            sink = MemorySink()
-            complete = sim.run(sink, progress=bar)
+            with cluster_for(scheduler, "scheduler", slices, task_collisions) as sim.cluster:
+                sink = MemorySink()
+                complete = sim.run(sink, progress=bar)
             return Run.from_memory(exp, sink, complete)
         path = os.path.abspath(os.fspath(output))
         check_target(path, force, exp)
         sim = Simulation(exp)
         stop = StopFlag()
-        with stop.installed():
+        with stop.installed(), cluster_for(scheduler, "scheduler", slices, task_collisions) as sim.cluster:
             compile_kernels(sim)
             if stop.start_running():
                 raise KeyboardInterrupt
@@ -141,8 +151,20 @@ def check_target(path, force, experiment, key="output", file=None, force_hint="f
 
 def compile_kernels(sim):
     """Compile (or load from the cache) the kernels now, while Ctrl-C can still abort at once: a first compile
-    takes several seconds, and once the run has started a signal is only seen between blocks."""
-    sim.advance(0, sim.block_buffers(0))   # no trajectory is below collision 0: nothing moves
+    takes several seconds, and once the run has started a signal is only seen between blocks. (Not for a run on
+    a cluster: its workers compile, the client never runs a kernel.)"""
+    if sim.cluster is None:
+        sim.advance(0, sim.block_buffers(0))   # no trajectory is below collision 0: nothing moves
+
+
+def cluster_for(scheduler, key, slices=None, task_collisions=None):
+    """A context manager giving the :class:`rbx.cluster.Cluster` of ``scheduler`` (connected now, closed at the
+    end), or None when ``scheduler`` is None (a local run). Raises :class:`rbx.cluster.SchedulerUnreachable`
+    naming ``key``."""
+    if scheduler is None:
+        return contextlib.nullcontext(None)
+    from .cluster import connect
+    return connect(scheduler, key=key, slices=slices, task_collisions=task_collisions)
 
 
 def run_to_file(sim, path, *, progress=None, should_stop=None, report=None, force=False):

@@ -13,29 +13,41 @@ from .common import Command, Progress, UserError, check_memory, interrupted_exit
 @click.option("--trajectories", type=int, help="Override run.trajectories (the number of samples).")
 @click.option("--seed", type=int, help="Override run.seed.")
 @click.option("--force", is_flag=True, help="Overwrite existing output files.")
+@click.option("--scheduler", metavar="ADDRESS",
+              help="Follow the samples on the workers of a Dask cluster: its scheduler's address (tcp://HOST:PORT) "
+                   "or scheduler file (docs/cluster.md). Same results as a local run.")
+@click.option("--slices", type=click.IntRange(min=1), metavar="N",
+              help="With --scheduler: tasks per round (default: 4 per worker thread).")
+@click.option("--task-collisions", "task_collisions", type=click.IntRange(min=1), metavar="N",
+              help="With --scheduler: collisions one task makes.")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--debug", is_flag=True, help="Show a traceback with user errors.")
-def histogram(config, out, trajectories, seed, force, quiet, debug):
+def histogram(config, out, trajectories, seed, force, scheduler, slices, task_collisions, quiet, debug):
     """Test the invariance of the billiard measure (paper §2.7): return angles against cos φ·sin^(d−2) φ.
 
     Samples run.trajectories states from the billiard measure on the wall of initial: {sample: billiard, wall:
     NAME}, follows each until it returns to that wall (at most run.collisions collisions), writes the return
     angles to returns/angle in output.path, prints the Kolmogorov–Smirnov statistic and p-value and draws the
     histogram against the predicted density."""
+    cluster = {"scheduler": scheduler, "slices": slices, "task_collisions": task_collisions}
     try:
-        _histogram(config, out, trajectories, seed, force, quiet)
+        _histogram(config, out, trajectories, seed, force, quiet, cluster)
     except UserError as exc:
         report_and_exit(exc, debug)
     except KeyboardInterrupt:
         interrupted_exit()
 
 
-def _histogram(config, out, trajectories, seed, force, quiet):
+def _histogram(config, out, trajectories, seed, force, quiet, cluster):
     from .. import config as cfgmod
     from .. import plotting
     from ..analysis import scene_title
+    from ..cluster import ClusterError
     from ..histogram import return_experiment
     from ..runfile import write_returns
+    from .simulate import check_cluster_options, connect
+
+    check_cluster_options(cluster)
 
     overrides = {k: v for k, v in (("trajectories", trajectories), ("seed", seed)) if v is not None}
     try:
@@ -54,9 +66,15 @@ def _histogram(config, out, trajectories, seed, force, quiet):
         if os.path.exists(p) and not force:
             raise UserError(p, None, "exists; use --force to overwrite it")
 
-    progress = Progress("histogram", quiet=quiet)
-    result = return_experiment(cfg, progress=progress)
-    progress.close()
+    with connect(cluster) as on:
+        progress = Progress("histogram", quiet=quiet)
+        try:
+            result = return_experiment(cfg, progress=progress, cluster=on)
+        except ClusterError as exc:     # the cluster failed mid-run: not the user's input, exit 1
+            click.echo(f"rbx: {exc}; nothing written", err=True)
+            raise SystemExit(1) from None
+        finally:
+            progress.close()
     try:
         write_returns(h5_path, cfg, result)
     except OSError as exc:

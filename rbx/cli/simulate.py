@@ -30,22 +30,32 @@ OVERRIDES = ("collisions", "trajectories", "seed")
 @click.option("--resume", metavar="RUN.h5",
               help="Continue the interrupted run in RUN.h5 to its requested length (in place, or into -o).")
 @click.option("--force", is_flag=True, help="Overwrite an existing output file.")
+@click.option("--scheduler", metavar="ADDRESS",
+              help="Run the trajectories on the workers of a Dask cluster: its scheduler's address (tcp://HOST:PORT) "
+                   "or scheduler file (docs/cluster.md). Same results as a local run.")
+@click.option("--slices", type=click.IntRange(min=1), metavar="N",
+              help="With --scheduler: tasks per round (default: 4 per worker thread).")
+@click.option("--task-collisions", "task_collisions", type=click.IntRange(min=1), metavar="N",
+              help="With --scheduler: collisions one task makes (default: 2e8, fewer for tables of many walls).")
 @click.option("--quiet", is_flag=True, help="No progress bar.")
 @click.option("--debug", is_flag=True, help="Show a traceback with user errors.")
-def simulate(config, out, collisions, trajectories, seed, max_size, resume, force, quiet, debug):
+def simulate(config, out, collisions, trajectories, seed, max_size, resume, force, scheduler, slices, task_collisions,
+             quiet, debug):
     """Run the experiment CONFIG (YAML) and write its trajectories to HDF5."""
     from ..api import StopFlag
 
     stop = StopFlag()
     overrides = {"collisions": collisions, "trajectories": trajectories, "seed": seed, "max_size": max_size}
+    cluster = {"scheduler": scheduler, "slices": slices, "task_collisions": task_collisions}
     # the handlers go in first, so that Ctrl-C while numba loads is a clean stop too, never a traceback
     with stop.installed():
         try:
             with user_errors():
+                check_cluster_options(cluster)
                 if resume is not None:
-                    code = _resume(config, resume, out, overrides, force, quiet, stop)
+                    code = _resume(config, resume, out, overrides, force, quiet, stop, cluster)
                 else:
-                    code = _simulate(config, out, overrides, force, quiet, stop)
+                    code = _simulate(config, out, overrides, force, quiet, stop, cluster)
         except UserError as exc:
             report_and_exit(exc, debug)
         except KeyboardInterrupt:   # raised by StopFlag only while setting up, before any file is written
@@ -56,7 +66,37 @@ def simulate(config, out, collisions, trajectories, seed, max_size, resume, forc
         raise SystemExit(code)
 
 
-def _simulate(config, out, overrides, force, quiet, stop):
+def check_cluster_options(cluster):
+    """--slices and --task-collisions only with --scheduler."""
+    if cluster["scheduler"] is None:
+        for name in ("slices", "task_collisions"):
+            if cluster[name] is not None:
+                raise UserError(None, "--" + name.replace("_", "-"), "only with --scheduler (it cuts a run into "
+                                                                      "tasks for a Dask cluster)")
+
+
+def connect(cluster):
+    """The :class:`rbx.cluster.Cluster` of ``--scheduler`` as a context manager (None: a local run); an
+    unreachable scheduler is a user error."""
+    from ..api import cluster_for
+    from ..cluster import SchedulerUnreachable
+    if cluster["scheduler"] is not None:
+        _quiet_dask()
+    try:
+        return cluster_for(cluster["scheduler"], "--scheduler", cluster["slices"], cluster["task_collisions"])
+    except SchedulerUnreachable as exc:
+        raise UserError(None, exc.key, exc.problem) from None
+
+
+def _quiet_dask():
+    """Dask's client logs its connection's ups and downs to stderr; rbx says itself what went wrong."""
+    import logging
+    for name in ("distributed", "distributed.client", "distributed.comm", "distributed.core",
+                 "distributed.batched"):
+        logging.getLogger(name).setLevel(logging.CRITICAL)
+
+
+def _simulate(config, out, overrides, force, quiet, stop, cluster):
     from .. import config as cfgmod
     from ..api import check_target, compile_kernels, run_to_file
     from ..simulation import Simulation
@@ -75,25 +115,24 @@ def _simulate(config, out, overrides, force, quiet, stop):
     check_memory(cfg, overrides)
     check_target(path, force, cfg, key=key, file=None if out else cfg.source, force_hint="--force",
                  size_key=(None, "--max-size") if overrides["max_size"] is not None else None)
-    try:
-        sim = Simulation(cfg)
-    except MemoryError:
-        file, key = (None, "--trajectories") if overrides["trajectories"] else (cfg.source, "run.trajectories")
-        raise UserError(file, key, f"{cfg.run.trajectories} trajectories do not fit in the free memory") from None
-    compile_kernels(sim)
-    if stop.start_running():
-        raise KeyboardInterrupt
-    return _execute(sim, path, stop, quiet, 0, lambda **how: run_to_file(sim, path, force=force, **how))
+    with connect(cluster) as on:           # first: an unreachable scheduler is said before any work
+        try:
+            sim = Simulation(cfg)
+        except MemoryError:
+            file, key = (None, "--trajectories") if overrides["trajectories"] else (cfg.source, "run.trajectories")
+            raise UserError(file, key, f"{cfg.run.trajectories} trajectories do not fit in the free memory") \
+                from None
+        sim.cluster = on
+        compile_kernels(sim)
+        if stop.start_running():
+            raise KeyboardInterrupt
+        return _execute(sim, path, stop, quiet, 0, lambda **how: run_to_file(sim, path, force=force, **how))
 
 
-def _resume(config, run_file, out, overrides, force, quiet, stop):
-    import shutil
-
-    import h5py
-
+def _resume(config, run_file, out, overrides, force, quiet, stop, cluster):
     from ..api import check_target, compile_kernels
-    from ..resume import load, make_consistent, version_note
-    from ..runfile import Run, stream, temporary_path
+    from ..resume import load, version_note
+    from ..runfile import Run, temporary_path
 
     if config is not None:
         raise UserError(None, "--resume", "give either CONFIG or --resume RUN.h5, not both")
@@ -124,9 +163,22 @@ def _resume(config, run_file, out, overrides, force, quiet, stop):
                                    "remove it or use --force")
     if note:
         click.echo(f"rbx: {display_path(run_file)}: warning: {note}", err=True)
-    compile_kernels(sim)
-    if stop.start_running():
-        raise KeyboardInterrupt
+    with connect(cluster) as sim.cluster:
+        compile_kernels(sim)
+        if stop.start_running():
+            raise KeyboardInterrupt
+        return _continue(sim, source, path, tmp, in_place, force, quiet, stop, write_initial, done, run_file)
+
+
+def _continue(sim, source, path, tmp, in_place, force, quiet, stop, write_initial, done, run_file):
+    """The running part of --resume: a copy (or the .partial itself) made consistent, then streamed."""
+    import shutil
+
+    import h5py
+
+    from ..resume import make_consistent
+    from ..runfile import stream
+
     # work on a copy (unless resuming a .partial): if this attempt dies badly, the file it started from is intact
     try:
         if not in_place:
@@ -159,6 +211,7 @@ def _execute(sim, path, stop, quiet, done, start):
     The file is renamed from ``.partial`` to ``path`` however the run ends (complete, interrupted, or an
     unexpected error), so ``path`` always holds every record computed so far, and ``complete`` says whether that
     is all of them (SPEC §4)."""
+    from ..cluster import ClusterError
     from ..runfile import DiskFull, temporary_path
 
     progress = Progress("simulate", quiet=quiet, start=done)
@@ -166,13 +219,17 @@ def _execute(sim, path, stop, quiet, done, start):
     failure = None
     try:
         complete = start(progress=progress, should_stop=stop, report=lambda m: click.echo(f"rbx: {m}", err=True))
-    except OSError as exc:   # disk full, file system gone: not a bug, and nothing a traceback would explain
+    except (OSError, ClusterError) as exc:   # disk full, file system gone, cluster lost: not a bug
         failure = exc
     finally:
         progress.close()
     if failure is not None:
         where = temporary_path(path) if os.path.exists(temporary_path(path)) else path
-        if isinstance(failure, DiskFull):
+        if isinstance(failure, ClusterError):
+            click.echo(f"rbx: {display_path(where)}: {failure}; the run stopped, the file holds every record up to "
+                       "its last checkpoint (complete = false). Continue with: "
+                       f"rbx simulate --resume {display_path(where)} (with --scheduler, or locally)", err=True)
+        elif isinstance(failure, DiskFull):
             click.echo(f"rbx: {display_path(where)}: {failure}; the run stopped, the file holds every record up to "
                        "its last checkpoint (complete = false). Free some space, then continue with: "
                        f"rbx simulate --resume {display_path(where)}", err=True)

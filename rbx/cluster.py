@@ -1,0 +1,393 @@
+"""Ensembles on a Dask cluster (SPEC §11): ``rbx simulate CONFIG --scheduler ADDRESS``.
+
+The client keeps the run: its :class:`rbx.simulation.Simulation` (the state of every trajectory), its sink (the
+one HDF5 file, or memory), its checkpoints and progress. The workers only advance slices of trajectories:
+
+1. The trajectories are cut into ``slices`` contiguous slices, and the run's collisions into *rounds*: every
+   trajectory still running is at the same collision when a round begins, as at a block of a local run.
+2. A task is one slice for one round. It carries everything the worker needs — the kernel groups
+   ``(Table, Rules, Settings)`` exactly as :meth:`Simulation.kernel_groups` builds them, the slice's rows of the
+   state (:class:`rbx.engine.State`, stream keys included), the round's last collision and the record layout —
+   and runs :func:`rbx.simulation.advance_state`, the code of a local run, on it. No config file, no table file
+   is read on a worker. It returns the slice's records of the round (one block) and its new state.
+3. The client gathers the tasks as they finish. A slice may start its next round as soon as its last one is back
+   (up to :data:`AHEAD` rounds before the slowest slice), so workers do not wait for each other; when every slice
+   has finished a round, its blocks are put side by side into the round's block (M trajectories), the slices'
+   states into the simulation, and :meth:`Simulation.run` writes the block and checkpoints, as for a local block.
+
+Bit for bit: a trajectory's numbers depend only on its own row — its state, its counter-based stream keyed by its
+*global* index (``state.keys``, made by the client's Simulation) and its draw counter — never on the slice, the
+worker or the order in which tasks finish. Records fall on the collisions that are multiples of ``output.every``,
+so the file is the local run's file whatever the rounds (only the number of checkpoints differs).
+
+Faults: a worker lost mid-task costs that task, which the scheduler runs again elsewhere (a task is a pure
+function of its inputs, so the result is the same). ``should_stop()`` (Ctrl-C, SIGTERM) is polled while waiting:
+the tasks still running are cancelled and the file keeps the last checkpointed round, which ``--resume``
+continues here or locally. A failed task, or a lost scheduler, raises :class:`ClusterError` (the file again holds
+every checkpointed round).
+"""
+import os
+import queue
+import socket
+import time
+
+import numpy as np
+
+from . import __version__
+from .engine import State
+from .model import FIELD
+from .simulation import advance_state, record_buffers, records_block
+
+#: seconds to reach the scheduler before giving up (an unreachable address is an error, not a wait)
+CONNECT_TIMEOUT = 5.0
+#: collisions one task should make (a slice times its round), for a table of a few walls: several seconds of
+#: work, against a task overhead of a few milliseconds (docs/cluster.md); tables with many walls get fewer, as
+#: blocks do (:func:`rbx.simulation.block_work`)
+TASK_COLLISIONS = 200_000_000
+#: record values (float64) one round may hold on the client, summed over its slices
+ROUND_VALUES = 8_000_000
+#: how many rounds a slice may run ahead of the slowest one (its records wait on the client meanwhile)
+AHEAD = 2
+#: bytes of state one task carries at most, by default (~15 000 trajectories)
+SLICE_BYTES = 4_000_000
+#: slices per worker thread by default: enough to even out slices that finish at different times
+SLICES_PER_THREAD = 4
+#: seconds between two looks at ``should_stop`` while waiting for a task (one that finishes is seen at once)
+POLL = 0.1
+
+
+class ClusterError(RuntimeError):
+    """The cluster failed during a run (a task failed, the scheduler went away): ``<key>: <problem>``."""
+
+    def __init__(self, key, problem):
+        self.key, self.problem = key, problem
+        super().__init__(f"{key}: {problem}" if key else problem)
+
+
+class SchedulerUnreachable(ClusterError):
+    """The scheduler cannot be used: not reachable, not a Dask scheduler, workers without (this) rbx, or
+    ``distributed`` not installed. A user error (the CLI exits 2)."""
+
+
+def _worker_identity():
+    """Runs on each worker: what must match the client for the results to be the client's, bit for bit."""
+    from ._jit import kernel_source_hash
+    return {"rbx": __version__, "kernels": kernel_source_hash()}
+
+
+def _address(address):
+    """``host:port`` -> ``tcp://host:port`` (Dask's default protocol), other addresses as given."""
+    address = str(address).strip()
+    return address if "://" in address else f"tcp://{address}"
+
+
+def _probe(address, timeout):
+    """Ask the scheduler at ``address`` who it is -> its identity dict; raises OSError if it cannot be reached.
+
+    A Dask Client that cannot connect waits its whole timeout and then, collected, waits again to close; this
+    one connection says at once whether anything answers, and whether it is a scheduler."""
+    import asyncio
+
+    from distributed.comm import connect
+
+    scheme, _, where = address.partition("://")
+    if scheme == "tcp":
+        # Dask retries a refused connection until its timeout: a plain socket says at once that nothing listens
+        host, _, port = where.rpartition(":")
+        if not port.isdigit():
+            raise ValueError("no port in the address (give tcp://HOST:PORT, e.g. tcp://127.0.0.1:8786)")
+        with socket.create_connection((host.strip("[]"), int(port)), timeout=timeout):
+            pass
+
+    async def ask():
+        comm = await connect(address, timeout=timeout)
+        try:
+            await comm.write({"op": "identity", "reply": True})
+            return await asyncio.wait_for(comm.read(), timeout)
+        finally:
+            await comm.close()
+
+    return asyncio.run(ask())
+
+
+def connect(scheduler, key="--scheduler", slices=None, task_collisions=None):
+    """Connect to the Dask scheduler ``scheduler`` (an address such as ``tcp://host:8786`` or ``host:8786``, the
+    JSON file a scheduler wrote with ``--scheduler-file``, or a ``distributed.Client``) -> :class:`Cluster`.
+
+    Checks that the workers run this rbx with the same kernels (else their numbers could differ). Raises
+    :class:`SchedulerUnreachable` naming ``key`` within :data:`CONNECT_TIMEOUT` seconds or so."""
+    try:
+        import distributed
+    except ImportError:
+        raise SchedulerUnreachable(key, "running on a Dask cluster needs the package 'distributed': pip install "
+                                        "'rbx[cluster]'") from None
+    if isinstance(scheduler, distributed.Client):
+        client, own = scheduler, False
+    else:
+        text = os.fspath(scheduler) if isinstance(scheduler, os.PathLike) else str(scheduler)
+        if not text.strip():
+            raise SchedulerUnreachable(key, "an empty address (give tcp://HOST:PORT, or a scheduler file)")
+        try:
+            if os.path.isfile(text):
+                client = distributed.Client(scheduler_file=text, timeout=CONNECT_TIMEOUT, set_as_default=False)
+            else:
+                address = _address(text)
+                try:
+                    identity = _probe(address, CONNECT_TIMEOUT)
+                except ValueError as exc:          # no port, an unknown protocol
+                    raise SchedulerUnreachable(key, f"{text}: {_first_line(exc)}") from None
+                except (OSError, asyncio_timeout()) as exc:
+                    why = exc.strerror if isinstance(exc, OSError) and exc.strerror else _first_line(exc)
+                    raise SchedulerUnreachable(key, f"cannot reach a Dask scheduler at {address}: {why} (is "
+                                                    "'dask scheduler' running there?)") from None
+                except Exception:   # noqa: BLE001 - something answered, in another protocol (Dask read garbage)
+                    identity = None
+                if not isinstance(identity, dict) or identity.get("type") != "Scheduler":
+                    raise SchedulerUnreachable(key, f"{address} answered, but not as a Dask scheduler")
+                client = distributed.Client(address, timeout=CONNECT_TIMEOUT, set_as_default=False)
+        except SchedulerUnreachable:
+            raise
+        except Exception as exc:   # noqa: BLE001 - a bad address, a refused handshake: all one line for the user
+            raise SchedulerUnreachable(key, f"cannot connect to the Dask scheduler {text}: {_first_line(exc)}") \
+                from None
+        own = True
+    cluster = Cluster(client, own, key=key, slices=slices, task_collisions=task_collisions)
+    try:
+        cluster.check_workers()
+    except BaseException:
+        cluster.close()
+        raise
+    return cluster
+
+
+def asyncio_timeout():
+    import asyncio
+    return asyncio.TimeoutError
+
+
+def _first_line(exc):
+    text = str(exc).strip()
+    return text.splitlines()[0] if text else type(exc).__name__
+
+
+class _Task:
+    """One slice for one round: what a worker needs, all of it (a plain object, so that Dask sends it as it is
+    and does not look inside for futures)."""
+
+    def __init__(self, groups, state, stop, record, n, records):
+        self.groups, self.state, self.stop = groups, state, stop
+        self.record, self.n, self.records = record, n, records
+
+
+def run_task(task):
+    """Runs on a worker: advance one slice to ``task.stop`` collisions -> (block or None, nrec, state).
+
+    The kernels are the client's (same source, checked at connect); a worker compiles a specialisation once, or
+    loads it from the disk cache of :mod:`rbx._jit`, then keeps it for its next tasks."""
+    state = State(*(np.array(a) for a in task.state))     # a copy: an in-process worker shares the client's arrays
+    bufs = record_buffers(task.record, task.n, state.pos.shape[0], task.records)
+    nrec = advance_state(task.groups, state, task.stop, bufs)
+    block = records_block(bufs, nrec, task.record, task.n) if task.record else None
+    if block is not None:       # the views would pickle their whole buffers
+        block = {f: np.ascontiguousarray(a) for f, a in block.items()}
+    return block, nrec, state
+
+
+class Cluster:
+    """A connection to a Dask cluster that runs the blocks of a :class:`rbx.simulation.Simulation`
+    (``sim.cluster = cluster``).
+
+    ``slices``: tasks per round (default :data:`SLICES_PER_THREAD` per worker thread, at most one per
+    trajectory); ``task_collisions``: collisions one task makes (default :data:`TASK_COLLISIONS`, fewer for
+    tables with many walls). Use as a context manager, or :meth:`close` it."""
+
+    def __init__(self, client, own=False, key="--scheduler", slices=None, task_collisions=None):
+        self.client, self.own, self.key = client, own, key
+        self.slices = None if slices is None else int(slices)
+        self.task_collisions = None if task_collisions is None else int(task_collisions)
+        if self.slices is not None and self.slices < 1:
+            raise ValueError("slices: must be at least 1")
+        if self.task_collisions is not None and self.task_collisions < 1:
+            raise ValueError("task_collisions: must be at least 1")
+        self.tasks_run = 0
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self):
+        if self.own and self.client is not None:
+            try:
+                self.client.close(timeout=CONNECT_TIMEOUT)
+            except Exception:   # noqa: BLE001 - a scheduler already gone: nothing left to close
+                pass
+        self.client = None
+
+    # -- the workers ---------------------------------------------------------------------------------------------
+    def threads(self):
+        """Worker threads in the cluster now (0 when it has no workers)."""
+        workers = self.client.scheduler_info(n_workers=-1).get("workers", {}) if _takes_n_workers() else \
+            self.client.scheduler_info().get("workers", {})
+        return sum(int(w.get("nthreads", 1)) for w in workers.values())
+
+    def check_workers(self):
+        """Every worker runs rbx with the client's kernels; raises :class:`SchedulerUnreachable` otherwise."""
+        mine = _worker_identity()
+        try:
+            theirs = self.client.run(_worker_identity)
+        except Exception as exc:   # noqa: BLE001 - typically rbx missing on a worker: its import fails there
+            raise SchedulerUnreachable(self.key, f"the workers cannot run rbx ({_first_line(exc)}); install this "
+                                                 f"rbx ({__version__}) where they run") from None
+        for worker, ident in sorted(theirs.items()):
+            if ident != mine:
+                what = (f"rbx {ident['rbx']}, this client rbx {mine['rbx']}" if ident["rbx"] != mine["rbx"] else
+                        "other kernel sources (or another Numba)")
+                raise SchedulerUnreachable(self.key, f"worker {worker} runs {what}: its numbers could differ; "
+                                                     "install the same rbx on the workers and the client")
+
+    # -- running -------------------------------------------------------------------------------------------------
+    def plan(self, sim):
+        """How ``sim`` is cut -> (slice boundaries (S+1,), collisions per round)."""
+        M = sim.M
+        state_bytes = sum(a.nbytes for a in sim.state_group())
+        # by default, enough slices to keep each task's state small (Dask warns about large tasks, and a task
+        # lost costs less)
+        S = self.slices or max(SLICES_PER_THREAD * self.threads(), -(-state_bytes // SLICE_BYTES), 1)
+        S = max(1, min(S, M))
+        cuts = np.linspace(0, M, S + 1).astype(np.int64)
+        work = self.task_collisions or max(1, int(TASK_COLLISIONS / (1 + len(sim.geom.codes) / 8)))
+        per_trajectory = max(1, work * S // M)               # a task's work over its slice's trajectories
+        every = sim.cfg.output.every
+        if sim.record:
+            per_record = 1 + sum(FIELD[f].size(sim.n) for f in sim.record)
+            by_memory = max(1, ROUND_VALUES // (M * per_record))             # records per trajectory per round
+            length = every * max(1, min(per_trajectory // every, by_memory))
+        else:
+            length = per_trajectory
+        return cuts, length
+
+    def blocks(self, sim, should_stop=None, progress=None):
+        """Run ``sim`` round by round on the cluster -> yields (block or None, nrec) per round, as
+        :meth:`Simulation._blocks` does for a local run, ``sim``'s state advanced to the round's end.
+
+        Stops early (yielding nothing more) when ``should_stop()``; cancels the tasks still running however it
+        ends. Raises :class:`ClusterError` if a task fails."""
+        from distributed import CancelledError
+
+        total = sim.cfg.run.collisions
+        cuts, length = self.plan(sim)
+        slices = list(zip(cuts[:-1].tolist(), cuts[1:].tolist()))
+        S = len(slices)
+        groups = sim.kernel_groups()
+        every = sim.cfg.output.every
+        full = sim.state_group()
+        done = int(sim.ncoll[sim.alive].min()) if sim.alive.any() else total
+        # the rounds' last collisions: aligned on multiples of the round length, as local blocks are on theirs
+        ends = []
+        c = done
+        while c < total:
+            c = min(total, (c // length + 1) * length)
+            ends.append(c)
+        starts = [done] + ends[:-1]
+        if not ends or not sim.alive.any():
+            return
+        run_id = f"rbx-{os.getpid()}-{id(sim):x}-{time.monotonic_ns():x}"
+        # per slice: its state after its last finished round and that round's index (−1: none yet)
+        states = [State(*(np.array(field[a:b]) for field in full)) for a, b in slices]
+        reached = [-1] * S
+        results = [dict() for _ in range(S)]     # slice -> {round: (block, nrec)} not yet written
+        running = {}                             # future -> (slice, round)
+        finished = queue.Queue()                 # futures done, in the order they finished
+        frontier = 0                             # the first round not yet finished by every slice
+
+        def submit(s):
+            r = reached[s] + 1
+            if r >= len(ends) or r > frontier + AHEAD or any(v == (s, r) for v in running.values()):
+                return
+            state = states[s]
+            if not state.alive.any():            # nothing left to do in this slice: no task
+                m = state.pos.shape[0]
+                block = ({f: np.empty((m, 0) + FIELD[f].shape(sim.n), FIELD[f].dtype) for f in sim.record}
+                         if sim.record else None)
+                finish(s, r, block, np.zeros(m, np.int64), state)
+                return
+            records = ends[r] // every - starts[r] // every if sim.record else 0
+            task = _Task(groups, state, ends[r], sim.record, sim.n, records)
+            future = self.client.submit(run_task, task, key=f"{run_id}-s{s}-r{r}", pure=False, priority=-r)
+            running[future] = (s, r)
+            future.add_done_callback(finished.put)     # called in the client's thread: the queue is the hand-over
+
+        def finish(s, r, block, nrec, state):
+            states[s] = state
+            reached[s] = r
+            results[s][r] = (block, nrec, state)
+            submit(s)
+
+        try:
+            for s in range(S):
+                submit(s)
+            while frontier < len(ends):
+                if should_stop is not None and should_stop():
+                    return
+                try:
+                    ready = [finished.get(timeout=POLL)]
+                except queue.Empty:
+                    continue
+                for future in ready:
+                    s, r = running.pop(future)
+                    try:
+                        block, nrec, state = future.result()
+                    except CancelledError:
+                        raise ClusterError(self.key, "the scheduler cancelled the run's tasks (did it shut "
+                                                     "down?)") from None
+                    except Exception as exc:   # noqa: BLE001 - a task that failed, a worker lost too often
+                        raise ClusterError(self.key, f"a task failed (slice {s}, round {r}): "
+                                                     f"{type(exc).__name__}: {_first_line(exc)}") from None
+                    future.release()
+                    self.tasks_run += 1
+                    finish(s, r, block, nrec, state)
+                if progress is not None:
+                    made = sum((b - a) * (ends[reached[s]] if reached[s] >= 0 else done)
+                               for s, (a, b) in enumerate(slices))
+                    progress(min(total, made // sim.M), total)
+                while frontier < len(ends) and all(reached[s] >= frontier for s in range(S)):
+                    yield self._gather(sim, slices, results, frontier, full)
+                    frontier += 1
+                    if not sim.alive.any():      # every trajectory has ended: the run is over, as a local one
+                        return
+                    for s in range(S):
+                        submit(s)
+        finally:
+            if running:
+                self.client.cancel(list(running))
+
+    @staticmethod
+    def _gather(sim, slices, results, r, full):
+        """Round ``r`` of every slice -> (block of the M trajectories or None, nrec); the state of the round's end
+        is put into ``sim`` (its arrays, through ``full``)."""
+        parts = [results[s].pop(r) for s in range(len(slices))]
+        nrec = np.concatenate([nrec for _, nrec, _ in parts])
+        for (a, b), (_, _, state) in zip(slices, parts):
+            for mine, theirs in zip(full, state):
+                mine[a:b] = theirs
+        if not sim.record:
+            return None, nrec
+        width = int(nrec.max()) if len(nrec) else 0
+        block = {}
+        for f in sim.record:
+            spec = FIELD[f]
+            arr = np.full((sim.M, width) + spec.shape(sim.n), spec.fill, dtype=spec.dtype)
+            for (a, b), (part, _, _) in zip(slices, parts):
+                piece = part[f]
+                arr[a:b, :piece.shape[1]] = piece
+            block[f] = arr
+        return block, nrec
+
+
+def _takes_n_workers():
+    import inspect
+
+    from distributed import Client
+    return "n_workers" in inspect.signature(Client.scheduler_info).parameters

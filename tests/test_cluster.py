@@ -1,0 +1,324 @@
+"""Ensembles on a Dask cluster (SPEC §11): a real ``dask scheduler`` and real ``dask worker`` processes on
+127.0.0.1, the real ``rbx`` command in subprocesses, real HDF5 files.
+
+A run on the cluster must write the local run's file — every dataset, bit for bit — whatever the number of
+workers and of slices; a worker killed mid-run must cost only its task; Ctrl-C on the client must leave a valid
+``.partial`` that ``--resume`` continues (here or on the cluster) to the uninterrupted result; an unreachable
+scheduler is one line and exit 2. The workers run in a folder without any config: what they need travels with
+the tasks.
+"""
+import copy
+import json
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import h5py
+import numpy as np
+import pytest
+import yaml
+
+from tests.catalog import SCENES
+
+pytest.importorskip("distributed")
+
+RBX = str(Path(sys.executable).with_name("rbx"))
+ALL = ["time", "position", "velocity", "angular_velocity", "orientation", "wall", "rank"]
+#: one kernel thread per process: two workers and a client share this machine's cores
+ENV = dict(os.environ, NUMBA_NUM_THREADS="1")
+
+
+# ---- a cluster on this machine --------------------------------------------------------------------------------
+
+class LocalDask:
+    """``dask scheduler`` and ``workers`` × ``dask worker`` (each with its nanny) as subprocesses, bound to
+    127.0.0.1 only, started in a folder of their own; :meth:`stop` ends every process it started."""
+
+    def __init__(self, folder, workers):
+        self.folder = Path(folder)
+        self.folder.mkdir(parents=True, exist_ok=True)
+        self.file = self.folder / "scheduler.json"
+        self.procs = []
+        loopback = ["--host", "127.0.0.1", "--no-dashboard", "--dashboard-address", "127.0.0.1:0"]
+        self._start([sys.executable, "-m", "distributed.cli.dask_scheduler", "--port", "0",
+                     "--scheduler-file", str(self.file)] + loopback, "scheduler")
+        deadline = time.monotonic() + 60
+        while not (self.file.exists() and self.file.stat().st_size):
+            assert self.procs[0].poll() is None, self.log("scheduler")
+            assert time.monotonic() < deadline, "the scheduler did not start"
+            time.sleep(0.1)
+        time.sleep(0.2)                      # the file is written in one go, but let it be complete
+        self.address = json.loads(self.file.read_text())["address"]
+        for k in range(workers):
+            self._start([sys.executable, "-m", "distributed.cli.dask_worker", self.address, "--nthreads", "1",
+                         "--name", f"w{k}", "--local-directory", str(self.folder / f"w{k}")] + loopback, f"w{k}")
+        self.wait_for_workers(workers)
+
+    def _start(self, args, name):
+        log = open(self.folder / f"{name}.log", "w")
+        self.procs.append(subprocess.Popen(args, cwd=self.folder, env=ENV, stdout=log, stderr=subprocess.STDOUT,
+                                           start_new_session=True))
+
+    def log(self, name):
+        return (self.folder / f"{name}.log").read_text()
+
+    def client(self):
+        from distributed import Client
+        return Client(self.address, timeout=30, set_as_default=False)
+
+    def wait_for_workers(self, n):
+        with self.client() as c:
+            c.wait_for_workers(n, timeout=120)
+
+    def worker_pids(self):
+        with self.client() as c:
+            return c.run(os.getpid)
+
+    def stop(self):
+        for p in reversed(self.procs):
+            if p.poll() is None:
+                os.killpg(p.pid, signal.SIGTERM)
+        for p in reversed(self.procs):
+            try:
+                p.wait(timeout=15)
+            except subprocess.TimeoutExpired:
+                os.killpg(p.pid, signal.SIGKILL)
+                p.wait()
+
+
+@pytest.fixture(scope="module")
+def two(tmp_path_factory):
+    """A scheduler with two workers."""
+    cluster = LocalDask(tmp_path_factory.mktemp("dask2"), 2)
+    yield cluster
+    cluster.stop()
+
+
+@pytest.fixture(scope="module")
+def one(tmp_path_factory):
+    """A scheduler with one worker."""
+    cluster = LocalDask(tmp_path_factory.mktemp("dask1"), 1)
+    yield cluster
+    cluster.stop()
+
+
+# ---- runs ---------------------------------------------------------------------------------------------------
+
+def scene(name, collisions, trajectories, every=1, record=ALL, seed=7, **extra):
+    cfg = copy.deepcopy(SCENES[name])
+    cfg["run"] = {"collisions": collisions, "trajectories": trajectories, "seed": seed}
+    cfg["output"] = {"record": list(record), "every": every}
+    cfg.update(extra)
+    return cfg
+
+
+def rbx(*args, cwd):
+    return subprocess.run([RBX, *map(str, args)], cwd=cwd, env=ENV, capture_output=True, text=True, timeout=600)
+
+
+def simulate(folder, cfg, out, *options):
+    folder = Path(folder)
+    (folder / "exp.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
+    res = rbx("simulate", "exp.yaml", "-o", out, "--quiet", "--force", *options, cwd=folder)
+    assert res.returncode == 0, res.stderr
+    return read_run(folder / out)
+
+
+def read_run(path):
+    """Everything a run file holds: root attributes, every dataset of collisions/ and final/ -> dict."""
+    with h5py.File(path, "r") as f:
+        out = {"attrs": {k: f.attrs[k] for k in f.attrs}}
+        for group in ("collisions", "final"):
+            for k in f.get(group, {}):
+                out[f"{group}/{k}"] = f[group][k][...]
+                out.update({f"{group}/{k}@{a}": v for a, v in f[group][k].attrs.items()})
+    return out
+
+
+def assert_same(a, b):
+    """Bit for bit: every dataset (NaN rows past a trajectory's end included) and every root attribute."""
+    assert sorted(a) == sorted(b)
+    for k in a:
+        if k == "attrs":
+            continue
+        x, y = np.asarray(a[k]), np.asarray(b[k])
+        assert x.shape == y.shape and x.dtype == y.dtype, k
+        assert x.tobytes() == y.tobytes(), k          # the same bits, the NaN past a trajectory's end included
+    assert sorted(a["attrs"]) == sorted(b["attrs"])
+    for k in a["attrs"]:
+        x, y = a["attrs"][k], b["attrs"][k]
+        assert np.array_equal(np.asarray(x), np.asarray(y)), k
+
+
+#: scenes: a random rule in 2D, a random rule in 3D (orientation matrices, random roughness directions), a
+#: trajectory that escapes (a wedge: count and the NaN tails), and an ensemble that records nothing
+SCENE_RUNS = {
+    "strip-random": scene("strip-random", 3000, 7, every=3),
+    "plates-random-3d": scene("plates-random-direction", 2000, 5, every=2),
+    "wedge-escape": scene("wedge-rough", 60, 6, every=1,
+                          initial={"position": [1.0, 0.3], "velocity": [-1.0, 0.2], "angular_velocity": 0.0}),
+    "rectangle-random-final-only": scene("rectangle-random", 5000, 40, record=[]),
+}
+#: (cluster, options): the default cut; few slices of many rounds; as many slices as trajectories; one worker
+CUTS = {
+    "two-workers-default": ("two", ()),
+    "two-workers-3-slices-many-rounds": ("two", ("--slices", 3, "--task-collisions", 1500)),
+    "two-workers-one-slice-per-trajectory": ("two", ("--slices", 1000, "--task-collisions", 800)),
+    "one-worker-2-slices": ("one", ("--slices", 2, "--task-collisions", 4000)),
+}
+
+
+@pytest.fixture(scope="module")
+def local_runs(tmp_path_factory):
+    """The local run of each scene, once."""
+    runs = {}
+
+    def get(name):
+        if name not in runs:
+            runs[name] = simulate(tmp_path_factory.mktemp(f"local-{name}"), SCENE_RUNS[name], "local.h5")
+        return runs[name]
+    return get
+
+
+#: every cut on the 2D random scene, two cuts on each of the others
+PAIRS = [("strip-random", cut) for cut in CUTS] + [
+    (name, cut) for name in SCENE_RUNS if name != "strip-random"
+    for cut in ("two-workers-3-slices-many-rounds", "one-worker-2-slices")]
+
+
+@pytest.mark.parametrize("name, cut", PAIRS, ids=[f"{n}-{c}" for n, c in PAIRS])
+def test_a_cluster_run_is_the_local_run_bit_for_bit(name, cut, local_runs, request, tmp_path):
+    which, options = CUTS[cut]
+    cluster = request.getfixturevalue(which)
+    run = simulate(tmp_path, SCENE_RUNS[name], "cluster.h5", "--scheduler", cluster.address, *options)
+    local = local_runs(name)
+    assert run["attrs"]["complete"]
+    assert_same(run, local)
+    if name == "wedge-escape":                    # the scene does what it is here for: trajectories end early
+        assert run["collisions/count"].min() < run["collisions/count"].max() or not run["final/alive"].any()
+        assert not run["final/alive"].any()
+
+
+def test_the_scheduler_file_is_an_address_too(two, local_runs, tmp_path):
+    run = simulate(tmp_path, SCENE_RUNS["strip-random"], "cluster.h5", "--scheduler", two.file, "--slices", 2)
+    assert_same(run, local_runs("strip-random"))
+
+
+def test_histogram_on_the_cluster_is_the_local_histogram(two, tmp_path):
+    cfg = {"table": {"kind": "rectangle", "width": 2.0, "height": 1.0}, "ball": {"radius": 0.1},
+           "boundary": {"default": {"rule": "random", "choices": [{"rule": "constant", "rank": 0},
+                                                                   {"rule": "constant", "rank": 1}],
+                                    "probabilities": [0.5, 0.5]}},
+           "initial": {"sample": "billiard", "wall": "bottom"},
+           "run": {"collisions": 500, "trajectories": 3000, "seed": 3}, "output": {"path": "h.h5"}}
+    (tmp_path / "h.yaml").write_text(yaml.safe_dump(cfg))
+    angles = {}
+    for label, options in (("local", ()), ("cluster", ("--scheduler", two.address, "--slices", 5))):
+        res = rbx("histogram", "h.yaml", "-o", f"{label}.png", "--force", "--quiet", *options, cwd=tmp_path)
+        assert res.returncode == 0, res.stderr
+        with h5py.File(tmp_path / "h.h5") as f:
+            angles[label] = {k: f["returns"][k][...] for k in f["returns"]}
+    assert len(angles["local"]["angle"]) > 2000
+    for k, v in angles["local"].items():
+        assert np.array_equal(v, angles["cluster"][k]), k
+
+
+# ---- faults ---------------------------------------------------------------------------------------------------
+
+#: long enough to be interrupted: 4 trajectories × 4·10⁶ collisions in rounds of 2·10⁵ (tasks of ~10 ms)
+LONG = scene("strip-random", 4_000_000, 4, every=10_000)
+LONG_CUT = ("--slices", 4, "--task-collisions", 200_000)
+
+
+@pytest.fixture(scope="module")
+def long_local(tmp_path_factory):
+    return simulate(tmp_path_factory.mktemp("long-local"), LONG, "local.h5")
+
+
+def start(args, cwd, partial):
+    """Start ``args`` and wait until it writes ``partial`` -> the process."""
+    proc = subprocess.Popen([RBX, *map(str, args)], cwd=cwd, env=ENV, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 120
+    while not os.path.exists(partial):
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline, "the run never started writing"
+        time.sleep(0.01)
+    return proc
+
+
+def test_sigint_leaves_a_partial_that_resumes_locally_and_on_the_cluster(two, long_local, tmp_path):
+    (tmp_path / "exp.yaml").write_text(yaml.safe_dump(LONG, sort_keys=False))
+    proc = start(["simulate", "exp.yaml", "-o", "run.h5", "--scheduler", two.address, *LONG_CUT], tmp_path,
+                 tmp_path / "run.h5.partial")
+    time.sleep(1.0)
+    assert proc.poll() is None, "the run ended before the signal: make it longer"
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("rbx: run.h5: interrupted by SIGINT"), err
+    assert "--resume run.h5" in lines[0]
+
+    cut = read_run(tmp_path / "run.h5")
+    assert not cut["attrs"]["complete"]
+    made = cut["final/collisions"]
+    assert 0 < made.min() and made.max() < LONG["run"]["collisions"]
+    assert len(set(made.tolist())) == 1                     # a checkpoint: every trajectory at the same collision
+    np.testing.assert_array_equal(cut["collisions/count"], 1 + made // 10_000)
+    assert len(cut["collisions/step"]) == cut["collisions/count"].max()
+    length = len(cut["collisions/step"])
+    for f in LONG["output"]["record"]:                      # the records so far are the local run's
+        assert cut[f"collisions/{f}"].tobytes() == long_local[f"collisions/{f}"][:, :length].tobytes(), f
+
+    for label, options in (("here", ()), ("cluster", ("--scheduler", two.address, "--slices", 3))):
+        res = rbx("simulate", "--resume", "run.h5", "-o", f"{label}.h5", "--quiet", *options, cwd=tmp_path)
+        assert res.returncode == 0, res.stderr
+        assert_same(read_run(tmp_path / f"{label}.h5"), long_local)
+
+
+def test_a_worker_killed_mid_run_costs_only_its_task(two, long_local, tmp_path):
+    two.wait_for_workers(2)
+    (tmp_path / "exp.yaml").write_text(yaml.safe_dump(LONG, sort_keys=False))
+    victim = sorted(two.worker_pids().values())[0]
+    proc = start(["simulate", "exp.yaml", "-o", "run.h5", "--scheduler", two.address, *LONG_CUT], tmp_path,
+                 tmp_path / "run.h5.partial")
+    time.sleep(0.5)
+    assert proc.poll() is None, "the run ended before the kill: make it longer"
+    os.kill(victim, signal.SIGKILL)
+    out, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0, err
+    assert_same(read_run(tmp_path / "run.h5"), long_local)
+    two.wait_for_workers(2)                                 # its nanny starts it again, for the next tests
+
+
+# ---- errors ---------------------------------------------------------------------------------------------------
+
+def free_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+@pytest.mark.parametrize("address", ["tcp://127.0.0.1:{port}", "127.0.0.1:{port}", "nonsense://where"])
+def test_an_unreachable_scheduler_is_one_line_and_exit_2(address, tmp_path):
+    address = address.format(port=free_port())
+    (tmp_path / "exp.yaml").write_text(yaml.safe_dump(SCENE_RUNS["strip-random"]))
+    res = rbx("simulate", "exp.yaml", "-o", "run.h5", "--scheduler", address, cwd=tmp_path)
+    assert res.returncode == 2, res.stderr
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("rbx: --scheduler: "), res.stderr
+    if "nonsense" not in address:
+        assert "cannot reach a Dask scheduler" in lines[0] and "Connection refused" in lines[0]
+    assert not list(tmp_path.glob("run.h5*"))                # nothing written
+
+
+def test_cluster_options_need_a_scheduler(tmp_path):
+    (tmp_path / "exp.yaml").write_text(yaml.safe_dump(SCENE_RUNS["strip-random"]))
+    res = rbx("simulate", "exp.yaml", "-o", "run.h5", "--slices", "3", cwd=tmp_path)
+    assert res.returncode == 2
+    assert res.stderr.strip() == "rbx: --slices: only with --scheduler (it cuts a run into tasks for a Dask cluster)"
