@@ -9,10 +9,16 @@ float64 loop. Nothing is clever:
 * the state is the centre ``a``, velocity ``v`` (lists of mpf), the angular velocity as an n×n antisymmetric
   matrix ``W`` and the orientation (2D angle θ, 3D matrix A), all held at the working precision; the time is
   their exact-to-precision sum;
-* the shrunk table is a list of primitives (offset lines or planes with an extent, the circle of radius r − R,
-  one arc of radius R per reflex polygon vertex, attributed to the edge that leaves it), built from the table's
-  parameters at the working precision (the float64 inputs are taken as exact numbers; κ of a named mass
-  distribution is the exact fraction, e.g. 2/5, and angles are ``deg·π/180``);
+* the shrunk table is a list of primitives (offset lines or planes with an extent; the circle, sphere or
+  cylinder of radius r − R of a round table, a focusing arc or a 3D sphere, and of radius r + R of a dispersing
+  arc or a disc/sphere obstacle, an arc over its own angular extent; one arc of radius R per reflex joint of a
+  polygon or boundary — where it turns clockwise, judged by the tangents of the pieces there — over the fan where
+  the joint is the nearest point of both pieces, attributed to the piece that leaves it), built from the table's
+  wall pieces (:mod:`rbx.tables`) at the working precision (the float64 inputs are taken as exact numbers; κ of a
+  named mass distribution is the exact fraction, e.g. 2/5, and angles are ``deg·π/180``);
+* a periodic table (a ``Lattice``): its obstacles repeat with the cell's period, positions stay unfolded; the
+  flight is looked at in windows one cell's smallest side long, testing every image that comes within reach of
+  the window (a flight that meets nothing in ``LATTICE_MAX_WINDOWS`` windows is an escape);
 * next collision: for each primitive the time the line ``a + t·v`` meets it while moving into it (``v·ν < 0``),
   kept if the hit point lies on the primitive's extent; the smallest wins, and times that agree to the working
   precision are a tie, which goes to the lower wall index (conventions, "Corners": the second wall of a corner
@@ -23,7 +29,8 @@ float64 loop. Nothing is clever:
   v' = v − 2(v·ν)ν + Δv, W' = W + (Δv rᵀ − r Δvᵀ)/(κR²)``, P the projector onto the roughness subspace;
 * rules: constant; hemisphere (b = Aᵀ(−ν), rough iff b·axis > 0); random, driven by the engine's own draws
   (``rbx.rng``: draw k of the stream keyed by (seed, trajectory, PURPOSE_RULES)), each compared with the
-  engine's float64 cumulative probabilities, so that both loops pick the same rule from the same draw.
+  engine's float64 cumulative probabilities, so that both loops pick the same rule from the same draw; exit: the
+  contact is recorded with no map (rank −1) and the trajectory ends there.
 
 Nothing is projected back onto the energy: at 50 digits there is no drift to remove.
 
@@ -77,6 +84,28 @@ class _Reflex:
 
     def __init__(self, wall, vertex, radius, e_in, e_out):
         self.wall, self.vertex, self.radius, self.e_in, self.e_out = wall, vertex, radius, e_in, e_out
+
+
+class _Round:
+    """A circle (2D), sphere (3D) or, with ``axes = 2``, a cylinder with axis ∥ z: |x − centre| = ρ over the first
+    ``axes`` coordinates (ρ already shrunk or grown). ``inside``: the free region is inside (ν = (centre − x)/|…|,
+    hit where the line leaves it), else outside (ν = (x − centre)/|…|, hit where it enters). ``arc``: None, or
+    (first angle, span) of a 2D arc going counter-clockwise."""
+    kind = "round"
+
+    def __init__(self, wall, centre, rho, inside, axes, arc=None):
+        self.wall, self.centre, self.rho, self.inside, self.axes, self.arc = wall, centre, rho, inside, axes, arc
+
+    def shifted(self, offset):
+        return _Round(self.wall, [c + o for c, o in zip(self.centre, offset)], self.rho, self.inside, self.axes,
+                      self.arc)
+
+
+#: a joint whose unit tangents have a cross product above −this is not reflex (a tangent joint is not): a property
+#: of the table's data, the same at every precision
+TANGENT_TOLERANCE = 1e-12
+#: a periodic flight that meets no obstacle within this many windows (one cell's smallest side each) escapes
+LATTICE_MAX_WINDOWS = 100_000
 
 
 def _dot(x, y):
@@ -179,13 +208,28 @@ class PreciseBilliard:
         def unit(d):
             return self.vec(tables.unit(d, cos=ctx.cos, sin=ctx.sin, radians=self.deg) if d[0] == "deg" else d)
 
+        self.lattice = None
+        self.periodic = []
         for piece in tables.walls(t["kind"], params):
+            if isinstance(piece, tables.Lattice):
+                lo = self.vec(piece.lo)
+                self.lattice = (lo, _sub(self.vec(piece.hi), lo))
+                continue
             if isinstance(piece, tables.Polygon):
                 V = [self.vec(p) for p in piece.vertices]
                 self.prims += self._polygon(V, first_wall=wall)
                 wall += len(piece.names)
                 continue
-            if isinstance(piece, tables.Circle):
+            if isinstance(piece, tables.Boundary):
+                self.prims += self._boundary(piece.pieces, first_wall=wall)
+                wall += len(piece.pieces)
+                continue
+            if isinstance(piece, tables.Sphere):
+                rho = self.num(piece.radius) - R if piece.inside else self.num(piece.radius) + R
+                self.prims.append(_Round(wall, self.vec(piece.center), rho, piece.inside, len(piece.center)))
+            elif isinstance(piece, tables.Cylinder):
+                self.prims.append(_Round(wall, self.vec(piece.center), self.num(piece.radius) - R, True, 2))
+            elif isinstance(piece, tables.Circle):
                 assert tuple(piece.center) == (0.0, 0.0), "the precise loop's rim is centred at the origin"
                 self.prims.append(_Rim(wall, self.num(piece.radius) - R))       # centred at the origin
             elif isinstance(piece, tables.Line):
@@ -203,7 +247,53 @@ class PreciseBilliard:
                                         hi=hi if bounded else None))
                 self.tangent_axes[wall] = tuple(self.vec(x) for x in piece.tangents)
             wall += 1
+        if self.lattice is not None:     # every wall of a periodic table repeats: only obstacles do here
+            if not all(p.kind == "round" and not p.inside for p in self.prims):
+                raise TypeError("a lattice holds only obstacles here")
+            self.periodic, self.prims = self.prims, []
         self.scale = self.num(tables.kind(t["kind"]).scale(params))
+
+    def _boundary(self, pieces, first_wall=0):
+        """A closed counter-clockwise boundary of segments and arcs: each piece's offset towards the table over
+        its extent, and an arc of radius R about every reflex joint (the tangents turn clockwise there),
+        attributed to the piece leaving it, over the fan (x − joint)·t_in ≥ 0, (x − joint)·t_out ≤ 0."""
+        from . import tables
+        ctx, R = self.ctx, self.R
+        prims, starts, ends = [], [], []
+        for i, piece in enumerate(pieces):
+            wall = first_wall + i
+            p0, p1 = self.vec(piece.start), self.vec(piece.end)
+            if isinstance(piece, tables.Segment):
+                length = _norm(ctx, _sub(p1, p0))
+                e = [x / length for x in _sub(p1, p0)]
+                nu = [-e[1], e[0]]
+                prims.append(_Flat(wall, _dot(nu, p0) + R, nu, p0, e, ctx.mpf(0), length))
+                starts.append(e)
+                ends.append(e)
+                continue
+            c = self.vec(piece.center)
+            rs, re = _sub(p0, c), _sub(p1, c)
+            rho = _norm(ctx, rs)
+            a_s, a_e = ctx.atan2(rs[1], rs[0]), ctx.atan2(re[1], re[0])
+            ccw = piece.turn == "ccw"
+            two_pi = 2 * ctx.pi
+            arc = (a_s, (a_e - a_s) % two_pi) if ccw else (a_e, (a_s - a_e) % two_pi)
+
+            def tangent(r):
+                u = [x / _norm(ctx, r) for x in r]
+                return [-u[1], u[0]] if ccw else [u[1], -u[0]]
+            if ccw:
+                if rho > R:
+                    prims.append(_Round(wall, c, rho - R, True, 2, arc))
+            else:
+                prims.append(_Round(wall, c, rho + R, False, 2, arc))
+            starts.append(tangent(rs))
+            ends.append(tangent(re))
+        for i in range(len(pieces)):
+            t_in, t_out = ends[i - 1], starts[i]
+            if t_in[0] * t_out[1] - t_in[1] * t_out[0] < -TANGENT_TOLERANCE:
+                prims.append(_Reflex(first_wall + i, self.vec(pieces[i].start), R, t_in, t_out))
+        return prims
 
     def _polygon(self, V, first_wall=0):
         """Offset segments of every edge (full length: at a convex corner the other offset line is reached
@@ -228,9 +318,11 @@ class PreciseBilliard:
     # -- rules ------------------------------------------------------------------------------------------------------
     def _rule(self, rule):
         """Config rule objects (rbx.config Constant / Hemisphere / Random) -> nested tuples at this precision."""
-        from .model import Constant, Hemisphere
+        from .model import Constant, Exit, Hemisphere
         if isinstance(rule, Constant):
             return ("constant", rule.rank, rule.direction)
+        if isinstance(rule, Exit):
+            return ("exit", -1, None)
         if isinstance(rule, Hemisphere):
             axis = self.vec(rule.axis)
             return ("hemisphere", axis, self._rule(rule.rough), self._rule(rule.smooth))
@@ -247,7 +339,7 @@ class PreciseBilliard:
 
     def _choose(self, wall, nu):
         rule = self.rules[wall]
-        while rule[0] != "constant":
+        while rule[0] not in ("constant", "exit"):
             if rule[0] == "hemisphere":
                 if self.n == 2:   # b = −ν rotated by −θ
                     c, s = self.ctx.cos(self.theta), self.ctx.sin(self.theta)
@@ -369,6 +461,8 @@ class PreciseBilliard:
                     if prim.lo[i] is not None and not (prim.lo[i] - ext_tol <= q[i] <= prim.hi[i] + ext_tol):
                         return None
             return t, q
+        if prim.kind == "round":
+            return self._round_time(prim, dist_tol, ext_tol)
         vv = _dot(v, v)
         if vv == 0:
             return None
@@ -416,6 +510,74 @@ class PreciseBilliard:
             return None
         return t, q
 
+    def _round_time(self, prim, dist_tol, ext_tol):
+        """(t, hit point) of the flight into a round primitive (see :class:`_Round`), or None."""
+        ctx, a, v, m = self.ctx, self.a, self.v, prim.axes
+        p = _sub(a[:m], prim.centre)
+        w = v[:m]
+        vv = _dot(w, w)
+        if vv == 0:
+            return None
+        b = _dot(p, w)                                  # > 0: moving away from the centre
+        r = ctx.sqrt(_dot(p, p))
+        C = (r - prim.rho) * (r + prim.rho)
+        disc = b * b - vv * C
+        if prim.inside:
+            d = prim.rho - r                            # > 0 on the free side
+            clamped = False
+            if disc < 0:                                # the line misses the circle
+                if d < -dist_tol:
+                    return None
+                disc, clamped = ctx.mpf(0), True        # a hair outside counts as on it
+            root = ctx.sqrt(disc)
+            t = (-b + root) / vv if b <= 0 else -C / (b + root)     # the larger root, cancellation-free
+            if t < 0:                                   # behind: only a point a hair outside moving out
+                if d < -dist_tol:
+                    return None
+                t = ctx.mpf(0)
+            q = _axpy(t, v, a)
+            if not clamped and t > 0 and not _dot(_sub(q[:m], prim.centre), w) > 0:
+                return None                             # tangent: a grazing flight does not touch it
+        else:
+            d = r - prim.rho
+            if not b < 0:                               # moving away: never enters
+                return None
+            if d < 0:
+                if d < -dist_tol:
+                    return None
+                t = ctx.mpf(0)
+            else:
+                if disc <= 0:                           # misses, or grazes: no contact
+                    return None
+                t = C / (-b + ctx.sqrt(disc))           # the smaller root, cancellation-free (b < 0)
+            q = _axpy(t, v, a)
+        if prim.arc is not None:
+            first, span = prim.arc
+            rel = _sub(q[:2], prim.centre)
+            two_pi = 2 * ctx.pi
+            delta = (ctx.atan2(rel[1], rel[0]) - first) % two_pi
+            slack = ext_tol / prim.rho
+            if not (delta <= span + slack or delta >= two_pi - slack):
+                return None
+        return t, q
+
+    def _images(self, p0, p1):
+        """The periodic images of the lattice's obstacles whose grown sphere meets the box spanned by p0, p1."""
+        ctx = self.ctx
+        period = self.lattice[1]
+        lo = [min(x, y) for x, y in zip(p0, p1)]
+        hi = [max(x, y) for x, y in zip(p0, p1)]
+        out = []
+        for prim in self.periodic:
+            ranges = [range(int(ctx.ceil((lo[j] - prim.rho - prim.centre[j]) / period[j])),
+                            int(ctx.floor((hi[j] + prim.rho - prim.centre[j]) / period[j])) + 1)
+                      for j in range(self.n)]
+            shifts = [[]]
+            for rg in ranges:
+                shifts = [k + [x] for k in shifts for x in rg]
+            out += [prim.shifted([x * P for x, P in zip(k, period)]) for k in shifts]
+        return out
+
     def next_collision(self):
         """(t, primitive, hit point) of the next collision, or None if no wall lies ahead."""
         scale = self._scale()
@@ -424,6 +586,18 @@ class PreciseBilliard:
             hit = self._collision_time(prim, scale)
             if hit is not None:
                 hits.append((hit[0], prim.wall, prim, hit[1]))
+        if self.lattice is not None and self.periodic and _dot(self.v, self.v) > 0:
+            window = min(self.lattice[1]) / _norm(self.ctx, self.v)
+            for k in range(LATTICE_MAX_WINDOWS):
+                t0, t1 = k * window, (k + 1) * window
+                if hits and min(h[0] for h in hits) <= t0:
+                    break
+                for prim in self._images(_axpy(t0, self.v, self.a), _axpy(t1, self.v, self.a)):
+                    hit = self._collision_time(prim, scale)
+                    if hit is not None:
+                        hits.append((hit[0], prim.wall, prim, hit[1]))
+                if hits and min(h[0] for h in hits) <= t1:
+                    break
         if not hits:
             return None
         t_min = min(h[0] for h in hits)
@@ -438,13 +612,18 @@ class PreciseBilliard:
             return list(prim.normal)
         if prim.kind == "rim":
             x = [-c for c in q]
+        elif prim.kind == "round":
+            x = _sub(q[:prim.axes], prim.centre) + [0 * c for c in q[prim.axes:]]
+            if prim.inside:
+                x = [-c for c in x]
         else:
             x = _sub(q, prim.vertex)
         norm = _norm(self.ctx, x)
         return [c / norm for c in x]
 
     def step(self):
-        """One flight and collision -> True, or False (and ``alive`` False) if no wall lies ahead."""
+        """One flight and collision -> True, or False (and ``alive`` False) if no wall lies ahead. At an exit the
+        contact is the last step: True, and ``alive`` False."""
         if not self.alive:
             return False
         hit = self.next_collision()
@@ -462,6 +641,11 @@ class PreciseBilliard:
                 self.A = [[sum(E[i][m] * self.A[m][j] for m in range(3)) for j in range(3)] for i in range(3)]
         nu = self._normal(prim, q)
         leaf = self._choose(prim.wall, nu)
+        if leaf[0] == "exit":           # a hole: the contact is recorded as it is, and the trajectory ends
+            self.wall, self.rank = prim.wall, -1
+            self.collisions += 1
+            self.alive = False
+            return True
         self._collide(nu, leaf, prim.wall)
         self.wall, self.rank = prim.wall, leaf[1]
         self.collisions += 1
