@@ -70,9 +70,16 @@ class SchedulerUnreachable(ClusterError):
 
 
 def _worker_identity():
-    """Runs on each worker: what must match the client for the results to be the client's, bit for bit."""
-    from ._jit import kernel_source_hash
-    return {"rbx": __version__, "kernels": kernel_source_hash()}
+    """Runs on each worker: what must match the client for the results to be the client's, bit for bit: rbx's
+    version and the hash of the kernel sources *as imported* (it names the kernel cache folder, see
+    :mod:`rbx._jit`; the files on disk may have changed since)."""
+    import re
+
+    import numba
+
+    from . import _jit   # noqa: F401 - sets numba.config.CACHE_DIR
+    found = re.search(r"numba-([0-9a-f]+)", os.path.basename(str(numba.config.CACHE_DIR)))
+    return {"rbx": __version__, "kernels": found.group(1) if found else str(numba.config.CACHE_DIR)}
 
 
 def _address(address):
@@ -116,6 +123,9 @@ def connect(scheduler, key="--scheduler", slices=None, task_collisions=None):
 
     Checks that the workers run this rbx with the same kernels (else their numbers could differ). Raises
     :class:`SchedulerUnreachable` naming ``key`` within :data:`CONNECT_TIMEOUT` seconds or so."""
+    for name, value in (("slices", slices), ("task_collisions", task_collisions)):
+        if value is not None and int(value) < 1:
+            raise ValueError(f"{name}: must be at least 1, not {value}")
     try:
         import distributed
     except ImportError:
@@ -136,7 +146,7 @@ def connect(scheduler, key="--scheduler", slices=None, task_collisions=None):
                     identity = _probe(address, CONNECT_TIMEOUT)
                 except ValueError as exc:          # no port, an unknown protocol
                     raise SchedulerUnreachable(key, f"{text}: {_first_line(exc)}") from None
-                except (OSError, asyncio_timeout()) as exc:
+                except OSError as exc:             # refused, timed out (TimeoutError is an OSError), no route
                     why = exc.strerror if isinstance(exc, OSError) and exc.strerror else _first_line(exc)
                     raise SchedulerUnreachable(key, f"cannot reach a Dask scheduler at {address}: {why} (is "
                                                     "'dask scheduler' running there?)") from None
@@ -160,11 +170,6 @@ def connect(scheduler, key="--scheduler", slices=None, task_collisions=None):
     return cluster
 
 
-def asyncio_timeout():
-    import asyncio
-    return asyncio.TimeoutError
-
-
 def _first_line(exc):
     text = str(exc).strip()
     return text.splitlines()[0] if text else type(exc).__name__
@@ -184,9 +189,12 @@ def run_task(task):
 
     The kernels are the client's (same source, checked at connect); a worker compiles a specialisation once, or
     loads it from the disk cache of :mod:`rbx._jit`, then keeps it for its next tasks."""
-    state = State(*(np.array(a) for a in task.state))     # a copy: an in-process worker shares the client's arrays
+    # writable copies: a worker in the client's process would share the client's arrays, and an array Dask hands
+    # over read-only would be another type to Numba (another signature to compile, not the cached one)
+    groups = tuple(type(g)(*(np.array(x) if isinstance(x, np.ndarray) else x for x in g)) for g in task.groups)
+    state = State(*(np.array(a) for a in task.state))
     bufs = record_buffers(task.record, task.n, state.pos.shape[0], task.records)
-    nrec = advance_state(task.groups, state, task.stop, bufs)
+    nrec = advance_state(groups, state, task.stop, bufs)
     block = records_block(bufs, nrec, task.record, task.n) if task.record else None
     if block is not None:       # the views would pickle their whole buffers
         block = {f: np.ascontiguousarray(a) for f, a in block.items()}
@@ -205,10 +213,6 @@ class Cluster:
         self.client, self.own, self.key = client, own, key
         self.slices = None if slices is None else int(slices)
         self.task_collisions = None if task_collisions is None else int(task_collisions)
-        if self.slices is not None and self.slices < 1:
-            raise ValueError("slices: must be at least 1")
-        if self.task_collisions is not None and self.task_collisions < 1:
-            raise ValueError("task_collisions: must be at least 1")
         self.tasks_run = 0
 
     def __enter__(self):
@@ -228,8 +232,11 @@ class Cluster:
     # -- the workers ---------------------------------------------------------------------------------------------
     def threads(self):
         """Worker threads in the cluster now (0 when it has no workers)."""
-        workers = self.client.scheduler_info(n_workers=-1).get("workers", {}) if _takes_n_workers() else \
-            self.client.scheduler_info().get("workers", {})
+        try:
+            info = self.client.scheduler_info(n_workers=-1)    # recent Dask lists only 5 workers by default
+        except TypeError:
+            info = self.client.scheduler_info()
+        workers = info.get("workers", {})
         return sum(int(w.get("nthreads", 1)) for w in workers.values())
 
     def check_workers(self):
@@ -385,9 +392,3 @@ class Cluster:
             block[f] = arr
         return block, nrec
 
-
-def _takes_n_workers():
-    import inspect
-
-    from distributed import Client
-    return "n_workers" in inspect.signature(Client.scheduler_info).parameters

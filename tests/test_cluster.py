@@ -125,6 +125,7 @@ def simulate(folder, cfg, out, *options):
     (folder / "exp.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
     res = rbx("simulate", "exp.yaml", "-o", out, "--quiet", "--force", *options, cwd=folder)
     assert res.returncode == 0, res.stderr
+    assert not res.stderr, res.stderr                 # quiet: nothing from Dask either
     return read_run(folder / out)
 
 
@@ -163,7 +164,8 @@ SCENE_RUNS = {
                           initial={"position": [1.0, 0.3], "velocity": [-1.0, 0.2], "angular_velocity": 0.0}),
     "rectangle-random-final-only": scene("rectangle-random", 5000, 40, record=[]),
 }
-#: (cluster, options): the default cut; few slices of many rounds; as many slices as trajectories; one worker
+#: (cluster, options): the default cut; few slices of many rounds (the scheduler named by its file); as many slices
+#: as trajectories; one worker
 CUTS = {
     "two-workers-default": ("two", ()),
     "two-workers-3-slices-many-rounds": ("two", ("--slices", 3, "--task-collisions", 1500)),
@@ -194,8 +196,9 @@ PAIRS = [("strip-random", cut) for cut in CUTS] + [
 def test_a_cluster_run_is_the_local_run_bit_for_bit(name, cut, local_runs, request, tmp_path):
     which, options = CUTS[cut]
     cluster = request.getfixturevalue(which)
-    run = simulate(tmp_path, SCENE_RUNS[name], "cluster.h5", "--scheduler", cluster.address, *options)
-    local = local_runs(name)
+    local = local_runs(name)          # first: its kernel goes to the disk cache, where the workers find it
+    address = cluster.file if cut == "two-workers-3-slices-many-rounds" else cluster.address
+    run = simulate(tmp_path, SCENE_RUNS[name], "cluster.h5", "--scheduler", address, *options)
     assert run["attrs"]["complete"]
     assert_same(run, local)
     if name == "wedge-escape":                    # the scene does what it is here for: trajectories end early
@@ -203,9 +206,49 @@ def test_a_cluster_run_is_the_local_run_bit_for_bit(name, cut, local_runs, reque
         assert not run["final/alive"].any()
 
 
-def test_the_scheduler_file_is_an_address_too(two, local_runs, tmp_path):
-    run = simulate(tmp_path, SCENE_RUNS["strip-random"], "cluster.h5", "--scheduler", two.file, "--slices", 2)
-    assert_same(run, local_runs("strip-random"))
+def test_workers_load_the_kernels_from_the_disk_cache(two, local_runs, tmp_path):
+    """The local run compiled the scene's kernel into the disk cache; the workers load it from there (a Numba
+    cache hit) and compile nothing: their only misses are the non-literal signature Numba tries first, as in any
+    process."""
+    local_runs("strip-random")
+    simulate(tmp_path, SCENE_RUNS["strip-random"], "cluster.h5", "--scheduler", two.address, "--slices", 4)
+
+    def kernel_cache():
+        import sys
+
+        import numba
+        engine = sys.modules.get("rbx.engine")
+        if engine is None:                   # a worker that ran no task yet
+            return None
+        stats = engine.advance_all.stats
+        compiled = [sig for sig in stats.cache_misses if isinstance(sig[3], numba.types.Literal)]
+        return sum(stats.cache_hits.values()), len(compiled)
+
+    with two.client() as c:
+        seen = [v for v in c.run(kernel_cache).values() if v is not None]
+    assert seen and all(hits >= 1 and compiled == 0 for hits, compiled in seen), seen
+
+
+def test_the_api_on_a_local_cluster_and_on_an_address(two, tmp_path):
+    """rbx.simulate(..., scheduler=): a distributed.Client of a LocalCluster (worker processes), in memory; an
+    address, into a file. Both are the local run, bit for bit."""
+    import rbx
+    from distributed import Client, LocalCluster
+
+    cfg = SCENE_RUNS["plates-random-3d"]
+    local = rbx.simulate(cfg)
+    with LocalCluster(n_workers=2, threads_per_worker=1, processes=True, host="127.0.0.1",
+                      dashboard_address=None) as lc, Client(lc, set_as_default=False) as client:
+        in_memory = rbx.simulate(cfg, scheduler=client, slices=3, task_collisions=2000)
+        assert client.status == "running"                  # a client given is the caller's: left open
+    on_file = rbx.simulate(cfg, scheduler=two.address, output=tmp_path / "api.h5", slices=2)
+    for run in (in_memory, on_file):
+        assert run.complete
+        for f in local.fields + ("count", "step"):
+            assert getattr(run, f).tobytes() == getattr(local, f).tobytes(), f
+        assert sorted(run.final) == sorted(local.final)
+        for k in local.final:
+            assert run.final[k].tobytes() == local.final[k].tobytes(), k
 
 
 def test_histogram_on_the_cluster_is_the_local_histogram(two, tmp_path):
@@ -284,7 +327,7 @@ def test_sigint_leaves_a_partial_that_resumes_locally_and_on_the_cluster(two, lo
 def test_a_worker_killed_mid_run_costs_only_its_task(two, long_local, tmp_path):
     two.wait_for_workers(2)
     (tmp_path / "exp.yaml").write_text(yaml.safe_dump(LONG, sort_keys=False))
-    victim = sorted(two.worker_pids().values())[0]
+    address, victim = sorted(two.worker_pids().items())[0]
     proc = start(["simulate", "exp.yaml", "-o", "run.h5", "--scheduler", two.address, *LONG_CUT], tmp_path,
                  tmp_path / "run.h5.partial")
     time.sleep(0.5)
@@ -293,6 +336,7 @@ def test_a_worker_killed_mid_run_costs_only_its_task(two, long_local, tmp_path):
     out, err = proc.communicate(timeout=300)
     assert proc.returncode == 0, err
     assert_same(read_run(tmp_path / "run.h5"), long_local)
+    assert f"Remove worker addr: {address}" in two.log("scheduler")   # the scheduler did lose it mid-run
     two.wait_for_workers(2)                                 # its nanny starts it again, for the next tests
 
 
