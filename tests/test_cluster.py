@@ -186,10 +186,10 @@ def local_runs(tmp_path_factory):
     return get
 
 
-#: every cut on the 2D random scene, two cuts on each of the others
+#: every cut on the 2D random scene, two on the 3D one, one on each of the others (the test's time)
 PAIRS = [("strip-random", cut) for cut in CUTS] + [
-    (name, cut) for name in SCENE_RUNS if name != "strip-random"
-    for cut in ("two-workers-3-slices-many-rounds", "one-worker-2-slices")]
+    ("plates-random-3d", "two-workers-3-slices-many-rounds"), ("plates-random-3d", "one-worker-2-slices"),
+    ("wedge-escape", "two-workers-3-slices-many-rounds"), ("rectangle-random-final-only", "one-worker-2-slices")]
 
 
 @pytest.mark.parametrize("name, cut", PAIRS, ids=[f"{n}-{c}" for n, c in PAIRS])
@@ -257,7 +257,7 @@ def test_histogram_on_the_cluster_is_the_local_histogram(two, tmp_path):
                                                                    {"rule": "constant", "rank": 1}],
                                     "probabilities": [0.5, 0.5]}},
            "initial": {"sample": "billiard", "wall": "bottom"},
-           "run": {"collisions": 500, "trajectories": 3000, "seed": 3}, "output": {"path": "h.h5"}}
+           "run": {"collisions": 500, "trajectories": 1000, "seed": 3}, "output": {"path": "h.h5"}}
     (tmp_path / "h.yaml").write_text(yaml.safe_dump(cfg))
     angles = {}
     for label, options in (("local", ()), ("cluster", ("--scheduler", two.address, "--slices", 5))):
@@ -265,7 +265,7 @@ def test_histogram_on_the_cluster_is_the_local_histogram(two, tmp_path):
         assert res.returncode == 0, res.stderr
         with h5py.File(tmp_path / "h.h5") as f:
             angles[label] = {k: f["returns"][k][...] for k in f["returns"]}
-    assert len(angles["local"]["angle"]) > 2000
+    assert len(angles["local"]["angle"]) > 600
     for k, v in angles["local"].items():
         assert np.array_equal(v, angles["cluster"][k]), k
 

@@ -83,9 +83,14 @@ def connect(cluster):
     if cluster["scheduler"] is not None:
         _quiet_dask()
     try:
-        return cluster_for(cluster["scheduler"], "--scheduler", cluster["slices"], cluster["task_collisions"])
+        on = cluster_for(cluster["scheduler"], "--scheduler", cluster["slices"], cluster["task_collisions"])
     except SchedulerUnreachable as exc:
         raise UserError(None, exc.key, exc.problem) from None
+    if cluster["scheduler"] is not None and on.threads() == 0:
+        click.echo("rbx: warning: --scheduler: the cluster has no workers yet: the run waits for them"
+                   + ("" if cluster["slices"] else " (and is cut for one worker thread; --slices to cut it finer)"),
+                   err=True)
+    return on
 
 
 def _quiet_dask():
