@@ -323,7 +323,7 @@ def _from_dict(data, source, overrides):
     resolved = {}
 
     kind, tparams = _table(data["table"], base, c)
-    n = tables.kind(kind).dimension
+    n = tables.dimension(kind, tparams)
     resolved["table"] = {"kind": kind, **tparams}
     frozen_table = types.MappingProxyType({k: _frozen(v) for k, v in tparams.items()})
 
@@ -419,13 +419,20 @@ def _table(value, base, c):
     table, table_file = _include(value, "table", base, c)
     tc = _Checker(table_file or c.file)
     prefix = "table" if table_file is None else ""
-    all_params = tuple(sorted({p for k in tables.KINDS.values() for p in k.params}))
+    all_params = tuple(sorted({p for k in tables.KINDS.values() for p in list(k.params) + list(k.optional or ())}
+                              | {tables.OBSTACLES}))
     tc.mapping(table, prefix, ("kind",) + all_params, ("kind",))
     kind = tc.choice(table["kind"], _join(prefix, "kind"), tuple(tables.KINDS), "table kind")
-    params = tuple(tables.kind(kind).params)
-    tc.mapping(table, prefix, ("kind",) + params, ("kind",) + params)
-    return kind, {name: check(table[name], tc, _join(prefix, name))
-                  for name, check in tables.kind(kind).params.items()}
+    k = tables.kind(kind)
+    params, optional = tuple(k.params), tuple(k.optional or ())
+    tc.mapping(table, prefix, ("kind",) + params + optional + (tables.OBSTACLES,), ("kind",) + params)
+    out = {name: check(table[name], tc, _join(prefix, name)) for name, check in k.params.items()}
+    out.update({name: check(table[name], tc, _join(prefix, name))
+                for name, check in (k.optional or {}).items() if name in table})
+    if tables.OBSTACLES in table:
+        out[tables.OBSTACLES] = tables.obstacles(table[tables.OBSTACLES], tc, _join(prefix, tables.OBSTACLES),
+                                                 tables.dimension(kind, out))
+    return kind, out
 
 
 def _ball(ball, n, c):
@@ -517,7 +524,9 @@ def parse_size(value, c, key):
 
 
 def _check_fits(kind, p, R, geom, c):
-    problem = tables.kind(kind).fits(p, R, geom)
+    problem = tables.fits(kind, p, R, geom)
+    if isinstance(problem, tuple):     # (the table's key, problem): obstacles, periodic cells
+        c.fail(_join("table", problem[0]), problem[1])
     if problem:
         c.fail("ball.radius", f"a ball of radius {R:g} {problem}")
 

@@ -36,10 +36,10 @@ import numpy as np
 from numba import literally
 
 from ._jit import jit, jit_hot, jit_loop, stack_array
-from .geometry import contact_normal, next_collision, slab_collision, snap
+from .geometry import PASS, contact_normal, next_collision, periodic_collision, slab_collision, snap
 from .model import FIELD, FIELDS
 from .physics import collide, collide_slab
-from .rules import choose
+from .rules import EXIT, choose
 
 try:                # Numba's fingerprint of a value's type (private: see _entry_point)
     from numba._dispatcher import compute_fingerprint
@@ -57,6 +57,17 @@ class Table(NamedTuple):
     prim_wall: np.ndarray   # (P,) int64: the wall each primitive belongs to
     params: np.ndarray      # (P, k) float64: each primitive's parameters
     tol: float              # flights shorter than this do not count (END_TOLERANCE × the table's size)
+    lattice_lo: np.ndarray  # (n,) a periodic table's cell starts here (S_PERIODIC) …
+    period: np.ndarray      # (n,) … and repeats with this period along each axis
+
+
+def make_table(geom, tol):
+    """The kernels' :class:`Table` of a :class:`rbx.geometry.Geometry` (the one place it is made)."""
+    n = geom.dimension
+    lo, period = geom.lattice if geom.lattice is not None else (np.zeros(n), np.ones(n))
+    return Table(codes=geom.codes, prim_wall=geom.walls, params=np.ascontiguousarray(geom.params), tol=float(tol),
+                 lattice_lo=np.ascontiguousarray(lo, dtype=np.float64),
+                 period=np.ascontiguousarray(period, dtype=np.float64))
 
 
 class Rules(NamedTuple):
@@ -220,6 +231,8 @@ S_COMPENSATED = 64  # compensated (Kahan) summation of the time and the position
 S_SNAP = 128        # put the centre exactly on the wall at contact
 S_SLAB = 256        # two parallel walls (strip, plates): closed-form flight time and exact normal coordinate
 S_STOP_WALL = 512   # end a trajectory when it hits ``stop_wall``
+S_PERIODIC = 1024   # a periodic cell (Table.lattice_lo, period): the images of the primitives around the centre
+S_EXIT = 2048       # some wall's rule is (or may resolve to) ``exit``: the trajectory ends at its contact
 #: the bits compiled into the kernel; the others are tested at run time (a predictable branch). Each compiled
 #: combination in use costs a compile of ~5 s the first time (then it is on disk), so the bits compiled are the
 #: ones that pay: the dimension (loops of constant length, state in registers), spin arithmetic, the slab's closed
@@ -231,11 +244,11 @@ RUNTIME_BITS = ~COMPILED_BITS
 
 
 def make_spec(n, orient=False, spin=True, tree=False, record=False, compensated=False, snap=False,
-              slab=False, stop_wall=False):
+              slab=False, stop_wall=False, periodic=False, exit=False):
     """The ``spec`` bits from flags (:class:`rbx.simulation.Simulation` derives them from the config)."""
     flags = ((n == 3, S_DIM3), (orient, S_ORIENT), (spin, S_SPIN), (tree, S_TREE), (record, S_RECORD),
              (compensated, S_COMPENSATED), (snap, S_SNAP), (slab, S_SLAB),
-             (stop_wall, S_STOP_WALL))
+             (stop_wall, S_STOP_WALL), (periodic, S_PERIODIC), (exit, S_EXIT))
     return sum(bit for on, bit in flags if on)
 
 
@@ -281,6 +294,9 @@ def advance(j, stop, spec, table, rules, settings, state, out):
     work = stack_array(9, (3, n))
     E = stack_array(9, (3, 3))
     tmp = stack_array(9, (3, 3))
+    base = stack_array(3, (n,))            # periodic tables: the centre's cell, …
+    loc = stack_array(3, (n,))             # … its position relative to the image of the cell hit, …
+    off = stack_array(3, (n,))             # … and that image's shift (loc = a − off)
     for i in range(n):
         a[i] = state.pos[j, i]
         v[i] = state.vel[j, i]
@@ -306,9 +322,12 @@ def advance(j, stop, spec, table, rules, settings, state, out):
         # 1. next collision: the flight time and the primitive hit
         if on & S_SLAB:
             tau, p = slab_collision(params, a, v, n)
+        elif on & S_PERIODIC:
+            tau, p = periodic_collision(codes, params, a, v, tol, n, table.lattice_lo, table.period, base, loc,
+                                        off)
         else:
             tau, p = next_collision(codes, params, a, v, tol, n)
-        if p < 0:
+        if p == -1:
             state.alive[j] = False
             break
         # 2. free flight
@@ -329,16 +348,27 @@ def advance(j, stop, spec, table, rules, settings, state, out):
                 th += tau * Wj[1, 0]
             else:
                 rotate(Aj, Wj, tau, E, tmp)
+        if on & S_PERIODIC:
+            if p == PASS:
+                continue                           # no wall within reach of the last look: look again from here
         # 3. contact normal (a slab's is ±e_{n−1}, known from the wall: no lookup; the rule tree and snapping
-        #    read it, and the slab map takes only its sign)
+        #    read it, and the slab map takes only its sign); in a periodic table, on the image hit
         if on & S_SLAB:
             for i in range(n - 1):
                 nu[i] = 0.0
             nu[n - 1] = 1.0 if p == 0 else -1.0
+        elif on & S_PERIODIC:
+            for i in range(n):
+                loc[i] = a[i] - off[i]
+            contact_normal(codes[p], params, p, loc, nu, n)
+            if on & S_SNAP:
+                snap(codes[p], params, p, loc, nu, n)
+                for i in range(n):
+                    a[i] = loc[i] + off[i]
         else:
             contact_normal(codes[p], params, p, a, nu, n)
-        if on & S_SNAP:
-            snap(codes[p], params, p, a, nu, n)
+            if on & S_SNAP:
+                snap(codes[p], params, p, a, nu, n)
         # 4. rule
         w = prim_wall[p]
         if on & S_TREE:
@@ -347,6 +377,16 @@ def advance(j, stop, spec, table, rules, settings, state, out):
         else:
             node = rules.root[w]
         rk = rules.rank[node]
+        if on & S_EXIT:
+            if rules.kind[node] == EXIT:          # a hole: the contact is the trajectory's last record
+                c += 1
+                if on & S_RECORD:
+                    until_record -= 1
+                    if until_record == 0:
+                        write_record(j, nrec, settings.mask, t, a, v, Wj, th, Aj, w, rk, out, n)
+                        nrec += 1
+                state.alive[j] = False
+                break
         # 5. collision map
         # Without spin arithmetic (a specular-only scene) the map is called with rank 0, a constant: only its
         # reflection is compiled. Every renorm_every-th rough collision, the factor onto the initial energy is

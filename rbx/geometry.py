@@ -8,7 +8,14 @@ the index of the wall it belongs to and a row of packed float parameters:
 | ``HALFSPACE`` | line (2D) / plane (3D), no ends: the table is the intersection of such half-spaces | point p = [0:n], inward normal ν = [4:4+n] |
 | ``SEGMENT`` | 2D line segment with ends (non-convex polygons) | start p = [0:2], ν = [4:6], tangent t = [8:10], length = [12] |
 | ``CONCAVE_ARC`` | circle of radius ρ, centre kept inside (circle table) | centre c = [0:n], ρ = [12] |
-| ``CONVEX_ARC`` | 2D arc of radius ρ around a reflex vertex, centre kept outside | c = [0:2], first normal = [4:6], last normal = [8:10] (CCW), ρ = [12] |
+| ``CONVEX_ARC`` | 2D arc of radius ρ, centre kept outside (a reflex vertex rounded by R, a dispersing ``cw`` arc grown by R) | c = [0:2], first normal = [4:6], last normal = [8:10] (CCW), ρ = [12], 1 if it spans more than 180° = [13] |
+| ``SPHERE_OUT`` | whole circle (2D disc obstacle) or sphere (3D), centre kept outside | c = [0:n], ρ = [12] |
+| ``FOCUS_ARC`` | 2D arc of radius ρ, centre kept inside (a focusing ``ccw`` arc shrunk by R) | c = [0:2], first and last radial directions [4:6], [8:10] (CCW), ρ = [12], span > 180° = [13] |
+| ``CYLINDER`` | 3D cylinder with axis ∥ z, centre kept inside | axis point c = [0:2], ρ = [12] |
+
+A table of the zoo (SPEC §8) is built from its wall pieces (:mod:`rbx.tables`) by :func:`from_pieces`; obstacles
+are added to any table by :func:`add_pieces`. A periodic cell (``Lattice``) is the ``lattice`` (lo, period) of the
+geometry: the kernel tests the images of the primitives in the neighbouring cells (:func:`periodic_collision`).
 
 Adding a table kind = a builder here that lists its primitives (with ``Wall`` entries for names, tangent axes and
 sampling patches), registered with its other facets in :mod:`rbx.tables`. Adding a primitive kind = a code, its
@@ -20,7 +27,9 @@ import numpy as np
 
 from ._jit import jit, jit_hot
 
-HALFSPACE, SEGMENT, CONCAVE_ARC, CONVEX_ARC = 0, 1, 2, 3
+HALFSPACE, SEGMENT, CONCAVE_ARC, CONVEX_ARC, SPHERE_OUT, FOCUS_ARC, CYLINDER = 0, 1, 2, 3, 4, 5, 6
+#: returned by :func:`periodic_collision` instead of a primitive: no wall within reach, fly and look again
+PASS = -2
 NPARAM = 16
 #: relative tolerance (of the table's size) on segment and arc ends, so that a flight through a joint between two
 #: primitives hits at least one of them
@@ -55,6 +64,13 @@ class Geometry:
     #: the billiard measure on the walls can be normalised (the patches are finite, or infinite only along a
     #: symmetry of the table, as in a strip); not for a wedge
     can_sample: bool = True
+    #: the wall pieces (rbx.tables) of a table built from pieces, or with obstacles: clearance and drawing read
+    #: them; None for the paper's tables without obstacles
+    pieces: list | None = None
+    #: a periodic cell: (lo, period) arrays; None if the table is not periodic
+    lattice: tuple | None = None
+    #: built from its wall pieces alone (:func:`from_pieces`: the zoo), not by a kind's own builder
+    from_pieces: bool = False
 
     @property
     def wall_names(self):
@@ -63,6 +79,8 @@ class Geometry:
     def clearance(self, points):
         """Signed distance of centre positions (…, n) inside the shrunk table (≥ 0 inside) -> (…) array."""
         pts = np.asarray(points, dtype=float)
+        if self.pieces is not None:
+            return pieces_clearance(self, pts)
         out = np.full(pts.shape[:-1], np.inf)
         if np.any((self.codes == SEGMENT) | (self.codes == CONVEX_ARC)):   # a non-convex polygon
             return _polygon_clearance(pts, self.outline, self.shrunk_radius)
@@ -266,11 +284,11 @@ def collision_time(code, params, k, a, v, tol, n):
         if s < -tol or s > params[k, 12] + tol:
             return np.inf
         return t
-    # arcs: |a + t v − c|² = ρ²  <=>  |v|² t² + 2 b t + cc = 0
+    # arcs: |a + t v − c|² = ρ²  <=>  |v|² t² + 2 b t + cc = 0 (a cylinder: in the plane across its axis)
     b = 0.0
     cc = 0.0
     vv = 0.0
-    for i in range(n):
+    for i in range(2 if code == CYLINDER else n):
         dx = a[i] - params[k, i]
         b += dx * v[i]
         cc += dx * dx
@@ -279,7 +297,7 @@ def collision_time(code, params, k, a, v, tol, n):
     # |a−c|² − ρ² without cancelling ρ² away: a centre on the circle (snapped, or just hit) gives 0 or a few ulp
     # of ρ·|a−c|, where |a−c|² − ρ² would keep the rounding of the squares (a grazing flight needs the former)
     cc = (np.sqrt(cc) - rho) * (np.sqrt(cc) + rho)
-    if code == CONCAVE_ARC:
+    if code == CONCAVE_ARC or code == CYLINDER:
         # The centre is inside the circle (a bounded table): one a hair outside by rounding is taken to be on it,
         # else a grazing flight moving inward from there could miss the circle altogether and "escape".
         if vv == 0.0:
@@ -292,7 +310,27 @@ def collision_time(code, params, k, a, v, tol, n):
         else:
             t = (np.sqrt(disc) - b) / vv
         return t                                 # ≥ 0; 0 for a centre on the circle moving out (or along it)
-    # CONVEX_ARC: entering the disc around a reflex vertex, through the arc between its two normals
+    if code == FOCUS_ARC:
+        # leaving the disc through the arc between its radial directions: the larger root. In a non-convex table
+        # the centre may be outside this circle (a mushroom's stem): the larger root is then where the line
+        # leaves the disc, if it meets it at all
+        if vv == 0.0:
+            return np.inf
+        disc = b * b - vv * cc
+        if disc < 0.0:
+            if cc > 0.0:
+                return np.inf
+            disc = 0.0
+        if b > 0.0:
+            t = -cc / (b + np.sqrt(disc))
+        else:
+            t = (np.sqrt(disc) - b) / vv
+        if t < 0.0:
+            if cc > 2.0 * tol * rho:
+                return np.inf
+            t = 0.0
+        return t if _in_arc(params, k, a, v, t, tol * rho) else np.inf
+    # CONVEX_ARC, SPHERE_OUT: entering the disc (sphere) kept outside; an arc only between its two normals
     if b >= 0.0:
         return np.inf
     disc = b * b - vv * cc
@@ -303,11 +341,23 @@ def collision_time(code, params, k, a, v, tol, n):
         if cc < -2.0 * tol * rho:
             return np.inf
         t = 0.0
+    if code == SPHERE_OUT:
+        return t
+    return t if _in_arc(params, k, a, v, t, tol * rho) else np.inf
+
+
+@jit_hot
+def _in_arc(params, k, a, v, t, slack):
+    """Whether the point a + t v lies (within ``slack``) on the arc of primitive k: between its first and last
+    radial directions [4:6], [8:10] going counter-clockwise (both half-plane tests for an arc of at most 180°,
+    either of them for a longer one)."""
     mx = a[0] + t * v[0] - params[k, 0]
     my = a[1] + t * v[1] - params[k, 1]
-    if params[k, 4] * my - params[k, 5] * mx < -tol * rho or mx * params[k, 9] - my * params[k, 8] < -tol * rho:
-        return np.inf
-    return t
+    after_first = params[k, 4] * my - params[k, 5] * mx >= -slack
+    before_last = mx * params[k, 9] - my * params[k, 8] >= -slack
+    if params[k, 13] != 0.0:
+        return after_first or before_last
+    return after_first and before_last
 
 
 @jit_hot
@@ -318,14 +368,42 @@ def contact_normal(code, params, k, a, nu, n):
             nu[i] = params[k, 4 + i]
         return
     s = 0.0
-    for i in range(n):
+    m = 2 if code == CYLINDER else n
+    for i in range(m):
         nu[i] = a[i] - params[k, i]
         s += nu[i] * nu[i]
+    if code == CYLINDER:
+        nu[2] = 0.0
     s = 1.0 / np.sqrt(s)
-    if code == CONCAVE_ARC:
+    if code == CONCAVE_ARC or code == FOCUS_ARC or code == CYLINDER:
         s = -s
-    for i in range(n):
+    for i in range(m):
         nu[i] *= s
+
+
+@jit_hot
+def normal_jacobian(code, params, k, a, J, n):
+    """J[i, j] = ∂ν_i/∂a_j: how the unit normal (into the free region) of primitive k turns as the contact point a
+    moves on it, the wall's curvature (the tangent map of the dynamics needs it). Flat walls: 0. Round walls of
+    radius ρ about c: ν = ±(a − c)/|a − c|, so J = ±(I − ûûᵀ)/|a − c| with û = (a − c)/|a − c| (+ for a wall kept
+    outside: a reflex arc, a disc or sphere obstacle; − for one kept inside); a cylinder: the same across its
+    axis, 0 along it."""
+    for i in range(n):
+        for j in range(n):
+            J[i, j] = 0.0
+    if code == HALFSPACE or code == SEGMENT:
+        return
+    m = 2 if code == CYLINDER else n
+    s = 0.0
+    for i in range(m):
+        s += (a[i] - params[k, i]) * (a[i] - params[k, i])
+    r = np.sqrt(s)
+    sign = -1.0 if (code == CONCAVE_ARC or code == FOCUS_ARC or code == CYLINDER) else 1.0
+    for i in range(m):
+        ui = (a[i] - params[k, i]) / r
+        for j in range(m):
+            uj = (a[j] - params[k, j]) / r
+            J[i, j] = sign * ((1.0 if i == j else 0.0) - ui * uj) / r
 
 
 @jit_hot
@@ -366,9 +444,489 @@ def snap(code, params, k, a, nu, n):
         for i in range(n):
             a[i] -= d * params[k, 4 + i]
         return
+    m = 2 if code == CYLINDER else n
     s = 0.0
-    for i in range(n):
+    for i in range(m):
         s += (a[i] - params[k, i]) * (a[i] - params[k, i])
     f = params[k, 12] / np.sqrt(s)
-    for i in range(n):
+    for i in range(m):
         a[i] = params[k, i] + f * (a[i] - params[k, i])
+
+
+@jit_hot
+def periodic_collision(codes, params, a, v, tol, n, lo, period, base, loc, off):
+    """The next collision in a periodic table (a Lattice of period ``period`` from ``lo``) -> (flight time,
+    primitive), the image hit being shifted by ``off`` (the contact point relative to the cell's primitives is
+    a − off); or (τ, PASS): no wall within reach, fly τ and look again.
+
+    The centre is in the cell ``base`` (floor of (a − lo)/period: which of two cells a point on their common side
+    is taken to be in does not matter). Every obstacle lies inside its own cell once grown by R (checked when the
+    table is read), so within the box [base − period/2, base + 3·period/2] only the images in the 3ⁿ cells around
+    ``base`` can be met; the flight is cut where it leaves that box (at least half a cell away), and looked at
+    again from there. ``a`` stays unfolded; ``base``, ``loc``, ``off``: scratch arrays of n values."""
+    for i in range(n):
+        base[i] = lo[i] + np.floor((a[i] - lo[i]) / period[i]) * period[i]
+    reach = np.inf
+    for i in range(n):
+        if v[i] > 0.0:
+            t = (base[i] + 1.5 * period[i] - a[i]) / v[i]
+        elif v[i] < 0.0:
+            t = (a[i] - (base[i] - 0.5 * period[i])) / -v[i]
+        else:
+            continue
+        if t < reach:
+            reach = t
+    best = np.inf
+    which = -1
+    image = 0
+    images = 3 ** n
+    for m in range(images):
+        q = m
+        for i in range(n):
+            loc[i] = a[i] - (base[i] + ((q % 3) - 1) * period[i])
+            q //= 3
+        for k in range(codes.shape[0]):
+            t = collision_time(codes[k], params, k, loc, v, tol, n)
+            if t < best:
+                best = t
+                which = k
+                image = m
+    if which < 0 or best > reach:
+        if reach == np.inf:
+            return np.inf, -1
+        return reach, PASS
+    q = image
+    for i in range(n):
+        off[i] = base[i] + ((q % 3) - 1) * period[i]
+        q //= 3
+    return best, which
+
+
+# ---- tables built from wall pieces (SPEC §8): the zoo, obstacles on any table, periodic cells --------------------
+
+def _unit2(x):
+    x = np.asarray(x, float)
+    return x / np.linalg.norm(x)
+
+
+def _left(t):
+    return np.array([-t[1], t[0]])
+
+
+def _angle(u):
+    return float(np.arctan2(u[1], u[0]))
+
+
+def _ccw_span(u0, u1):
+    """The angle from direction u0 counter-clockwise to u1, in (0, 2π]."""
+    d = (_angle(u1) - _angle(u0)) % (2 * np.pi)
+    return d if d > 0 else 2 * np.pi
+
+
+def _piece_frame(q):
+    """Geometry of a boundary piece (rbx.tables Segment or Arc) -> dict: start, end, the unit tangents (direction
+    of travel) and inward normals at both ends, and for an arc its centre, radius, turn and radial directions."""
+    a, b = np.asarray(q.start, float), np.asarray(q.end, float)
+    if not hasattr(q, "center"):
+        t = _unit2(b - a)
+        return dict(seg=True, a=a, b=b, t0=t, t1=t, n0=_left(t), n1=_left(t), length=float(np.linalg.norm(b - a)))
+    c = np.asarray(q.center, float)
+    rho = float(np.linalg.norm(a - c))
+    u0, u1 = (a - c) / rho, (b - c) / np.linalg.norm(b - c)
+    if q.turn == "ccw":      # focusing: the table inside the circle, inward normal −u, travel direction Ju
+        return dict(seg=False, a=a, b=b, c=c, rho=rho, ccw=True, u0=u0, u1=u1, t0=_left(u0), t1=_left(u1),
+                    n0=-u0, n1=-u1, span=_ccw_span(u0, u1))
+    return dict(seg=False, a=a, b=b, c=c, rho=rho, ccw=False, u0=u0, u1=u1, t0=-_left(u0), t1=-_left(u1),
+                n0=u0, n1=u1, span=_ccw_span(u1, u0))
+
+
+def _arc_points(c, rho, a0, span, m):
+    th = a0 + span * np.linspace(0.0, 1.0, m)
+    return c + rho * np.stack([np.cos(th), np.sin(th)], axis=1)
+
+
+def boundary_polyline(pieces, m=64):
+    """The closed boundary as a polyline (arcs sampled with m points each, the last point of each piece left to
+    the next) -> (k, 2) array."""
+    out = []
+    for q in pieces:
+        f = _piece_frame(q)
+        if f["seg"]:
+            out.append(f["a"][None])
+        elif f["ccw"]:
+            out.append(_arc_points(f["c"], f["rho"], _angle(f["u0"]), f["span"], m)[:-1])
+        else:
+            out.append(_arc_points(f["c"], f["rho"], _angle(f["u0"]), -f["span"], m)[:-1])
+    return np.concatenate(out)
+
+
+def boundary_area(pieces):
+    """Signed area enclosed by a closed boundary of segments and arcs (positive: counter-clockwise), exact for
+    arcs: ½∮(x dy − y dx)."""
+    area = 0.0
+    for q in pieces:
+        f = _piece_frame(q)
+        if f["seg"]:
+            area += 0.5 * (f["a"][0] * f["b"][1] - f["b"][0] * f["a"][1])
+        else:
+            c, rho = f["c"], f["rho"]
+            th0 = _angle(f["u0"])
+            dth = f["span"] if f["ccw"] else -f["span"]
+            th1 = th0 + dth
+            # x = cx + ρ cos θ, y = cy + ρ sin θ: ½∫(x y' − y x') dθ
+            area += 0.5 * (c[0] * rho * (np.sin(th1) - np.sin(th0)) - c[1] * rho * (np.cos(th0) - np.cos(th1))
+                           + rho * rho * dth)
+    return float(area)
+
+
+def _boundary_distance(pts, frames):
+    """(unsigned distance to the boundary, winding number about each point) for points (k, 2)."""
+    dist = np.full(len(pts), np.inf)
+    wind = np.zeros(len(pts))
+    for f in frames:
+        if f["seg"]:
+            a, e = f["a"], f["b"] - f["a"]
+            s = np.clip(((pts - a) @ e) / (e @ e), 0.0, 1.0)
+            dist = np.minimum(dist, np.linalg.norm(pts - (a + s[:, None] * e), axis=1))
+            wind += _subtended(pts, f["a"], f["b"])
+        else:
+            c, rho = f["c"], f["rho"]
+            rel = pts - c
+            r = np.linalg.norm(rel, axis=1)
+            lo_dir = f["u0"] if f["ccw"] else f["u1"]
+            ang = (np.arctan2(rel[:, 1], rel[:, 0]) - _angle(lo_dir)) % (2 * np.pi)
+            on = ang <= f["span"]
+            d_ends = np.minimum(np.linalg.norm(pts - f["a"], axis=1), np.linalg.norm(pts - f["b"], axis=1))
+            dist = np.minimum(dist, np.where(on, np.abs(r - rho), d_ends))
+            # the change of arg(q − p) along the arc: inside the circle it turns with the arc (monotone), outside
+            # it stays within a cone narrower than π, so the principal difference is exact
+            inside = r < rho
+            principal = _subtended(pts, f["a"], f["b"])
+            g0 = np.arctan2(f["a"][1] - pts[:, 1], f["a"][0] - pts[:, 0])
+            g1 = np.arctan2(f["b"][1] - pts[:, 1], f["b"][0] - pts[:, 0])
+            turning = (g1 - g0) % (2 * np.pi) if f["ccw"] else -((g0 - g1) % (2 * np.pi))
+            wind += np.where(inside, turning, principal)
+    return dist, wind / (2 * np.pi)
+
+
+def _subtended(pts, a, b):
+    """The signed angle from a − p to b − p, in (−π, π]."""
+    g0 = np.arctan2(a[1] - pts[:, 1], a[0] - pts[:, 0])
+    g1 = np.arctan2(b[1] - pts[:, 1], b[0] - pts[:, 0])
+    return (g1 - g0 + np.pi) % (2 * np.pi) - np.pi
+
+
+def pieces_clearance(geom, pts):
+    """Signed distance of centre positions (…, n) inside the shrunk table built from pieces (≥ 0 inside): the
+    distance to the nearest wall minus R, negative outside the table or inside an obstacle grown by R; periodic
+    tables take positions unfolded -> (…) array."""
+    from . import tables as T
+    n, R = geom.dimension, geom.shrunk_radius
+    shape = pts.shape[:-1]
+    p = pts.reshape(-1, n)
+    out = np.full(len(p), np.inf)
+    images = [np.zeros(n)]
+    if geom.lattice is not None:
+        lo, period = geom.lattice
+        p = lo + np.mod(p - lo, period)
+        images = [np.array(o, float) * period for o in np.ndindex(*(3,) * n)]
+        images = [im - period for im in images]
+    for piece in geom.pieces:
+        if isinstance(piece, T.Boundary):
+            dist, wind = _boundary_distance(p, [_piece_frame(q) for q in piece.pieces])
+            d = np.where(np.abs(wind) > 0.5, dist, -dist) - R
+        elif isinstance(piece, T.Polygon):
+            d = _polygon_clearance(p, np.asarray(piece.vertices, float), R)
+        elif isinstance(piece, (T.Plane, T.Line)):
+            d = (p - np.asarray(piece.point, float)) @ np.asarray(T.unit(piece.normal), float) - R
+        elif isinstance(piece, T.Circle):
+            d = piece.radius - R - np.linalg.norm(p - np.asarray(piece.center, float), axis=1)
+        elif isinstance(piece, T.Sphere):
+            c = np.asarray(piece.center, float)
+            if piece.inside:
+                d = piece.radius - R - np.linalg.norm(p - c, axis=1)
+            else:
+                d = np.min([np.linalg.norm(p - c - im, axis=1) for im in images], axis=0) - piece.radius - R
+        elif isinstance(piece, T.Cylinder):
+            d = piece.radius - R - np.linalg.norm(p[:, :2] - np.asarray(piece.center, float), axis=1)
+        else:
+            continue
+        out = np.minimum(out, d)
+    return out.reshape(shape)
+
+
+def _caps_z(pieces):
+    """The z range between the horizontal Plane caps of a cylinder -> (z0, z1)."""
+    zs = sorted(float(q.point[2]) for q in pieces if type(q).__name__ == "Plane" and abs(q.normal[2]) == 1.0)
+    return (zs[0], zs[-1]) if len(zs) >= 2 else (-np.inf, np.inf)
+
+
+def _trim(geom, point_at, lo, hi, size):
+    """The sub-range [s0, s1] of [lo, hi] where the offset piece point_at(s) lies in the shrunk table (its two
+    ends may poke out past a convex joint, behind the neighbouring piece) -> (s0, s1), s0 > s1 if none."""
+    s = np.linspace(lo, hi, 2049)
+    ok = pieces_clearance(geom, np.array([point_at(x) for x in s])) >= -1e-9 * size
+    if not ok.any():
+        return hi, lo
+    i0, i1 = int(np.argmax(ok)), len(ok) - 1 - int(np.argmax(ok[::-1]))
+
+    def edge(good, bad):
+        for _ in range(60):
+            mid = 0.5 * (good + bad)
+            if pieces_clearance(geom, point_at(mid)[None])[0] >= -1e-13 * size:
+                good = mid
+            else:
+                bad = mid
+        return good
+    s0 = s[i0] if i0 == 0 else edge(s[i0], s[i0 - 1])
+    s1 = s[i1] if i1 == len(s) - 1 else edge(s[i1], s[i1 + 1])
+    return s0, s1
+
+
+def _boundary(geom, piece, R, first_wall, codes, walls, rows, wall_list):
+    """The primitives of a closed boundary of segments and arcs (and of its rounded reflex joints)."""
+    frames = [_piece_frame(q) for q in piece.pieces]
+    m = len(frames)
+    size = geom.size
+    shrunk = []
+    for i, (q, f) in enumerate(zip(piece.pieces, frames)):
+        w = first_wall + i
+        wall = Wall(q.name)
+        prev = frames[i - 1]
+        turn = prev["t1"][0] * f["t0"][1] - prev["t1"][1] * f["t0"][0]
+        if turn < -1e-12:   # a reflex joint: an arc of radius R about it, from this piece's normal to the last's
+            n_out, n_in = f["n0"], prev["n1"]
+            span = _ccw_span(n_out, n_in)
+            codes.append(CONVEX_ARC)
+            walls.append(w)
+            r = _row(2, f["a"], n_out, n_in, R)
+            r[13] = 1.0 if span > np.pi else 0.0
+            rows.append(r)
+            wall.patches.append(("arc", f["a"], R, _angle(n_out), _angle(n_out) + span, 1.0))
+            shrunk.append(_arc_points(f["a"], R, _angle(n_out) + span, -span, 12))
+        if f["seg"]:
+            codes.append(SEGMENT)
+            walls.append(w)
+            start = f["a"] + R * f["n0"]
+            rows.append(_row(2, start, f["n0"], f["t0"], f["length"]))
+            s0, s1 = _trim(geom, lambda s: start + s * f["t0"], 0.0, f["length"], size)
+            if s1 > s0:
+                wall.patches.append(("flat", start + s0 * f["t0"], f["n0"], [(f["t0"], s1 - s0)]))
+                shrunk.append(np.array([start + s0 * f["t0"], start + s1 * f["t0"]]))
+        else:
+            rho = f["rho"] - R if f["ccw"] else f["rho"] + R
+            first, last = (f["u0"], f["u1"]) if f["ccw"] else (f["u1"], f["u0"])
+            codes.append(FOCUS_ARC if f["ccw"] else CONVEX_ARC)
+            walls.append(w)
+            r = _row(2, f["c"], first, last, rho)
+            r[13] = 1.0 if f["span"] > np.pi else 0.0
+            rows.append(r)
+            a0 = _angle(first)
+            c = f["c"]
+            s0, s1 = _trim(geom, lambda th: c + rho * np.array([np.cos(th), np.sin(th)]), a0, a0 + f["span"], size)
+            if s1 > s0:
+                wall.patches.append(("arc", c, rho, s0, s1, -1.0 if f["ccw"] else 1.0))
+                shrunk.append(_arc_points(c, rho, s0, s1 - s0, 64))
+        wall_list.append(wall)
+    return boundary_polyline(piece.pieces), shrunk
+
+
+def from_pieces(kind, n, pieces, R, scale):
+    """The shrunk table of a table made of wall pieces (:mod:`rbx.tables`: the zoo of SPEC §8) -> Geometry."""
+    g = Geometry(kind, n, np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, NPARAM)), [], float(scale),
+                 shrunk_radius=R)
+    g.pieces = []
+    g.from_pieces = True
+    return add_pieces(g, pieces, R)
+
+
+def add_pieces(geom, pieces, R):
+    """``geom`` with the primitives and walls of ``pieces`` added after its own (obstacles on any table; every
+    piece of a table of the zoo) -> a new Geometry."""
+    from . import tables as T
+    n = geom.dimension
+    codes, walls, rows = list(geom.codes), list(geom.walls), [r for r in geom.params]
+    wall_list = list(geom.wall_list)
+    g = Geometry(geom.kind, n, geom.codes, geom.walls, geom.params, wall_list, geom.size, outline=geom.outline,
+                 shrunk_outline=geom.shrunk_outline, circle=geom.circle, table=geom.table, slab=False,
+                 can_sample=geom.can_sample, shrunk_radius=R, lattice=geom.lattice, from_pieces=geom.from_pieces)
+    if geom.pieces is None:     # a table of the paper's kinds: its own walls are pieces too, for clearance
+        g.pieces = [q for q in T.walls(geom.kind, geom.table or {}) if not isinstance(q, T.Sphere)] \
+            if geom.table is not None else []
+        g._own_clearance = geom
+    else:
+        g.pieces = list(geom.pieces)
+    if hasattr(geom, "lengths"):
+        g.lengths = geom.lengths
+    g.curves = list(getattr(geom, "curves", []))
+    z0, z1 = _caps_z(pieces)
+    for q in pieces:
+        w = len(wall_list)
+        if isinstance(q, T.Lattice):
+            g.lattice = (np.asarray(q.lo, float), np.asarray(q.hi, float) - np.asarray(q.lo, float))
+            g.pieces.append(q)
+            continue
+        g.pieces.append(q)
+        if isinstance(q, T.Boundary):
+            outline, shrunk = _boundary(g, q, R, w, codes, walls, rows, wall_list)
+            g.outline = outline
+            g.curves.append(("table", np.vstack([outline, outline[:1]])))
+            g.curves += [("shrunk", c) for c in shrunk]
+        elif isinstance(q, T.Polygon):
+            sub = polygon({"vertices": [list(v) for v in q.vertices]}, R, names=list(q.names))
+            codes += list(sub.codes)
+            walls += [w + int(k) for k in sub.walls]
+            rows += list(sub.params)
+            wall_list += sub.wall_list
+            g.outline = sub.outline
+            g.curves.append(("table", np.vstack([sub.outline, sub.outline[:1]])))
+            g.curves.append(("shrunk", np.vstack([sub.shrunk_outline, sub.shrunk_outline[:1]])))
+        elif isinstance(q, T.Plane):
+            nu = np.asarray(q.normal, float)
+            codes.append(HALFSPACE)
+            walls.append(w)
+            rows.append(_row(n, np.asarray(q.point, float) + R * nu, nu))
+            tang = [np.asarray(t, float) for t in q.tangents]
+            lo, hi = np.asarray(q.lo, float), np.asarray(q.hi, float)
+
+            def along(x, t):         # x·t over t's non-zero components (x may be ±inf across the wall)
+                return float(sum(x[i] * t[i] for i in range(n) if t[i] != 0.0))
+            if np.all(np.isfinite([along(lo, t) for t in tang] + [along(hi, t) for t in tang])):
+                origin = np.asarray(q.point, float) + R * nu
+                axes = []
+                for t in tang:
+                    origin = origin + ((along(lo, t) + R) - origin @ t) * t
+                    axes.append((t, along(hi, t) - along(lo, t) - 2 * R))
+                wall_list.append(Wall(q.name, np.asarray(q.tangents, float), [("flat", origin, nu, axes)]))
+            else:       # a cylinder's cap: a disc
+                cyl = [c for c in pieces if isinstance(c, T.Cylinder)]
+                patches = []
+                if cyl:
+                    centre = np.array([cyl[0].center[0], cyl[0].center[1], float(q.point[2]) + R * nu[2]])
+                    patches = [("disc", centre, nu, cyl[0].radius - R)]
+                wall_list.append(Wall(q.name, np.asarray(q.tangents, float), patches))
+        elif isinstance(q, T.Sphere):
+            c = np.asarray(q.center, float)
+            rho = q.radius - R if q.inside else q.radius + R
+            codes.append(CONCAVE_ARC if q.inside else SPHERE_OUT)
+            walls.append(w)
+            rows.append(_row(n, c, (), (), rho))
+            sign = -1.0 if q.inside else 1.0
+            patch = ("arc", c, rho, 0.0, 2 * np.pi, sign) if n == 2 else ("sphere", c, rho, sign)
+            wall_list.append(Wall(q.name, None, [patch]))
+            if n == 2:
+                g.curves.append(("table", _arc_points(c, q.radius, 0.0, 2 * np.pi, 181)))
+                g.curves.append(("shrunk", _arc_points(c, rho, 0.0, 2 * np.pi, 181)))
+        elif isinstance(q, T.Cylinder):
+            c = np.asarray(q.center, float)
+            codes.append(CYLINDER)
+            walls.append(w)
+            rows.append(_row(n, c, (), (), q.radius - R))
+            wall_list.append(Wall(q.name, None, [("cylinder", c, q.radius - R, z0 + R, z1 - R)]))
+        elif isinstance(q, (T.Line, T.Circle)):
+            raise ValueError(f"a {type(q).__name__} piece is only made by its own table kind")
+        else:  # pragma: no cover
+            raise TypeError(q)
+    g.codes = np.array(codes, np.int64)
+    g.walls = np.array(walls, np.int64)
+    g.params = np.array(rows, float).reshape(-1, NPARAM)
+    return g
+
+
+def check_fit(geom, R):
+    """None, or why the table built from pieces cannot hold a ball of radius R: a focusing arc, sphere or cylinder
+    no larger than R, a wall with no room left once shrunk, obstacles overlapping each other, the boundary or the
+    periodic cell's sides once grown by R, a periodic table without obstacles -> str or None."""
+    from . import tables as T
+    size = geom.size
+    obstacles = [q for q in geom.pieces if isinstance(q, T.Sphere) and not q.inside]
+    for q in geom.pieces:
+        if isinstance(q, T.Boundary):
+            for p in q.pieces:
+                f = _piece_frame(p)
+                if not f["seg"] and f["ccw"] and f["rho"] <= R:
+                    return f"does not fit in the arc '{p.name}' (radius {f['rho']:g} ≤ the ball's radius {R:g})"
+        if isinstance(q, (T.Sphere, T.Cylinder)) and getattr(q, "inside", True) and q.radius <= R:
+            return f"does not fit in '{q.name}' (radius {q.radius:g} ≤ the ball's radius {R:g})"
+    z0, z1 = _caps_z(geom.pieces)
+    if np.isfinite(z1 - z0) and z1 - z0 <= 2 * R:
+        return f"does not fit between the caps {z1 - z0:g} apart"
+    for w in geom.wall_list[:len(geom.wall_list) - len(obstacles)]:
+        flat_short = any(p[0] == "flat" and any(length <= 0 for _, length in p[3]) for p in w.patches)
+        if flat_short or (not w.patches and not any(isinstance(q, T.Cylinder) for q in geom.pieces)):
+            return f"does not fit in the table (no room along wall '{w.name}')"
+    if geom.lattice is not None:
+        lo, period = geom.lattice
+        if not obstacles:
+            return ("periodic", "a periodic table needs obstacles (nothing else is ever hit)")
+        for q in obstacles:
+            c = np.asarray(q.center, float)
+            margin = float(min(np.min(c - lo), np.min(lo + period - c))) - q.radius
+            if margin <= 0:
+                return (f"obstacles[{obstacles.index(q)}]", f"'{q.name}' reaches the periodic cell's side (keep "
+                        "each obstacle inside its cell)")
+            if margin <= R:
+                return (f"does not fit between obstacle '{q.name}' and the periodic cell's side ({margin:g} apart; "
+                        "each obstacle grown by the ball's radius must stay inside its cell)")
+    for i, a in enumerate(obstacles):
+        for b in obstacles[i + 1:]:
+            gap = np.linalg.norm(np.asarray(a.center, float) - np.asarray(b.center, float)) - a.radius - b.radius
+            if gap <= 0:
+                return (f"obstacles[{obstacles.index(b)}]", f"'{b.name}' overlaps '{a.name}'")
+            if gap <= 2 * R:
+                return f"does not fit between obstacles '{a.name}' and '{b.name}' ({gap:g} apart)"
+    others = [q for q in geom.pieces if q not in obstacles and not isinstance(q, T.Lattice)]
+    if obstacles and others:
+        probe = Geometry(geom.kind, geom.dimension, geom.codes, geom.walls, geom.params, geom.wall_list, size,
+                         shrunk_radius=R, pieces=others)
+        own = getattr(geom, "_own_clearance", None)
+        for q in obstacles:
+            c = np.asarray(q.center, float)
+            dist = float((own or probe).clearance(c[None])[0]) + R      # to the walls themselves
+            if not dist > q.radius:
+                return (f"obstacles[{obstacles.index(q)}]", f"'{q.name}' overlaps the table's walls"
+                        if dist > 0 else f"'{q.name}' is not inside the table")
+            if dist - q.radius <= 2 * R:
+                return f"does not fit between obstacle '{q.name}' and the walls ({dist - q.radius:g} apart)"
+    return None
+
+
+def draw(ax, geom, lo, hi, style_table, style_shrunk):
+    """Draw a table built from pieces on 2D axes (a 3D table: its horizontal projection) over the data range
+    [lo, hi]: the walls and, dashed, the shrunk walls the centre meets; a periodic table: its obstacles over the
+    lattice cells the data covers, with the cells' sides dotted."""
+    from . import tables as T
+    n, R = geom.dimension, geom.shrunk_radius
+    styles = {"table": style_table, "shrunk": style_shrunk}
+    shifts = [np.zeros(2)]
+    if geom.lattice is not None:
+        l0, period = geom.lattice[0][:2], geom.lattice[1][:2]
+        k0 = np.floor((np.asarray(lo[:2]) - l0) / period).astype(int) - 1
+        k1 = np.floor((np.asarray(hi[:2]) - l0) / period).astype(int) + 1
+        if np.prod(k1 - k0 + 1) > 40000:
+            k1 = k0 + np.minimum(k1 - k0, 199)
+        shifts = [np.array([i, j], float) * period for i in range(k0[0], k1[0] + 1) for j in range(k0[1], k1[1] + 1)]
+        for i in range(k0[0], k1[0] + 2):
+            ax.axvline(l0[0] + i * period[0], color="0.8", lw=0.5, ls=":", zorder=0)
+        for j in range(k0[1], k1[1] + 2):
+            ax.axhline(l0[1] + j * period[1], color="0.8", lw=0.5, ls=":", zorder=0)
+    curves = list(getattr(geom, "curves", []))
+    if n == 3:
+        t = np.linspace(0, 2 * np.pi, 181)
+        circ = np.stack([np.cos(t), np.sin(t)], axis=1)
+        for q in geom.pieces:
+            if isinstance(q, (T.Sphere, T.Cylinder)):
+                c = np.asarray(q.center, float)[:2]
+                grow = -R if getattr(q, "inside", True) else R
+                curves += [("table", c + q.radius * circ), ("shrunk", c + (q.radius + grow) * circ)]
+            elif isinstance(q, T.Plane) and abs(q.normal[2]) != 1.0 and np.all(np.isfinite(q.lo + q.hi)):
+                pass
+        boxes = [q for q in geom.pieces if isinstance(q, T.Plane) and abs(q.normal[2]) != 1.0]
+        if boxes:
+            lx, ly = max(q.hi[0] for q in boxes), max(q.hi[1] for q in boxes)
+            curves += [("table", np.array([[0, 0], [lx, 0], [lx, ly], [0, ly], [0, 0]], float)),
+                       ("shrunk", np.array([[R, R], [lx - R, R], [lx - R, ly - R], [R, ly - R], [R, R]], float))]
+    for s in shifts:
+        for which, c in curves:
+            ax.plot(c[:, 0] + s[0], c[:, 1] + s[1], **styles[which])
+    ax.set_aspect("equal", adjustable="datalim")

@@ -19,10 +19,24 @@ NDRAWS = 32
 
 
 def _patch_measure(patch):
-    if patch[0] == "flat":
+    """The measure (length or area) of a sampling patch of a wall (rbx.geometry.Wall.patches):
+    ``('flat', origin, normal, [(axis, length)…])``, ``('arc', centre, ρ, θ0, θ1, sign)`` (2D, normal sign·radial),
+    ``('sphere', centre, ρ, sign)``, ``('cylinder', axis point (x, y), ρ, z0, z1)`` (normal −radial),
+    ``('disc', centre, normal, ρ)`` (a cylinder's cap)."""
+    kind = patch[0]
+    if kind == "flat":
         return float(np.prod([length for _, length in patch[3] if np.isfinite(length)]))
-    _, _, rho, a0, a1, _ = patch
-    return rho * (a1 - a0)
+    if kind == "arc":
+        _, _, rho, a0, a1, _ = patch
+        return rho * (a1 - a0)
+    if kind == "sphere":
+        return 4.0 * np.pi * patch[2] ** 2
+    if kind == "cylinder":
+        _, _, rho, z0, z1 = patch
+        return 2.0 * np.pi * rho * (z1 - z0)
+    if kind == "disc":
+        return np.pi * patch[3] ** 2
+    raise ValueError(kind)
 
 
 def wall_patches(geom, wall):
@@ -55,12 +69,33 @@ def sample_billiard(geom, kappa, R, seed, wall, first, count):
                 if np.isfinite(length):
                     pos[sel] += np.outer(U[sel, 1 + i] * length, axis)
             nu[sel] = normal
-        else:
+        elif patch[0] == "arc":
             _, centre, rho, a0, a1, sign = patch
             ang = a0 + (a1 - a0) * U[sel, 1]
             radial = np.stack([np.cos(ang), np.sin(ang)], axis=1)
             pos[sel] = centre + rho * radial
             nu[sel] = sign * radial
+        elif patch[0] == "sphere":        # uniform on the sphere: z uniform in [−1, 1] (Archimedes), then the angle
+            _, centre, rho, sign = patch
+            z = 1.0 - 2.0 * U[sel, 1]
+            ang = 2.0 * np.pi * U[sel, 2]
+            s = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+            radial = np.stack([s * np.cos(ang), s * np.sin(ang), z], axis=1)
+            pos[sel] = centre + rho * radial
+            nu[sel] = sign * radial
+        elif patch[0] == "cylinder":
+            _, centre, rho, z0, z1 = patch
+            ang = 2.0 * np.pi * U[sel, 1]
+            radial = np.stack([np.cos(ang), np.sin(ang), np.zeros_like(ang)], axis=1)
+            pos[sel] = np.array([centre[0], centre[1], 0.0]) + rho * radial
+            pos[sel, 2] = z0 + (z1 - z0) * U[sel, 2]
+            nu[sel] = -radial
+        else:                              # a disc across z (a cylinder's cap): uniform in area
+            _, centre, normal, rho = patch
+            r = rho * np.sqrt(U[sel, 1])
+            ang = 2.0 * np.pi * U[sel, 2]
+            pos[sel] = centre + np.stack([r * np.cos(ang), r * np.sin(ang), np.zeros_like(r)], axis=1)
+            nu[sel] = normal
     # velocity: uniform in the unit (d−1)-ball of the tangent space, normal part sqrt(1 − |x|²)
     g = _normals(U[:, 4:4 + 2 * ((d - 1 + 1) // 2)])[:, :d - 1]
     radius = U[:, 3] ** (1.0 / (d - 1))

@@ -22,6 +22,7 @@ direction is a tuple of numbers or ``("deg", θ)``, the unit vector at angle θ 
 | :class:`Circle` | 2D round table (the inside of the circle), one wall |
 | :class:`Polygon` | 2D closed boundary through ``vertices`` (counter-clockwise), wall i the edge from vertex i to i+1; reflex vertices are rounded by R in the shrunk table |
 """
+import dataclasses
 import math
 from dataclasses import dataclass
 
@@ -67,6 +68,65 @@ class Polygon:
     vertices: tuple
 
 
+@dataclass(frozen=True)
+class Segment:
+    """2D straight piece of a :class:`Boundary` from ``start`` to ``end``; the table lies on its left."""
+    name: str
+    start: tuple
+    end: tuple
+
+
+@dataclass(frozen=True)
+class Arc:
+    """2D circular piece of a :class:`Boundary` from ``start`` to ``end`` on the circle about ``center``, going
+    counter-clockwise (``turn = "ccw"``: focusing, the table on the circle's inside) or clockwise (``"cw"``:
+    dispersing, the circle bulges into the table). Its radius is ``|start − center|`` (= ``|end − center|``, checked
+    when the table is read); ``start == end`` is not allowed (a full circle is a :class:`Circle` or an obstacle)."""
+    name: str
+    start: tuple
+    end: tuple
+    center: tuple
+    turn: str
+
+
+@dataclass(frozen=True)
+class Boundary:
+    """A closed 2D outer boundary: ``pieces`` (:class:`Segment`, :class:`Arc`), each ending where the next starts,
+    traversed counter-clockwise (the table on the left). Wall i is piece i. In the shrunk table a joint where the
+    boundary turns clockwise (a reflex joint) is rounded by an arc of radius R about the joint, which belongs to
+    the piece leaving the joint."""
+    pieces: tuple
+
+
+@dataclass(frozen=True)
+class Sphere:
+    """A round wall in n = len(center) dimensions (a circle in 2D, a sphere in 3D). ``inside``: the table is the
+    inside of the sphere (the 3D ``sphere`` table); else the sphere is an obstacle (a scatterer: a disc in 2D), the
+    table outside it. Shrunk table: radius − R inside, radius + R for an obstacle."""
+    name: str
+    center: tuple
+    radius: float
+    inside: bool = False
+
+
+@dataclass(frozen=True)
+class Cylinder:
+    """3D side wall of a cylinder with axis parallel to z through ``center`` (x, y), the table inside it; its ends
+    are closed by :class:`Plane` caps. Shrunk: radius − R."""
+    name: str
+    center: tuple
+    radius: float
+
+
+@dataclass(frozen=True)
+class Lattice:
+    """A periodic cell ``lo ≤ x ≤ hi``: opposite sides are identified (they are not walls: the ball passes
+    through), and every other piece repeats with period ``hi − lo`` along each axis. Positions are recorded
+    unfolded."""
+    lo: tuple
+    hi: tuple
+
+
 def unit(direction, cos=math.cos, sin=math.sin, radians=math.radians):
     """A piece's direction as numbers: ``("deg", θ)`` -> (cos θ, sin θ); a tuple stays as it is."""
     if direction and direction[0] == "deg":
@@ -75,9 +135,21 @@ def unit(direction, cos=math.cos, sin=math.sin, radians=math.radians):
     return tuple(direction)
 
 
+def piece_names(piece):
+    """The names of the walls a piece makes, in order -> tuple."""
+    if isinstance(piece, Polygon):
+        return tuple(piece.names)
+    if isinstance(piece, Boundary):
+        return tuple(q.name for q in piece.pieces)
+    if isinstance(piece, Lattice):
+        return ()
+    return (piece.name,)
+
+
 def wall_names(pieces):
-    """The walls' names in wall order (the order of the pieces, a polygon's edges in turn) -> list."""
-    return [name for p in pieces for name in (p.names if isinstance(p, Polygon) else (p.name,))]
+    """The walls' names in wall order (the order of the pieces, a polygon's edges and a boundary's pieces in
+    turn) -> list."""
+    return [name for p in pieces for name in piece_names(p)]
 
 
 # ---- the record -------------------------------------------------------------------------------------------------
@@ -101,15 +173,24 @@ class TableKind:
     phrase: object
     draw: object
     example: dict
+    #: optional parameters: name -> check, as ``params`` (``obstacles`` is optional for every kind: OBSTACLES)
+    optional: dict = None
 
 
 KINDS = {}
+#: ``build=FROM_WALLS`` in a registration: the kind is built from its wall pieces alone (:func:`from_walls`)
+FROM_WALLS = "from its walls"
+#: the optional parameter every kind takes: scatterers inside the table (discs in 2D, spheres in 3D), walls named
+#: by the user, after the kind's own walls
+OBSTACLES = "obstacles"
 
 
 def register(kind):
-    """Add a table kind to the registry -> the kind."""
+    """Add a table kind to the registry -> the kind. ``build=FROM_WALLS``: built from its walls (the zoo)."""
     if kind.name in KINDS:
         raise ValueError(f"table kind {kind.name!r} registered twice")
+    if kind.build is FROM_WALLS:
+        kind = dataclasses.replace(kind, build=from_walls(kind.name))
     KINDS[kind.name] = kind
     return kind
 
@@ -118,20 +199,58 @@ def kind(name):
     return KINDS[name]
 
 
+def dimension(name, params):
+    """The dimension of a table: the kind's, or for a kind that exists in 2D and 3D (``sinai``, ``lorentz``) the
+    one its parameters give -> 2 or 3."""
+    d = KINDS[name].dimension
+    return d(params) if callable(d) else d
+
+
 def build(name, params, R):
     """The shrunk table of kind ``name`` with (validated) ``params`` for a ball of radius R -> Geometry, which
-    keeps the kind's parameters (``geom.table``)."""
-    geom = KINDS[name].build(params, R)
+    keeps the kind's parameters (``geom.table``). A kind without a builder of its own (``build=None``: the presets
+    and ``custom``) is built from its walls by :func:`rbx.geometry.from_pieces`; obstacles are added to any kind
+    the same way."""
+    k = KINDS[name]
+    geom = (from_walls(name) if params.get("periodic") else k.build)(params, R)
     geom.table = dict(params)
+    extra = obstacle_pieces(params)
+    if extra:
+        geom = geometry.add_pieces(geom, extra, R)
+        geom.table = dict(params)
     return geom
 
 
+def from_walls(name):
+    """The builder of a kind made of its wall pieces alone (the zoo's presets, ``custom``, a periodic cell):
+    :func:`rbx.geometry.from_pieces` of the kind's own walls -> function (params, R) -> Geometry."""
+    def build_it(params, R):
+        return geometry.from_pieces(name, dimension(name, params), list(KINDS[name].walls(params)), R,
+                                    scale=KINDS[name].scale(params))
+    return build_it
+
+
 def walls(name, params):
-    """The wall pieces of a table (see the module docstring) -> list."""
-    return list(KINDS[name].walls(params))
+    """The wall pieces of a table (see the module docstring), the obstacles last -> list."""
+    return list(KINDS[name].walls(params)) + obstacle_pieces(params)
+
+
+def obstacle_pieces(params):
+    """The ``obstacles`` parameter (validated) as :class:`Sphere` pieces -> list."""
+    out = []
+    for ob in params.get(OBSTACLES) or ():
+        shape = ob["disc"] if "disc" in ob else ob["sphere"]
+        out.append(Sphere(ob["name"], tuple(float(x) for x in shape["center"]), float(shape["radius"]), False))
+    return out
 
 
 # ---- parameter checks -------------------------------------------------------------------------------------------
+
+def flag(value, c, key):
+    if not isinstance(value, bool):
+        c.fail(key, f"expected true or false, got {c.kind(value)}")
+    return value
+
 
 def positive(value, c, key):
     return c.number(value, key, positive=True)
@@ -322,10 +441,13 @@ register(TableKind(
     phrase=lambda p: f"in a {_g(p['angle_deg'])}° wedge", draw=_draw_wedge, example={"angle_deg": 60.0}))
 register(TableKind(
     "rectangle", 2, "width × height, corner at the origin", {"width": positive, "height": positive},
-    walls=lambda p: [Polygon(("bottom", "right", "top", "left"), tuple(map(tuple, _rectangle_vertices(p))))],
-    build=geometry.rectangle, fits=_edges_fit, scale=lambda p: max(p["width"], p["height"]),
-    phrase=lambda p: f"in a {_g(p['width'])} × {_g(p['height'])} rectangle", draw=_draw_outline,
-    example={"width": 2.0, "height": 1.0}))
+    walls=lambda p: ([Lattice((0.0, 0.0), (float(p["width"]), float(p["height"])))] if p.get("periodic") else
+                     [Polygon(("bottom", "right", "top", "left"), tuple(map(tuple, _rectangle_vertices(p))))]),
+    build=geometry.rectangle, fits=lambda p, R, geom: None if p.get("periodic") else _edges_fit(p, R, geom),
+    scale=lambda p: max(p["width"], p["height"]),
+    phrase=lambda p: f"in a {'periodic ' if p.get('periodic') else ''}{_g(p['width'])} × {_g(p['height'])} "
+                     "rectangle", draw=_draw_outline,
+    example={"width": 2.0, "height": 1.0}, optional={"periodic": flag}))
 register(TableKind(
     "polygon", 2, "vertices counter-clockwise, convex or not", {"vertices": vertices},
     walls=lambda p: [Polygon(tuple(f"edge{i}" for i in range(len(p["vertices"]))),
@@ -341,7 +463,249 @@ register(TableKind(
     example={"gap": 1.0}))
 register(TableKind(
     "box", 3, "size [lx, ly, lz], corner at the origin", {"size": size3},
-    walls=_box_walls, build=geometry.box,
-    fits=lambda p, R, geom: (f"does not fit in a box of size {p['size']}" if 2 * R >= min(p["size"]) else None),
-    scale=lambda p: max(p["size"]), phrase=lambda p: "in a " + " × ".join(_g(x) for x in p["size"]) + " box",
-    draw=_draw_box, example={"size": [2.0, 1.5, 1.0]}))
+    walls=lambda p: ([Lattice((0.0, 0.0, 0.0), tuple(float(x) for x in p["size"]))] if p.get("periodic") else
+                     _box_walls(p)), build=geometry.box,
+    fits=lambda p, R, geom: (f"does not fit in a box of size {p['size']}"
+                             if 2 * R >= min(p["size"]) and not p.get("periodic") else None),
+    scale=lambda p: max(p["size"]),
+    phrase=lambda p: "in a " + ("periodic " if p.get("periodic") else "") + " × ".join(_g(x) for x in p["size"])
+                     + " box", draw=_draw_box,
+    example={"size": [2.0, 1.5, 1.0]}, optional={"periodic": flag}))
+
+
+# ---- the zoo (SPEC §8): walls as data, built by rbx.geometry.from_pieces --------------------------------------
+
+
+def size23(value, c, key):
+    """A rectangle [w, h] or a box [lx, ly, lz] of positive sides."""
+    if not isinstance(value, list) or len(value) not in (2, 3):
+        c.fail(key, f"expected a list of 2 (a rectangle) or 3 (a box) positive numbers, got {c.kind(value)}"
+               + (f" of {len(value)}" if isinstance(value, list) else ""))
+    size = c.vector(value, key, len(value))
+    for i, s in enumerate(size):
+        if s <= 0:
+            c.fail(f"{key}[{i}]", f"must be positive, got {s:g}")
+    return list(size)
+
+
+#: joints and radii agree to this fraction of the boundary's size (the config's numbers are decimal)
+JOIN_TOLERANCE = 1e-9
+
+
+def boundary(value, c, key):
+    """A closed 2D boundary of pieces ``{name, from, to}`` (segment) or ``{name, from, to, center, turn}`` (arc),
+    each starting where the previous one ends, counter-clockwise, not crossing itself -> list of plain mappings."""
+    if not isinstance(value, list) or len(value) < 2:
+        c.fail(key, f"expected a list of at least 2 pieces ({{name, from, to}} or {{name, from, to, center, turn}}), "
+                    f"got {c.kind(value)}" + (f" of {len(value)}" if isinstance(value, list) else ""))
+    out, names = [], set()
+    for i, piece in enumerate(value):
+        k = f"{key}[{i}]"
+        arc = isinstance(piece, dict) and ("center" in piece or "turn" in piece)
+        c.mapping(piece, k, ("name", "from", "to", "center", "turn"),
+                  ("name", "from", "to") + (("center", "turn") if arc else ()))
+        name = piece["name"]
+        if not isinstance(name, str) or not name:
+            c.fail(f"{k}.name", f"expected a wall name, got {c.kind(name)}")
+        if name in names:
+            c.fail(f"{k}.name", f"'{name}' names two walls")
+        names.add(name)
+        q = {"name": name, "from": list(c.vector(piece["from"], f"{k}.from", 2)),
+             "to": list(c.vector(piece["to"], f"{k}.to", 2))}
+        if q["from"] == q["to"]:
+            c.fail(k, "starts where it ends (a piece of zero length)")
+        if arc:
+            q["center"] = list(c.vector(piece["center"], f"{k}.center", 2))
+            q["turn"] = c.choice(piece["turn"], f"{k}.turn", ("ccw", "cw"), "turn")
+        out.append(q)
+    pieces = boundary_pieces(out)
+    size = max(max(abs(x) for x in p["from"] + p["to"]) for p in out) or 1.0
+    tol = JOIN_TOLERANCE * size
+    for i, (p, q) in enumerate(zip(out, pieces)):
+        if isinstance(q, Arc):
+            r0 = math.dist(q.start, q.center)
+            r1 = math.dist(q.end, q.center)
+            if abs(r0 - r1) > tol:
+                c.fail(f"{key}[{i}].center", f"is {r0:g} from 'from' but {r1:g} from 'to': not the centre of a "
+                                             "circle through both")
+        nxt = out[(i + 1) % len(out)]
+        if math.dist(p["to"], nxt["from"]) > tol:
+            c.fail(f"{key}[{(i + 1) % len(out)}].from", f"{nxt['from']} is not where the previous piece "
+                                                        f"'{p['name']}' ends ({p['to']}): the boundary must be closed")
+    poly = geometry.boundary_polyline(pieces, 64)
+    if _self_intersecting(poly):
+        c.fail(key, "the boundary crosses or touches itself")
+    area = geometry.boundary_area(pieces)
+    if not area > 0:
+        c.fail(key, "must go counter-clockwise, the table on the left (the enclosed area is not positive)")
+    return out
+
+
+def boundary_pieces(plain):
+    """Validated boundary mappings -> :class:`Segment` / :class:`Arc` pieces (each piece starts exactly where the
+    previous one ends: at the previous piece's ``to``)."""
+    out = []
+    for p in plain:
+        start, end = tuple(p["from"]), tuple(p["to"])
+        if "center" in p:
+            out.append(Arc(p["name"], start, end, tuple(p["center"]), p["turn"]))
+        else:
+            out.append(Segment(p["name"], start, end))
+    return out
+
+
+def obstacles(value, c, key, n):
+    """``[{name, disc: {center, radius}}]`` (2D) or ``[{name, sphere: {center, radius}}]`` (3D) -> plain list."""
+    shape = "disc" if n == 2 else "sphere"
+    if not isinstance(value, list):
+        c.fail(key, f"expected a list of {{name, {shape}: {{center, radius}}}}, got {c.kind(value)}")
+    out = []
+    for i, ob in enumerate(value):
+        k = f"{key}[{i}]"
+        c.mapping(ob, k, ("name", shape), ("name", shape))
+        if not isinstance(ob["name"], str) or not ob["name"]:
+            c.fail(f"{k}.name", f"expected a wall name, got {c.kind(ob['name'])}")
+        c.mapping(ob[shape], f"{k}.{shape}", ("center", "radius"), ("center", "radius"))
+        out.append({"name": ob["name"], shape: {
+            "center": list(c.vector(ob[shape]["center"], f"{k}.{shape}.center", n)),
+            "radius": c.number(ob[shape]["radius"], f"{k}.{shape}.radius", positive=True)}})
+    return out
+
+
+def _zoo_fits(p, R, geom):
+    """Tables built from pieces are checked by :func:`fits` (:func:`rbx.geometry.check_fit`) for every kind."""
+    return None
+
+
+def fits(name, p, R, geom):
+    """None, or why a ball of radius R does not fit the table: the kind's own check, then for a table with pieces
+    (the zoo, obstacles on any kind) :func:`rbx.geometry.check_fit` (pieces too small, obstacles overlapping each
+    other or the boundary once grown by R, a free region with no room)."""
+    problem = KINDS[name].fits(p, R, geom)
+    if problem is None and geom.pieces:
+        problem = geometry.check_fit(geom, R)
+    return problem
+
+
+def _draw_pieces(ax, geom, lo, hi):
+    geometry.draw(ax, geom, lo, hi, TABLE_STYLE, SHRUNK_STYLE)
+
+
+def draw(ax, geom, lo, hi):
+    """Draw a table on 2D axes (a 3D table: its horizontal projection) over the data range [lo, hi]: the kind's
+    own drawing, or for a table built from pieces (the zoo, a periodic cell) the pieces; obstacles on top."""
+    k = KINDS[geom.kind]
+    if geom.from_pieces:
+        _draw_pieces(ax, geom, lo, hi)
+        return
+    k.draw(ax, geom, lo, hi)
+    if geom.pieces is not None:
+        _draw_pieces(ax, geom, lo, hi)
+
+
+def _scale_of_pieces(pieces):
+    pts = []
+    for q in pieces:
+        if isinstance(q, Boundary):
+            for r in q.pieces:
+                pts += [r.start, r.end]
+                if isinstance(r, Arc):
+                    rad = math.dist(r.start, r.center)
+                    pts += [tuple(x + rad for x in r.center), tuple(x - rad for x in r.center)]
+        elif isinstance(q, Polygon):
+            pts += list(q.vertices)
+        elif isinstance(q, Lattice):
+            pts += [q.lo, q.hi]
+        elif isinstance(q, Sphere):
+            pts += [tuple(x + q.radius for x in q.center), tuple(x - q.radius for x in q.center)]
+    return max(1e-300, float(np.max(np.ptp(np.array(pts, float), axis=0)))) if pts else 1.0
+
+
+def _stadium_walls(p):
+    r, L = p["radius"], p["length"]
+    return [Boundary((Segment("bottom", (0.0, -r), (L, -r)), Arc("right", (L, -r), (L, r), (L, 0.0), "ccw"),
+                      Segment("top", (L, r), (0.0, r)), Arc("left", (0.0, r), (0.0, -r), (0.0, 0.0), "ccw")))]
+
+
+def _mushroom_walls(p):
+    rc, w, h = p["cap_radius"], p["stem_width"], p["stem_height"]
+    x = w / 2
+    return [Boundary((Segment("stem_bottom", (-x, -h), (x, -h)), Segment("stem_right", (x, -h), (x, 0.0)),
+                      Segment("cap_floor_right", (x, 0.0), (rc, 0.0)),
+                      Arc("cap", (rc, 0.0), (-rc, 0.0), (0.0, 0.0), "ccw"),
+                      Segment("cap_floor_left", (-rc, 0.0), (-x, 0.0)), Segment("stem_left", (-x, 0.0), (-x, -h))))]
+
+
+def _cell_walls(size):
+    if len(size) == 2:
+        return [Polygon(("bottom", "right", "top", "left"),
+                        ((0.0, 0.0), (size[0], 0.0), (size[0], size[1]), (0.0, size[1])))]
+    return _box_walls({"size": size})
+
+
+def _scatterer(size, radius):
+    return Sphere("scatterer", tuple(0.5 * float(s) for s in size), float(radius), False)
+
+
+register(TableKind(
+    "custom", 2, "a closed boundary of segments and arcs, counter-clockwise", {"boundary": boundary},
+    walls=lambda p: [Boundary(tuple(boundary_pieces(p["boundary"])))], build=FROM_WALLS, fits=_zoo_fits,
+    scale=lambda p: _scale_of_pieces([Boundary(tuple(boundary_pieces(p["boundary"])))]),
+    phrase=lambda p: f"in a custom table of {len(p['boundary'])} pieces", draw=_draw_pieces,
+    example={"boundary": [{"name": "floor", "from": [0.0, 0.0], "to": [2.0, 0.0]},
+                          {"name": "bulge", "from": [2.0, 0.0], "to": [2.0, 1.0], "center": [2.6, 0.5],
+                           "turn": "cw"},
+                          {"name": "roof", "from": [2.0, 1.0], "to": [0.0, 1.0]},
+                          {"name": "cap", "from": [0.0, 1.0], "to": [0.0, 0.0], "center": [0.0, 0.5],
+                           "turn": "ccw"}]}))
+register(TableKind(
+    "stadium", 2, "Bunimovich stadium: half discs of radius about (0, 0) and (length, 0) joined by straight walls",
+    {"radius": positive, "length": positive}, walls=_stadium_walls, build=FROM_WALLS, fits=_zoo_fits,
+    scale=lambda p: p["length"] + 2 * p["radius"],
+    phrase=lambda p: f"in a stadium of radius {_g(p['radius'])} and length {_g(p['length'])}", draw=_draw_pieces,
+    example={"radius": 0.5, "length": 1.0}))
+register(TableKind(
+    "sinai", lambda p: len(p["size"]), "a rectangle [w, h] or box [lx, ly, lz] with a disc or sphere at its centre",
+    {"size": size23, "radius": positive},
+    walls=lambda p: _cell_walls(p["size"]) + [_scatterer(p["size"], p["radius"])], build=FROM_WALLS, fits=_zoo_fits,
+    scale=lambda p: max(p["size"]),
+    phrase=lambda p: f"in a Sinai {'billiard' if len(p['size']) == 2 else 'box'} "
+                     + " × ".join(_g(x) for x in p["size"]) + f" with a scatterer of radius {_g(p['radius'])}",
+    draw=_draw_pieces, example={"size": [2.0, 1.5], "radius": 0.4}))
+register(TableKind(
+    "lorentz", lambda p: len(p["cell"]), "periodic Lorentz gas: a disc or sphere of radius at the centre of each cell",
+    {"cell": size23, "radius": positive},
+    walls=lambda p: [Lattice(tuple(0.0 for _ in p["cell"]), tuple(float(x) for x in p["cell"])),
+                     _scatterer(p["cell"], p["radius"])], build=FROM_WALLS, fits=_zoo_fits,
+    scale=lambda p: max(p["cell"]),
+    phrase=lambda p: "in a periodic Lorentz gas, cell " + " × ".join(_g(x) for x in p["cell"])
+                     + f", scatterer radius {_g(p['radius'])}", draw=_draw_pieces,
+    example={"cell": [1.0, 1.0], "radius": 0.3}))
+register(TableKind(
+    "mushroom", 2, "Bunimovich mushroom: a half disc y ≥ 0 on a stem centred on x = 0",
+    {"cap_radius": positive, "stem_width": positive, "stem_height": positive},
+    walls=_mushroom_walls, build=FROM_WALLS,
+    fits=lambda p, R, geom: ("the stem is not narrower than the cap's diameter (stem_width ≥ 2·cap_radius)"
+                             if p["stem_width"] >= 2 * p["cap_radius"] else None),
+    scale=lambda p: max(2 * p["cap_radius"], p["cap_radius"] + p["stem_height"]),
+    phrase=lambda p: f"in a mushroom (cap radius {_g(p['cap_radius'])}, stem {_g(p['stem_width'])} × "
+                     f"{_g(p['stem_height'])})", draw=_draw_pieces,
+    example={"cap_radius": 1.0, "stem_width": 0.6, "stem_height": 1.0}))
+register(TableKind(
+    "sphere", 3, "the inside of a sphere about the origin", {"radius": positive},
+    walls=lambda p: [Sphere("sphere", (0.0, 0.0, 0.0), float(p["radius"]), True)], build=FROM_WALLS, fits=_zoo_fits,
+    scale=lambda p: 2 * p["radius"], phrase=lambda p: f"in a sphere of radius {_g(p['radius'])}",
+    draw=_draw_pieces, example={"radius": 1.0}))
+
+
+def _cylinder_walls(p):
+    h, t = float(p["height"]), ((1.0, 0.0, 0.0), (0.0, 1.0, 0.0))
+    return [Plane("bottom", (0.0, 0.0, 0.0), (0.0, 0.0, 1.0), t), Plane("top", (0.0, 0.0, h), (0.0, 0.0, -1.0), t),
+            Cylinder("side", (0.0, 0.0), float(p["radius"]))]
+
+
+register(TableKind(
+    "cylinder", 3, "axis z, caps at z = 0 and z = height", {"radius": positive, "height": positive},
+    walls=_cylinder_walls, build=FROM_WALLS, fits=_zoo_fits, scale=lambda p: max(2 * p["radius"], p["height"]),
+    phrase=lambda p: f"in a cylinder of radius {_g(p['radius'])} and height {_g(p['height'])}",
+    draw=_draw_pieces, example={"radius": 1.0, "height": 1.5}))

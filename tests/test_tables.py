@@ -20,7 +20,7 @@ KINDS = sorted(tables.KINDS)
 
 
 def _experiment(kind, params, R=0.05):
-    n = tables.kind(kind).dimension
+    n = tables.dimension(kind, params)
     return {"table": {"kind": kind, **params}, "boundary": {"default": {"rule": "constant", "rank": n - 1}},
             "ball": {"radius": R}, "initial": {"sample": "billiard"} if kind != "wedge" else
             {"position": [1.0, 0.3], "velocity": [-0.7, 0.2]}, "run": {"collisions": 50, "trajectories": 2}}
@@ -30,11 +30,13 @@ def _experiment(kind, params, R=0.05):
 def test_every_kind_has_every_facet(name):
     k = tables.kind(name)
     for f in dataclasses.fields(tables.TableKind):
+        if f.name == "optional":                   # optional parameters: a kind may have none
+            continue
         value = getattr(k, f.name)
         assert value is not None and value != "", f"{name}: facet {f.name} missing"
         if f.name in ("walls", "build", "fits", "scale", "phrase", "draw"):
             assert callable(value), f"{name}: facet {f.name} is not a function"
-    assert k.dimension in (2, 3) and set(k.example) == set(k.params)
+    assert tables.dimension(name, k.example) in (2, 3) and set(k.example) == set(k.params)
     assert name in {s["table"]["kind"] for s in SCENES.values()}, f"{name}: no scene in tests/catalog.py"
 
 
@@ -45,7 +47,7 @@ def test_facets_agree(name):
     geom = cfg.geometry()
     pieces = tables.walls(name, k.example)
     assert tables.wall_names(pieces) == geom.wall_names == list(cfg.wall_names)
-    assert geom.dimension == k.dimension == cfg.dimension and geom.kind == name
+    assert geom.dimension == tables.dimension(name, k.example) == cfg.dimension and geom.kind == name
     assert geom.table == dict(cfg.table)                            # the geometry keeps its parameters
     assert k.scale(k.example) > 0 and k.phrase(k.example).startswith(("in ", "between "))
     # every flat wall piece is the engine's wall moved inward by R: same inward normal
@@ -64,7 +66,7 @@ def test_facets_agree(name):
         assert info.value.key == "ball.radius" and "does not fit" in info.value.problem
     # the kind draws itself on 2D axes (a 3D table: its horizontal projection) without error
     ax = Figure().add_subplot()
-    k.draw(ax, geom, np.array([-1.0, -1.0]), np.array([1.0, 1.0]))
+    tables.draw(ax, geom, np.array([-1.0, -1.0]), np.array([1.0, 1.0]))
 
 
 def test_unknown_kind_lists_the_registered_ones():
