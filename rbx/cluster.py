@@ -347,8 +347,8 @@ class Cluster:
                     try:
                         block, nrec, state = future.result()
                     except CancelledError:
-                        raise ClusterError(self.key, "the scheduler cancelled the run's tasks (did it shut "
-                                                     "down?)") from None
+                        raise ClusterError(self.key, "the run's tasks were cancelled: the scheduler is gone "
+                                                     "(shut down, or the network to it lost)") from None
                     except Exception as exc:   # noqa: BLE001 - a task that failed, a worker lost too often
                         raise ClusterError(self.key, f"a task failed (slice {s}, round {r}): "
                                                      f"{type(exc).__name__}: {_first_line(exc)}") from None

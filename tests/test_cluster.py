@@ -340,6 +340,31 @@ def test_a_worker_killed_mid_run_costs_only_its_task(two, long_local, tmp_path):
     two.wait_for_workers(2)                                 # its nanny starts it again, for the next tests
 
 
+def test_a_scheduler_lost_mid_run_is_one_line_exit_1_and_a_resumable_file(tmp_path):
+    dask = LocalDask(tmp_path / "dask", 1)
+    try:
+        cfg = scene("strip-random", 10**9, 2, every=10**6, record=["time", "position"])
+        (tmp_path / "exp.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
+        proc = start(["simulate", "exp.yaml", "-o", "run.h5", "--quiet", "--scheduler", dask.address,
+                      "--task-collisions", 4_000_000], tmp_path, tmp_path / "run.h5.partial")
+        time.sleep(3.0)
+        assert proc.poll() is None, "the run ended before the scheduler was killed"
+        os.killpg(dask.procs[0].pid, signal.SIGKILL)
+        out, err = proc.communicate(timeout=120)
+    finally:
+        dask.stop()
+    assert proc.returncode == 1, err
+    line, = err.strip().splitlines()
+    assert line.startswith("rbx: run.h5: --scheduler: the run's tasks were cancelled: the scheduler is gone")
+    assert "rbx simulate --resume run.h5" in line
+    run = read_run(tmp_path / "run.h5")
+    assert not run["attrs"]["complete"]
+    # consistent, so resumable: the records that the last checkpoint accounts for (none before the first)
+    made = run.get("final/collisions", np.zeros(2, np.int64))
+    np.testing.assert_array_equal(run["collisions/count"], 1 + made // 10**6)
+    assert len(run["collisions/step"]) == run["collisions/count"].max()
+
+
 # ---- errors ---------------------------------------------------------------------------------------------------
 
 def free_port():

@@ -96,6 +96,10 @@ def connect(cluster):
 def _quiet_dask():
     """Dask's client logs its connection's ups and downs to stderr; rbx says itself what went wrong."""
     import logging
+    try:
+        import distributed  # noqa: F401 - it sets its loggers' levels when imported: set them after
+    except ImportError:
+        return
     for name in ("distributed", "distributed.client", "distributed.comm", "distributed.core",
                  "distributed.batched"):
         logging.getLogger(name).setLevel(logging.CRITICAL)
