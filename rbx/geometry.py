@@ -294,6 +294,8 @@ def collision_time(code, params, k, a, v, tol, n):
         cc += dx * dx
         vv += v[i] * v[i]
     rho = params[k, 12]
+    if b >= 0.0 and (code == CONVEX_ARC or code == SPHERE_OUT):
+        return np.inf                            # moving away from a disc kept outside: never reaches it
     # |a−c|² − ρ² without cancelling ρ² away: a centre on the circle (snapped, or just hit) gives 0 or a few ulp
     # of ρ·|a−c|, where |a−c|² − ρ² would keep the rounding of the squares (a grazing flight needs the former)
     cc = (np.sqrt(cc) - rho) * (np.sqrt(cc) + rho)

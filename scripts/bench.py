@@ -144,6 +144,81 @@ def box_loop(x, y, z, vx, vy, vz, lx, ly, lz, N):
     return x + y + z + vx + vy + vz + t
 
 
+@numba.njit(cache=True, inline="always")
+def _map2(vx, vy, w, nx, ny, rough):
+    """The 2D collision map at a wall of inward normal (nx, ny): specular, or completely rough."""
+    vn = vx * nx + vy * ny
+    if not rough:
+        return vx - 2 * vn * nx, vy - 2 * vn * ny, w
+    a2, sc = 2 * KAPPA / (1 + KAPPA), 1 / (KAPPA * R)
+    ux, uy = vx + R * w * ny, vy - R * w * nx     # u = v + W r, r = −Rν
+    dvx, dvy = -a2 * (ux - vn * nx), -a2 * (uy - vn * ny)
+    return vx + dvx - 2 * vn * nx, vy + dvy - 2 * vn * ny, w + sc * (ny * dvx - dvy * nx)
+
+
+@numba.njit(cache=True)
+def sinai_loop(x, y, vx, vy, w, width, height, cx, cy, rho, rough, N):
+    """A disc in a Sinai billiard: the rectangle [0, width] × [0, height] and a scatterer of grown radius rho about
+    (cx, cy); the nearer of the two walls ahead and the scatterer's smaller root."""
+    t = 0.0
+    for _ in range(N):
+        tx = (width - R - x) / vx if vx > 0 else (R - x) / vx
+        ty = (height - R - y) / vy if vy > 0 else (R - y) / vy
+        dx, dy = x - cx, y - cy
+        b = dx * vx + dy * vy
+        tau, kind = (tx, 0) if tx < ty else (ty, 1)
+        if b < 0.0:
+            vv = vx * vx + vy * vy
+            c = (np.sqrt(dx * dx + dy * dy) - rho) * (np.sqrt(dx * dx + dy * dy) + rho)
+            disc = b * b - vv * c
+            if disc > 0.0:
+                td = c / (np.sqrt(disc) - b)
+                if td < tau:
+                    tau, kind = max(td, 0.0), 2
+        x += tau * vx
+        y += tau * vy
+        t += tau
+        if kind == 0:
+            nx, ny = (-1.0, 0.0) if vx > 0 else (1.0, 0.0)
+        elif kind == 1:
+            nx, ny = (0.0, -1.0) if vy > 0 else (0.0, 1.0)
+        else:
+            m = 1.0 / np.sqrt((x - cx) ** 2 + (y - cy) ** 2)
+            nx, ny = (x - cx) * m, (y - cy) * m
+        vx, vy, w = _map2(vx, vy, w, nx, ny, rough)
+    return x + y + vx + vy + (w if rough else 0.0) + t
+
+
+@numba.njit(cache=True)
+def stadium_loop(x, y, vx, vy, w, length, rho, rough, N):
+    """A disc in a stadium (caps of shrunk radius rho about (0, 0) and (length, 0)): it is convex, so the line
+    leaves it once: on a flat wall if it crosses y = ±rho over [0, length], else on the cap of that side."""
+    t = 0.0
+    for _ in range(N):
+        tau = np.inf
+        if vy != 0.0:
+            tau = ((rho if vy > 0 else -rho) - y) / vy
+        xh = x + tau * vx
+        if 0.0 <= xh <= length:
+            nx, ny = 0.0, (-1.0 if vy > 0 else 1.0)
+            x, y = xh, (rho if vy > 0 else -rho)
+        else:
+            cx = 0.0 if (xh < 0.0 if vy != 0.0 else vx < 0) else length
+            dx = x - cx
+            b = dx * vx + y * vy
+            vv = vx * vx + vy * vy
+            c = (np.sqrt(dx * dx + y * y) - rho) * (np.sqrt(dx * dx + y * y) + rho)
+            disc = max(b * b - vv * c, 0.0)      # the centre may be outside this cap's circle (between the caps)
+            tau = -c / (b + np.sqrt(disc)) if b > 0.0 else (np.sqrt(disc) - b) / vv
+            x += tau * vx
+            y += tau * vy
+            m = 1.0 / np.sqrt((x - cx) ** 2 + y * y)
+            nx, ny = -(x - cx) * m, -y * m
+        t += tau
+        vx, vy, w = _map2(vx, vy, w, nx, ny, rough)
+    return x + y + vx + vy + (w if rough else 0.0) + t
+
+
 # ---- the scenes, rules and configs ----------------------------------------------------------------------------------
 #: name -> (table, position, velocity, angular velocity): one explicit start per scene, well inside the table
 SCENES = {
@@ -156,6 +231,17 @@ SCENES = {
     # 3D: the horizontal spin is not perpendicular to the horizontal velocity (else the plates orbit stays in a plane)
     "plates": ({"kind": "plates", "gap": 1.0}, [0, 0, 0.5], [0.2, -0.4, 0.7], [1.0, -2.0, -0.3]),
     "box": ({"kind": "box", "size": [1.0, 1.3, 0.8]}, [0.5, 0.6, 0.4], [0.3, -0.5, 0.7], [1.0, -2.0, -0.3]),
+    # the zoo (SPEC §8)
+    "stadium": ({"kind": "stadium", "radius": 0.5, "length": 1.0}, [0.5, 0.1], [0.83, 0.31], 0.7),
+    "sinai": ({"kind": "sinai", "size": [2.0, 1.5], "radius": 0.4}, [0.3, 0.3], [0.83, 0.31], 0.7),
+    "lorentz": ({"kind": "lorentz", "cell": [1.0, 1.0], "radius": 0.3}, [0.1, 0.1], [0.83, 0.31], 0.7),
+    "mushroom": ({"kind": "mushroom", "cap_radius": 1.0, "stem_width": 0.6, "stem_height": 1.0}, [0.2, 0.5],
+                 [0.83, 0.31], 0.7),
+    "sinai3": ({"kind": "sinai", "size": [1.0, 1.3, 0.8], "radius": 0.2}, [0.2, 0.2, 0.2], [0.3, -0.5, 0.7],
+               [1.0, -2.0, -0.3]),
+    "sphere": ({"kind": "sphere", "radius": 1.0}, [0.1, 0.2, 0.3], [0.3, -0.5, 0.7], [1.0, -2.0, -0.3]),
+    "cylinder": ({"kind": "cylinder", "radius": 1.0, "height": 1.5}, [0.1, 0.2, 0.7], [0.3, -0.5, 0.7],
+                 [1.0, -2.0, -0.3]),
 }
 RULE_NAMES = ("specular", "rough", "hemisphere", "random")
 
@@ -207,7 +293,14 @@ HAND = {
     ("plates", "rough"): lambda N: plates_loop(0, 0, 0.5, 0.2, -0.4, 0.7, 1.0, -2.0, -0.3, 1.0, N),
     ("rectangle", "specular"): lambda N: rectangle_loop(0.5, 0.5, 0.83, 0.31, 2.0, 1.0, N),
     ("box", "specular"): lambda N: box_loop(0.5, 0.6, 0.4, 0.3, -0.5, 0.7, 1.0, 1.3, 0.8, N),
+    ("sinai", "specular"): lambda N: sinai_loop(0.3, 0.3, 0.83, 0.31, 0.7, 2.0, 1.5, 1.0, 0.75, 0.4 + R, False, N),
+    ("sinai", "rough"): lambda N: sinai_loop(0.3, 0.3, 0.83, 0.31, 0.7, 2.0, 1.5, 1.0, 0.75, 0.4 + R, True, N),
+    ("stadium", "specular"): lambda N: stadium_loop(0.5, 0.1, 0.83, 0.31, 0.7, 1.0, 0.5 - R, False, N),
+    ("stadium", "rough"): lambda N: stadium_loop(0.5, 0.1, 0.83, 0.31, 0.7, 1.0, 0.5 - R, True, N),
 }
+#: collisions over which a hand loop's orbit is checked against rbx's (tests/test_bench_smoke.py): chaotic tables
+#: separate nearby orbits exponentially, so rounding differences grow past 1e-9 after a few dozen collisions
+HAND_CHECK_COLLISIONS = {"sinai": 20, "stadium": 20}
 
 FIELDS = RECORD_FIELDS
 FIELD_VALUES = {2: {"time": 1, "position": 2, "velocity": 2, "angular_velocity": 1, "orientation": 1, "wall": 0.5,
