@@ -1,15 +1,16 @@
 """rbx: simulate non-standard (rough) billiards with the strict collision maps of Cox, Feres and Ward.
 
 The Python API (SPEC §9; :mod:`rbx.api`): ``rbx.load(path_or_dict)`` -> Experiment, ``rbx.simulate(experiment,
-…)`` -> Run, ``rbx.open(path)`` -> Run, ``rbx.Run``, ``rbx.ConfigError``, ``rbx.FileError``. ``python -m rbx`` is
-the command line. Importing rbx is light: the engine (numba) loads when first used.
+…)`` -> Run, ``rbx.open(path)`` -> Run, ``rbx.Run``, ``rbx.ConfigError``, ``rbx.FileError``; and (SPEC §10,
+:mod:`rbx.dynamics`) ``rbx.lyapunov(experiment, …)`` -> the Lyapunov spectrum, ``rbx.escape_times(run)`` -> escape
+or return times. ``python -m rbx`` is the command line. Importing rbx is light: the engine (numba) loads when first used.
 """
 import importlib
 
 __version__ = "0.1.0"
 
 _LAZY = {"load": "api", "simulate": "api", "open": "api", "Run": "runfile", "FileError": "runfile",
-         "ConfigError": "model"}
+         "ConfigError": "model", "lyapunov": "dynamics", "escape_times": "dynamics"}
 
 
 def __getattr__(name):
@@ -22,4 +23,4 @@ def __dir__():
     return sorted(set(globals()) | set(_LAZY))
 
 
-__all__ = ["load", "simulate", "open", "Run", "ConfigError", "FileError", "__version__"]
+__all__ = ["load", "simulate", "open", "lyapunov", "escape_times", "Run", "ConfigError", "FileError", "__version__"]

@@ -22,7 +22,7 @@ from numba.np.arrayobj import make_array, populate_array
 
 #: every module that defines kernels (tests/test_jit.py checks that each module under rbx/ importing this one is
 #: listed)
-KERNEL_MODULES = ("_jit", "engine", "geometry", "physics", "rng", "rules")
+KERNEL_MODULES = ("_jit", "engine", "geometry", "physics", "rng", "rules", "tangent")
 #: modules whose values the kernels compile in as constants (the record bits of rbx.model.FIELDS): the cache key
 #: covers them too
 KERNEL_CONSTANTS = ("model",)

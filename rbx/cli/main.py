@@ -7,7 +7,7 @@ import click
 
 from .. import __version__
 from .simulate import simulate
-from . import histogram, plot
+from . import histogram, lyapunov, plot
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -18,7 +18,7 @@ def cli():
 
 
 cli.add_command(simulate)
-for _command in (plot.plot, histogram.histogram):
+for _command in (plot.plot, histogram.histogram, lyapunov.lyapunov):
     cli.add_command(_command)
 
 

@@ -1,0 +1,58 @@
+"""``rbx lyapunov CONFIG``: the Lyapunov spectrum of the flow (SPEC §10; docs/tangent-map.md)."""
+import json
+
+import click
+
+from .common import Command, UserError, interrupted_exit, report_and_exit, user_errors
+
+
+@click.command(cls=Command)
+@click.argument("config", type=click.Path(dir_okay=False))
+@click.option("--collisions", type=int, help="Override run.collisions (per trajectory, the warm-up included).")
+@click.option("--trajectories", type=int, help="Override run.trajectories.")
+@click.option("--seed", type=int, help="Override run.seed.")
+@click.option("--segments", type=click.IntRange(1, 10000), default=10, show_default=True,
+              help="Segments per trajectory for the error estimate.")
+@click.option("--warmup", type=click.IntRange(0, None), help="Collisions not counted while the vectors align "
+                                                              "(default: a tenth of the collisions).")
+@click.option("--json", "as_json", is_flag=True, help="Print one JSON object (exponents, stderr, sum, time, …).")
+@click.option("--debug", is_flag=True, help="Show a traceback with user errors.")
+def lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json, debug):
+    """The Lyapunov spectrum of the flow, per unit time, largest first, with standard errors.
+
+    Benettin's method on the linearised dynamics (free flight, collision time, collision map with the wall's
+    curvature and the spin), along each of run.trajectories trajectories of CONFIG for run.collisions collisions.
+    Coordinates: position, R√κ·orientation, velocity, R√κ·spin (6 exponents in 2D, 12 in 3D)."""
+    try:
+        _lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json)
+    except UserError as exc:
+        report_and_exit(exc, debug)
+    except KeyboardInterrupt:
+        interrupted_exit()
+
+
+def _lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json):
+    from .. import api
+    from ..dynamics import lyapunov as spectrum
+
+    overrides = {k: v for k, v in (("collisions", collisions), ("trajectories", trajectories), ("seed", seed))
+                 if v is not None}
+    with user_errors():
+        exp = api.load(config, overrides or None)
+    N = exp.run.collisions
+    if warmup is not None and warmup >= N:
+        raise UserError(None, "--warmup", f"{warmup} leaves no collisions of the {N} to measure")
+    if N - (N // 10 if warmup is None else warmup) < segments:
+        raise UserError(None, "--segments", f"more segments ({segments}) than measured collisions")
+    result = spectrum(exp, segments=segments, warmup=warmup)
+    if as_json:
+        click.echo(json.dumps(result.to_dict()))
+        return
+    click.echo(f"Lyapunov spectrum (per unit time): {result.title}")
+    click.echo(f"{len(result.time)} trajectories, {int(result.collisions.sum())} collisions measured over time "
+               f"{result.time.sum():.6g} (after {result.warmup} warm-up collisions each)")
+    for k, (lam, err) in enumerate(zip(result.exponents, result.stderr), 1):
+        click.echo(f"  λ{k:<2} = {lam: .6f} ± {err:.6f}")
+    click.echo(f"  sum = {result.exponents.sum(): .3e}")
+    if result.ended is not None and result.ended.any():
+        click.echo(f"{int(result.ended.sum())} trajectories left the table (an exit or an escape) before the end")

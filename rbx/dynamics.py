@@ -1,0 +1,274 @@
+"""Dynamics of rough billiards (SPEC §10): the Lyapunov spectrum (:func:`lyapunov`), escape and return times
+(:func:`escape_times`), and the flow's Jacobian (:func:`flow_jacobian`, for checking the tangent map).
+
+The linearised dynamics and Benettin's method run in compiled code (:mod:`rbx.tangent`) along the engine's own
+orbit; the derivation of the tangent map is in docs/tangent-map.md, the escape statistics in docs/dynamics.md.
+"""
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["lyapunov", "Lyapunov", "flow_jacobian", "escape_times", "Escape"]
+
+
+# ---- the tangent dynamics ------------------------------------------------------------------------------------------
+
+class _Tangent:
+    """The state of M trajectories (as :class:`rbx.simulation.Simulation` makes it: the same initial states,
+    random streams and rules as ``rbx simulate``) and their tangent vectors, advanced by :mod:`rbx.tangent`."""
+
+    def __init__(self, exp, state=None):
+        from . import engine
+        from .simulation import Simulation
+        from .tangent import tangent_dimension
+        sim = self.sim = Simulation(exp, state=state)
+        geom, rules = sim.geom, sim.rules
+        self.n, self.M = sim.n, sim.M
+        self.d = tangent_dimension(self.n)
+        self.table = engine.make_table(geom, sim.tol)
+        self.rules = rules.kernel_arrays()
+        self.state = engine.State(pos=sim.pos, vel=sim.vel, W=sim.W, theta=sim.theta, A=sim.A, time=sim.time,
+                                  ncoll=sim.ncoll, draws=sim.draws, alive=sim.alive, keys=sim.keys,
+                                  last_wall=sim.last_wall, last_rank=sim.last_rank, energy0=sim.energy0,
+                                  comp=sim._comp)
+        self.flags = (bool(geom.slab), geom.lattice is not None, bool(rules.max_rank > 0), bool(rules.uses_orientation or rules.uses_random),
+                      int(exp.numerics.renormalize))
+        self.R, self.kappa = float(exp.ball.radius), float(exp.ball.kappa)
+        self.Y = np.repeat(np.eye(self.d)[None], self.M, axis=0)
+        self.sums = np.zeros((self.M, self.d))
+
+    def advance(self, stop, t_end=np.inf, ortho=True, threads=None):
+        """Advance every live trajectory to ``stop`` collisions in all or to time ``t_end``."""
+        import numba
+
+        from .tangent import tangent_advance_all
+        M = self.M
+        stop = np.broadcast_to(np.asarray(stop, np.int64), (M,)).copy()
+        t_end = np.broadcast_to(np.asarray(t_end, float), (M,)).copy()
+        args = (stop, t_end, bool(ortho)) + self.flags + (self.R, self.kappa, self.table, self.rules,
+                self.state, self.Y, self.sums)
+        threads = max(1, min(threads or numba.get_num_threads(), M))
+        if threads == 1:
+            tangent_advance_all(0, M, *args)
+            return
+        cuts = np.linspace(0, M, threads + 1).astype(np.int64)
+        with ThreadPoolExecutor(max_workers=threads) as pool:
+            for job in [pool.submit(tangent_advance_all, int(a), int(b), *args) for a, b in zip(cuts[:-1], cuts[1:])]:
+                job.result()
+
+
+def _load(experiment, collisions=None, trajectories=None, seed=None):
+    from .api import load
+    overrides = {k: v for k, v in (("collisions", collisions), ("trajectories", trajectories), ("seed", seed))
+                 if v is not None}
+    return load(experiment, overrides or None)
+
+
+def flow_jacobian(experiment, t_end, *, collisions=None, trajectories=None, seed=None, state=None):
+    """The Jacobian of the time-``t_end`` map of the flow at each trajectory's initial state -> (J (M, d, d),
+    final state dict). A trajectory stops at time ``t_end`` or after ``run.collisions`` collisions, whichever
+    comes first (then J is the Jacobian of the flow up to just after that collision).
+
+    Tangent coordinates (:func:`rbx.tangent.coordinate_names`): ``[a, R√κ·orientation, v, R√κ·ω]``; the 3D
+    orientation's coordinate is the space-frame rotation vector δφ of δA = [δφ]×A. Collisions on the way are
+    linearised with the rule drawn at each (docs/tangent-map.md). For checking the tangent map against finite
+    differences of the engine. ``state``: initial states as :class:`rbx.simulation.Simulation` takes them (a dict
+    of arrays: position, velocity, angular_velocity, orientation — 3D as matrices) instead of the experiment's."""
+    exp = _load(experiment, collisions, trajectories, seed)
+    if state is not None:
+        state = {k: np.array(v, copy=True) for k, v in state.items()}   # the kernels write into them
+    tan = _Tangent(exp, state)
+    tan.advance(exp.run.collisions, t_end, ortho=False)
+    st = tan.state
+    final = {"time": st.time.copy(), "position": st.pos.copy(), "velocity": st.vel.copy(), "W": st.W.copy(),
+             "theta": st.theta.copy(), "A": st.A.copy(), "collisions": st.ncoll.copy(), "alive": st.alive.copy()}
+    return tan.Y.copy(), final
+
+
+@dataclass
+class Lyapunov:
+    """The Lyapunov spectrum of the flow (per unit time, largest first) and its standard error.
+
+    ``exponents`` (d,): Σ log-stretches / Σ time over the measured segments of every trajectory, sorted
+    decreasingly (the other arrays follow the same order);
+    ``stderr`` (d,): the standard error from the spread of the segment estimates (batch means: ``segments``
+    per trajectory × ``trajectories``, each weighted by its duration); ``per_trajectory`` (M, d);
+    ``segment_exponents`` (M, S, d) and ``segment_times`` (M, S); ``time`` (M,) and ``collisions`` (M,) measured
+    (after ``warmup`` collisions); ``coordinates``: the tangent coordinates' names."""
+    exponents: np.ndarray
+    stderr: np.ndarray
+    per_trajectory: np.ndarray
+    segment_exponents: np.ndarray
+    segment_times: np.ndarray
+    time: np.ndarray
+    collisions: np.ndarray
+    warmup: int
+    coordinates: tuple
+    title: str = ""
+    ended: np.ndarray = field(default=None)
+
+    def to_dict(self):
+        """Plain data for JSON: exponents, stderr, their sum, the time and collisions measured."""
+        return {"exponents": [float(x) for x in self.exponents], "stderr": [float(x) for x in self.stderr],
+                "sum": float(np.sum(self.exponents)), "time": float(np.sum(self.time)),
+                "collisions": int(np.sum(self.collisions)), "trajectories": int(len(self.time)),
+                "segments": int(self.segment_times.shape[1]), "warmup": int(self.warmup),
+                "coordinates": list(self.coordinates), "title": self.title,
+                "ended_early": int(np.sum(self.ended)) if self.ended is not None else 0}
+
+
+def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segments=10, warmup=None):
+    """The Lyapunov spectrum of the flow, per unit time, largest first -> :class:`Lyapunov` (SPEC §10).
+
+    Benettin's method: d = 2(n + n(n−1)/2) tangent vectors (6 in 2D, 12 in 3D: position, orientation and their
+    velocities) follow each trajectory of the experiment (its initial states, ``run.trajectories`` of them, its
+    rules and random streams), re-orthonormalised after every collision. The first ``warmup`` collisions (default
+    a tenth of ``run.collisions``) align the vectors and are not counted; the rest are cut into ``segments``
+    segments per trajectory whose spread gives ``stderr``. A trajectory that leaves by an exit wall or escapes to
+    infinity contributes the time it had.
+
+    ``experiment``: an :class:`~rbx.model.Experiment`, a config path or a dict; ``collisions``, ``trajectories``,
+    ``seed`` override ``run.*``."""
+    from .analysis import scene_title
+    from .tangent import coordinate_names
+    exp = _load(experiment, collisions, trajectories, seed)
+    segments = int(segments)
+    if segments < 1:
+        raise ValueError("segments must be at least 1")
+    N = exp.run.collisions
+    warmup = N // 10 if warmup is None else int(warmup)
+    measured = N - warmup
+    if measured < segments:
+        raise ValueError(f"{N} collisions leave {measured} after the warm-up: fewer than {segments} segments")
+    tan = _Tangent(exp)
+    M, d = tan.M, tan.d
+    if warmup > 0:
+        tan.advance(warmup)
+    sums0 = tan.sums.copy()
+    t0 = tan.state.time.copy()
+    c0 = tan.state.ncoll.copy()
+    seg_sums = np.zeros((M, segments, d))
+    seg_time = np.zeros((M, segments))
+    cuts = warmup + np.round(np.linspace(0, measured, segments + 1)).astype(np.int64)
+    for s in range(segments):
+        before, tb = tan.sums.copy(), tan.state.time.copy()
+        tan.advance(cuts[s + 1])
+        seg_sums[:, s] = tan.sums - before
+        seg_time[:, s] = tan.state.time - tb
+    total_time = tan.state.time - t0
+    total_sums = tan.sums - sums0
+    with np.errstate(invalid="ignore", divide="ignore"):
+        per_traj = total_sums / total_time[:, None]
+        seg_exp = seg_sums / seg_time[..., None]
+    T = float(np.sum(total_time))
+    if not T > 0:
+        raise ValueError("no trajectory moved after the warm-up (all left the table)")
+    exponents = np.sum(total_sums, axis=0) / T
+    ok = seg_time.reshape(-1) > 0
+    w = seg_time.reshape(-1)[ok]
+    e = seg_exp.reshape(-1, d)[ok]
+    B = len(w)
+    if B > 1:
+        wn = w / np.mean(w)
+        stderr = np.sqrt(np.sum((wn[:, None] * (e - exponents)) ** 2, axis=0) / (B * (B - 1)))
+    else:
+        stderr = np.full(d, np.nan)
+    # Benettin's order is the decreasing one only where the tangent vectors mix: a block that never feeds back
+    # (the spin and orientation of a specular table) keeps its vectors to itself, so the order is made explicit
+    order = np.argsort(-exponents, kind="stable")
+    exponents, stderr, per_traj, seg_exp = exponents[order], stderr[order], per_traj[:, order], seg_exp[..., order]
+    return Lyapunov(exponents=exponents, stderr=stderr, per_trajectory=per_traj, segment_exponents=seg_exp,
+                    segment_times=seg_time, time=total_time, collisions=tan.state.ncoll - c0, warmup=warmup,
+                    coordinates=coordinate_names(tan.n), title=scene_title(exp), ended=~tan.state.alive.copy())
+
+
+# ---- escape and return times (open billiards: walls with the rule ``exit``) -----------------------------------------
+
+@dataclass
+class Escape:
+    """Per trajectory: how long it stayed in the table, and whether it left by an exit wall.
+
+    ``time`` (M,): the time of the exit contact, or the time reached (``exited`` False: censored — the trajectory
+    was still in the table when the run ended, or left for infinity where no wall is ahead); ``path`` (M,): the
+    same as a path length in the angle–position metric, ``time·|(v, R√κ·ω)|`` (the speed of the flow on the
+    configuration space; constant: it is the energy); ``exited`` (M,) bool; ``wall`` (M,): the exit wall's index
+    (−1 if none); ``escaped`` (M,): left for infinity (no wall ahead; also censored)."""
+    time: np.ndarray
+    path: np.ndarray
+    exited: np.ndarray
+    wall: np.ndarray
+    escaped: np.ndarray
+    wall_names: tuple = ()
+
+    @property
+    def censored(self):
+        return ~self.exited
+
+    def survival(self, path=True):
+        """The Kaplan–Meier survival function: (s, S(s)) at the exit times, S the fraction still inside after s
+        (right-censored trajectories leave the risk set at their last time without counting as exits) -> two
+        arrays, starting with (0, 1)."""
+        return survival(self.path if path else self.time, self.exited)
+
+    def rate(self, start=0.0, stop=np.inf, path=True):
+        """The exponential escape rate fitted to the window start ≤ s < stop -> (rate, standard error, exits
+        used): :func:`exponential_rate`."""
+        return exponential_rate(self.path if path else self.time, self.exited, start, stop)
+
+
+def escape_times(run):
+    """Escape (or return) times of a run whose table has exit walls -> :class:`Escape`.
+
+    ``run``: a :class:`rbx.Run` (from :func:`rbx.simulate` or :func:`rbx.open`). Read from the run's final state,
+    so no per-collision records are needed: a trajectory that ended on an exit wall (its last rule had rank −1)
+    exited at its final time; one still alive is censored at the time it reached. Started with the billiard
+    measure on an exit wall (``initial: {sample: billiard, wall: NAME}``), the times are return times to that wall:
+    Kac's lemma gives their mean (docs/dynamics.md)."""
+    final = run.final
+    if not final or "alive" not in final:
+        raise ValueError("the run has no final state (it never ran a block)")
+    exp = run.experiment
+    alive = np.asarray(final["alive"], bool)
+    last_rank = np.asarray(final["last_rank"])
+    exited = ~alive & (last_rank == -1)
+    t = np.asarray(final["time"], float)
+    speed = np.sqrt(2.0 * np.asarray(final["energy"], float))
+    wall = np.where(exited, np.asarray(final["last_wall"]), -1)
+    return Escape(time=t, path=t * speed, exited=exited, wall=wall, escaped=~alive & ~exited,
+                  wall_names=tuple(exp.wall_names) if exp is not None else ())
+
+
+def survival(times, exited):
+    """Kaplan–Meier estimate of the survival function from right-censored times -> (s, S): S[i] is the fraction
+    still inside just after s[i]; s[0] = 0, S[0] = 1."""
+    times = np.asarray(times, float)
+    exited = np.asarray(exited, bool)
+    order = np.argsort(times, kind="stable")
+    t, e = times[order], exited[order]
+    at_risk = len(t) - np.arange(len(t))
+    factors = np.where(e, 1.0 - 1.0 / at_risk, 1.0)
+    S = np.cumprod(factors)
+    keep = e
+    return np.concatenate([[0.0], t[keep]]), np.concatenate([[1.0], S[keep]])
+
+
+def exponential_rate(times, exited, start=0.0, stop=np.inf):
+    """Maximum-likelihood rate γ of an exponential law fitted to the window ``start`` ≤ s < ``stop`` of
+    right-censored times -> (γ, standard error, exits used).
+
+    For exponential times, censored or not, the likelihood of the tail (each time counted from ``start``) is
+    γ^k·exp(−γ·Σ(s_i − start)), k the exits after ``start``: γ = k/Σ(s_i − start) over every trajectory that reached
+    ``start``; its standard error (the inverse Fisher information) is γ/√k. ``start`` > 0 leaves out the
+    transient before the law is exponential; a finite ``stop`` censors every time at ``stop`` (the early decay)."""
+    times = np.asarray(times, float)
+    exited = np.asarray(exited, bool)
+    exited = exited & (times < stop)
+    times = np.minimum(times, stop)
+    tail = times >= start
+    k = int(np.sum(exited & tail))
+    exposure = float(np.sum(times[tail] - start))
+    if k == 0 or exposure <= 0:
+        return 0.0, np.inf, k
+    rate = k / exposure
+    return rate, rate / np.sqrt(k), k

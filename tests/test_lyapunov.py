@@ -1,0 +1,292 @@
+"""The tangent map and the Lyapunov spectrum (SPEC §10; rbx/tangent.py, rbx/dynamics.py, docs/tangent-map.md).
+
+- The tangent map is the derivative of the engine's flow: central finite differences of ``rbx``'s own event loop
+  (several steps) agree with :func:`rbx.dynamics.flow_jacobian` on every primitive the tables use (each registered
+  table kind at its example parameters, plus the 3D Sinai table), for specular, rough and random rules.
+- The orbit the tangent loop follows is the engine's.
+- Known spectra: a specular dispersing table gives the classic billiard's largest exponent, computed here by the
+  independent wavefront-curvature recursion; flat-walled 2D tables and the rough circle give exponents tending to
+  0; the exponents sum to 0 (the flow preserves the Liouville measure) on every table.
+"""
+import json
+
+import numpy as np
+import pytest
+
+import rbx
+from rbx import geometry, tables
+from rbx.dynamics import flow_jacobian, lyapunov
+from rbx.physics import rotation_from_vector, spin_matrix
+from rbx.simulation import MemorySink, Simulation
+
+R = 0.1
+def _rule(name, n, flat=True):
+    if name == "specular":
+        return {"rule": "constant", "rank": 0}
+    if name == "rough":
+        return {"rule": "constant", "rank": n - 1}
+    # a random choice among specular, completely rough and (3D) rank 1 along a fixed direction
+    choices = [{"rule": "constant", "rank": 0}, {"rule": "constant", "rank": n - 1}]
+    if n == 3 and flat:     # a fixed roughness direction needs the walls' tangent axes
+        choices.append({"rule": "constant", "rank": 1, "direction": [1.0, 0.7, 0.2]})
+    return {"rule": "random", "choices": choices, "probabilities": [1.0 / len(choices)] * len(choices)}
+
+
+def _scenes():
+    """(name, table) for every registered table kind that can be sampled, at its example parameters; and the 3D
+    Sinai table (a sphere obstacle)."""
+    out = [(name, dict(k.example)) for name, k in tables.KINDS.items()]
+    out.append(("sinai3d", {"kind": "sinai", "size": [2.0, 1.5, 1.5], "radius": 0.3}))
+    scenes = []
+    for name, params in out:
+        params = dict(params)
+        kind = params.pop("kind", name)
+        if kind == "wedge":     # the billiard measure cannot be normalised on a wedge: an explicit start
+            continue
+        scenes.append((name, dict(params, kind=kind)))
+    return scenes
+
+
+SCENES = _scenes()
+
+
+def _config(table, rule, n, initial=None, collisions=8):
+    params = {k: v for k, v in table.items() if k != "kind"}
+    flat = all(w.tangents is not None for w in tables.build(table["kind"], params, R).wall_list)
+    return {"table": table, "boundary": {"default": _rule(rule, n, flat)}, "ball": {"radius": R, "inertia": "uniform"},
+            "initial": initial or {"sample": "billiard"}, "run": {"collisions": collisions, "seed": 5},
+            "output": {"record": ["time", "position", "velocity", "angular_velocity", "orientation"]}}
+
+
+def _start(cfg, n):
+    """A start inside the table (halfway along the first flight of a state drawn from the billiard measure) and a
+    time T in the middle of the flight after the third collision from there -> (state dict, T)."""
+    run = rbx.simulate(cfg, collisions=6)
+    t = run.time[0]
+    tau = t[1] / 2
+    a = run.position[0, 0] + tau * run.velocity[0, 0]
+    w = run.angular_velocity[0, 0]
+    if n == 2:
+        orient = np.array([run.orientation[0, 0] + tau * w])
+    else:
+        orient = (rotation_from_vector(tau * np.asarray(w)) @ run.orientation[0, 0])[None]
+    state = {"position": a[None], "velocity": run.velocity[0, 0][None], "angular_velocity": np.asarray(w)[None],
+             "orientation": orient}
+    return state, (t[3] + t[4]) / 2 - tau
+
+
+def _vee(M):
+    return np.array([M[2, 1] - M[1, 2], M[0, 2] - M[2, 0], M[1, 0] - M[0, 1]]) / 2
+
+
+def _engine_states(cfg, states, T, n):
+    """Run the engine from each of ``states`` (all on trajectory 0's random stream) and fly freely to time T ->
+    (positions, velocities, spins, orientations) at T."""
+    exp = rbx.load(cfg)
+    M = len(states["position"])
+    exp = exp.replace(run=exp.run.__class__(**{**exp.run.__dict__, "trajectories": M}))
+    sim = Simulation(exp, state=states)
+    sim.keys[:] = sim.keys[0]       # the same draws for every perturbed copy
+    sink = MemorySink()
+    sim.run(sink)
+    rec = sink.records
+    out = []
+    for j in range(M):
+        k = int(np.searchsorted(rec["time"][j], T, side="right")) - 1
+        dt = T - rec["time"][j, k]
+        a = rec["position"][j, k] + dt * rec["velocity"][j, k]
+        w = rec["angular_velocity"][j, k]
+        if n == 2:
+            orient = rec["orientation"][j, k] + dt * w
+        else:
+            orient = rotation_from_vector(dt * np.asarray(w)) @ rec["orientation"][j, k]
+        out.append((a, rec["velocity"][j, k], w, orient))
+    return out
+
+
+def _finite_differences(cfg, state, T, n, h):
+    """Central differences of the engine's time-T map in the tangent coordinates [a, c·θ or c·φ, v, c·ω], c = R√κ
+    -> (d, d): column i is the derivative along coordinate i."""
+    c = R * np.sqrt(rbx.load(cfg).ball.kappa)
+    m = n * (n - 1) // 2
+    d = 2 * (n + m)
+    states = {k: [] for k in state}
+    for i in range(d):
+        for sign in (1.0, -1.0):
+            a = state["position"][0].copy()
+            v = state["velocity"][0].copy()
+            w = np.array(state["angular_velocity"][0], float).copy()
+            o = np.array(state["orientation"][0], float).copy()
+            e = sign * h
+            if i < n:
+                a[i] += e
+            elif i < n + m:
+                if n == 2:
+                    o = o + e / c
+                else:
+                    o = rotation_from_vector(np.eye(3)[i - n] * e / c) @ o
+            elif i < 2 * n + m:
+                v[i - n - m] += e
+            else:
+                w = w + (e / c if n == 2 else np.eye(3)[i - 2 * n - m] * e / c)
+            for k, x in zip(("position", "velocity", "angular_velocity", "orientation"), (a, v, w, o)):
+                states[k].append(x)
+    states = {k: np.array(x) for k, x in states.items()}
+    finals = _engine_states(cfg, states, T, n)
+    F = np.zeros((d, d))
+    for i in range(d):
+        (ap, vp, wp, op), (am, vm, wm, om) = finals[2 * i], finals[2 * i + 1]
+        if n == 2:
+            dphi = c * (op - om)
+        else:
+            dphi = c * _vee(op @ om.T)      # the rotation from one to the other: 2hJ + O(h³)
+        F[:, i] = np.concatenate([ap - am, np.atleast_1d(dphi), vp - vm, c * (np.atleast_1d(wp) - np.atleast_1d(wm))])
+    return F / (2 * h)
+
+
+def _covered_codes():
+    codes = set()
+    for _, table in SCENES:
+        params = {k: v for k, v in table.items() if k != "kind"}
+        codes |= set(tables.build(table["kind"], params, R).codes.tolist())
+    return codes
+
+
+def test_the_scenes_cover_every_primitive():
+    known = {v for k, v in vars(geometry).items() if k.isupper() and isinstance(v, int) and v >= 0
+             and k not in ("NPARAM",) and k in ("HALFSPACE", "SEGMENT", "CONCAVE_ARC", "CONVEX_ARC", "SPHERE_OUT",
+                                               "FOCUS_ARC", "CYLINDER")}
+    assert known <= _covered_codes(), known - _covered_codes()
+
+
+@pytest.mark.parametrize("rule", ["specular", "rough", "random"])
+@pytest.mark.parametrize("name,table", SCENES, ids=[s[0] for s in SCENES])
+def test_tangent_map_equals_finite_differences_of_the_engine(name, table, rule):
+    n = tables.dimension(table["kind"], table)
+    cfg = _config(table, rule, n)
+    state, T = _start(cfg, n)
+    J, final = flow_jacobian(cfg, T, state=state)
+    J = J[0]
+    assert final["collisions"][0] == 3 and final["time"][0] == pytest.approx(T)
+    scale = max(1.0, np.abs(J).max())
+    errors = {}
+    for h in (1e-4, 1e-5, 1e-6):
+        errors[h] = np.abs(_finite_differences(cfg, state, T, n, h) - J).max() / scale
+    # central differences: error ~ h² (curvature of the map) + ε/h (rounding); the best step must match the tangent
+    # to ~1e-6 of its size, and the errors must behave like finite differences (not a fixed offset)
+    assert min(errors.values()) < 2e-6, errors
+    assert errors[1e-5] < 0.05 * errors[1e-4] or errors[1e-4] < 1e-7, errors
+
+
+# ---- the orbit, and known spectra ------------------------------------------------------------------------------
+
+def _scene(table, rule, collisions, trajectories=1, seed=3,
+           record=("time", "position", "velocity", "angular_velocity", "orientation")):
+    return {"table": table, "boundary": {"default": rule}, "ball": {"radius": R, "inertia": "uniform"},
+            "initial": {"sample": "billiard"}, "run": {"collisions": collisions, "trajectories": trajectories,
+                                                      "seed": seed},
+            "output": {"record": list(record)}}
+
+
+SPECULAR = {"rule": "constant", "rank": 0}
+ROUGH2 = {"rule": "constant", "rank": 1}
+SINAI = {"kind": "sinai", "size": [2.0, 1.5], "radius": 0.4}
+
+
+@pytest.mark.parametrize("table,rule", [
+    (SINAI, {"rule": "random", "choices": [SPECULAR, ROUGH2], "probabilities": [0.5, 0.5]}),
+    ({"kind": "sinai", "size": [2.0, 1.5, 1.5], "radius": 0.3}, {"rule": "constant", "rank": 2}),
+    ({"kind": "plates", "gap": 1.0}, {"rule": "constant", "rank": 1, "direction_deg": 30}),
+])
+def test_the_orbit_is_the_engines(table, rule):
+    """The tangent loop follows the engine's trajectory: same collisions, same random draws, same numbers."""
+    cfg = _scene(table, rule, 300, trajectories=2)
+    run = rbx.simulate(cfg)
+    J, final = flow_jacobian(cfg, np.inf)   # to the run's collision count
+    np.testing.assert_array_equal(final["collisions"], run.count - 1)
+    np.testing.assert_allclose(final["position"], run.position[:, -1], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(final["velocity"], run.velocity[:, -1], rtol=0, atol=1e-9)
+    np.testing.assert_allclose(final["time"], run.time[:, -1], rtol=1e-12)
+
+
+def _wavefront_exponent(run, centre, rho, first):
+    """The classic 2D billiard's largest exponent from an orbit (records of a specular run): the curvature B of a
+    divergent front, B ← B/(1 + ℓB) along a flight of length ℓ and B ← B + 2K/cos φ at a wall of curvature K
+    (K = 1/ρ on the dispersing circle of radius ρ about ``centre``, 0 on flat walls); λ = Σ log(1 + ℓB)/T over the
+    flights after collision ``first``."""
+    pos, vel, t = run.position[0], run.velocity[0], run.time[0]
+    B, S = 0.0, 0.0
+    for k in range(1, len(t)):
+        ell = (t[k] - t[k - 1]) * np.linalg.norm(vel[k - 1])
+        if k > first:
+            S += np.log1p(ell * B)
+        B = B / (1.0 + ell * B)
+        r = pos[k] - centre
+        if abs(np.linalg.norm(r) - rho) < 1e-9 * rho:
+            cos_phi = abs(vel[k] @ r) / (rho * np.linalg.norm(vel[k]))
+            B += 2.0 / (rho * cos_phi)
+    return S / (t[-1] - t[first])
+
+
+@pytest.mark.parametrize("table,centre,rho,collisions", [
+    (SINAI, (1.0, 0.75), 0.4 + R, 3000),
+    # the L-shaped polygon: its reflex corner (1, 1) becomes a dispersing arc of radius R for the centre
+    ({"kind": "polygon", "vertices": [[0, 0], [2, 0], [2, 1], [1, 1], [1, 2], [0, 2]]}, (1.0, 1.0), R, 20000),
+])
+def test_specular_dispersing_table_gives_the_classic_exponent(table, centre, rho, collisions):
+    cfg = _scene(table, SPECULAR, collisions)
+    result = lyapunov(cfg)
+    expected = _wavefront_exponent(rbx.simulate(cfg), np.array(centre), rho, result.warmup)
+    assert expected > 0.01
+    assert result.exponents[0] == pytest.approx(expected, rel=2e-3)
+    # the rest of the classic spectrum: its mirror image, and zeros for the flow, the energy and the spin
+    assert result.exponents[-1] == pytest.approx(-expected, rel=2e-3)
+    np.testing.assert_allclose(result.exponents[1:-1], 0.0, atol=1e-6)
+
+
+@pytest.mark.parametrize("name,table", SCENES, ids=[s[0] for s in SCENES])
+def test_exponents_sum_to_zero(name, table):
+    n = tables.dimension(table["kind"], table)
+    result = lyapunov(_config(table, "random", n, collisions=1500))
+    assert np.all(np.isfinite(result.exponents))
+    assert abs(result.exponents.sum()) < 1e-9 * max(1.0, np.abs(result.exponents).max())
+
+
+def test_rough_sinai_spectrum_is_symmetric():
+    """2D rough maps are parallel (paper, Theorem 2.7 and its corollary): the flow is symplectic and the spectrum
+    comes in pairs ±λ."""
+    result = lyapunov(_scene(SINAI, ROUGH2, 8000, trajectories=2))
+    lam, err = result.exponents, result.stderr
+    assert lam[0] > 10 * err[0]
+    np.testing.assert_allclose(lam + lam[::-1], 0.0, atol=4 * np.hypot(err, err[::-1]).max() + 1e-3)
+
+
+@pytest.mark.parametrize("table,rule", [
+    ({"kind": "circle", "radius": 1.0}, ROUGH2),              # integrable: caustics (paper, figures circle)
+    ({"kind": "rectangle", "width": 2.0, "height": 1.0}, ROUGH2),
+    ({"kind": "rectangle", "width": 2.0, "height": 1.0}, SPECULAR),
+    ({"kind": "polygon", "vertices": [[0, 0], [3, 0], [1, 2]]}, ROUGH2),
+])
+def test_integrable_and_flat_tables_have_zero_exponents(table, rule):
+    """Polynomial growth of the tangent vectors: the finite-time exponents fall like log(T)/T."""
+    short = lyapunov(_scene(table, rule, 1000, trajectories=2))
+    long = lyapunov(_scene(table, rule, 16000, trajectories=2))
+    scale = np.mean(np.linalg.norm(rbx.simulate(_scene(table, rule, 1)).velocity[:, 0], axis=-1))
+    assert np.abs(long.exponents).max() < 0.01 * scale
+    assert np.abs(long.exponents).max() < 0.3 * np.abs(short.exponents).max() + 1e-12
+
+
+def test_lyapunov_command_prints_json(tmp_path):
+    from click.testing import CliRunner
+
+    from rbx.cli.main import cli
+    path = tmp_path / "sinai.yaml"
+    path.write_text(json.dumps(_scene(SINAI, SPECULAR, 100)))
+    result = CliRunner().invoke(cli, ["lyapunov", str(path), "--collisions", "600", "--json"])
+    assert result.exit_code == 0, result.output
+    data = json.loads(result.output)
+    api = lyapunov(str(path), collisions=600)
+    assert data["exponents"] == pytest.approx(list(api.exponents), rel=1e-12)
+    assert len(data["stderr"]) == 6 and data["exponents"][0] > 0.5
+    bad = CliRunner().invoke(cli, ["lyapunov", str(path), "--collisions", "-3"])
+    assert bad.exit_code == 2 and bad.output.count("\n") == 1
