@@ -138,23 +138,23 @@ def connect(scheduler, key="--scheduler", slices=None, task_collisions=None):
         if not text.strip():
             raise SchedulerUnreachable(key, "an empty address (give tcp://HOST:PORT, or a scheduler file)")
         try:
-            if os.path.isfile(text):
-                client = distributed.Client(scheduler_file=text, timeout=CONNECT_TIMEOUT, set_as_default=False)
+            if os.path.isfile(text):     # a scheduler file: its address, tried like one given (a dead scheduler's
+                address = _scheduler_file(text, key)      # file must not make Dask's Client wait and retry)
             else:
                 address = _address(text)
-                try:
-                    identity = _probe(address, CONNECT_TIMEOUT)
-                except ValueError as exc:          # no port, an unknown protocol
-                    raise SchedulerUnreachable(key, f"{text}: {_first_line(exc)}") from None
-                except OSError as exc:             # refused, timed out (TimeoutError is an OSError), no route
-                    why = exc.strerror if isinstance(exc, OSError) and exc.strerror else _first_line(exc)
-                    raise SchedulerUnreachable(key, f"cannot reach a Dask scheduler at {address}: {why} (is "
-                                                    "'dask scheduler' running there?)") from None
-                except Exception:   # noqa: BLE001 - something answered, in another protocol (Dask read garbage)
-                    identity = None
-                if not isinstance(identity, dict) or identity.get("type") != "Scheduler":
-                    raise SchedulerUnreachable(key, f"{address} answered, but not as a Dask scheduler")
-                client = distributed.Client(address, timeout=CONNECT_TIMEOUT, set_as_default=False)
+            try:
+                identity = _probe(address, CONNECT_TIMEOUT)
+            except ValueError as exc:          # no port, an unknown protocol
+                raise SchedulerUnreachable(key, f"{text}: {_first_line(exc)}") from None
+            except OSError as exc:             # refused, timed out (TimeoutError is an OSError), no route
+                why = exc.strerror if isinstance(exc, OSError) and exc.strerror else _first_line(exc)
+                raise SchedulerUnreachable(key, f"cannot reach a Dask scheduler at {address}: {why} (is "
+                                                "'dask scheduler' running there?)") from None
+            except Exception:   # noqa: BLE001 - something answered, in another protocol (Dask read garbage)
+                identity = None
+            if not isinstance(identity, dict) or identity.get("type") != "Scheduler":
+                raise SchedulerUnreachable(key, f"{address} answered, but not as a Dask scheduler")
+            client = distributed.Client(address, timeout=CONNECT_TIMEOUT, set_as_default=False)
         except SchedulerUnreachable:
             raise
         except Exception as exc:   # noqa: BLE001 - a bad address, a refused handshake: all one line for the user
@@ -168,6 +168,19 @@ def connect(scheduler, key="--scheduler", slices=None, task_collisions=None):
         cluster.close()
         raise
     return cluster
+
+
+def _scheduler_file(path, key):
+    """The address in a scheduler file (``dask scheduler --scheduler-file``) -> str."""
+    import json
+    try:
+        with open(path) as f:
+            address = json.load(f).get("address")
+    except (OSError, ValueError, AttributeError) as exc:
+        raise SchedulerUnreachable(key, f"{path}: not a Dask scheduler file ({_first_line(exc)})") from None
+    if not isinstance(address, str):
+        raise SchedulerUnreachable(key, f"{path}: not a Dask scheduler file (no 'address')")
+    return address
 
 
 def _first_line(exc):

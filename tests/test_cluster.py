@@ -206,11 +206,11 @@ def test_a_cluster_run_is_the_local_run_bit_for_bit(name, cut, local_runs, reque
         assert not run["final/alive"].any()
 
 
-def test_workers_load_the_kernels_from_the_disk_cache(two, local_runs, tmp_path):
-    """The local run compiled the scene's kernel into the disk cache; the workers load it from there (a Numba
+def test_workers_load_the_kernels_from_the_disk_cache(two, tmp_path):
+    """A local run compiles the scene's kernel into the disk cache; the workers load it from there (a Numba
     cache hit) and compile nothing: their only misses are the non-literal signature Numba tries first, as in any
     process."""
-    local_runs("strip-random")
+    simulate(tmp_path, SCENE_RUNS["strip-random"], "local.h5")       # now: the kernel sources of this moment
     simulate(tmp_path, SCENE_RUNS["strip-random"], "cluster.h5", "--scheduler", two.address, "--slices", 4)
 
     def kernel_cache():
@@ -373,9 +373,13 @@ def free_port():
         return s.getsockname()[1]
 
 
-@pytest.mark.parametrize("address", ["tcp://127.0.0.1:{port}", "127.0.0.1:{port}", "nonsense://where"])
+@pytest.mark.parametrize("address", ["tcp://127.0.0.1:{port}", "127.0.0.1:{port}", "nonsense://where",
+                                     "scheduler.json"])
 def test_an_unreachable_scheduler_is_one_line_and_exit_2(address, tmp_path):
-    address = address.format(port=free_port())
+    port = free_port()
+    address = address.format(port=port)
+    if address == "scheduler.json":     # the file of a scheduler that is gone
+        (tmp_path / address).write_text(json.dumps({"type": "Scheduler", "address": f"tcp://127.0.0.1:{port}"}))
     (tmp_path / "exp.yaml").write_text(yaml.safe_dump(SCENE_RUNS["strip-random"]))
     res = rbx("simulate", "exp.yaml", "-o", "run.h5", "--scheduler", address, cwd=tmp_path)
     assert res.returncode == 2, res.stderr
