@@ -905,13 +905,16 @@ def draw(ax, geom, lo, hi, style_table, style_shrunk):
         l0, period = geom.lattice[0][:2], geom.lattice[1][:2]
         k0 = np.floor((np.asarray(lo[:2]) - l0) / period).astype(int) - 1
         k1 = np.floor((np.asarray(hi[:2]) - l0) / period).astype(int) + 1
+        if n == 3 and np.prod(k1 - k0 + 1) > 100:
+            return      # a 3D lattice seen from above: the spheres of every layer would cover the plane
         if np.prod(k1 - k0 + 1) > 40000:
-            k1 = k0 + np.minimum(k1 - k0, 199)
+            return      # too many cells to draw: the orbit alone
         shifts = [np.array([i, j], float) * period for i in range(k0[0], k1[0] + 1) for j in range(k0[1], k1[1] + 1)]
-        for i in range(k0[0], k1[0] + 2):
-            ax.axvline(l0[0] + i * period[0], color="0.8", lw=0.5, ls=":", zorder=0)
-        for j in range(k0[1], k1[1] + 2):
-            ax.axhline(l0[1] + j * period[1], color="0.8", lw=0.5, ls=":", zorder=0)
+        if len(shifts) <= 400:      # the cells' sides, where they do not clutter the picture
+            for i in range(k0[0], k1[0] + 2):
+                ax.axvline(l0[0] + i * period[0], color="0.8", lw=0.5, ls=":", zorder=0)
+            for j in range(k0[1], k1[1] + 2):
+                ax.axhline(l0[1] + j * period[1], color="0.8", lw=0.5, ls=":", zorder=0)
     curves = list(getattr(geom, "curves", []))
     if n == 3:
         t = np.linspace(0, 2 * np.pi, 181)
@@ -928,7 +931,56 @@ def draw(ax, geom, lo, hi, style_table, style_shrunk):
             lx, ly = max(q.hi[0] for q in boxes), max(q.hi[1] for q in boxes)
             curves += [("table", np.array([[0, 0], [lx, 0], [lx, ly], [0, ly], [0, 0]], float)),
                        ("shrunk", np.array([[R, R], [lx - R, R], [lx - R, ly - R], [R, ly - R], [R, R]], float))]
+    if len(shifts) > 25:        # many cells: each obstacle a light grey disc, the shrunk outlines left out
+        from matplotlib.collections import PatchCollection
+        from matplotlib.patches import Circle as Disc
+        discs = [Disc(np.asarray(q.center[:2], float) + s, q.radius) for s in shifts for q in geom.pieces
+                 if isinstance(q, T.Sphere) and not q.inside]
+        ax.add_collection(PatchCollection(discs, facecolor="0.82", edgecolor="0.55", lw=0.4, zorder=0))
+        ax.update_datalim(np.array([np.min(shifts, axis=0), np.max(shifts, axis=0) + geom.lattice[1][:2]]))
+        ax.autoscale_view()
+        return
     for s in shifts:
         for which, c in curves:
             ax.plot(c[:, 0] + s[0], c[:, 1] + s[1], **styles[which])
-    ax.set_aspect("equal", adjustable="datalim")
+
+
+def draw3d(ax, geom, lo, hi, style_table, style_shrunk):
+    """Draw the round walls of a 3D table built from pieces on 3D axes (the flat ones are drawn by
+    :func:`rbx.plotting.draw_table_3d`): a sphere as a translucent surface with its equator, the shrunk one as a
+    dashed equator; a cylinder's side as its rims and four lines along its axis; in a periodic table the obstacles
+    of the cells the data covers (at most 64) -> the (lo, hi) corners of what was drawn."""
+    from . import tables as T
+    R = geom.shrunk_radius
+    out_lo, out_hi = np.array(lo, float), np.array(hi, float)
+    shifts = [np.zeros(3)]
+    if geom.lattice is not None:
+        l0, period = geom.lattice
+        k0 = np.floor((np.asarray(lo) - l0) / period).astype(int)
+        k1 = np.floor((np.asarray(hi) - l0) / period).astype(int)
+        if np.prod(k1 - k0 + 1) > 27:
+            return out_lo, out_hi       # more cells than a 3D picture can show: the orbit alone
+        shifts = [(np.array(k, float) + k0) * period for k in np.ndindex(*(k1 - k0 + 1))]
+    t = np.linspace(0.0, 2 * np.pi, 73)
+    u, w = np.meshgrid(np.linspace(0, 2 * np.pi, 25), np.linspace(0, np.pi, 13))
+    for q in geom.pieces:
+        if isinstance(q, T.Sphere):
+            for s in shifts:
+                c = np.asarray(q.center, float) + s
+                r = q.radius
+                ax.plot_surface(c[0] + r * np.cos(u) * np.sin(w), c[1] + r * np.sin(u) * np.sin(w),
+                                c[2] + r * np.cos(w), color="0.6", alpha=0.15 if q.inside else 0.35, linewidth=0)
+                for rad, style in ((r, style_table), (r - R if q.inside else r + R, style_shrunk)):
+                    ax.plot(c[0] + rad * np.cos(t), c[1] + rad * np.sin(t), np.full_like(t, c[2]), **style)
+                out_lo, out_hi = np.minimum(out_lo, c - r), np.maximum(out_hi, c + r)
+        elif isinstance(q, T.Cylinder):
+            z0, z1 = _caps_z(geom.pieces)
+            c = np.asarray(q.center, float)
+            for rad, style, dz in ((q.radius, style_table, 0.0), (q.radius - R, style_shrunk, R)):
+                for z in (z0 + dz, z1 - dz):
+                    ax.plot(c[0] + rad * np.cos(t), c[1] + rad * np.sin(t), np.full_like(t, z), **style)
+                for a in np.arange(4) * np.pi / 2:
+                    ax.plot([c[0] + rad * np.cos(a)] * 2, [c[1] + rad * np.sin(a)] * 2, [z0 + dz, z1 - dz], **style)
+            out_lo = np.minimum(out_lo, [c[0] - q.radius, c[1] - q.radius, z0])
+            out_hi = np.maximum(out_hi, [c[0] + q.radius, c[1] + q.radius, z1])
+    return out_lo, out_hi
