@@ -25,6 +25,11 @@ def block_work(geom):
     return max(1, int(BLOCK_WORK / (1 + len(geom.codes) / 8)))
 
 
+class NonFiniteState(ArithmeticError):
+    """A trajectory's state stopped being finite: the run stops (its file keeps the last checkpoint, incomplete)
+    rather than end the trajectory as if it had escaped."""
+
+
 class Simulation:
     """The state of M trajectories of one validated experiment, advanced block by block.
 
@@ -154,6 +159,7 @@ class Simulation:
 
         The blocks come from this machine's thread pool, or, with ``self.cluster`` set (a
         :class:`rbx.cluster.Cluster`), from the workers of a Dask cluster: the same blocks, the same sink."""
+        self.check_finite()
         if write_initial is None:
             write_initial = bool(np.all(self.ncoll == 0))
         if self.record and write_initial:
@@ -162,6 +168,7 @@ class Simulation:
                   else self.cluster.blocks(self, should_stop, progress))
         try:
             for block, nrec in blocks:
+                self.check_finite()           # before anything of the block is written: the file stays valid
                 if block is not None:
                     sink.write(block, nrec)
                 sink.checkpoint(self)
@@ -171,6 +178,17 @@ class Simulation:
             return False
         sink.checkpoint(self)
         return True
+
+    def check_finite(self):
+        """Raise :class:`NonFiniteState` if a trajectory's state is no longer finite (in the kernel, a NaN
+        position finds no wall ahead and would end like an escape: a shortened trajectory, silently)."""
+        bad = ~(np.isfinite(self.pos).all(axis=1) & np.isfinite(self.vel).all(axis=1)
+                & np.isfinite(self.W).all(axis=(1, 2)) & np.isfinite(self.time))
+        if bad.any():
+            j = int(np.argmax(bad))
+            raise NonFiniteState(f"trajectory {j} (and {int(bad.sum()) - 1} more) reached a non-finite state by "
+                                 f"collision {int(self.ncoll[j])}: position {self.pos[j].tolist()}, velocity "
+                                 f"{self.vel[j].tolist()}")
 
     def _blocks(self, should_stop=None, progress=None):
         """The local blocks of a run: advance on this machine's threads -> yields (block or None, nrec) per block,

@@ -222,13 +222,14 @@ def _execute(sim, path, stop, quiet, done, start):
     is all of them (SPEC §4)."""
     from ..cluster import ClusterError
     from ..runfile import DiskFull, temporary_path
+    from ..simulation import NonFiniteState
 
     progress = Progress("simulate", quiet=quiet, start=done)
     complete = False
     failure = None
     try:
         complete = start(progress=progress, should_stop=stop, report=lambda m: click.echo(f"rbx: {m}", err=True))
-    except (OSError, ClusterError) as exc:   # disk full, file system gone, cluster lost: not a bug
+    except (OSError, ClusterError, NonFiniteState) as exc:   # disk full, file system gone, cluster lost, NaN
         failure = exc
     finally:
         progress.close()
@@ -238,6 +239,9 @@ def _execute(sim, path, stop, quiet, done, start):
             click.echo(f"rbx: {display_path(where)}: {failure}; the run stopped, the file holds every record up to "
                        "its last checkpoint (complete = false). Continue with: "
                        f"rbx simulate --resume {display_path(where)} (with --scheduler, or locally)", err=True)
+        elif isinstance(failure, NonFiniteState):
+            click.echo(f"rbx: {display_path(where)}: {failure}; the run stopped, the file holds every record up to "
+                       "its last checkpoint (complete = false)", err=True)
         elif isinstance(failure, DiskFull):
             click.echo(f"rbx: {display_path(where)}: {failure}; the run stopped, the file holds every record up to "
                        "its last checkpoint (complete = false). Free some space, then continue with: "

@@ -1,0 +1,52 @@
+"""A trajectory whose state stops being finite is an error, not an early end (issue 13, item 7): in the kernel a
+NaN position finds no wall ahead, which would end the trajectory like an escape, marked complete. The run stops
+before the block holding the NaN is written; a run file keeps every record up to its last checkpoint, marked
+incomplete. Config validation refuses the inputs known to produce NaN (tests/test_errors.py); this is the net
+behind it, exercised by putting a NaN into a real simulation's state."""
+import h5py
+import numpy as np
+import pytest
+
+from rbx import api, config
+from rbx.simulation import MemorySink, NonFiniteState, Simulation
+
+CFG = {"table": {"kind": "stadium", "radius": 0.5, "length": 1.0},
+       "boundary": {"default": {"rule": "constant", "rank": 1}}, "ball": {"radius": 0.1},
+       "initial": {"sample": "billiard"}, "run": {"collisions": 50, "trajectories": 3, "seed": 2},
+       "output": {"record": ["time", "position"]}}
+
+
+def test_a_nan_state_stops_the_run_with_an_error():
+    sim = Simulation(config.from_dict(CFG))
+    sim.vel[1] = np.nan
+    with pytest.raises(NonFiniteState) as info:
+        sim.run(MemorySink())
+    assert "trajectory 1" in str(info.value)
+    # the same run without the NaN completes: the check does not fire on finite states
+    clean = Simulation(config.from_dict(CFG))
+    assert clean.run(MemorySink()) is True
+
+
+def test_a_nan_state_leaves_an_incomplete_readable_file(tmp_path):
+    out = tmp_path / "nan.h5"
+    sim = Simulation(config.from_dict(CFG))
+    sim.pos[2, 0] = np.inf
+    with pytest.raises(NonFiniteState):
+        api.run_to_file(sim, str(out))
+    path = out if out.exists() else tmp_path / "nan.h5.partial"
+    with h5py.File(path, "r") as h5:
+        assert not h5.attrs["complete"]
+        assert np.all(h5["collisions/count"][...] == 0)          # not even record 0 with its infinite position
+
+
+def test_a_nan_reached_mid_run_keeps_the_blocks_before_it():
+    sim = Simulation(config.from_dict({**CFG, "run": {"collisions": 2000000, "trajectories": 3, "seed": 2}}))
+    sink = MemorySink()
+    blocks = sim._blocks()
+    block, nrec = next(blocks)          # one real block, then a NaN appears in the state
+    sink.write(block, nrec)
+    sim.W[0] = np.nan
+    with pytest.raises(NonFiniteState) as info:
+        sim.check_finite()
+    assert "trajectory 0" in str(info.value) and sink.count.min() > 1
+    assert np.all(np.isfinite(sink.records["time"][:, :sink.count.min()]))
