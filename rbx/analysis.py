@@ -92,11 +92,25 @@ def table_measure(geom):
                 m = float(np.prod(lengths))
                 surface += m
                 volume += -float(origin @ normal) * m          # p·ν_out = −p·ν is constant on a flat wall
-            else:
+            elif patch[0] == "arc":
                 _, centre, rho, a0, a1, sign = patch
                 surface += rho * (a1 - a0)
                 radial_integral = np.array([np.sin(a1) - np.sin(a0), np.cos(a0) - np.cos(a1)])
                 volume += -sign * rho * (float(centre @ radial_integral) + rho * (a1 - a0))
+            elif patch[0] == "sphere":           # ∮ p·ν_out = ∓ρ·4πρ² (the centre's part integrates to 0)
+                _, centre, rho, sign = patch
+                surface += 4 * np.pi * rho ** 2
+                volume += -sign * 4 * np.pi * rho ** 3
+            elif patch[0] == "cylinder":         # ν_out = radial: p·ν_out = ρ + c·radial, which integrates to ρ
+                _, centre, rho, z0, z1 = patch
+                surface += 2 * np.pi * rho * (z1 - z0)
+                volume += 2 * np.pi * rho * rho * (z1 - z0)
+            else:                                # a cylinder's cap: p·ν_out = −p·ν, constant
+                _, centre, normal, rho = patch
+                surface += np.pi * rho ** 2
+                volume += -float(centre @ normal) * np.pi * rho ** 2
+    if geom.lattice is not None:                 # the periodic cell's sides: ∮ p·ν_out over the box = n·|box|
+        volume += n * float(np.prod(geom.lattice[1]))
     return volume / n, surface
 
 
@@ -489,3 +503,71 @@ def scene_title(experiment):
     return (f"{ball} (R = {_num(experiment.ball.radius)}, κ = {experiment.ball.kappa:.3g}) "
             f"{describe_table(experiment.table_kind, experiment.table)} · "
             f"{describe_boundary(experiment.wall_rules, experiment.wall_names, n)}")
+
+
+# ---- sections (SPEC §10) ---------------------------------------------------------------------------------------
+
+
+def wall_span(geom, wall):
+    """(s at the start of ``wall``, its length) along the shrunk boundary (2D) -> (float, float)."""
+    offsets = [(p, s0) for w, p, s0 in _patch_offsets(geom) if w == wall]
+    if not offsets:
+        raise ValueError(f"wall {wall} has no part the centre can touch")
+    length = sum(float(np.prod([x for _, x in p[3]])) if p[0] == "flat" else p[2] * (p[4] - p[3]) for p, _ in offsets)
+    return min(s0 for _, s0 in offsets), length
+
+
+def spin_fraction(velocity, angular_velocity, R, kappa):
+    """The spin's share of the speed in the metric coordinates: v₀/|(v, v₀)| with v₀ = R√κ·ω (2D), or R√κ·ω·e/…
+    for 3D components -> values in [−1, 1] (M,) for 2D, (M, 3) for 3D."""
+    v = np.asarray(velocity, float)
+    w = np.asarray(angular_velocity, float)
+    c = R * math.sqrt(kappa)
+    w2 = w * w if w.ndim == v.ndim - 1 else np.sum(w * w, axis=-1)
+    speed = np.sqrt(np.sum(v * v, axis=-1) + c * c * w2)
+    return c * w / (speed if w.ndim == v.ndim - 1 else speed[..., None])
+
+
+def parse_plane(text):
+    """A plane for a Poincaré section: 'z=0.5' (also x=, y=) or 'n=1,0,1;c=0.3' (the plane n·x = c, n normalised)
+    -> (unit normal (3,), offset c). Raises ValueError."""
+    t = text.replace(" ", "")
+    if len(t) > 2 and t[0] in "xyz" and t[1] == "=":
+        n = np.zeros(3)
+        n["xyz".index(t[0])] = 1.0
+        return n, float(t[2:])
+    parts = dict(p.split("=", 1) for p in t.split(";") if "=" in p)
+    if set(parts) != {"n", "c"}:
+        raise ValueError(f"expected a plane such as z=0.5 or n=1,0,1;c=0.3, got '{text}'")
+    n = np.array([float(x) for x in parts["n"].split(",")])
+    norm = np.linalg.norm(n)
+    if n.shape != (3,) or not np.isfinite(norm) or norm == 0:
+        raise ValueError(f"the plane's normal must be 3 numbers, not all 0: '{parts['n']}'")
+    return n / norm, float(parts["c"]) / norm
+
+
+def plane_crossings(position, velocity, angular_velocity, time, normal, offset):
+    """Poincaré section of 3D orbits by the plane normal·x = offset, crossed in the direction of the normal ->
+    dict of arrays over the crossings: ``position`` (k, 3), ``velocity``, ``angular_velocity``, ``time``,
+    ``trajectory``, ``record`` (the record the flight started from).
+
+    Between records k and k+1 (both recorded: output.every must be 1) the centre flies freely with the velocity of
+    record k, so the crossing point is the exact linear interpolation; velocity and spin are those of record k."""
+    p, v, w, t = (np.asarray(x, float) for x in (position, velocity, angular_velocity, time))
+    h = p @ normal - offset                     # (M, T) signed height above the plane
+    a, b = h[:, :-1], h[:, 1:]
+    vn = v[:, :-1] @ normal
+    hit = (a < 0) & (b >= 0) & (vn > 0) & np.isfinite(b)
+    j, k = np.nonzero(hit)
+    dt = -a[j, k] / vn[j, k]
+    return {"position": p[j, k] + dt[:, None] * v[j, k], "velocity": v[j, k], "angular_velocity": w[j, k],
+            "time": t[j, k] + dt, "trajectory": j, "record": k}
+
+
+def plane_axes(normal):
+    """Two unit axes (e₁, e₂) spanning a plane with this unit normal, e₁ along x (or y) projected on it."""
+    normal = np.asarray(normal, float)
+    base = np.eye(3)[int(np.argmin(np.abs(normal)))] if abs(normal[0]) > 0.9 else np.eye(3)[0]
+    e1 = base - (base @ normal) * normal
+    e1 /= np.linalg.norm(e1)
+    return e1, np.cross(normal, e1)

@@ -10,7 +10,7 @@ from matplotlib import colormaps
 from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
 
-from . import analysis, tables
+from . import analysis, geometry, tables
 from .tables import SHRUNK_STYLE, TABLE_STYLE
 
 MAX_LEGEND = 10
@@ -41,7 +41,7 @@ def draw_table_2d(ax, geom, lo, hi):
     """The table (solid) and the shrunk table seen by the centre (dashed) on 2D axes, to scale; a 3D table as its
     horizontal projection. Unbounded tables are drawn over the data range [lo, hi] (and the axes limited to it).
     How each kind is drawn is a facet of its record in :mod:`rbx.tables`."""
-    tables.kind(geom.kind).draw(ax, geom, lo, hi)
+    tables.draw(ax, geom, lo, hi)
 
 
 def draw_table_3d(ax, geom, lo, hi):
@@ -52,7 +52,11 @@ def draw_table_3d(ax, geom, lo, hi):
     pad = 0.05 * max(float(np.max(hi - lo)), geom.size)
     span_lo, span_hi = np.array(lo, float) - pad, np.array(hi, float) + pad
     out_lo, out_hi = np.array(lo, float), np.array(hi, float)
+    if geom.pieces is not None:      # round walls and obstacles of a table built from pieces (rbx.geometry)
+        out_lo, out_hi = geometry.draw3d(ax, geom, out_lo, out_hi, TABLE_STYLE, SHRUNK_STYLE)
     for piece in tables.walls(geom.kind, geom.table):
+        if not isinstance(piece, tables.Plane):
+            continue
         p0, nu = np.array(piece.point, float), np.array(piece.normal, float)
         t1, t2 = (np.array(t, float) for t in piece.tangents)
         blo, bhi = np.array(piece.lo, float), np.array(piece.hi, float)
@@ -289,4 +293,64 @@ def histogram_figure(angle, d, ks_statistic, ks_pvalue, title, bins=50):
     ax.set_xlabel("return angle φ to the normal [rad]")
     ax.set_ylabel("density [1/rad]")
     ax.legend(fontsize=8, loc="upper left" if d > 3 else "upper right")
+    return fig
+
+
+# ---- escape and return times (SPEC §10) ------------------------------------------------------------------------
+
+
+def escape_figure(s, S, rate, rate_err, start, exits, total, title, unit="path length [L]", expected=None):
+    """The survival function S(s) (Kaplan–Meier: the fraction of trajectories still in the table after path s) on
+    a log scale, with the fitted exponential tail A·exp(−γ s) for s ≥ ``start`` and its rate γ ± error.
+    ``expected``: (γ, label) of a predicted rate, drawn dashed."""
+    fig = _figure(8.4, 5.0, title)
+    ax = fig.add_subplot()
+    ax.step(s, S, where="post", color=_colour(0), lw=1.2, label=f"Kaplan–Meier survival ({exits} of {total} exited)")
+    if rate > 0 and np.isfinite(rate_err):
+        x = np.linspace(start, float(np.max(s)) if len(s) else start + 1.0, 200)
+        S0 = float(S[np.searchsorted(s, start, side="right") - 1]) if len(s) else 1.0
+        ax.plot(x, S0 * np.exp(-rate * (x - start)), "k-", lw=1.0,
+                label=f"fit s ≥ {start:.3g}: γ = {rate:.4g} ± {rate_err:.2g} per unit")
+        if expected is not None:
+            ax.plot(x, S0 * np.exp(-expected[0] * (x - start)), "k--", lw=0.9, label=expected[1])
+    ax.set_yscale("log")
+    positive = S[S > 0]
+    ax.set_ylim(max(0.5 * float(positive.min()) if len(positive) else 1e-3, 0.5 / max(total, 1)), 1.5)
+    ax.set_xlim(0.0, None)
+    ax.set_xlabel(unit)
+    ax.set_ylabel("fraction still in the table S(s) [–]")
+    ax.legend(fontsize=8, loc="upper right")
+    return fig
+
+
+# ---- sections (SPEC §10) ---------------------------------------------------------------------------------------
+
+
+def section_figure(panels, spin, title, spin_label):
+    """Sections of phase space coloured by the (scaled) spin: ``panels`` as for :func:`phase_figure` (``x``,
+    ``y``, labels, limits, ``vlines``); ``spin`` one value per point, on a diverging scale symmetric about 0."""
+    fig = _figure(5.4 * len(panels) + 1.2, 5.0, title)
+    spin = np.asarray(spin, float)
+    top = float(np.nanmax(np.abs(spin))) if len(spin) else 1.0
+    norm = Normalize(-top or -1.0, top or 1.0)
+    ms = float(np.clip(30000.0 / max(len(spin), 1), 1.5, 12.0))
+    axes = []
+    for spec in panels:
+        ax = fig.add_subplot(1, len(panels), len(axes) + 1)
+        ax.scatter(spec["x"], spec["y"], c=spin, cmap="coolwarm", norm=norm, s=ms, lw=0, rasterized=True)
+        for v in spec.get("vlines", ()):
+            ax.axvline(v, color="0.6", lw=0.6, ls=":")
+        if "xlim" in spec:
+            ax.set_xlim(*spec["xlim"])
+        if "ylim" in spec:
+            ax.set_ylim(*spec["ylim"])
+        if spec.get("equal"):
+            ax.set_aspect("equal", adjustable="box")
+        ax.set_xlabel(spec["xlabel"])
+        ax.set_ylabel(spec["ylabel"])
+        if spec.get("title"):
+            ax.set_title(spec["title"], fontsize=9)
+        axes.append(ax)
+    from matplotlib.cm import ScalarMappable
+    fig.colorbar(ScalarMappable(norm=norm, cmap="coolwarm"), ax=axes, label=spin_label, shrink=0.85)
     return fig

@@ -8,7 +8,7 @@ import numpy as np
 from .common import Command, UserError, interrupted_exit, report_and_exit, user_errors
 
 #: the plot kinds (``--kind``); kind K is drawn by the function ``_K`` below
-KINDS = ("orbit", "orbit3d", "phase", "series", "diffusion")
+KINDS = ("orbit", "orbit3d", "phase", "series", "diffusion", "escape", "birkhoff", "poincare")
 #: --coordinate name -> (field, component or None, axis label, dimensions where it exists)
 COORDINATES = {
     "x": ("position", 0, "x [L]", (2, 3)), "y": ("position", 1, "y [L]", (2, 3)), "z": ("position", 2, "z [L]", (3,)),
@@ -19,7 +19,8 @@ COORDINATES = {
     "theta": ("orientation", None, "θ [rad]", (2,)), "time": ("time", None, "t [T]", (2, 3)),
 }
 #: default number of trajectories drawn when --trajectories is not given
-DEFAULT_TRAJECTORIES = {"orbit": 10, "orbit3d": 10, "phase": 20, "series": 1, "diffusion": None}
+DEFAULT_TRAJECTORIES = {"orbit": 10, "orbit3d": 10, "phase": 20, "series": 1, "diffusion": None, "escape": None,
+                        "birkhoff": 20, "poincare": 20}
 
 
 @click.command(cls=Command)
@@ -38,14 +39,22 @@ DEFAULT_TRAJECTORIES = {"orbit": 10, "orbit3d": 10, "phase": 20, "series": 1, "d
 @click.option("--scales", default="0.01,0.1,1", show_default=True,
               help="series: fractions of the run shown in the panels.")
 @click.option("--fit-from", default=0.1, show_default=True, type=float,
-              help="diffusion: fit the MSD over steps ≥ this fraction of the last step.")
+              help="diffusion: fit the MSD over steps ≥ this fraction of the last step; escape: fit the rate over "
+                   "paths ≥ this quantile of the exit paths.")
+@click.option("--wall", "wall", help="birkhoff: the wall whose boundary map to draw (default: the whole boundary).")
+@click.option("--plane", default="z=0.5", show_default=True,
+              help="poincare: the section plane, z=0.5 (or x=, y=) or n=NX,NY,NZ;c=C for n·x = C.")
 @click.option("--dpi", default=150, show_default=True, type=click.IntRange(10, 1200),
               help="Resolution of raster figures (10 to 1200; 100 000 used to exhaust the memory).")
 @click.option("--debug", is_flag=True, help="Show a traceback with user errors.")
-def plot(run_file, kind, out, records, trajectories, colour, coordinate, scales, fit_from, dpi, debug):
-    """Draw a picture of the run OUT.h5 (written by rbx simulate)."""
+def plot(run_file, kind, out, records, trajectories, colour, coordinate, scales, fit_from, wall, plane, dpi, debug):
+    """Draw a picture of the run OUT.h5 (written by rbx simulate).
+
+    escape: the survival function of escape or return times (walls with the rule exit) with the fitted rate;
+    birkhoff: the boundary map of a 2D run coloured by the spin; poincare: a 3D run's section by a plane."""
     try:
-        path = _plot(run_file, kind, out, records, trajectories, colour, coordinate, scales, fit_from, dpi)
+        path = _plot(run_file, kind, out, records, trajectories, colour, coordinate, scales, fit_from, dpi,
+                     wall=wall, plane=plane)
     except UserError as exc:
         report_and_exit(exc, debug)
     except KeyboardInterrupt:
@@ -53,9 +62,10 @@ def plot(run_file, kind, out, records, trajectories, colour, coordinate, scales,
     click.echo(f"wrote {path}")
 
 
-def _plot(run_file, kind, out, records, trajectories, colour, coordinate, scales, fit_from, dpi):
+def _plot(run_file, kind, out, records, trajectories, colour, coordinate, scales, fit_from, dpi, wall=None,
+          plane="z=0.5"):
     fig = make_figure(run_file, kind, parse_records(records), trajectories, colour=colour, coordinate=coordinate,
-                      scales=parse_scales(scales), fit_from=fit_from)
+                      scales=parse_scales(scales), fit_from=fit_from, wall=wall, plane=plane)
     path = out or f"{os.path.splitext(run_file)[0]}_{kind}.png"
     try:
         os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
@@ -69,7 +79,7 @@ def make_figure(run_file, kind, records=slice(None), trajectories=None, **option
     """The Figure of one picture of a run file -> matplotlib Figure (for the CLI, figure scripts and tests).
 
     ``trajectories``: text as for --trajectories, or None for the kind's default; ``options``: colour,
-    coordinate, scales, fit_from. Problems with the file or the selection raise :class:`UserError`."""
+    coordinate, scales, fit_from, wall, plane. Problems with the file or the selection raise :class:`UserError`."""
     from ..runfile import Run
 
     with user_errors():
@@ -261,6 +271,131 @@ def _diffusion(run, rec, traj, coordinate="x", fit_from=0.1, **_):
     full = np.all(np.isfinite(x), axis=1)
     return plotting.diffusion_figure(t, msd, fit, (x[full, -1] - x[full, 0]),
                                      _title(run, f"diffusion along {coordinate}", traj, rec), coordinate=coordinate)
+
+
+def _escape(run, rec, traj, fit_from=0.1, **_):
+    from .. import plotting
+    from ..analysis import santalo_constant, table_measure, velocity_dimension
+    from ..dynamics import escape_times
+    from ..model import Exit
+    exp = run.experiment
+    if not any(isinstance(leaf, Exit) for r in exp.wall_rules for leaf in _leaves(r)):
+        raise ValueError("no wall of this run has the rule exit: nothing can escape (give a wall {rule: exit})")
+    out = escape_times(run)
+    sel = np.asarray(traj)
+    path, exited = out.path[sel], out.exited[sel]
+    if not exited.any():
+        raise ValueError(f"none of the {len(sel)} trajectories reached an exit wall in {exp.run.collisions} "
+                         "collisions")
+    if not 0.0 <= fit_from < 1.0:
+        raise UserError(None, "--fit-from", f"escape: a quantile in [0, 1), got {fit_from}")
+    start = float(np.quantile(path[exited], fit_from)) if fit_from > 0 else 0.0
+    from ..dynamics import exponential_rate, survival
+    rate, err, k = exponential_rate(path, exited, start)
+    s, S = survival(path, exited)
+    walls = sorted({run.wall_names[w] for w in out.wall[sel][exited]})
+    expected = None
+    geom = run.geometry()
+    try:
+        volume, _ = table_measure(geom)
+        holes = [w for w, r in enumerate(exp.wall_rules) if isinstance(r, Exit)]
+        hole = sum(_wall_measure(geom, w) for w in holes)
+        d = velocity_dimension(run.dimension)
+        # flux through the holes over the phase volume: |∂Q_hole|/(C_d·|Q|) per unit path (small holes)
+        expected = (hole / (santalo_constant(d) * volume),
+                    f"small-hole rate |hole|/({santalo_constant(d):.3g}·|table|) = "
+                    f"{hole / (santalo_constant(d) * volume):.4g}")
+    except (ValueError, ZeroDivisionError):
+        pass
+    censored = int(np.sum(~exited))
+    title = _title(run, f"escape through {', '.join(walls)} ({censored} still inside: censored)", traj, rec)
+    return plotting.escape_figure(s, S, rate, err, start, int(exited.sum()), len(sel), title,
+                                  unit="path length in (x, R√κ·θ) [L]", expected=expected)
+
+
+def _leaves(rule):
+    from ..model import rule_leaves
+    return rule_leaves(rule)
+
+
+def _wall_measure(geom, w):
+    total = 0.0
+    for patch in geom.wall_list[w].patches:
+        if patch[0] == "flat":
+            total += float(np.prod([x for _, x in patch[3]]))
+        elif patch[0] == "arc":
+            total += patch[2] * (patch[4] - patch[3])
+        else:
+            raise ValueError("the hole's measure is computed for 2D walls and flat 3D walls")
+    return total
+
+
+def _birkhoff(run, rec, traj, wall=None, **_):
+    from .. import analysis, plotting
+    if run.dimension != 2:
+        raise UserError(run.path, None, "birkhoff needs a 2D run; for a 3D run use --kind poincare --plane ...")
+    run.require(["position", "velocity", "angular_velocity", "wall"], "the Birkhoff map")
+    walls = run.read("wall", traj, rec)
+    at = walls >= 0
+    geom = run.geometry()
+    w_sel = None
+    if wall is not None:
+        if wall not in run.wall_names:
+            raise UserError(None, "--wall", f"no wall named '{wall}' (walls: {', '.join(run.wall_names)})")
+        w_sel = run.wall_names.index(wall)
+        at &= walls == w_sel
+    pos = run.read("position", traj, rec)[at]
+    vel = run.read("velocity", traj, rec)[at]
+    spin = run.read("angular_velocity", traj, rec)[at]
+    if len(pos) == 0:
+        raise ValueError("no collisions " + (f"with wall '{wall}' " if wall else "") + "in the selected records")
+    s, sin_psi = analysis.birkhoff_coordinates(geom, walls[at], pos, vel)
+    colour = analysis.spin_fraction(vel, spin, run.radius, run.kappa)
+    panel = dict(y=sin_psi, ylabel="sin ψ = v·t/|v| (t: the counter-clockwise tangent) [–]", ylim=(-1.05, 1.05))
+    if w_sel is not None:
+        s0, length = analysis.wall_span(geom, w_sel)
+        panel.update(x=s - s0, xlabel=f"arc length along wall '{wall}' of the shrunk table [L]", xlim=(0.0, length),
+                     title=f"boundary map on wall '{wall}'")
+    else:
+        total = analysis.boundary_length(geom)
+        if not np.isfinite(total):
+            raise ValueError("the table is unbounded: choose one wall with --wall")
+        panel.update(x=s, xlabel="arc length s along the shrunk boundary [L]", xlim=(0.0, total),
+                     vlines=analysis.wall_joints(geom), title="Birkhoff map of the whole boundary")
+    return plotting.section_figure([panel], colour, _title(run, "Birkhoff section at collisions", traj, rec),
+                                   "spin share v₀/|(v, v₀)|, v₀ = R√κ·ω [–]")
+
+
+def _poincare(run, rec, traj, plane="z=0.5", **_):
+    from .. import analysis, plotting
+    if run.dimension != 3:
+        raise UserError(run.path, None, "poincare needs a 3D run; for a 2D run use --kind birkhoff")
+    try:
+        normal, offset = analysis.parse_plane(plane)
+    except ValueError as exc:
+        raise UserError(None, "--plane", str(exc)) from None
+    if run.every != 1:
+        raise ValueError(f"a Poincaré section needs every collision recorded (output.every: 1, this run has "
+                         f"{run.every})")
+    run.require(["time", "position", "velocity", "angular_velocity"], "the Poincaré section")
+    cut = analysis.plane_crossings(run.read("position", traj, rec), run.read("velocity", traj, rec),
+                                   run.read("angular_velocity", traj, rec), run.read("time", traj, rec), normal,
+                                   offset)
+    if len(cut["time"]) == 0:
+        raise ValueError(f"no orbit crosses the plane {plane} in the selected records")
+    e1, e2 = analysis.plane_axes(normal)
+    p, v = cut["position"], cut["velocity"]
+    spin = analysis.spin_fraction(v, cut["angular_velocity"], run.radius, run.kappa) @ normal
+    speed = np.linalg.norm(v, axis=1)
+    names = "xyz"
+    ax1 = names[int(np.argmax(np.abs(e1)))] if np.max(np.abs(e1)) > 0.999 else "e₁"
+    ax2 = names[int(np.argmax(np.abs(e2)))] if np.max(np.abs(e2)) > 0.999 else "e₂"
+    panels = [dict(x=p @ e1, y=p @ e2, xlabel=f"{ax1} on the plane [L]", ylabel=f"{ax2} on the plane [L]",
+                   equal=True, title=f"crossing points of {plane} (upward)"),
+              dict(x=(v @ e1) / speed, y=(v @ e2) / speed, xlabel=f"v·{ax1}/|v| [–]", ylabel=f"v·{ax2}/|v| [–]",
+                   equal=True, xlim=(-1.05, 1.05), ylim=(-1.05, 1.05), title="direction of the centre's velocity")]
+    return plotting.section_figure(panels, spin, _title(run, f"Poincaré section by {plane}", traj, rec),
+                                   "spin share along the normal R√κ·ω·n/|(v, R√κ·ω)| [–]")
 
 
 #: each plot kind is drawn by the function ``_<kind>`` of this module
