@@ -93,7 +93,8 @@ class Lyapunov:
     ``exponents`` (d,): Σ log-stretches / Σ time over the measured segments of every trajectory, sorted
     decreasingly (the other arrays follow the same order);
     ``stderr`` (d,): the standard error from the spread of the segment estimates (batch means: ``segments``
-    per trajectory × ``trajectories``, each weighted by its duration); ``per_trajectory`` (M, d);
+    per trajectory × ``trajectories``, each weighted by its duration), or from the spread of the trajectories'
+    own estimates if that is larger (a table that is not ergodic); ``per_trajectory`` (M, d);
     ``segment_exponents`` (M, S, d) and ``segment_times`` (M, S); ``time`` (M,) and ``collisions`` (M,) measured
     (after ``warmup`` collisions); ``coordinates``: the tangent coordinates' names."""
     exponents: np.ndarray
@@ -165,15 +166,11 @@ def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segme
     if not T > 0:
         raise ValueError("no trajectory moved after the warm-up (all left the table)")
     exponents = np.sum(total_sums, axis=0) / T
-    ok = seg_time.reshape(-1) > 0
-    w = seg_time.reshape(-1)[ok]
-    e = seg_exp.reshape(-1, d)[ok]
-    B = len(w)
-    if B > 1:
-        wn = w / np.mean(w)
-        stderr = np.sqrt(np.sum((wn[:, None] * (e - exponents)) ** 2, axis=0) / (B * (B - 1)))
-    else:
-        stderr = np.full(d, np.nan)
+    stderr = _batch_stderr(seg_time.reshape(-1), seg_exp.reshape(-1, d), exponents)
+    if M > 1:
+        # trajectories of a table that is not ergodic (rough tables trap: docs/dynamics.md) can have different
+        # exponents; their spread is then larger than the segments' and is the honest error
+        stderr = np.fmax(stderr, _batch_stderr(total_time, per_traj, exponents))
     # Benettin's order is the decreasing one only where the tangent vectors mix: a block that never feeds back
     # (the spin and orientation of a specular table) keeps its vectors to itself, so the order is made explicit
     order = np.argsort(-exponents, kind="stable")
@@ -181,6 +178,17 @@ def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segme
     return Lyapunov(exponents=exponents, stderr=stderr, per_trajectory=per_traj, segment_exponents=seg_exp,
                     segment_times=seg_time, time=total_time, collisions=tan.state.ncoll - c0, warmup=warmup,
                     coordinates=coordinate_names(tan.n), title=scene_title(exp), ended=~tan.state.alive.copy())
+
+
+def _batch_stderr(w, e, mean):
+    """Standard error of a time-weighted mean of batch estimates e (B, d) with durations w (B,)."""
+    ok = w > 0
+    w, e = w[ok], e[ok]
+    B = len(w)
+    if B < 2:
+        return np.full(e.shape[1] if e.ndim == 2 else len(mean), np.nan)
+    wn = w / np.mean(w)
+    return np.sqrt(np.sum((wn[:, None] * (e - mean)) ** 2, axis=0) / (B * (B - 1)))
 
 
 # ---- escape and return times (open billiards: walls with the rule ``exit``) -----------------------------------------
