@@ -44,7 +44,10 @@ def _lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json)
         raise UserError(None, "--warmup", f"{warmup} leaves no collisions of the {N} to measure")
     if N - (N // 10 if warmup is None else warmup) < segments:
         raise UserError(None, "--segments", f"more segments ({segments}) than measured collisions")
-    result = spectrum(exp, segments=segments, warmup=warmup)
+    try:
+        result = spectrum(exp, segments=segments, warmup=warmup)
+    except ValueError as exc:       # every trajectory left the table (exits, a wedge's escapes) before measuring
+        raise UserError(config, None, str(exc)) from None
     if as_json:
         click.echo(json.dumps(result.to_dict()))
         return
