@@ -261,6 +261,7 @@ def tangent_advance(j, stop, t_end, ortho, slab, periodic, spin, tree, renorm_ev
     base = np.zeros(n)          # periodic tables: the centre's cell, its position relative to the image hit, and
     loc = np.zeros(n)           # that image's shift (loc = a − off)
     off = np.zeros(n)
+    ahead = np.zeros(n)         # where a periodic table's flight is looked at from
     th = state.theta[j]
     t = state.time[j]
     c = state.ncoll[j]
@@ -274,7 +275,19 @@ def tangent_advance(j, stop, t_end, ortho, slab, periodic, spin, tree, renorm_ev
         if slab:
             tau, p = slab_collision(params, a, v, n)
         elif periodic:
-            tau, p = periodic_collision(codes, params, a, v, tol, n, table.lattice_lo, table.period, base, loc, off)
+            # as the engine: the flight is looked at in windows (PASS) from a + acc·v and flown once
+            acc = 0.0
+            for i in range(n):
+                ahead[i] = a[i]
+            while True:
+                tau, p = periodic_collision(codes, params, ahead, v, tol, n, table.lattice_lo, table.period, base,
+                                            loc, off)
+                if p != PASS:
+                    break
+                acc += tau
+                for i in range(n):
+                    ahead[i] = a[i] + acc * v[i]
+            tau += acc
         else:
             tau, p = next_collision(codes, params, a, v, tol, n)
         if t + tau > t_end:                       # stop in flight at t_end (also when no wall lies ahead)
@@ -294,8 +307,6 @@ def tangent_advance(j, stop, t_end, ortho, slab, periodic, spin, tree, renorm_ev
         if p == -3:
             t = t_end
             break
-        if p == PASS:
-            continue                              # a periodic table: no wall within reach of the last look
         if not periodic:
             for i in range(n):
                 loc[i] = a[i]
