@@ -2,7 +2,7 @@
 
 - The tangent map is the derivative of the engine's flow: central finite differences of ``rbx``'s own event loop
   (several steps) agree with :func:`rbx.dynamics.flow_jacobian` on every primitive the tables use (each registered
-  table kind at its example parameters, plus the 3D Sinai table), for specular, rough and random rules.
+  table kind at its example parameters, plus the 3D Sinai table), for specular, rough, random and hemisphere rules.
 - The orbit the tangent loop follows is the engine's.
 - Known spectra: a specular dispersing table gives the classic billiard's largest exponent, computed here by the
   independent wavefront-curvature recursion; flat-walled 2D tables and the rough circle give exponents tending to
@@ -25,6 +25,9 @@ def _rule(name, n, flat=True):
         return {"rule": "constant", "rank": 0}
     if name == "rough":
         return {"rule": "constant", "rank": n - 1}
+    if name == "hemisphere":      # completely rough on one hemisphere of the ball, specular on the other
+        return {"rule": "hemisphere", "axis": [0.3, 1.0] if n == 2 else [0.3, 0.2, 1.0],
+                "rough": {"rule": "constant", "rank": n - 1}, "smooth": {"rule": "constant", "rank": 0}}
     # a random choice among specular, completely rough and (3D) rank 1 along a fixed direction
     choices = [{"rule": "constant", "rank": 0}, {"rule": "constant", "rank": n - 1}]
     if n == 3 and flat:     # a fixed roughness direction needs the walls' tangent axes
@@ -159,7 +162,7 @@ def test_the_scenes_cover_every_primitive():
     assert known <= _covered_codes(), known - _covered_codes()
 
 
-@pytest.mark.parametrize("rule", ["specular", "rough", "random"])
+@pytest.mark.parametrize("rule", ["specular", "rough", "random", "hemisphere"])
 @pytest.mark.parametrize("name,table", SCENES, ids=[s[0] for s in SCENES])
 def test_tangent_map_equals_finite_differences_of_the_engine(name, table, rule):
     n = tables.dimension(table["kind"], table)
