@@ -231,6 +231,9 @@ S_COMPENSATED = 64  # compensated (Kahan) summation of the time and the position
 S_SNAP = 128        # put the centre exactly on the wall at contact
 S_SLAB = 256        # two parallel walls (strip, plates): closed-form flight time and exact normal coordinate
 S_STOP_WALL = 512   # end a trajectory when it hits ``stop_wall``
+#: in a periodic table, a flight longer than this many times the cell's shortest side is taken to run along a
+#: corridor that meets no obstacle, ever: it ends like an escape (tests/reference.py's LATTICE_MAX_WINDOWS)
+MAX_PERIODIC_FLIGHT = 10_000
 S_PERIODIC = 1024   # a periodic cell (Table.lattice_lo, period): the images of the primitives around the centre
 S_EXIT = 2048       # some wall's rule is (or may resolve to) ``exit``: the trajectory ends at its contact
 #: the bits compiled into the kernel; the others are tested at run time (a predictable branch). Each compiled
@@ -296,7 +299,8 @@ def advance(j, stop, spec, table, rules, settings, state, out):
     tmp = stack_array(9, (3, 3))
     base = stack_array(3, (n,))            # periodic tables: the centre's cell, …
     loc = stack_array(3, (n,))             # … its position relative to the image of the cell hit, …
-    off = stack_array(3, (n,))             # … and that image's shift (loc = a − off)
+    off = stack_array(3, (n,))             # … and that image's shift (loc = a − off); …
+    ahead = stack_array(3, (n,))           # … and where the flight is looked at from
     for i in range(n):
         a[i] = state.pos[j, i]
         v[i] = state.vel[j, i]
@@ -323,8 +327,28 @@ def advance(j, stop, spec, table, rules, settings, state, out):
         if on & S_SLAB:
             tau, p = slab_collision(params, a, v, n)
         elif on & S_PERIODIC:
-            tau, p = periodic_collision(codes, params, a, v, tol, n, table.lattice_lo, table.period, base, loc,
-                                        off)
+            # a long flight crosses many cells: it is looked at in windows (PASS), from a + acc·v, and flown
+            # once at the end, so that the position and time take one rounding per flight as elsewhere
+            acc = 0.0
+            vv = 0.0
+            short = np.inf
+            for i in range(n):
+                ahead[i] = a[i]
+                vv += v[i] * v[i]
+                short = min(short, table.period[i])
+            far = MAX_PERIODIC_FLIGHT * short / np.sqrt(vv)
+            while True:
+                tau, p = periodic_collision(codes, params, ahead, v, tol, n, table.lattice_lo, table.period, base,
+                                            loc, off)
+                if p != PASS:
+                    break
+                acc += tau
+                if acc > far:       # along a corridor that meets nothing, ever: an escape
+                    p = -1
+                    break
+                for i in range(n):
+                    ahead[i] = a[i] + acc * v[i]
+            tau += acc
         else:
             tau, p = next_collision(codes, params, a, v, tol, n)
         if p == -1:
@@ -348,9 +372,6 @@ def advance(j, stop, spec, table, rules, settings, state, out):
                 th += tau * Wj[1, 0]
             else:
                 rotate(Aj, Wj, tau, E, tmp)
-        if on & S_PERIODIC:
-            if p == PASS:
-                continue                           # no wall within reach of the last look: look again from here
         # 3. contact normal (a slab's is ±e_{n−1}, known from the wall: no lookup; the rule tree and snapping
         #    read it, and the slab map takes only its sign); in a periodic table, on the image hit
         if on & S_SLAB:

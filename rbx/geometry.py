@@ -318,9 +318,13 @@ def collision_time(code, params, k, a, v, tol, n):
         # leaves the disc, if it meets it at all
         if vv == 0.0:
             return np.inf
+        if 0.0 < cc <= 4.0 * tol * rho:
+            cc = 0.0                             # a hair outside by rounding (just hit, creeping along it): on it
         disc = b * b - vv * cc
         if disc < 0.0:
-            if cc > 0.0:
+            # from outside the circle: a line that misses it, or one tangent to it within rounding — a flight along
+            # a flat wall into its tangent joint with this arc, which must touch the arc there, not leave the table
+            if disc < -1e-12 * b * b:
                 return np.inf
             disc = 0.0
         if b > 0.0:
@@ -867,7 +871,7 @@ def check_fit(geom, R):
             if margin <= 0:
                 return (f"obstacles[{obstacles.index(q)}]", f"'{q.name}' reaches the periodic cell's side (keep "
                         "each obstacle inside its cell)")
-            if margin <= R:
+            if margin < R * (1 - 1e-12):
                 return (f"does not fit between obstacle '{q.name}' and the periodic cell's side ({margin:g} apart; "
                         "each obstacle grown by the ball's radius must stay inside its cell)")
     for i, a in enumerate(obstacles):
@@ -875,7 +879,7 @@ def check_fit(geom, R):
             gap = np.linalg.norm(np.asarray(a.center, float) - np.asarray(b.center, float)) - a.radius - b.radius
             if gap <= 0:
                 return (f"obstacles[{obstacles.index(b)}]", f"'{b.name}' overlaps '{a.name}'")
-            if gap <= 2 * R:
+            if gap < 2 * R * (1 - 1e-12):
                 return f"does not fit between obstacles '{a.name}' and '{b.name}' ({gap:g} apart)"
     others = [q for q in geom.pieces if q not in obstacles and not isinstance(q, T.Lattice)]
     if obstacles and others:
@@ -888,7 +892,7 @@ def check_fit(geom, R):
             if not dist > q.radius:
                 return (f"obstacles[{obstacles.index(q)}]", f"'{q.name}' overlaps the table's walls"
                         if dist > 0 else f"'{q.name}' is not inside the table")
-            if dist - q.radius <= 2 * R:
+            if dist - q.radius < 2 * R * (1 - 1e-12):
                 return f"does not fit between obstacle '{q.name}' and the walls ({dist - q.radius:g} apart)"
     return None
 

@@ -685,7 +685,8 @@ register(TableKind(
     "mushroom", 2, "Bunimovich mushroom: a half disc y ≥ 0 on a stem centred on x = 0",
     {"cap_radius": positive, "stem_width": positive, "stem_height": positive},
     walls=_mushroom_walls, build=FROM_WALLS,
-    fits=lambda p, R, geom: ("the stem is not narrower than the cap's diameter (stem_width ≥ 2·cap_radius)"
+    fits=lambda p, R, geom: (("stem_width", f"must be less than the cap's diameter 2·cap_radius "
+                                            f"({_g(2 * p['cap_radius'])}), got {_g(p['stem_width'])}")
                              if p["stem_width"] >= 2 * p["cap_radius"] else None),
     scale=lambda p: max(2 * p["cap_radius"], p["cap_radius"] + p["stem_height"]),
     phrase=lambda p: f"in a mushroom (cap radius {_g(p['cap_radius'])}, stem {_g(p['stem_width'])} × "
