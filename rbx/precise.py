@@ -18,7 +18,9 @@ float64 loop. Nothing is clever:
   named mass distribution is the exact fraction, e.g. 2/5, and angles are ``deg·π/180``);
 * a periodic table (a ``Lattice``): its obstacles repeat with the cell's period, positions stay unfolded; the
   flight is looked at in windows one cell's smallest side long, testing every image that comes within reach of
-  the window (a flight that meets nothing in ``LATTICE_MAX_WINDOWS`` windows is an escape);
+  the window (a flight that meets nothing in ``LATTICE_MAX_WINDOWS`` windows is an escape: a corridor);
+* a line that only touches a focusing wall's circle from outside, ahead on its extent, is a contact there
+  (v·ν = 0: past it the flight would leave the table; docs/conventions.md, Grazing);
 * next collision: for each primitive the time the line ``a + t·v`` meets it while moving into it (``v·ν < 0``),
   kept if the hit point lies on the primitive's extent; the smallest wins, and times that agree to the working
   precision are a tie, which goes to the lower wall index (conventions, "Corners": the second wall of a corner
@@ -105,7 +107,7 @@ class _Round:
 #: of the table's data, the same at every precision
 TANGENT_TOLERANCE = 1e-12
 #: a periodic flight that meets no obstacle within this many windows (one cell's smallest side each) escapes
-LATTICE_MAX_WINDOWS = 100_000
+LATTICE_MAX_WINDOWS = 10_000
 
 
 def _dot(x, y):
@@ -525,6 +527,15 @@ class PreciseBilliard:
         if prim.inside:
             d = prim.rho - r                            # > 0 on the free side
             clamped = False
+            if d < -dist_tol and disc <= 0:
+                # outside the circle (a stadium's straight part), the line touching it ahead on the wall's extent:
+                # a contact at the touching point (past it the flight would leave the table; conventions, Grazing)
+                t_near = -b / vv
+                h = ctx.sqrt(max(_dot(p, p) - b * b / vv, 0))
+                q = _axpy(t_near, v, a)
+                if t_near > 0 and h - prim.rho <= dist_tol and self._on_arc(prim, q, ext_tol):
+                    return t_near, q
+                return None
             if disc < 0:                                # the line misses the circle
                 if d < -dist_tol:
                     return None
@@ -551,15 +562,21 @@ class PreciseBilliard:
                     return None
                 t = C / (-b + ctx.sqrt(disc))           # the smaller root, cancellation-free (b < 0)
             q = _axpy(t, v, a)
-        if prim.arc is not None:
-            first, span = prim.arc
-            rel = _sub(q[:2], prim.centre)
-            two_pi = 2 * ctx.pi
-            delta = (ctx.atan2(rel[1], rel[0]) - first) % two_pi
-            slack = ext_tol / prim.rho
-            if not (delta <= span + slack or delta >= two_pi - slack):
-                return None
+        if not self._on_arc(prim, q, ext_tol):
+            return None
         return t, q
+
+    def _on_arc(self, prim, q, ext_tol):
+        """Whether q's direction from the centre lies on the primitive's arc (within the length ``ext_tol``)."""
+        if prim.arc is None:
+            return True
+        ctx = self.ctx
+        first, span = prim.arc
+        rel = _sub(q[:2], prim.centre)
+        two_pi = 2 * ctx.pi
+        delta = (ctx.atan2(rel[1], rel[0]) - first) % two_pi
+        slack = ext_tol / prim.rho
+        return delta <= span + slack or delta >= two_pi - slack
 
     def _images(self, p0, p1):
         """The periodic images of the lattice's obstacles whose grown sphere meets the box spanned by p0, p1."""

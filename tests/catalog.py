@@ -67,3 +67,88 @@ def scene(name, collisions=None, record=None, trajectories=None, every=None):
     if every is not None:
         out["every"] = every
     return c
+
+
+# ---- the table zoo (SPEC §8): tests/test_zoo.py runs these (the tests above compare whole orbits, and most of the
+# zoo is chaotic: rounding differences grow e-fold every few collisions, so the zoo is compared one collision at a
+# time from the engine's own states) ----------------------------------------------------------------------------
+
+RANDOM3 = {"default": {"rule": "random", "choices": [{"rule": "constant", "rank": 0}, {"rule": "constant", "rank": 2}],
+                       "probabilities": [0.5, 0.5]}}
+SMOOTH = {"default": {"rule": "constant", "rank": 0}}
+
+#: a custom boundary with both arc turns, a reflex joint between an arc and a segment (cap → slope), a tangent
+#: joint (floor → cap), convex corners between a segment and an arc (roof → dent → roof2) and between segments
+CUSTOM_BOUNDARY = [
+    {"name": "floor", "from": [0.0, 0.0], "to": [3.0, 0.0]},
+    {"name": "cap", "from": [3.0, 0.0], "to": [3.0, 2.0], "center": [3.0, 1.0], "turn": "ccw"},
+    {"name": "slope", "from": [3.0, 2.0], "to": [2.4, 2.4]},
+    {"name": "roof", "from": [2.4, 2.4], "to": [1.8, 2.4]},
+    {"name": "dent", "from": [1.8, 2.4], "to": [1.0, 2.4], "center": [1.4, 2.7], "turn": "cw"},
+    {"name": "roof2", "from": [1.0, 2.4], "to": [0.0, 2.4]},
+    {"name": "west", "from": [0.0, 2.4], "to": [0.0, 0.0]},
+]
+#: a dispersing arc spanning more than 180° (a bump on a stalk hanging from the roof), reflex joints between arcs and
+#: segments on both of its ends
+BULB_BOUNDARY = [
+    {"name": "floor", "from": [0.0, 0.0], "to": [3.0, 0.0]},
+    {"name": "east", "from": [3.0, 0.0], "to": [3.0, 2.0]},
+    {"name": "roof", "from": [3.0, 2.0], "to": [1.7, 2.0]},
+    {"name": "stalk_right", "from": [1.7, 2.0], "to": [1.7, 1.6]},
+    {"name": "bulb", "from": [1.7, 1.6], "to": [1.3, 1.6], "center": [1.5, 1.2], "turn": "cw"},
+    {"name": "stalk_left", "from": [1.3, 1.6], "to": [1.3, 2.0]},
+    {"name": "roof2", "from": [1.3, 2.0], "to": [0.0, 2.0]},
+    {"name": "west", "from": [0.0, 2.0], "to": [0.0, 0.0]},
+]
+DISCS = [{"name": "small", "disc": {"center": [0.3, 0.25], "radius": 0.2}},
+         {"name": "big", "disc": {"center": [-0.35, -0.3], "radius": 0.25}}]
+SPHERES = [{"name": "one", "sphere": {"center": [0.5, 0.5, 0.5], "radius": 0.2}},
+           {"name": "two", "sphere": {"center": [1.4, 0.9, 0.7], "radius": 0.25}}]
+
+#: name -> (config, the rules to compare with the reference: rough, smooth, random)
+ZOO = {
+    "stadium": _cfg({"kind": "stadium", "radius": 0.5, "length": 1.0}, ROUGH, [0.3, 0.1], [0.6, 0.8], 1.0),
+    "mushroom": _cfg({"kind": "mushroom", "cap_radius": 1.0, "stem_width": 0.6, "stem_height": 1.0}, ROUGH,
+                     [0.0, -0.5], [0.3, 0.9], 1.0),
+    "sinai-2d": _cfg({"kind": "sinai", "size": [2.0, 1.5], "radius": 0.4}, ROUGH, [0.2, 0.2], [0.6, 0.8], 1.0),
+    "lorentz-2d": _cfg({"kind": "lorentz", "cell": [1.0, 1.0], "radius": 0.3}, ROUGH, [0.05, 0.1], [0.6, 0.8], 1.0),
+    "custom": _cfg({"kind": "custom", "boundary": CUSTOM_BOUNDARY}, ROUGH, [0.5, 0.5], [0.83, 0.31], 1.0),
+    "custom-bulb": _cfg({"kind": "custom", "boundary": BULB_BOUNDARY}, ROUGH, [0.5, 0.5], [0.83, 0.31], 1.0),
+    "circle-obstacles": _cfg({"kind": "circle", "radius": 1.0, "obstacles": DISCS}, ROUGH, [0.6, -0.5],
+                             [-0.3, 0.9], -2.0),
+    "periodic-rectangle": _cfg({"kind": "rectangle", "width": 2.0, "height": 1.0, "periodic": True,
+                                "obstacles": [{"name": "left", "disc": {"center": [0.5, 0.4], "radius": 0.25}},
+                                              {"name": "right", "disc": {"center": [1.5, 0.6], "radius": 0.3}}]},
+                               ROUGH, [1.0, 0.05], [0.6, 0.8], 1.0),
+    "sinai-3d": _cfg({"kind": "sinai", "size": [2.0, 1.5, 1.2], "radius": 0.3}, ROUGH3, [0.2, 0.2, 0.2],
+                     [0.6, 0.8, 0.3], [0.0, 0.5, 1.0]),
+    "lorentz-3d": _cfg({"kind": "lorentz", "cell": [1.0, 1.0, 1.0], "radius": 0.3}, ROUGH3, [0.05, 0.1, 0.1],
+                       [0.6, 0.8, 0.3], [0.0, 0.5, 1.0]),
+    "sphere": _cfg({"kind": "sphere", "radius": 1.0}, ROUGH3, [0.2, 0.1, 0.0], [0.6, 0.8, 0.3], [0.0, 0.5, 1.0]),
+    "cylinder": _cfg({"kind": "cylinder", "radius": 1.0, "height": 1.5}, ROUGH3, [0.2, 0.1, 0.5], [0.6, 0.8, 0.3],
+                     [0.0, 0.5, 1.0]),
+    "box-obstacles": _cfg({"kind": "box", "size": [2.0, 1.5, 1.2], "obstacles": SPHERES}, ROUGH3, [1.0, 0.2, 0.2],
+                          [0.6, 0.8, 0.3], [0.0, 0.5, 1.0]),
+    "periodic-box": _cfg({"kind": "box", "size": [1.0, 1.2, 1.0], "periodic": True,
+                          "obstacles": [{"name": "ball", "sphere": {"center": [0.5, 0.6, 0.5], "radius": 0.35}}]},
+                         ROUGH3, [0.05, 0.05, 0.1], [0.6, 0.8, 0.3], [0.0, 0.5, 1.0]),
+}
+
+
+def zoo(name, rules="rough", collisions=None, record=None, trajectories=None, every=None):
+    """A copy of a zoo config with the rule ``rough`` (rank n − 1), ``smooth`` or ``random`` (rank 0 or n − 1,
+    p = ½) on every wall, and the run and output settings changed as asked."""
+    c = copy.deepcopy(ZOO[name])
+    n = len(c["initial"]["position"])
+    c["boundary"] = copy.deepcopy({"rough": ROUGH if n == 2 else ROUGH3, "smooth": SMOOTH,
+                                   "random": RANDOM01 if n == 2 else RANDOM3}[rules])
+    if collisions is not None:
+        c["run"]["collisions"] = collisions
+    if trajectories is not None:
+        c["run"]["trajectories"] = trajectories
+    out = c.setdefault("output", {})
+    if record is not None:
+        out["record"] = list(record)
+    if every is not None:
+        out["every"] = every
+    return c

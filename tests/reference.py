@@ -42,7 +42,9 @@ reach it:
 For each primitive we solve for the time the centre line a + t·v meets it while moving into it (v·ν < 0 at the
 hit point), keep it if the hit point lies on the primitive's extent, and take the smallest time, exact ties
 going to the lower wall index. A point that rounding left a hair outside a primitive it is moving into is hit at
-time 0 (conventions: corners, grazing).
+time 0 (conventions: corners, grazing). A line that only touches the circle of a focusing wall (the table inside
+it) from outside, ahead and on the wall's extent, is a contact at the touching point (v·ν = 0): past it the flight
+would leave the table (a flight along a flat wall into a tangent joint with a focusing arc).
 
 A periodic table (a ``Lattice`` cell lo ≤ x ≤ hi: opposite sides identified, not walls) repeats its obstacles
 with period hi − lo; positions stay unfolded. The flight is cut into windows of one cell's smallest side; in a
@@ -65,7 +67,7 @@ EXTENT_TOLERANCE = 1e-12
 # A joint whose unit tangents have a cross product above −this is not reflex (tangent joints are not).
 TANGENT_TOLERANCE = 1e-12
 # A periodic flight that meets no obstacle within this many windows (each one cell's smallest side long) escapes.
-LATTICE_MAX_WINDOWS = 100_000
+LATTICE_MAX_WINDOWS = 10_000
 
 
 # ---------------------------------------------------------------------------------------------------------------
@@ -437,6 +439,17 @@ def collision_time(prim, a, v, R, scale):
         if prim.inside:
             d = prim.radius - r                           # > 0 on the free side (inside)
             clamped = False
+            if d < -dist_tol and disc <= 0.0:
+                # outside the circle (a stadium's straight part), the line touching it (or missing it by no more
+                # than the tolerance) ahead, at a point of its extent: a contact there, v·ν = 0 — past the touching
+                # point the flight would leave the free region, which lies inside the circle there (a flight along
+                # a flat wall into a tangent joint)
+                t_near = -b / vv
+                h = math.sqrt(max(0.0, float(p @ p) - b * b / vv))   # the line's distance from the centre
+                q = a + t_near * v
+                if t_near > 0.0 and h - prim.radius <= dist_tol and prim.on_extent(q, ext_tol):
+                    return t_near, q
+                return math.inf, None
             if disc < 0.0:                                # the line misses the circle
                 if not -dist_tol <= d:
                     return math.inf, None
