@@ -36,7 +36,7 @@ import numpy as np
 from numba import literally
 
 from ._jit import jit, jit_hot, jit_loop, stack_array
-from .geometry import PASS, contact_normal, next_collision, periodic_collision, slab_collision, snap
+from .geometry import contact_normal, next_collision, periodic_flight, slab_collision, snap
 from .model import FIELD, FIELDS
 from .physics import collide, collide_slab
 from .rules import EXIT, choose
@@ -231,9 +231,6 @@ S_COMPENSATED = 64  # compensated (Kahan) summation of the time and the position
 S_SNAP = 128        # put the centre exactly on the wall at contact
 S_SLAB = 256        # two parallel walls (strip, plates): closed-form flight time and exact normal coordinate
 S_STOP_WALL = 512   # end a trajectory when it hits ``stop_wall``
-#: in a periodic table, a flight longer than this many times the cell's shortest side is taken to run along a
-#: corridor that meets no obstacle, ever: it ends like an escape (tests/reference.py's LATTICE_MAX_WINDOWS)
-MAX_PERIODIC_FLIGHT = 10_000
 S_PERIODIC = 1024   # a periodic cell (Table.lattice_lo, period): the images of the primitives around the centre
 S_EXIT = 2048       # some wall's rule is (or may resolve to) ``exit``: the trajectory ends at its contact
 #: the bits compiled into the kernel; the others are tested at run time (a predictable branch). Each compiled
@@ -327,28 +324,8 @@ def advance(j, stop, spec, table, rules, settings, state, out):
         if on & S_SLAB:
             tau, p = slab_collision(params, a, v, n)
         elif on & S_PERIODIC:
-            # a long flight crosses many cells: it is looked at in windows (PASS), from a + acc·v, and flown
-            # once at the end, so that the position and time take one rounding per flight as elsewhere
-            acc = 0.0
-            vv = 0.0
-            short = np.inf
-            for i in range(n):
-                ahead[i] = a[i]
-                vv += v[i] * v[i]
-                short = min(short, table.period[i])
-            far = MAX_PERIODIC_FLIGHT * short / np.sqrt(vv)
-            while True:
-                tau, p = periodic_collision(codes, params, ahead, v, tol, n, table.lattice_lo, table.period, base,
-                                            loc, off)
-                if p != PASS:
-                    break
-                acc += tau
-                if acc > far:       # along a corridor that meets nothing, ever: an escape
-                    p = -1
-                    break
-                for i in range(n):
-                    ahead[i] = a[i] + acc * v[i]
-            tau += acc
+            tau, p = periodic_flight(codes, params, a, v, tol, n, table.lattice_lo, table.period, base, loc, off,
+                                     ahead)
         else:
             tau, p = next_collision(codes, params, a, v, tol, n)
         if p == -1:

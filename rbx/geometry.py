@@ -459,6 +459,37 @@ def snap(code, params, k, a, nu, n):
         a[i] = params[k, i] + f * (a[i] - params[k, i])
 
 
+#: in a periodic table, a flight longer than this many times the cell's shortest side is taken to run along a
+#: corridor that meets no obstacle, ever: it ends like an escape (tests/reference.py's LATTICE_MAX_WINDOWS)
+MAX_PERIODIC_FLIGHT = 10_000
+
+
+@jit_hot
+def periodic_flight(codes, params, a, v, tol, n, lo, period, base, loc, off, ahead):
+    """The next collision in a periodic table -> (flight time, primitive), the image hit shifted by ``off``
+    (:func:`periodic_collision`); (inf, −1) for a flight along a corridor that meets nothing within
+    MAX_PERIODIC_FLIGHT cells. A long flight crosses many cells: it is looked at in windows (PASS), from a + acc·v,
+    and the caller flies it once, so that the position and time take one rounding per flight as elsewhere.
+    ``base``, ``loc``, ``off``, ``ahead``: scratch arrays of n values."""
+    acc = 0.0
+    vv = 0.0
+    short = np.inf
+    for i in range(n):
+        ahead[i] = a[i]
+        vv += v[i] * v[i]
+        short = min(short, period[i])
+    far = MAX_PERIODIC_FLIGHT * short / np.sqrt(vv)
+    while True:
+        tau, p = periodic_collision(codes, params, ahead, v, tol, n, lo, period, base, loc, off)
+        if p != PASS:
+            return tau + acc, p
+        acc += tau
+        if acc > far:
+            return np.inf, -1
+        for i in range(n):
+            ahead[i] = a[i] + acc * v[i]
+
+
 @jit_hot
 def periodic_collision(codes, params, a, v, tol, n, lo, period, base, loc, off):
     """The next collision in a periodic table (a Lattice of period ``period`` from ``lo``) -> (flight time,

@@ -19,7 +19,7 @@ import numpy as np
 
 from ._jit import jit, jit_hot
 from .engine import energy_factor, rotate, scale_state
-from .geometry import PASS, contact_normal, next_collision, normal_jacobian, periodic_collision, slab_collision
+from .geometry import contact_normal, next_collision, normal_jacobian, periodic_flight, slab_collision
 
 from .physics import collide, collide_slab, project_roughness
 from .rules import EXIT, choose
@@ -275,19 +275,8 @@ def tangent_advance(j, stop, t_end, ortho, slab, periodic, spin, tree, renorm_ev
         if slab:
             tau, p = slab_collision(params, a, v, n)
         elif periodic:
-            # as the engine: the flight is looked at in windows (PASS) from a + acc·v and flown once
-            acc = 0.0
-            for i in range(n):
-                ahead[i] = a[i]
-            while True:
-                tau, p = periodic_collision(codes, params, ahead, v, tol, n, table.lattice_lo, table.period, base,
-                                            loc, off)
-                if p != PASS:
-                    break
-                acc += tau
-                for i in range(n):
-                    ahead[i] = a[i] + acc * v[i]
-            tau += acc
+            tau, p = periodic_flight(codes, params, a, v, tol, n, table.lattice_lo, table.period, base, loc, off,
+                                     ahead)
         else:
             tau, p = next_collision(codes, params, a, v, tol, n)
         if t + tau > t_end:                       # stop in flight at t_end (also when no wall lies ahead)

@@ -200,6 +200,7 @@ SINAI = {"kind": "sinai", "size": [2.0, 1.5], "radius": 0.4}
     (SINAI, {"rule": "random", "choices": [SPECULAR, ROUGH2], "probabilities": [0.5, 0.5]}),
     ({"kind": "sinai", "size": [2.0, 1.5, 1.5], "radius": 0.3}, {"rule": "constant", "rank": 2}),
     ({"kind": "plates", "gap": 1.0}, {"rule": "constant", "rank": 1, "direction_deg": 30}),
+    ({"kind": "lorentz", "cell": [1.0, 1.0], "radius": 0.3}, ROUGH2),      # periodic: the same windowed flights
 ])
 def test_the_orbit_is_the_engines(table, rule):
     """The tangent loop follows the engine's trajectory: same collisions, same random draws, same numbers."""
