@@ -555,6 +555,11 @@ def _rule(r, key, n, c, geom, wall_ids):
             if not has_dir:
                 c.fail(_join(key, "direction_deg"), "3D rank 1 needs a roughness direction "
                                                     "(direction_deg or direction)")
+            curved = [geom.wall_names[w] for w in wall_ids or () if geom.wall_list[w].tangents is None]
+            if curved:
+                c.fail(_join(key, "direction_deg" if "direction_deg" in r else "direction"),
+                       f"a rank-1 roughness direction is fixed in a flat wall's tangent axes; wall '{curved[0]}' is "
+                       "curved (use rank 0 or 2 there)")
             if "direction_deg" in r:
                 return Constant(1, ("deg", c.number(r["direction_deg"], _join(key, "direction_deg"))))
             vec = c.nonzero_vector(r["direction"], _join(key, "direction"), 3)

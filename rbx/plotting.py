@@ -170,16 +170,7 @@ def phase_figure(panels, colour, title, colour_label, categorical=True, labels=N
             ax.axvline(v, color="0.6", lw=0.6, ls=":")
         for slope, label in spec.get("lines", ()):
             ax.axline((0.0, 0.0), slope=slope, color="0.3", lw=0.8, ls="--", label=label)
-        if "xlim" in spec:
-            ax.set_xlim(*spec["xlim"])
-        if "ylim" in spec:
-            ax.set_ylim(*spec["ylim"])
-        if spec.get("equal"):
-            ax.set_aspect("equal", adjustable="box")
-        ax.set_xlabel(spec["xlabel"])
-        ax.set_ylabel(spec["ylabel"])
-        if spec.get("title"):
-            ax.set_title(spec["title"], fontsize=9)
+        _dress(ax, spec)
         axes.append(ax)
     if categorical and labels and len(keys) <= MAX_LEGEND:
         for i, k in enumerate(keys):
@@ -326,6 +317,20 @@ def escape_figure(s, S, rate, rate_err, start, exits, total, title, unit="path l
 # ---- sections (SPEC §10) ---------------------------------------------------------------------------------------
 
 
+def _dress(ax, spec):
+    """A panel's limits, aspect, labels and title from its spec (:func:`phase_figure`)."""
+    if "xlim" in spec:
+        ax.set_xlim(*spec["xlim"])
+    if "ylim" in spec:
+        ax.set_ylim(*spec["ylim"])
+    if spec.get("equal"):
+        ax.set_aspect("equal", adjustable="box")
+    ax.set_xlabel(spec["xlabel"])
+    ax.set_ylabel(spec["ylabel"])
+    if spec.get("title"):
+        ax.set_title(spec["title"], fontsize=9)
+
+
 def section_figure(panels, spin, title, spin_label):
     """Sections of phase space coloured by the (scaled) spin: ``panels`` as for :func:`phase_figure` (``x``,
     ``y``, labels, limits, ``vlines``); ``spin`` one value per point, on a diverging scale symmetric about 0."""
@@ -340,16 +345,7 @@ def section_figure(panels, spin, title, spin_label):
         ax.scatter(spec["x"], spec["y"], c=spin, cmap="coolwarm", norm=norm, s=ms, lw=0, rasterized=True)
         for v in spec.get("vlines", ()):
             ax.axvline(v, color="0.6", lw=0.6, ls=":")
-        if "xlim" in spec:
-            ax.set_xlim(*spec["xlim"])
-        if "ylim" in spec:
-            ax.set_ylim(*spec["ylim"])
-        if spec.get("equal"):
-            ax.set_aspect("equal", adjustable="box")
-        ax.set_xlabel(spec["xlabel"])
-        ax.set_ylabel(spec["ylabel"])
-        if spec.get("title"):
-            ax.set_title(spec["title"], fontsize=9)
+        _dress(ax, spec)
         axes.append(ax)
     from matplotlib.cm import ScalarMappable
     fig.colorbar(ScalarMappable(norm=norm, cmap="coolwarm"), ax=axes, label=spin_label, shrink=0.85)

@@ -56,7 +56,11 @@ SCENES = {
 
 def scene(name, collisions=None, record=None, trajectories=None, every=None):
     """A copy of a catalog config, with the run and output settings changed as asked."""
-    c = copy.deepcopy(SCENES[name])
+    return _settings(copy.deepcopy(SCENES[name]), collisions, record, trajectories, every)
+
+
+def _settings(c, collisions, record, trajectories, every):
+    """Config ``c`` with the run and output settings changed as asked (None: left as it is) -> c."""
     if collisions is not None:
         c["run"]["collisions"] = collisions
     if trajectories is not None:
@@ -138,17 +142,8 @@ ZOO = {
 def zoo(name, rules="rough", collisions=None, record=None, trajectories=None, every=None):
     """A copy of a zoo config with the rule ``rough`` (rank n − 1), ``smooth`` or ``random`` (rank 0 or n − 1,
     p = ½) on every wall, and the run and output settings changed as asked."""
-    c = copy.deepcopy(ZOO[name])
+    c = _settings(copy.deepcopy(ZOO[name]), collisions, record, trajectories, every)
     n = len(c["initial"]["position"])
     c["boundary"] = copy.deepcopy({"rough": ROUGH if n == 2 else ROUGH3, "smooth": SMOOTH,
                                    "random": RANDOM01 if n == 2 else RANDOM3}[rules])
-    if collisions is not None:
-        c["run"]["collisions"] = collisions
-    if trajectories is not None:
-        c["run"]["trajectories"] = trajectories
-    out = c.setdefault("output", {})
-    if record is not None:
-        out["record"] = list(record)
-    if every is not None:
-        out["every"] = every
     return c

@@ -48,7 +48,8 @@ def test_the_forbidden_patterns_are_found():
 
 
 def test_every_kernel_module_is_in_the_cache_key():
-    uses_jit = {mod for mod, text in _modules() if re.search(r"from \.+_jit import|import _jit\b", text)}
+    # a module that compiles kernels (imports the decorators); rbx.cluster imports _jit only for its cache folder
+    uses_jit = {mod for mod, text in _modules() if re.search(r"from \.+_jit import [^\n]*\bjit", text)}
     assert uses_jit <= set(_jit.KERNEL_MODULES), uses_jit - set(_jit.KERNEL_MODULES)
     assert "engine" in uses_jit
 

@@ -12,7 +12,7 @@ from rbx import config, tables
 from rbx.model import RECORD_FIELDS
 from rbx.simulation import run_in_memory
 
-from catalog import SCENES
+from catalog import SCENES, ZOO
 from reference import reference_run
 
 matplotlib.use("Agg")
@@ -37,7 +37,8 @@ def test_every_kind_has_every_facet(name):
         if f.name in ("walls", "build", "fits", "scale", "phrase", "draw"):
             assert callable(value), f"{name}: facet {f.name} is not a function"
     assert tables.dimension(name, k.example) in (2, 3) and set(k.example) == set(k.params)
-    assert name in {s["table"]["kind"] for s in SCENES.values()}, f"{name}: no scene in tests/catalog.py"
+    assert name in {s["table"]["kind"] for s in list(SCENES.values()) + list(ZOO.values())}, \
+        f"{name}: no scene in tests/catalog.py"
 
 
 @pytest.mark.parametrize("name", KINDS)
