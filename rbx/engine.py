@@ -478,7 +478,9 @@ def _entry_point(stop, spec, groups, nrec):
         try:
             key = (spec, compute_fingerprint((stop, groups, nrec)))
         except (TypeError, ValueError, NotImplementedError):
-            pass    # Numba raises NotImplementedError for a value whose type it cannot fingerprint: typeof below
+            # Numba raises NotImplementedError for a value whose type it cannot fingerprint: the entry point is then
+            # found by typeof below, and not remembered under a key
+            key = None
     entry = _ENTRY.get(key)
     if entry is None:
         sig = ((numba.types.int64, numba.types.int64, numba.typeof(stop), numba.types.literal(spec))
