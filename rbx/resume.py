@@ -11,11 +11,13 @@ records before its checkpoint, so after a hard kill between the two the file may
 saved state; those are dropped and recomputed. A file with no ``final/`` (stopped before its first block) starts
 over from the config's initial state.
 """
+import weakref
+
 import numpy as np
 
 from . import __version__
 from .model import ConfigError
-from .runfile import STATE_GROUPS, latest_state
+from .runfile import STATE_GROUPS, acquire_lock, latest_state, release_lock
 from .simulation import Simulation
 
 #: what ``final/`` must hold to continue (Simulation takes the rest from the config)
@@ -30,6 +32,21 @@ def load(run, source):
     ``done``: collisions already made by the trajectories still running; ``write_initial``: True when the file
     has no saved state yet and the run starts over. Raises :class:`rbx.config.ConfigError` (naming ``source``)
     if the file does not hold a run that can be continued. Then call :func:`make_consistent` on a writable copy."""
+    # the run's lock first (OUT.h5.lock for OUT.h5 and OUT.h5.partial): two resumes of one file, or a resume of a
+    # file a run still writes, would both write it. Held until rbx.runfile.stream ends (sim.locks).
+    acquire_lock(run.path or source)
+    try:
+        sim, write_initial, done = _load(run, source)
+    except BaseException:
+        release_lock(run.path or source)
+        raise
+    # released by rbx.runfile.stream when the run's file is done, or when the simulation is dropped without
+    # running (a later check of --resume refused it)
+    sim.locks.append(weakref.finalize(sim, release_lock, run.path or source))
+    return sim, write_initial, done
+
+
+def _load(run, source):
     cfg = run.experiment
 
     def damaged(key, problem):
@@ -56,6 +73,13 @@ def load(run, source):
             raise damaged(f"{slot}/{k}", f"has shape {state[k].shape}, expected {M} trajectories first")
     if not verified:
         raise damaged(slot, "the last saved state is incomplete (the process was killed while writing it)")
+    if cfg.numerics.compensated and "compensation" not in state:
+        # the compensated sums' error terms were not saved (rbx before they were): continuing them from zero
+        # would not give the uninterrupted run's numbers
+        raise ConfigError(source, f"{slot}/compensation",
+                          "missing: the run uses numerics.compensated and its saved state lacks the sums' error "
+                          "terms (written by an older rbx), so a resumed run would not equal an uninterrupted one; "
+                          "run it again from its config")
     collisions = state["collisions"].astype(np.int64)
     alive = state["alive"].astype(bool)
     running = np.unique(collisions[alive])
@@ -67,9 +91,25 @@ def load(run, source):
         expected = 1 + collisions // cfg.output.every   # record 0 and one per ``every`` collisions
         if g["step"].shape[0] < expected.max() or np.any(g["count"][...] < expected):
             raise damaged("collisions/count", "fewer records than the saved state accounts for")
+        _check_readable(g, cfg, int(expected.max()), damaged)
         _check_last_records(g, cfg, state, expected, damaged)
     done = int(running[0]) if running.size else cfg.run.collisions
     return Simulation(cfg, state), False, done
+
+
+def _check_readable(g, cfg, length, damaged):
+    """The chunks the resumed file keeps and rewrites (those holding the last records the state accounts for) must
+    read: a kill while HDF5 rewrote one leaves it failing its checksum, and cutting the records back would then
+    fail inside HDF5."""
+    for f in cfg.output.record:
+        ds = g[f]
+        step = ds.chunks[1] if ds.chunks else 1
+        first = max(0, (length - 1) // step * step)
+        try:
+            ds[:, first:length]
+        except OSError:
+            raise damaged(f"collisions/{f}", "a chunk of the last saved records fails its checksum (the process was "
+                                             "killed while HDF5 rewrote it: run the config again)") from None
 
 
 def _check_last_records(g, cfg, state, expected, damaged):

@@ -153,9 +153,14 @@ class H5Sink:
             g.create_dataset("step", shape=(0,), maxshape=(None,), dtype=np.int64, chunks=(4096,))
             for name, (units, text) in INDEX_DATASETS.items():
                 g[name].attrs["units"], g[name].attrs["description"] = units, text
+            h5.flush()    # the skeleton on disk at once: a kill from here on leaves a file that opens
         self.g = h5["collisions"]
         #: bytes of one saved state, twice over (the new one is written beside the last), for the space check
         self.state_bytes = 2 * M * (4 * n + n * n + 9 + 8) * 8
+        #: room was reserved in the file beyond HDF5's end (:meth:`_reserve`): :func:`trim` the file once closed
+        self.reserved = False
+        #: the last check found no room: nothing more is written (not even the final renames, see :meth:`settle`)
+        self.full = False
 
     def write(self, block, nrec):
         self._check_space(sum(a.nbytes for a in block.values()))
@@ -170,33 +175,64 @@ class H5Sink:
         g["step"][start:] = np.arange(start, start + b) * self.every
         g["count"][...] = g["count"][...] + nrec
 
-    def _check_space(self, nbytes):
+    def _check_space(self, nbytes, chunks=True):
         """Stop with :class:`DiskFull` before a write the disk has no room for (the block, the state and a margin
         for HDF5's metadata): HDF5 meeting ENOSPC mid-write left the file half-updated and h5py crashed
         (a segmentation fault) closing it. Checked, the run stops between blocks like an interrupted one: the last
         checkpoint is intact and the file can be resumed once there is space."""
         import shutil
+        # a write can allocate a whole new chunk in every dataset, and HDF5 adds its metadata
+        need = nbytes + self.state_bytes + (2 * CHUNK_BYTES * len(self.g) if chunks else 0) + DISK_MARGIN
         try:
             free = shutil.disk_usage(os.path.dirname(os.path.abspath(self.h5.filename)) or ".").free
         except OSError:
-            return
-        # a write can allocate a whole new chunk in every dataset, and HDF5 adds its metadata
-        need = nbytes + self.state_bytes + 2 * CHUNK_BYTES * len(self.g) + DISK_MARGIN
-        if free < need:
+            free = None
+        if free is not None and free < need:
+            self.full = True
             raise DiskFull(f"the disk is full: {format_size(free)} free, the next block needs about "
                            f"{format_size(need)}")
+        self._reserve(need)
+
+    def _reserve(self, need):
+        """Allocate the room for the next writes in the file itself, past what HDF5 uses (``posix_fallocate``):
+        another program filling the disk after the check above cannot take it, so HDF5's writes do not meet
+        ENOSPC (or EFBIG under a file size limit), which HDF5 does not survive (h5py then crashed closing the
+        file). HDF5 writes its new chunks and metadata into this room; :func:`trim` gives back what is left."""
+        import errno
+        try:
+            fd = self.h5.id.get_vfd_handle()
+            used = self.h5.id.get_filesize()        # HDF5's end of file, not counting an earlier reservation
+        except Exception:   # noqa: BLE001 - another file driver: the check above is all there is
+            return
+        try:
+            os.posix_fallocate(fd, 0, used + need)
+        except OSError as exc:
+            self.full = exc.errno in (errno.EFBIG, errno.ENOSPC, errno.EDQUOT)
+            if exc.errno == errno.EFBIG:
+                raise DiskFull(f"the file is not allowed to grow by {format_size(need)} for the next block (a file "
+                               f"size limit, ulimit -f?; it holds {format_size(used)})") from None
+            if exc.errno in (errno.ENOSPC, errno.EDQUOT):
+                raise DiskFull(f"the disk is full (or the quota reached): cannot reserve {format_size(need)} for "
+                               "the next block") from None
+            # EOPNOTSUPP, EINVAL: the file system cannot reserve room; the check above is all there is
+        self.reserved = True
 
     def checkpoint(self, sim):
-        """Save the state that accounts for the records written so far. It is written into ``final_previous``
-        (the older state), verified by its digest, and only then are the two groups' names swapped, so ``final``
-        is the newest state and a process killed at any point leaves at least one verified state (see
-        :func:`latest_state`)."""
+        """Save the state that accounts for the records written so far. It is written over the older of the two
+        saved states (``final``, ``final_previous``), its digest last, so a process killed at any point leaves at
+        least one state that verifies (see :func:`latest_state`, which takes the newest that does). The groups
+        are not renamed here: a rename rewrites the root group's link storage, HDF5 metadata that a kill while it
+        is written can leave unreadable (docs/reliability.md); :meth:`settle` names the newest ``final`` once, at
+        the end."""
         # flush first: the block's records reach the file before the state that accounts for them
         self.h5.flush()
-        sequence = max(_slot_sequence(self.h5, name) for name in STATE_GROUPS) + 1
-        fin = self.h5.require_group("final_previous")
+        slots = {name: _slot_sequence(self.h5, name) for name in STATE_GROUPS}
+        sequence = max(slots.values()) + 1
+        newest = max(slots, key=slots.get) if max(slots.values()) >= 0 else None
+        target = next(name for name in ("final_previous", "final", "final_swap") if name != newest)
+        fin = self.h5.require_group(target)
         state = sim.final_state()
-        self._check_space(0)
+        self._check_space(0, chunks=False)
         for k, v in state.items():
             v = np.asarray(v)
             ds = fin.get(k)               # one lookup: group access is most of a checkpoint's Python time
@@ -209,11 +245,22 @@ class H5Sink:
         fin.attrs["sequence"] = sequence
         fin.attrs["digest"] = state_digest(state)     # last: until it is written the group does not verify
         self.h5.flush()
+
+    def settle(self):
+        """Name the newest saved state ``final`` (and the other ``final_previous``), once the run stops writing
+        blocks: readers of ``final/`` then find the newest state there."""
+        if self.full:     # no room was reserved: leave HDF5's metadata alone (the readers find the newest anyway)
+            return
+        slots = {name: _slot_sequence(self.h5, name) for name in STATE_GROUPS}
+        if max(slots.values()) < 0 or slots["final"] == max(slots.values()):
+            return
+        newest = max(slots, key=slots.get)
         if "final" in self.h5:
-            self.h5.move("final", "final_swap")
-        self.h5.move("final_previous", "final")
-        if "final_swap" in self.h5:
-            self.h5.move("final_swap", "final_previous")
+            self.h5.move("final", "final_swap" if newest != "final_swap" else "final_old")
+        self.h5.move(newest, "final")
+        for name in ("final_swap", "final_old"):
+            if name in self.h5 and "final_previous" not in self.h5:
+                self.h5.move(name, "final_previous")
         self.h5.flush()
 
 
@@ -320,6 +367,9 @@ def check_target(path, force, key, file=None, config_source=None, partial_ok=Fal
     a run may still be writing its ``.partial``. Raises :class:`FileError`; ``key``/``file`` name where the path
     came from (``-o``, ``output.path``, ``output``), ``force_hint`` how to force (``--force``, ``force=True``)."""
     show = display_path(path)
+    holder = lock_holder(path)
+    if holder is not None:
+        raise _busy(path, holder)
     if os.path.isdir(path):
         raise FileError(file, key, f"{show} is a directory; give a file name such as run.h5")
     sources = [config_source] if isinstance(config_source, str) else list(config_source or ())
@@ -338,21 +388,220 @@ def check_target(path, force, key, file=None, config_source=None, partial_ok=Fal
 def create(path, force=False):
     """Open ``path.partial`` for a new run (folders made as needed) -> ``h5py.File``. OSError if it cannot.
 
-    The ``.partial`` is created exclusively (O_EXCL, not HDF5's file locking, which is often off on shared file
+    The run's lock (:func:`acquire_lock`, ``OUT.h5.lock``) is taken first and held until :func:`stream` ends; the
+    ``.partial`` is created exclusively too (O_EXCL, not HDF5's file locking, which is often off on shared file
     systems): of two runs started on one output, the second fails here instead of both writing one file. With
-    ``force`` a leftover ``.partial`` is removed first."""
+    ``force`` a leftover ``.partial`` is removed first (never one a live run holds the lock of)."""
     import h5py
     os.makedirs(os.path.dirname(os.path.abspath(path)) or ".", exist_ok=True)
     tmp = temporary_path(path)
-    if force and os.path.exists(tmp):
-        os.remove(tmp)
+    acquire_lock(path)          # first: --force must not remove the .partial of a run still writing it
     try:
-        return h5py.File(tmp, "w-")
+        if force and os.path.exists(tmp):
+            os.remove(tmp)
+        h5 = h5py.File(tmp, "w-")
+        h5.flush()                # an empty but valid HDF5 file until the run's skeleton is flushed
+        return h5
     except (FileExistsError, OSError) as exc:
+        release_lock(path)
         if os.path.exists(tmp):
             raise FileError(tmp, None, "exists: another run is writing it (or was killed); remove it or use "
                                        "--force") from None
         raise exc
+    except BaseException:
+        release_lock(path)
+        raise
+
+
+# ---- the run lock ------------------------------------------------------------------------------------------------
+
+#: locks this process holds: lock path -> how many times taken (taking one twice is not an error)
+_HELD = {}
+
+
+def lock_path(path):
+    """The lock file of a run writing ``path`` (``OUT.h5`` -> ``OUT.h5.lock``; a ``.partial`` is locked by its
+    output's lock)."""
+    path = os.path.abspath(str(path))
+    if path.endswith(".partial"):
+        path = path[:-len(".partial")]
+    return f"{path}.lock"
+
+
+def _process_start(pid):
+    """The start time of process ``pid`` in clock ticks since boot (Linux), or None where that is not known: with
+    the pid it tells a lock's process apart from a later one that reused its pid."""
+    try:
+        with open(f"/proc/{pid}/stat") as fh:
+            return int(fh.read().rsplit(")", 1)[1].split()[19])
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def _lock_text():
+    import socket
+    import time
+    return (f"host: {socket.gethostname()}\npid: {os.getpid()}\n"
+            f"started: {time.strftime('%Y-%m-%d %H:%M:%S %z')}\nprocess_start: {_process_start(os.getpid())}\n")
+
+
+def _read_lock(lock):
+    """A lock file's fields -> dict (empty when it cannot be read: being written this instant, or not a lock)."""
+    try:
+        with open(lock) as fh:
+            text = fh.read(4096)
+    except OSError:
+        return {}
+    fields = {}
+    for line in text.splitlines():
+        key, _, value = line.partition(":")
+        fields[key.strip()] = value.strip()
+    return fields
+
+
+def _holder(fields):
+    return (f"pid {fields.get('pid', '?')} on {fields.get('host', '?')} since {fields.get('started', '?')}")
+
+
+def _is_stale(fields):
+    """True if the lock's process is known to be gone: on this host, its pid no longer runs (or runs a process
+    started later, which reused the pid). A lock of another host is never judged stale."""
+    import socket
+    if fields.get("host") != socket.gethostname():
+        return False
+    try:
+        pid = int(fields.get("pid", ""))
+    except ValueError:
+        return False
+    if pid <= 0:
+        return False
+    if pid == os.getpid():
+        return False
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return True
+    except PermissionError:   # another user's live process
+        return False
+    recorded = fields.get("process_start")
+    now = _process_start(pid)
+    return recorded not in (None, "None", "") and now is not None and str(now) != recorded
+
+
+def _busy(path, holder):
+    return FileError(path, None, f"another rbx run is writing it ({holder}; lock {display_path(lock_path(path))}): "
+                                 "wait for it to end or stop it (a lock of a process on another host that is gone: "
+                                 "remove it)")
+
+
+def lock_holder(path):
+    """Who holds the lock of a run writing ``path`` -> 'pid N on HOST since TIME', or None when no live process
+    does (no lock, a stale one, or this process's own)."""
+    lock = lock_path(path)
+    if lock in _HELD or not os.path.exists(lock):
+        return None
+    fields = _read_lock(lock)
+    if not fields or _is_stale(fields) or fields.get("pid") == str(os.getpid()):
+        return None
+    return _holder(fields)
+
+
+def acquire_lock(path, warn=None):
+    """Take the lock of a run writing ``path`` (``OUT.h5.lock``, created with O_EXCL, holding the host, pid and
+    start time): held while the run writes, released by :func:`release_lock` (and, should the process end
+    without that, at its exit). A lock whose process is gone (same host, pid not running: a SIGKILLed run) is
+    stale: said through ``warn(message)`` (default: one line on stderr) and taken over. Raises :class:`FileError`
+    naming the holder when a live process holds it. Taking a lock this process holds already is allowed."""
+    lock = lock_path(path)
+    if lock in _HELD:
+        _HELD[lock] += 1
+        return lock
+    folder = os.path.dirname(lock)
+    os.makedirs(folder, exist_ok=True)
+    for _ in range(5):
+        try:
+            fd = os.open(lock, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
+        except FileExistsError:
+            fields = _read_lock(lock)
+            if not fields:         # created this instant and not yet written: a live run starting
+                import time
+                time.sleep(0.05)
+                fields = _read_lock(lock)
+            if fields and _is_stale(fields):
+                _take_over(lock, fields, warn)
+                continue
+            raise _busy(path, _holder(fields)) from None
+        except OSError as exc:
+            raise FileError(lock, None, f"cannot create the run's lock file: {exc.strerror or exc}") \
+                from None
+        with os.fdopen(fd, "w") as fh:
+            fh.write(_lock_text())
+        _HELD[lock] = 1
+        _at_exit()
+        return lock
+    raise FileError(path, None, f"cannot take the lock {display_path(lock)}: other runs keep taking it")
+
+
+def _take_over(lock, fields, warn):
+    """Remove a stale lock, unless another process took it over first (then the loop sees its live lock)."""
+    aside = f"{lock}.stale.{os.getpid()}"
+    try:
+        os.rename(lock, aside)     # one process wins this; the others find no lock, or a new live one
+    except FileNotFoundError:
+        return
+    if _read_lock(aside) != fields:            # not the stale lock but one taken meanwhile: put it back
+        try:
+            os.link(aside, lock)
+        except OSError:
+            pass
+        os.remove(aside)
+        return
+    os.remove(aside)
+    message = (f"{display_path(lock)}: warning: a stale lock ({_holder(fields)}, a process that no longer runs: "
+               "killed?) was taken over")
+    if warn is None:
+        import sys
+        sys.stderr.write(f"rbx: {message}\n")
+    else:
+        warn(message)
+
+
+def release_lock(path):
+    """Give back the lock of ``path`` taken by :func:`acquire_lock` (removed when its last taker gives it back)."""
+    lock = lock_path(path)
+    if lock not in _HELD:
+        return
+    _HELD[lock] -= 1
+    if _HELD[lock] <= 0:
+        del _HELD[lock]
+        _remove_own_lock(lock)
+
+
+def _remove_own_lock(lock):
+    if _read_lock(lock).get("pid") == str(os.getpid()):
+        with contextlib.suppress(OSError):
+            os.remove(lock)
+
+
+_EXIT_HOOK = []
+
+
+def _at_exit():
+    """Once per process: remove the locks still held when it exits (an error or a signal between taking a lock
+    and the end of the run). Not in a forked child: its parent holds them."""
+    if _EXIT_HOOK:
+        return
+    import atexit
+    owner = os.getpid()
+
+    def release_all():
+        if os.getpid() == owner:
+            for lock in list(_HELD):
+                _HELD.pop(lock, None)
+                _remove_own_lock(lock)
+
+    atexit.register(release_all)
+    _EXIT_HOOK.append(release_all)
 
 
 def _is_complete_run(path):
@@ -377,14 +626,36 @@ def stream(sim, h5, tmp, path, *, fresh=True, progress=None, should_stop=None, w
     records stay in ``tmp``: said through ``report(message)`` for an unfinished run, a :class:`FileError` for a
     finished one. A rename that fails is passed to ``report``. Errors writing (OSError) propagate."""
     complete = False
+    sink = None
     try:
         with h5:
             sink = H5Sink(h5, sim.cfg, fresh=fresh)
-            complete = sim.run(sink, progress=progress, should_stop=should_stop, write_initial=write_initial)
+            try:
+                complete = sim.run(sink, progress=progress, should_stop=should_stop, write_initial=write_initial)
+            finally:
+                with contextlib.suppress(Exception):   # an error writing must not hide the error itself
+                    sink.settle()
             h5.attrs["complete"] = bool(complete)
         return complete
     finally:
-        _publish(tmp, path, complete, replace, report)
+        try:
+            if sink is not None and sink.reserved:
+                trim(tmp)
+            _publish(tmp, path, complete, replace, report)
+        finally:
+            # the run's lock (taken by create, or by rbx.resume.load for the file resumed), released last
+            release_lock(path)
+            for release in getattr(sim, "locks", ()):
+                release()
+
+
+def trim(path):
+    """Give back the room :meth:`H5Sink._reserve` allocated and HDF5 did not use: HDF5 cuts the file to its own
+    end when it closes a file it opened for writing (it keeps a longer file it made longer itself)."""
+    import h5py
+    with contextlib.suppress(Exception):
+        with h5py.File(path, "r+"):
+            pass
 
 
 def _publish(tmp, path, complete, replace, report):
@@ -455,6 +726,13 @@ def _open_h5(path, mode="r"):
     try:
         return h5py.File(path, mode)
     except OSError as exc:
+        holder = lock_holder(path)
+        if holder is not None:      # HDF5's own lock on a file another run writes: say whose
+            raise _busy(path, holder) from None
+        if path.endswith(".partial"):
+            raise FileError(path, None, f"cannot open the HDF5 file: its structure is damaged ({_first_line(exc)}), "
+                                        "most likely by a kill while HDF5 was writing it; its records cannot be "
+                                        "recovered: remove it and run the config again") from None
         raise FileError(path, None, f"cannot open the HDF5 file (damaged or locked by another program?): "
                                     f"{_first_line(exc)}") from None
 
@@ -465,6 +743,9 @@ def _check_rbx_file(f, path, group):
         raise FileError(path, None, "not an rbx run: it holds return angles from rbx histogram (returns/), no "
                                     "collisions/")
     missing = [a for a in SPEC_ATTRS if a not in f.attrs]
+    if missing and not len(f.attrs) and not len(f) and path.endswith(".partial"):
+        raise FileError(path, None, "holds nothing yet: its run was stopped before writing anything; remove it and "
+                                    "run the config again")
     if missing:
         raise FileError(path, None, f"not an rbx run file (no root attribute '{missing[0]}')")
     schema = int(f.attrs.get("schema_version", 1))
@@ -749,6 +1030,13 @@ def write_returns(path, cfg, result):
     (K,) their trajectory indices, ``collisions`` (K,) collisions to return, ``initial_angle`` (M,) sampled
     angles; attributes :data:`RETURNS_ATTRS`."""
     names = cfg.wall_names
+    try:
+        _write_returns(path, cfg, result, names)
+    finally:
+        release_lock(path)
+
+
+def _write_returns(path, cfg, result, names):
     with create(path) as h5:
         write_root_attrs(h5, cfg, complete=True)
         g = h5.create_group("returns")

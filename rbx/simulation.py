@@ -69,12 +69,18 @@ class Simulation:
         self.energy0 = np.asarray(state["energy"] if "energy" in state else energy(self.vel, self.W, R, kap),
                                   float).copy()
         self.numerics = cfg.numerics
-        self._comp = np.zeros((M, n + 1))
+        # the compensated sums' running error terms (numerics.compensated): part of the state, saved with it, so
+        # that a resumed run continues the sums exactly as an uninterrupted one
+        self._comp = (np.asarray(state["compensation"], float).reshape(M, n + 1).copy() if "compensation" in state
+                      else np.zeros((M, n + 1)))
         self.stop_wall = int(stop_wall)
         self.force_bits = int(force_bits)
         self.drop_bits = int(drop_bits)
         #: a :class:`rbx.cluster.Cluster` to run the blocks on (None: this machine's threads)
         self.cluster = None
+        #: callables giving back the run locks (:func:`rbx.runfile.acquire_lock`) this run holds, called by
+        #: :func:`rbx.runfile.stream` when its file is done
+        self.locks = []
 
     def _initial_state(self):
         cfg = self.cfg
@@ -97,7 +103,7 @@ class Simulation:
         return {"time": self.time, "position": self.pos, "velocity": self.vel, "angular_velocity": spin_vector(self.W),
                 "orientation": self.theta if self.n == 2 else self.A, "collisions": self.ncoll,
                 "draws": self.draws, "alive": self.alive, "last_wall": self.last_wall, "last_rank": self.last_rank,
-                "energy": self.energy0}
+                "energy": self.energy0, **({"compensation": self._comp} if self.numerics.compensated else {})}
 
     def block_buffers(self, records):
         """Record buffers for a block of ``records`` records per trajectory (zero-size for fields not recorded)."""

@@ -716,6 +716,105 @@ def write(path, results, long_rows, cmd, seconds, quick):
         fh.write("\n".join(lines) + "\n")
 
 
+# ---- kills at random instants (docs/reliability.md) ------------------------------------------------------------
+
+KILL_CONFIG = {"table": {"kind": "strip", "width": 1.0},
+               "boundary": {"default": {"rule": "random", "choices": [{"rule": "constant", "rank": 0},
+                                                                     {"rule": "constant", "rank": 1}],
+                                        "probabilities": [0.5, 0.5]}},
+               "ball": {"radius": 0.1, "inertia": "uniform"},
+               "initial": {"position": [0, 0.5], "velocity": [0.6, 0.8], "angular_velocity": 1.5, "orientation": 0.3},
+               "run": {"collisions": 400_000, "trajectories": 3, "seed": 11},
+               "output": {"record": ["time", "position", "wall", "rank"], "every": 7}}
+
+
+def kill_survey(kills, seed=1, block_work=3000, src=None, log=print, extra_env=None):
+    """SIGKILL a real ``rbx simulate`` (tiny blocks, so most of its time is spent writing HDF5) ``kills`` times at
+    uniformly random instants of its writing, resume each file with a real ``rbx simulate --resume`` and compare
+    with an uninterrupted run -> dict outcome -> count: ``exact`` (resumed, records bit for bit the
+    uninterrupted run's), ``refused`` (one line, exit 2), ``other:<what>`` (anything else: a crash, a traceback,
+    different records). ``src``: a source tree to run instead of the installed rbx (to measure an older commit)."""
+    import random
+    import shutil
+    import signal
+    import subprocess
+    import tempfile
+
+    import h5py
+    import yaml
+
+    rng = random.Random(seed)
+    root = os.path.abspath(src) if src else None
+    prelude = (f"import sys; sys.path.insert(0, {root!r}); " if root else "import sys; ")
+
+    def cmd(block, *args):
+        code = prelude + (f"import rbx.simulation as s; s.BLOCK_WORK = {block}; " if block else "") + \
+            "from rbx.cli.main import main; sys.argv[0] = 'rbx'; main()"
+        return [sys.executable, "-c", code, *args]
+
+    def read(path):
+        with h5py.File(path, "r") as f:
+            out = {"complete": bool(f.attrs["complete"])}
+            out.update({k: f["collisions"][k][...] for k in f["collisions"]})
+        return out
+
+    def same(a, b):
+        return a.keys() == b.keys() and all(np.array_equal(a[k], b[k], equal_nan=getattr(a[k], "dtype", None) is not
+                                                           None and a[k].dtype.kind == "f") for k in a)
+
+    env = dict(os.environ, **(extra_env or {}))
+    folder = tempfile.mkdtemp(prefix="rbx-kills-")
+    outcomes = {}
+    try:
+        with open(os.path.join(folder, "exp.yaml"), "w") as fh:
+            yaml.safe_dump(KILL_CONFIG, fh)
+        res = subprocess.run(cmd(None, "simulate", "exp.yaml", "-o", "ref.h5", "--quiet"), cwd=folder, env=env,
+                             capture_output=True, text=True)
+        assert res.returncode == 0, res.stderr
+        reference = read(os.path.join(folder, "ref.h5"))
+        partial = os.path.join(folder, "run.h5.partial")
+        t0 = time.monotonic()          # the length of the writing phase, to draw the kill instants from
+        res = subprocess.run(cmd(block_work, "simulate", "exp.yaml", "-o", "timed.h5", "--quiet"), cwd=folder,
+                             env=env, capture_output=True, text=True)
+        assert res.returncode == 0, res.stderr
+        writing = time.monotonic() - t0 - 1.0      # start-up (imports, cached kernels) is ~1 s of it
+        log(f"kill survey: the run writes for about {writing:.1f} s; {kills} kills")
+        for i in range(kills):
+            for name in os.listdir(folder):
+                if name.startswith("run.h5"):
+                    os.remove(os.path.join(folder, name))
+            proc = subprocess.Popen(cmd(block_work, "simulate", "exp.yaml", "-o", "run.h5", "--quiet"), cwd=folder,
+                                    env=env, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            while not os.path.exists(partial) and proc.poll() is None:
+                time.sleep(0.001)
+            time.sleep(rng.uniform(0, 0.9 * max(writing, 0.1)))
+            if proc.poll() is not None:
+                outcome = "finished-before-the-kill"
+            else:
+                proc.send_signal(signal.SIGKILL)
+                proc.wait()
+                res = subprocess.run(cmd(None, "simulate", "--resume", "run.h5.partial", "--quiet"), cwd=folder,
+                                     env=env, capture_output=True, text=True)
+                lines = res.stderr.strip().splitlines()
+                if res.returncode == 0:
+                    try:
+                        outcome = "exact" if same(read(os.path.join(folder, "run.h5")), reference) else "other:different"
+                    except Exception as exc:   # noqa: BLE001 - counted, not raised
+                        outcome = f"other:unreadable ({type(exc).__name__})"
+                elif res.returncode == 2 and len([x for x in lines if "warning" not in x]) == 1:
+                    outcome = "refused"
+                    log(f"  kill {i}: refused: {lines[-1]}")
+                else:
+                    outcome = f"other:exit {res.returncode}"
+                    log(f"  kill {i}: exit {res.returncode}: {lines[-1] if lines else ''}")
+            outcomes[outcome] = outcomes.get(outcome, 0) + 1
+            if (i + 1) % 10 == 0:
+                log(f"  {i + 1} kills: {outcomes}")
+        return outcomes
+    finally:
+        shutil.rmtree(folder, ignore_errors=True)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="tiny sizes (for the smoke test)")
@@ -723,7 +822,14 @@ def main(argv=None):
     ap.add_argument("--groups", default=",".join(GROUP_TITLES), help="comma-separated subset of the groups")
     ap.add_argument("--out", default=os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "docs",
                                                   "stress.md"))
+    ap.add_argument("--kills", type=int, default=0,
+                    help="only the kill survey: SIGKILL a real run this many times at random instants, resume each, "
+                         "count the outcomes (docs/reliability.md)")
+    ap.add_argument("--kill-src", default=None, help="with --kills: a source tree to run instead of the installed rbx")
     args = ap.parse_args(argv)
+    if args.kills:
+        print(kill_survey(args.kills, src=args.kill_src, log=lambda m: print(m, file=sys.stderr, flush=True)))
+        return None
     groups = set(args.groups.split(","))
     t_start = time.perf_counter()
 
