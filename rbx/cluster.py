@@ -1,4 +1,5 @@
-"""Ensembles on a Dask cluster (SPEC §11): ``rbx simulate CONFIG --scheduler ADDRESS``.
+"""Ensembles on a Dask cluster (SPEC §11): ``rbx simulate CONFIG --scheduler ADDRESS`` (and ``rbx histogram``,
+through the same blocks; ``rbx lyapunov`` sends one task per slice of trajectories through :meth:`Cluster.map`).
 
 The client keeps the run: its :class:`rbx.simulation.Simulation` (the state of every trajectory), its sink (the
 one HDF5 file, or memory), its checkpoints and progress. The workers only advance slices of trajectories:
@@ -268,15 +269,66 @@ class Cluster:
                                                      "install the same rbx on the workers and the client")
 
     # -- running -------------------------------------------------------------------------------------------------
+    def slice_cuts(self, M, state_bytes):
+        """Slice boundaries (S+1,) of M trajectories whose state takes ``state_bytes``: ``slices`` slices, or by
+        default enough to keep each task's state small (Dask warns about large tasks, and a task lost costs less)
+        and :data:`SLICES_PER_THREAD` per worker thread; at most one per trajectory."""
+        S = self.slices or max(SLICES_PER_THREAD * self.threads(), -(-int(state_bytes) // SLICE_BYTES), 1)
+        S = max(1, min(S, M))
+        return np.linspace(0, M, S + 1).astype(np.int64)
+
+    def _outcome(self, future, what):
+        """The result of a finished task; a cancelled one (the scheduler gone) or a failed one raises
+        :class:`ClusterError` (``what``: which task, for the message)."""
+        from distributed import CancelledError
+        try:
+            return future.result()
+        except CancelledError:
+            raise ClusterError(self.key, "the run's tasks were cancelled: the scheduler is gone "
+                                         "(shut down, or the network to it lost)") from None
+        except Exception as exc:   # noqa: BLE001 - a task that failed, a worker lost too often
+            raise ClusterError(self.key, f"a task failed ({what}): {type(exc).__name__}: {_first_line(exc)}") \
+                from None
+
+    def map(self, function, tasks, what="task", should_stop=None):
+        """``function(task)`` for each of ``tasks`` on the workers -> the results, in the order of ``tasks`` (None
+        if ``should_stop()`` became true first). Every task is submitted at once (for work that is not cut into
+        rounds: ``rbx lyapunov``'s slices). A lost worker's task is run again by Dask. Polls ``should_stop`` and
+        lets KeyboardInterrupt through while waiting; cancels the tasks still running however it ends. Raises
+        :class:`ClusterError` if a task fails or the scheduler goes away."""
+        run_id = f"rbx-{what}-{os.getpid()}-{time.monotonic_ns():x}"
+        finished = queue.Queue()
+        running = {}
+        results = [None] * len(tasks)
+        try:
+            for i, task in enumerate(tasks):
+                future = self.client.submit(function, task, key=f"{run_id}-{i}", pure=False)
+                running[future] = i
+                future.add_done_callback(finished.put)   # called in the client's thread: the queue hands over
+            while running:
+                if should_stop is not None and should_stop():
+                    return None
+                try:
+                    future = finished.get(timeout=POLL)
+                except queue.Empty:
+                    continue
+                i = running.pop(future)
+                results[i] = self._outcome(future, f"{what} slice {i}")
+                future.release()
+                self.tasks_run += 1
+            return results
+        finally:
+            if running and self.client is not None:
+                try:
+                    self.client.cancel(list(running))
+                except Exception:   # noqa: BLE001 - a scheduler already gone: nothing left to cancel
+                    pass
+
     def plan(self, sim):
         """How ``sim`` is cut -> (slice boundaries (S+1,), collisions per round)."""
         M = sim.M
-        state_bytes = sum(a.nbytes for a in sim.state_group())
-        # by default, enough slices to keep each task's state small (Dask warns about large tasks, and a task
-        # lost costs less)
-        S = self.slices or max(SLICES_PER_THREAD * self.threads(), -(-state_bytes // SLICE_BYTES), 1)
-        S = max(1, min(S, M))
-        cuts = np.linspace(0, M, S + 1).astype(np.int64)
+        cuts = self.slice_cuts(M, sum(a.nbytes for a in sim.state_group()))
+        S = len(cuts) - 1
         work = self.task_collisions or max(1, int(TASK_COLLISIONS / (1 + len(sim.geom.codes) / 8)))
         per_trajectory = max(1, work * S // M)               # a task's work over its slice's trajectories
         every = sim.cfg.output.every
@@ -294,8 +346,6 @@ class Cluster:
 
         Stops early (yielding nothing more) when ``should_stop()``; cancels the tasks still running however it
         ends. Raises :class:`ClusterError` if a task fails."""
-        from distributed import CancelledError
-
         total = sim.cfg.run.collisions
         cuts, length = self.plan(sim)
         slices = list(zip(cuts[:-1].tolist(), cuts[1:].tolist()))
@@ -357,14 +407,7 @@ class Cluster:
                     continue
                 for future in ready:
                     s, r = running.pop(future)
-                    try:
-                        block, nrec, state = future.result()
-                    except CancelledError:
-                        raise ClusterError(self.key, "the run's tasks were cancelled: the scheduler is gone "
-                                                     "(shut down, or the network to it lost)") from None
-                    except Exception as exc:   # noqa: BLE001 - a task that failed, a worker lost too often
-                        raise ClusterError(self.key, f"a task failed (slice {s}, round {r}): "
-                                                     f"{type(exc).__name__}: {_first_line(exc)}") from None
+                    block, nrec, state = self._outcome(future, f"slice {s}, round {r}")
                     future.release()
                     self.tasks_run += 1
                     finish(s, r, block, nrec, state)

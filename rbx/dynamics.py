@@ -4,6 +4,7 @@
 The linearised dynamics and Benettin's method run in compiled code (:mod:`rbx.tangent`) along the engine's own
 orbit; the derivation of the tangent map is in docs/tangent-map.md, the escape statistics in docs/dynamics.md.
 """
+import contextlib
 from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
@@ -38,24 +39,81 @@ class _Tangent:
         self.Y = np.repeat(np.eye(self.d)[None], self.M, axis=0)
         self.sums = np.zeros((self.M, self.d))
 
+    def kernel(self):
+        """What the tangent kernel needs besides the trajectories' rows: (flags, R, κ, Table, Rules) — the same for
+        every trajectory, so a worker of a cluster gets it with each slice (:func:`_measure_slice`)."""
+        return self.flags, self.R, self.kappa, self.table, self.rules
+
     def advance(self, stop, t_end=np.inf, ortho=True, threads=None):
         """Advance every live trajectory to ``stop`` collisions in all or to time ``t_end``."""
-        import numba
+        _advance(self.kernel(), self.state, self.Y, self.sums, stop, t_end, ortho, threads)
 
-        from .tangent import tangent_advance_all
-        M = self.M
-        stop = np.broadcast_to(np.asarray(stop, np.int64), (M,)).copy()
-        t_end = np.broadcast_to(np.asarray(t_end, float), (M,)).copy()
-        args = (stop, t_end, bool(ortho)) + self.flags + (self.R, self.kappa, self.table, self.rules,
-                self.state, self.Y, self.sums)
-        threads = max(1, min(threads or numba.get_num_threads(), M))
-        if threads == 1:
-            tangent_advance_all(0, M, *args)
-            return
-        cuts = np.linspace(0, M, threads + 1).astype(np.int64)
-        with ThreadPoolExecutor(max_workers=threads) as pool:
-            for job in [pool.submit(tangent_advance_all, int(a), int(b), *args) for a, b in zip(cuts[:-1], cuts[1:])]:
-                job.result()
+
+def _advance(kernel, state, Y, sums, stop, t_end=np.inf, ortho=True, threads=None):
+    """Advance the live trajectories of ``state`` (and their tangent vectors ``Y``, log-stretch sums ``sums``) to
+    ``stop`` collisions in all or to time ``t_end``, on a pool of threads. Each trajectory's numbers depend only on
+    its own rows (its random stream is keyed by its global index, in ``state.keys``): not on the thread count, nor
+    on which other trajectories share the arrays."""
+    import numba
+
+    from .tangent import tangent_advance_all
+    flags, R, kappa, table, rules = kernel
+    M = len(Y)
+    stop = np.broadcast_to(np.asarray(stop, np.int64), (M,)).copy()
+    t_end = np.broadcast_to(np.asarray(t_end, float), (M,)).copy()
+    args = (stop, t_end, bool(ortho)) + flags + (R, kappa, table, rules, state, Y, sums)
+    threads = max(1, min(threads or numba.get_num_threads(), M))
+    if threads == 1:
+        tangent_advance_all(0, M, *args)
+        return
+    cuts = np.linspace(0, M, threads + 1).astype(np.int64)
+    with ThreadPoolExecutor(max_workers=threads) as pool:
+        for job in [pool.submit(tangent_advance_all, int(a), int(b), *args) for a, b in zip(cuts[:-1], cuts[1:])]:
+            job.result()
+
+
+def _measure(kernel, state, Y, sums, cuts):
+    """Benettin's method on the trajectories of ``state``: a warm-up to ``cuts[0]`` collisions, then one segment
+    to each of ``cuts[1:]`` -> dict of per-trajectory arrays (``seg_sums`` (M, S, d), ``seg_time`` (M, S),
+    ``total_sums`` (M, d), ``total_time``, ``collisions``, ``ended`` (M,)). Row by row, so that a slice of the
+    trajectories gives the same rows as the whole ensemble (how :func:`lyapunov` runs on a cluster)."""
+    M, d = Y.shape[:2]
+    segments = len(cuts) - 1
+    if cuts[0] > 0:
+        _advance(kernel, state, Y, sums, cuts[0])
+    sums0, t0, c0 = sums.copy(), state.time.copy(), state.ncoll.copy()
+    seg_sums = np.zeros((M, segments, d))
+    seg_time = np.zeros((M, segments))
+    for s in range(segments):
+        before, tb = sums.copy(), state.time.copy()
+        _advance(kernel, state, Y, sums, cuts[s + 1])
+        seg_sums[:, s] = sums - before
+        seg_time[:, s] = state.time - tb
+    return {"seg_sums": seg_sums, "seg_time": seg_time, "total_sums": sums - sums0, "total_time": state.time - t0,
+            "collisions": state.ncoll - c0, "ended": ~state.alive}
+
+
+class _SliceTask:
+    """One slice of a Lyapunov ensemble for a worker of a Dask cluster: the kernel's data and the slice's rows
+    (state, stream keys of the global trajectory indices included; tangent vectors; sums), and the collision
+    cuts. A plain object, so that Dask sends it as it is."""
+
+    def __init__(self, kernel, state, Y, sums, cuts):
+        self.kernel, self.state, self.Y, self.sums, self.cuts = kernel, state, Y, sums, cuts
+
+
+def _measure_slice(task):
+    """Runs on a worker: :func:`_measure` on one slice -> its per-trajectory arrays. A pure function of the task
+    (a worker lost mid-task: Dask runs it again elsewhere, with the same result)."""
+    from .engine import State
+
+    def own(x):       # writable copies: Dask may hand read-only arrays, another type to Numba (a new compile)
+        return np.array(x) if isinstance(x, np.ndarray) else x
+
+    flags, R, kappa, table, rules = task.kernel
+    kernel = (flags, R, kappa, type(table)(*map(own, table)), type(rules)(*map(own, rules)))
+    state = State(*map(own, task.state))
+    return _measure(kernel, state, own(task.Y), own(task.sums), own(task.cuts))
 
 
 def _load(experiment, collisions=None, trajectories=None, seed=None):
@@ -119,7 +177,8 @@ class Lyapunov:
                 "ended_early": int(np.sum(self.ended)) if self.ended is not None else 0}
 
 
-def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segments=10, warmup=None):
+def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segments=10, warmup=None,
+             scheduler=None, slices=None):
     """The Lyapunov spectrum of the flow, per unit time, largest first -> :class:`Lyapunov` (SPEC §10).
 
     Benettin's method: d = 2(n + n(n−1)/2) tangent vectors (6 in 2D, 12 in 3D: position, orientation and their
@@ -130,44 +189,44 @@ def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segme
     infinity contributes the time it had.
 
     ``experiment``: an :class:`~rbx.model.Experiment`, a config path or a dict; ``collisions``, ``trajectories``,
-    ``seed`` override ``run.*``."""
+    ``seed`` override ``run.*``.
+
+    ``scheduler``: follow the trajectories on the workers of a Dask cluster (SPEC §11, docs/cluster.md): its
+    scheduler's address (``tcp://host:8786``), the file it wrote (``--scheduler-file``) or a
+    ``distributed.Client``; ``slices``: tasks (slices of trajectories; default 4 per worker thread). The result
+    is the local one, bit for bit. An unreachable scheduler raises :class:`rbx.cluster.SchedulerUnreachable`, a
+    task that fails :class:`rbx.cluster.ClusterError`."""
     from .analysis import scene_title
     from .tangent import coordinate_names
     exp = _load(experiment, collisions, trajectories, seed)
     segments = int(segments)
     if segments < 1:
         raise ValueError("segments must be at least 1")
+    if scheduler is None and slices is not None:
+        raise TypeError("slices cuts the ensemble for a cluster: give scheduler too")
     N = exp.run.collisions
     warmup = N // 10 if warmup is None else int(warmup)
     measured = N - warmup
     if measured < segments:
         raise ValueError(f"{N} collisions leave {measured} after the warm-up: fewer than {segments} segments")
-    tan = _Tangent(exp)
-    M, d = tan.M, tan.d
-    if warmup > 0:
-        tan.advance(warmup)
-    sums0 = tan.sums.copy()
-    t0 = tan.state.time.copy()
-    c0 = tan.state.ncoll.copy()
-    seg_sums = np.zeros((M, segments, d))
-    seg_time = np.zeros((M, segments))
     cuts = warmup + np.round(np.linspace(0, measured, segments + 1)).astype(np.int64)
-    for s in range(segments):
-        before, tb = tan.sums.copy(), tan.state.time.copy()
-        tan.advance(cuts[s + 1])
-        seg_sums[:, s] = tan.sums - before
-        seg_time[:, s] = tan.state.time - tb
-    total_time = tan.state.time - t0
-    total_sums = tan.sums - sums0
+    tan = _Tangent(exp)
+    d = tan.d
+    with _cluster(scheduler, slices) as cluster:
+        if cluster is None:
+            m = _measure(tan.kernel(), tan.state, tan.Y, tan.sums, cuts)
+        else:
+            m = _on_cluster(cluster, tan, cuts)
+    total_time, total_sums, seg_time = m["total_time"], m["total_sums"], m["seg_time"]
     with np.errstate(invalid="ignore", divide="ignore"):
         per_traj = total_sums / total_time[:, None]
-        seg_exp = seg_sums / seg_time[..., None]
+        seg_exp = m["seg_sums"] / seg_time[..., None]
     T = float(np.sum(total_time))
     if not T > 0:
         raise ValueError("no trajectory moved after the warm-up (all left the table)")
     exponents = np.sum(total_sums, axis=0) / T
     stderr = _batch_stderr(seg_time.reshape(-1), seg_exp.reshape(-1, d), exponents)
-    if M > 1:
+    if tan.M > 1:
         # trajectories of a table that is not ergodic (rough tables trap: docs/dynamics.md) can have different
         # exponents; their spread is then larger than the segments' and is the honest error
         stderr = np.fmax(stderr, _batch_stderr(total_time, per_traj, exponents))
@@ -176,8 +235,32 @@ def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segme
     order = np.argsort(-exponents, kind="stable")
     exponents, stderr, per_traj, seg_exp = exponents[order], stderr[order], per_traj[:, order], seg_exp[..., order]
     return Lyapunov(exponents=exponents, stderr=stderr, per_trajectory=per_traj, segment_exponents=seg_exp,
-                    segment_times=seg_time, time=total_time, collisions=tan.state.ncoll - c0, warmup=warmup,
-                    coordinates=coordinate_names(tan.n), title=scene_title(exp), ended=~tan.state.alive.copy())
+                    segment_times=seg_time, time=total_time, collisions=m["collisions"], warmup=warmup,
+                    coordinates=coordinate_names(tan.n), title=scene_title(exp), ended=m["ended"])
+
+
+def _cluster(scheduler, slices):
+    """The cluster of ``scheduler`` as a context manager (:func:`rbx.api.cluster_for`: connected now, closed at the
+    end; None for a local run); a :class:`rbx.cluster.Cluster` already connected (the CLI's) is used as it is."""
+    if scheduler is not None:
+        from .cluster import Cluster
+        if isinstance(scheduler, Cluster):
+            return contextlib.nullcontext(scheduler)
+    from .api import cluster_for
+    return cluster_for(scheduler, "scheduler", slices)
+
+
+def _on_cluster(cluster, tan, cuts):
+    """:func:`_measure` of ``tan``'s ensemble on a cluster: one task per slice of trajectories, the slices' rows
+    joined in order -> the arrays of the whole ensemble, the same bits as a local run (each row depends only on
+    its trajectory)."""
+    state_bytes = sum(a.nbytes for a in tan.state) + tan.Y.nbytes + tan.sums.nbytes
+    bounds = cluster.slice_cuts(tan.M, state_bytes)
+    kernel = tan.kernel()
+    tasks = [_SliceTask(kernel, type(tan.state)(*(x[a:b] for x in tan.state)), tan.Y[a:b], tan.sums[a:b], cuts)
+             for a, b in zip(bounds[:-1].tolist(), bounds[1:].tolist())]
+    parts = cluster.map(_measure_slice, tasks, what="lyapunov")
+    return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}
 
 
 def _batch_stderr(w, e, mean):

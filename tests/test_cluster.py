@@ -395,3 +395,89 @@ def test_cluster_options_need_a_scheduler(tmp_path):
     res = rbx("simulate", "exp.yaml", "-o", "run.h5", "--slices", "3", cwd=tmp_path)
     assert res.returncode == 2
     assert res.stderr.strip() == "rbx: --slices: only with --scheduler (it cuts a run into tasks for a Dask cluster)"
+
+
+# ---- rbx lyapunov on the cluster ---------------------------------------------------------------------------------
+
+#: a chaotic scene (λ₁ > 0): the rough Sinai table, 4 trajectories × 2000 collisions from the billiard measure
+LYAPUNOV = {"table": {"kind": "sinai", "size": [2.0, 1.5], "radius": 0.4},
+            "boundary": {"default": {"rule": "constant", "rank": 1}}, "ball": {"radius": 0.1, "inertia": "uniform"},
+            "initial": {"sample": "billiard"}, "run": {"collisions": 2000, "trajectories": 4, "seed": 1}}
+
+
+def lyapunov_json(folder, *options, cfg=LYAPUNOV):
+    (Path(folder) / "lyap.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
+    res = rbx("lyapunov", "lyap.yaml", "--json", "--segments", 5, *options, cwd=folder)
+    assert res.returncode == 0, res.stderr
+    assert not res.stderr, res.stderr                 # nothing from Dask either
+    return json.loads(res.stdout)
+
+
+@pytest.fixture(scope="module")
+def local_lyapunov(tmp_path_factory):
+    return lyapunov_json(tmp_path_factory.mktemp("lyap-local"))
+
+
+def tasks_seen(cluster):
+    """Workers of ``cluster`` that ran a Lyapunov task (imported rbx.dynamics, which nothing else imports there)."""
+    with cluster.client() as c:
+        return sum(c.run(lambda: "rbx.dynamics" in sys.modules).values())
+
+
+@pytest.mark.parametrize("which, slices", [("one", None), ("two", 2), ("two", 3)])
+def test_lyapunov_on_the_cluster_is_the_local_spectrum_bit_for_bit(which, slices, local_lyapunov, request, tmp_path):
+    cluster = request.getfixturevalue(which)
+    options = ("--scheduler", cluster.address) + (("--slices", slices) if slices else ())
+    on = lyapunov_json(tmp_path, *options)
+    assert local_lyapunov["exponents"][0] > 0.05 and local_lyapunov["trajectories"] == 4   # a chaotic ensemble
+    assert on["exponents"] == local_lyapunov["exponents"]          # JSON floats round-trip: the same bits
+    assert on["stderr"] == local_lyapunov["stderr"]
+    assert on == local_lyapunov
+    assert tasks_seen(cluster) >= 1                                # the workers did run it
+
+
+def test_lyapunov_survives_a_worker_killed_mid_run(two, tmp_path):
+    """4 slices of 1 trajectory × 2·10⁵ collisions (~1 s each): a worker SIGKILLed while it runs one; Dask runs
+    that slice again and the spectrum is still the local one, bit for bit."""
+    cfg = dict(LYAPUNOV, run={"collisions": 200_000, "trajectories": 4, "seed": 2})
+    local = lyapunov_json(tmp_path, cfg=cfg)
+    two.wait_for_workers(2)
+    pids = two.worker_pids()
+    removed = two.log("scheduler").count("Remove worker addr: ")
+    (tmp_path / "lyap.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
+    proc = subprocess.Popen([RBX, "lyapunov", "lyap.yaml", "--json", "--segments", "5", "--scheduler", two.address,
+                             "--slices", "4"], cwd=tmp_path, env=ENV, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    victim = None
+    deadline = time.monotonic() + 120
+    with two.client() as c:
+        while victim is None:
+            assert proc.poll() is None, proc.communicate()
+            assert time.monotonic() < deadline, "no Lyapunov task ever ran"
+            busy = [w for w, keys in c.processing().items() if any(str(k).startswith("rbx-lyapunov") for k in keys)]
+            victim = busy[0] if busy else None
+            time.sleep(0.05)
+    time.sleep(0.3)                                        # into the task's work
+    os.kill(pids[victim], signal.SIGKILL)
+    out, err = proc.communicate(timeout=300)
+    assert proc.returncode == 0, err
+    assert json.loads(out) == local
+    log = two.log("scheduler")
+    assert f"Remove worker addr: {victim}" in log and log.count("Remove worker addr: ") > removed   # lost mid-run
+    two.wait_for_workers(2)                                 # its nanny starts it again, for the next tests
+
+
+def test_lyapunov_unreachable_scheduler_is_one_line_and_exit_2(tmp_path):
+    (tmp_path / "lyap.yaml").write_text(yaml.safe_dump(LYAPUNOV))
+    res = rbx("lyapunov", "lyap.yaml", "--json", "--scheduler", f"tcp://127.0.0.1:{free_port()}", cwd=tmp_path)
+    assert res.returncode == 2, res.stderr
+    assert not res.stdout
+    line, = res.stderr.strip().splitlines()
+    assert line.startswith("rbx: --scheduler: cannot reach a Dask scheduler") and "Connection refused" in line
+
+
+def test_lyapunov_slices_need_a_scheduler(tmp_path):
+    (tmp_path / "lyap.yaml").write_text(yaml.safe_dump(LYAPUNOV))
+    res = rbx("lyapunov", "lyap.yaml", "--json", "--slices", "2", cwd=tmp_path)
+    assert res.returncode == 2 and not res.stdout
+    assert res.stderr.strip() == "rbx: --slices: only with --scheduler (it cuts a run into tasks for a Dask cluster)"

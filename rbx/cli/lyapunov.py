@@ -16,24 +16,34 @@ from .common import Command, UserError, interrupted_exit, report_and_exit, user_
 @click.option("--warmup", type=click.IntRange(0, None), help="Collisions not counted while the vectors align "
                                                               "(default: a tenth of the collisions).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object (exponents, stderr, sum, time, …).")
+@click.option("--scheduler", metavar="ADDRESS",
+              help="Follow the trajectories on the workers of a Dask cluster: its scheduler's address "
+                   "(tcp://HOST:PORT) or scheduler file (docs/cluster.md). Same results as a local run.")
+@click.option("--slices", type=click.IntRange(min=1), metavar="N",
+              help="With --scheduler: tasks, each a slice of the trajectories (default: 4 per worker thread).")
 @click.option("--debug", is_flag=True, help="Show a traceback with user errors.")
-def lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json, debug):
+def lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json, scheduler, slices, debug):
     """The Lyapunov spectrum of the flow, per unit time, largest first, with standard errors.
 
     Benettin's method on the linearised dynamics (free flight, collision time, collision map with the wall's
     curvature and the spin), along each of run.trajectories trajectories of CONFIG for run.collisions collisions.
     Coordinates: position, R√κ·orientation, velocity, R√κ·spin (6 exponents in 2D, 12 in 3D)."""
+    cluster = {"scheduler": scheduler, "slices": slices, "task_collisions": None}
     try:
-        _lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json)
+        _lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json, cluster)
     except UserError as exc:
         report_and_exit(exc, debug)
     except KeyboardInterrupt:
         interrupted_exit()
 
 
-def _lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json):
+def _lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json, cluster):
     from .. import api
+    from ..cluster import ClusterError
     from ..dynamics import lyapunov as spectrum
+    from .simulate import check_cluster_options, connect
+
+    check_cluster_options(cluster)
 
     overrides = {k: v for k, v in (("collisions", collisions), ("trajectories", trajectories), ("seed", seed))
                  if v is not None}
@@ -44,10 +54,14 @@ def _lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json)
         raise UserError(None, "--warmup", f"{warmup} leaves no collisions of the {N} to measure")
     if N - (N // 10 if warmup is None else warmup) < segments:
         raise UserError(None, "--segments", f"more segments ({segments}) than measured collisions")
-    try:
-        result = spectrum(exp, segments=segments, warmup=warmup)
-    except ValueError as exc:       # every trajectory left the table (exits, a wedge's escapes) before measuring
-        raise UserError(config, None, str(exc)) from None
+    with connect(cluster) as on:     # an unreachable scheduler is a user error, said before any work
+        try:
+            result = spectrum(exp, segments=segments, warmup=warmup, scheduler=on)
+        except ValueError as exc:   # every trajectory left the table (exits, a wedge's escapes) before measuring
+            raise UserError(config, None, str(exc)) from None
+        except ClusterError as exc:     # the cluster failed mid-run: not the user's input, exit 1
+            click.echo(f"rbx: {exc}; nothing computed", err=True)
+            raise SystemExit(1) from None
     if as_json:
         click.echo(json.dumps(result.to_dict()))
         return
