@@ -23,7 +23,7 @@ Layout (T trajectories, N records; trajectory axis first):
 | ``collisions/count`` | (T,) | i8 | records written for each trajectory (rows past it are NaN / −1) |
 | ``collisions/step`` | (N,) | i8 | collision number of each record (0, every, 2·every, …) |
 | ``final/*`` | (T, …) | | the last state of every trajectory, its ``collisions`` and ``draws`` counts and ``alive`` flag (for ``--resume``); attributes ``sequence`` and ``digest`` (hash of the state, see :func:`state_digest`) |
-| ``final_previous/*`` | (T, …) | | the state one block earlier: each checkpoint writes there, verifies, then swaps the two names, so a process killed at any instant leaves one verified state (:func:`latest_state`) |
+| ``final_previous/*`` | (T, …) | | the state one block earlier: each checkpoint writes over the older of the two (digest last), so a process killed at any instant leaves one verified state (:func:`latest_state` takes the newest that verifies); the newest is named ``final`` when the run stops |
 | ``returns/angle`` | (K,) | f8 | ``rbx histogram`` files only (no ``collisions/``): return angles φ; see :func:`write_returns` |
 
 Only the fields in ``output.record`` are present. Every ``collisions/`` dataset carries the attributes ``units``

@@ -764,6 +764,11 @@ def kill_survey(kills, seed=1, block_work=3000, src=None, log=print, extra_env=N
 
     env = dict(os.environ, **(extra_env or {}))
     folder = tempfile.mkdtemp(prefix="rbx-kills-")
+
+    def outcome_done(where):
+        return (os.path.exists(os.path.join(where, "run.h5"))
+                and not os.path.exists(os.path.join(where, "run.h5.partial")))
+
     outcomes = {}
     try:
         with open(os.path.join(folder, "exp.yaml"), "w") as fh:
@@ -793,12 +798,18 @@ def kill_survey(kills, seed=1, block_work=3000, src=None, log=print, extra_env=N
             else:
                 proc.send_signal(signal.SIGKILL)
                 proc.wait()
+            if outcome_done(folder):        # killed while exiting, its file already renamed: nothing to resume
+                outcome = "finished-before-the-kill"
+            else:
                 res = subprocess.run(cmd(None, "simulate", "--resume", "run.h5.partial", "--quiet"), cwd=folder,
                                      env=env, capture_output=True, text=True)
                 lines = res.stderr.strip().splitlines()
-                if res.returncode == 0:
+                if res.returncode == 0 and "nothing to resume" in res.stderr:
+                    outcome = "finished-before-the-kill"    # killed between marking it complete and the rename
+                elif res.returncode == 0:
                     try:
-                        outcome = "exact" if same(read(os.path.join(folder, "run.h5")), reference) else "other:different"
+                        same_records = same(read(os.path.join(folder, "run.h5")), reference)
+                        outcome = "exact" if same_records else "other:different"
                     except Exception as exc:   # noqa: BLE001 - counted, not raised
                         outcome = f"other:unreadable ({type(exc).__name__})"
                 elif res.returncode == 2 and len([x for x in lines if "warning" not in x]) == 1:
