@@ -269,6 +269,52 @@ class DiffusionFit:
         return 0.5 * (self.high - self.low)
 
 
+def unbounded_axes(geom):
+    """The coordinate axes along which the table extends without end -> set of axis indices: every axis of a
+    periodic table (positions are unfolded), the directions of a 2D wall that is an infinite line (strip: x;
+    wedge: both), the tangent axes of an unbounded plane (plates: x and y); none for a closed table."""
+    from . import tables
+    n = geom.dimension
+    if geom.lattice is not None:
+        return set(range(n))
+    try:
+        table_measure(geom)
+        return set()                  # a finite volume: closed (the caps of a cylinder are unbounded planes)
+    except ValueError:
+        pass
+    out = set()
+    for piece in tables.walls(geom.kind, geom.table):
+        if isinstance(piece, tables.Line) and not (math.isfinite(piece.s_min) and math.isfinite(piece.s_max)):
+            d = piece.direction
+            if d and d[0] == "deg":
+                d = (math.cos(math.radians(d[1])), math.sin(math.radians(d[1])))
+            out |= {k for k in range(2) if abs(float(d[k])) > 1e-12}
+        elif isinstance(piece, tables.Plane):
+            for t in piece.tangents:
+                for k in range(3):
+                    if abs(float(t[k])) > 1e-12 and not (math.isfinite(piece.lo[k]) and math.isfinite(piece.hi[k])):
+                        out.add(k)
+    return out
+
+
+#: coordinates whose mean-square displacement can grow without bound: the position (along an axis the table does
+#: not bound) and the 2D orientation angle; velocities and spins are bounded by the energy, time is not random
+DIFFUSING = {"x": 0, "y": 1, "z": 2, "theta": None}
+
+
+def diffusion_problem(geom, coordinate):
+    """Why a diffusion coefficient of ``coordinate`` means nothing in this table -> a phrase, or None if it may."""
+    if coordinate not in DIFFUSING:
+        what = "the time is not a random coordinate" if coordinate == "time" else \
+            f"{coordinate} is bounded by the energy"
+        return f"{what}: diffusion is measured along a position (x, y, z) or the orientation theta"
+    axis = DIFFUSING[coordinate]
+    if axis is not None and axis not in unbounded_axes(geom):
+        return (f"the {geom.kind} table is bounded along {coordinate}: the mean-square displacement saturates, "
+                "there is no diffusion coefficient")
+    return None
+
+
 def fit_diffusion(t, x, fit_from=0.1, confidence=0.95):
     """Diffusion coefficient of one coordinate -> :class:`DiffusionFit`.
 

@@ -5,21 +5,114 @@ Figures are built without pyplot, so no global state or GUI backend is involved:
 matplotlib's Agg canvas. Units on the axes: L is the table's length unit, T the time unit of the config's
 velocities; a step is one collision.
 """
+import contextlib
+import functools
+import os
+
+import matplotlib
 import numpy as np
 from matplotlib import colormaps
 from matplotlib.colors import Normalize
 from matplotlib.figure import Figure
+from matplotlib.ticker import MaxNLocator
 
 from . import analysis, geometry, tables
 from .tables import SHRUNK_STYLE, TABLE_STYLE
 
 MAX_LEGEND = 10
+#: the one style sheet of rbx's figures (font sizes, line widths, colours): every builder here runs inside it
+STYLE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "rbx.mplstyle")
+#: at most this many free flights drawn as lines in a 2D orbit (3D: ORBIT3D_SEGMENTS), shared by the trajectories;
+#: beyond it the eye sees a solid block, so the rest of the run is shown as a density of the time spent
+ORBIT_SEGMENTS = 1500
+ORBIT3D_SEGMENTS = 600
+#: a to-scale 2D picture whose sides differ by more than this factor is drawn stretched (and says so)
+MAX_ASPECT = 6.0
+
+
+def style():
+    """A context in which matplotlib uses rbx's style sheet (:data:`STYLE`)."""
+    return matplotlib.rc_context(fname=STYLE)
+
+
+def styled(build):
+    """A figure builder run inside :func:`style`; the ticks are made there too (matplotlib makes them lazily, and
+    the ones added when drawing copy the first), so the figure keeps the style when saved outside it."""
+    @functools.wraps(build)
+    def wrapper(*args, **kwargs):
+        with style():
+            fig = build(*args, **kwargs)
+            for ax in fig.axes:
+                for axis in ax._axis_map.values():
+                    axis.get_major_ticks()
+                    axis.get_minor_ticks()
+        return fig
+    return wrapper
+
+
+def save(fig, path, dpi=None):
+    """``fig.savefig(path)`` with rbx's style (dpi: the style's unless given)."""
+    with style():
+        fig.savefig(path, dpi=dpi if dpi is not None else "figure")
 
 
 def _figure(width, height, title):
     fig = Figure(figsize=(width, height), layout="constrained")
-    fig.suptitle(title, fontsize=9)
+    fig.suptitle(title)
     return fig
+
+
+def legend_outside(ax, where="right", **kwargs):
+    """A legend beside the axes (right) or under them (below), never over the data."""
+    if where == "below":     # the figure's own legend, laid out under the axes by constrained layout
+        handles, labels = ax.get_legend_handles_labels()
+        short = max((len(t) for t in labels), default=0) < 20
+        return ax.figure.legend(handles, labels, loc="outside lower center",
+                                ncols=min(5, len(labels)) if short else min(2, len(labels)), **kwargs)
+    return ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, **kwargs)
+
+
+def _few_ticks(ax, n=4):
+    """At most about n labelled ticks per axis (3D axes and narrow panels: long labels ran together)."""
+    for axis in ax._axis_map.values():
+        axis.set_major_locator(MaxNLocator(n))
+
+
+def _thin(paths, budget):
+    """The first K records of each path, K such that the drawn flights total about ``budget`` -> (paths, K or
+    None if nothing was cut)."""
+    total = sum(max(len(p) - 1, 0) for p in paths)
+    if total <= budget:
+        return paths, None
+    k = max(2, budget // max(len(paths), 1) + 1)
+    return [p[:k] for p in paths], k - 1
+
+
+def _density(ax, paths, points_only, lo, hi, bins=200):
+    """The time spent at each place by the whole orbit, as a grey density under the drawn flights: points
+    sampled uniformly along each straight flight (or the recorded points themselves, ``points_only``)."""
+    pts = []
+    for p in paths:
+        p = p[:, :2]
+        if points_only or len(p) < 2:
+            pts.append(p)
+            continue
+        seg = np.linalg.norm(np.diff(p, axis=0), axis=1)
+        s = np.concatenate([[0.0], np.cumsum(seg)])
+        if s[-1] <= 0:
+            continue
+        u = np.linspace(0.0, s[-1], min(400_000, 40 * len(p)))
+        pts.append(np.stack([np.interp(u, s, p[:, 0]), np.interp(u, s, p[:, 1])], axis=1))
+    if not pts:
+        return
+    q = np.concatenate(pts)
+    span = np.maximum(np.asarray(hi[:2], float) - np.asarray(lo[:2], float), 1e-12)
+    nx = int(np.clip(bins * span[0] / span.max(), 20, bins))
+    ny = int(np.clip(bins * span[1] / span.max(), 20, bins))
+    h, xe, ye = np.histogram2d(q[:, 0], q[:, 1], bins=(nx, ny), range=[[lo[0], hi[0]], [lo[1], hi[1]]])
+    h = np.ma.masked_equal(h, 0)
+    ax.pcolormesh(xe, ye, h.T, cmap="Greys", norm=matplotlib.colors.LogNorm(vmin=1, vmax=max(h.max(), 2)),
+                  alpha=0.55, zorder=0, rasterized=True, label="time spent, whole run (log)")
 
 
 def _colour(i):
@@ -85,66 +178,111 @@ def draw_table_3d(ax, geom, lo, hi):
 # ---- orbits ----------------------------------------------------------------------------------------------------
 
 
+@styled
 def orbit_figure(paths, geom, title, labels=None, points_only=False):
     """The 2D path of the centre (or the horizontal projection of a 3D one) in the table drawn to scale.
 
     ``paths``: list of (T_j, ≥2) arrays of positions, one per trajectory; consecutive collision points are joined
-    by straight segments (the free flights) unless ``points_only`` (records that skip collisions)."""
+    by straight segments (the free flights) unless ``points_only`` (records that skip collisions). A long orbit
+    is drawn as its first flights (:data:`ORBIT_SEGMENTS` in all) over a grey density of the whole run; a table
+    much longer than wide (a strip) is stretched across, and the axis label says so."""
     fig = _figure(6.4, 6.0, title)
     ax = fig.add_subplot()
     lo, hi = _extent(paths)
     draw_table_2d(ax, geom, lo, hi)
-    for i, p in enumerate(paths):
+    _round_caps(ax)
+    shown, k = _thin(paths, ORBIT_SEGMENTS)
+    if k is not None:
+        _density(ax, paths, points_only, *_extent(paths))
+    alpha = 1.0 if len(paths) == 1 else 0.8
+    for i, p in enumerate(shown):
         style = dict(ls="none", marker=".", ms=2) if points_only else dict(lw=0.6)
-        ax.plot(p[:, 0], p[:, 1], color=_colour(i), label=labels[i] if labels else None, **style)
+        ax.plot(p[:, 0], p[:, 1], color=_colour(i), alpha=alpha, label=labels[i] if labels else None, **style)
+    for i, p in enumerate(shown):            # the starts on top of every path
         if len(p):
-            ax.plot(p[0, 0], p[0, 1], "o", color=_colour(i), ms=4)
-    ax.set_aspect("equal", adjustable="box")
-    # to scale, so the figure takes the table's shape (a long stretch of a strip: a wide, low figure)
+            ax.plot(p[0, 0], p[0, 1], "o", color=_colour(i), ms=4, mec="white", mew=0.5, zorder=5)
     (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
-    width = 9.0 if (y1 - y0) < 0.5 * (x1 - x0) else 6.4
-    fig.set_size_inches(width, float(np.clip(width * (y1 - y0) / (x1 - x0) + 1.3, 2.6, 9.0)))
-    ax.set_xlabel("x [L]")
-    ax.set_ylabel("y [L]")
+    ratio = (y1 - y0) / max(x1 - x0, 1e-300)
+    if 1 / MAX_ASPECT <= ratio <= MAX_ASPECT:
+        ax.set_aspect("equal", adjustable="box")
+        # to scale, so the figure takes the table's shape (a wide, low figure for a wide table)
+        width = 9.0 if ratio < 0.5 else 6.4
+        fig.set_size_inches(width, float(np.clip(width * ratio + 1.6, 3.2, 9.0)))
+        ax.set_xlabel("x [L]")
+        ax.set_ylabel("y [L]")
+    elif ratio < 1:
+        fig.set_size_inches(9.0, 3.6)
+        ax.set_xlabel("x [L]")
+        ax.set_ylabel("y [L] (not to scale)")
+    else:
+        fig.set_size_inches(4.4, 7.5)
+        ax.set_xlabel("x [L] (not to scale)")
+        ax.set_ylabel("y [L]")
+    if k is not None:
+        ax.set_title(f"lines: the first {k} collisions of each trajectory; grey: the whole run")
     if labels and len(paths) <= MAX_LEGEND:
-        ax.legend(fontsize=7, loc="best")
+        legend_outside(ax, "below" if ratio < 0.5 else "right")
     return fig
 
 
+def _round_caps(ax):
+    """Closed outlines drawn as open polylines showed a square cap (a short tick) where they start and end."""
+    for line in ax.get_lines():
+        line.set_solid_capstyle("round")
+        line.set_dash_capstyle("round")
+        line.set_solid_joinstyle("round")
+
+
+@styled
 def orbit3d_figure(paths, geom, title, labels=None, points_only=False):
-    """The 3D path of the centre between plates or in a box, beside its horizontal projection (x, y)."""
+    """The 3D path of the centre between plates or in a box, beside its horizontal projection (x, y). A long
+    orbit is drawn as its first flights (:data:`ORBIT3D_SEGMENTS` in all in 3D)."""
     fig = _figure(11.0, 5.2, title)
     ax = fig.add_subplot(1, 2, 1, projection="3d")
     lo, hi = _extent(paths, 3)
     style = dict(ls="none", marker=".", ms=2) if points_only else dict(lw=0.6)
-    for i, p in enumerate(paths):
-        ax.plot(p[:, 0], p[:, 1], p[:, 2], color=_colour(i), label=labels[i] if labels else None, **style)
+    shown, k = _thin(paths, ORBIT3D_SEGMENTS)
+    alpha = 1.0 if len(paths) == 1 else 0.8
+    for i, p in enumerate(shown):
+        ax.plot(p[:, 0], p[:, 1], p[:, 2], color=_colour(i), alpha=alpha, label=labels[i] if labels else None,
+                **style)
     lo, hi = draw_table_3d(ax, geom, lo, hi)
     ranges = hi - lo
     ax.set_box_aspect(np.maximum(ranges, 0.2 * ranges.max()))  # to scale, unless a range is very thin
+    _few_ticks(ax, 4)
+    thin = ranges < 0.3 * ranges.max()
+    for axis, flat in zip((ax.xaxis, ax.yaxis, ax.zaxis), thin):
+        if flat:
+            axis.set_major_locator(MaxNLocator(2))
     ax.set_xlabel("x [L]")
     ax.set_ylabel("y [L]")
     ax.set_zlabel("z [L]")
-    ax.set_title("3D path of the centre", fontsize=9)
+    ax.set_title("3D path of the centre" + (f" (first {k} collisions each)" if k else ""))
     ax2 = fig.add_subplot(1, 2, 2)
     lo2, hi2 = _extent(paths)
     draw_table_2d(ax2, geom, lo2, hi2)
-    for i, p in enumerate(paths):
-        ax2.plot(p[:, 0], p[:, 1], color=_colour(i), label=labels[i] if labels else None, **style)
+    _round_caps(ax2)
+    shown2, k2 = _thin(paths, ORBIT_SEGMENTS)
+    if k2 is not None:
+        _density(ax2, paths, points_only, lo2, hi2)
+    for i, p in enumerate(shown2):
+        ax2.plot(p[:, 0], p[:, 1], color=_colour(i), alpha=alpha, label=labels[i] if labels else None, **style)
+    for i, p in enumerate(shown2):
         if len(p):
-            ax2.plot(p[0, 0], p[0, 1], "o", color=_colour(i), ms=4)
+            ax2.plot(p[0, 0], p[0, 1], "o", color=_colour(i), ms=4, mec="white", mew=0.5, zorder=5)
     ax2.set_aspect("equal", adjustable="datalim")
     ax2.set_xlabel("x [L]")
     ax2.set_ylabel("y [L]")
-    ax2.set_title("horizontal projection", fontsize=9)
+    ax2.set_title("horizontal projection" + (f": lines, first {k2} collisions; grey, whole run" if k2 else ""))
     if labels and len(paths) <= MAX_LEGEND:
-        ax2.legend(fontsize=7, loc="best")
+        legend_outside(ax2)
     return fig
 
 
 # ---- phase portraits -------------------------------------------------------------------------------------------
 
 
+@styled
 def phase_figure(panels, colour, title, colour_label, categorical=True, labels=None):
     """Scatter panels sharing one colouring. ``panels``: list of dicts with ``x``, ``y``, ``xlabel``, ``ylabel``
     and optionally ``title``, ``vlines`` (x positions to mark, e.g. wall joints), ``lines`` (list of
@@ -160,7 +298,7 @@ def phase_figure(panels, colour, title, colour_label, categorical=True, labels=N
     else:
         norm = Normalize(float(np.min(colour)) if len(colour) else 0.0, float(np.max(colour)) if len(colour) else 1.0)
         rgba = colormaps["viridis"](norm(colour))
-    ms = float(np.clip(30000.0 / max(len(colour), 1), 2.0, 12.0))  # marker area [pt²]
+    ms = float(np.clip(30000.0 / max(len(colour), 1), 2.0, 36.0))  # marker area [pt²]: a few points stand out
     axes = []
     for spec in panels:
         ax = fig.add_subplot(1, len(panels), len(axes) + 1)
@@ -174,9 +312,9 @@ def phase_figure(panels, colour, title, colour_label, categorical=True, labels=N
         axes.append(ax)
     if categorical and labels and len(keys) <= MAX_LEGEND:
         for i, k in enumerate(keys):
-            axes[-1].plot([], [], "o", color=_colour(i), ms=4, label=labels[i])
+            axes[-1].plot([], [], "o", color=_colour(i), ms=min(4.0, np.sqrt(ms)), label=labels[i])
     if any(spec.get("lines") for spec in panels) or (categorical and labels and len(keys) <= MAX_LEGEND):
-        axes[-1].legend(fontsize=7, loc="upper right")
+        legend_outside(axes[-1], markerscale=1.0)
     if not categorical:
         from matplotlib.cm import ScalarMappable
         fig.colorbar(ScalarMappable(norm=norm, cmap="viridis"), ax=axes, label=colour_label, shrink=0.85)
@@ -186,6 +324,7 @@ def phase_figure(panels, colour, title, colour_label, categorical=True, labels=N
 # ---- series ----------------------------------------------------------------------------------------------------
 
 
+@styled
 def series_figure(steps, values, title, ylabel, labels=None, scales=(0.01, 0.1, 1.0), points_only=False):
     """A coordinate against the collision step at several time scales (paper Figure `graph`): one panel per
     scale f, showing the first fraction f of the run. ``steps`` (T,), ``values``: list of (T,) arrays (one per
@@ -203,17 +342,18 @@ def series_figure(steps, values, title, ylabel, labels=None, scales=(0.01, 0.1, 
             ax.plot(steps[sel], np.asarray(v)[sel], color=_colour(i), label=labels[i] if labels else None,
                     **style)
         frac = "all" if f >= 1 else f"first 1/{round(1 / f)}" if abs(1 / f - round(1 / f)) < 1e-9 else f"first {f:g}"
-        ax.set_title(f"{frac} of the run (steps {first:.0f} – {upto:.0f})", fontsize=9)
+        ax.set_title(f"{frac} of the run (steps {first:.0f} – {upto:.0f})")
         ax.set_xlabel("collision step [–]")
         ax.set_ylabel(ylabel)
         if k == 0 and labels and 1 < len(values) <= MAX_LEGEND:
-            ax.legend(fontsize=7, loc="best")
+            legend_outside(ax)
     return fig
 
 
 # ---- diffusion -------------------------------------------------------------------------------------------------
 
 
+@styled
 def diffusion_figure(steps, msd, fit, displacement, title, coordinate="x"):
     """Left: mean-square displacement against steps (log–log) with the fit 2·D·t + c and its confidence
     interval; right: the distribution of the final displacement against the Gaussian of the fitted MSD."""
@@ -234,8 +374,8 @@ def diffusion_figure(steps, msd, fit, displacement, title, coordinate="x"):
     ax.axvspan(fit.start, fit.stop, color=_colour(2), alpha=0.07, label="fit window")
     ax.set_xlabel("collision step [–]")
     ax.set_ylabel(f"MSD ⟨Δ{coordinate}²⟩ [L²]")
-    ax.set_title(f"mean-square displacement, {fit.trajectories} trajectories", fontsize=9)
-    ax.legend(fontsize=7, loc="upper left")
+    ax.set_title(f"mean-square displacement, {fit.trajectories} trajectories")
+    legend_outside(ax, "below")
     ax2 = fig.add_subplot(1, 2, 2)
     dx = np.asarray(displacement, float)
     dx = dx[np.isfinite(dx)]
@@ -252,8 +392,8 @@ def diffusion_figure(steps, msd, fit, displacement, title, coordinate="x"):
                  label=f"Gaussian, variance 2DT + c = {var:.3g} L² (KS p = {p:.2g})")
     ax2.set_xlabel(f"displacement Δ{coordinate} [L]")
     ax2.set_ylabel("density [1/L]")
-    ax2.set_title("displacement distribution", fontsize=9)
-    ax2.legend(fontsize=7, loc="upper left")
+    ax2.set_title("displacement distribution")
+    legend_outside(ax2, "below")
     return fig
 
 
@@ -270,6 +410,7 @@ def _superscript(k):
     return str(k).translate(str.maketrans("0123456789", "⁰¹²³⁴⁵⁶⁷⁸⁹"))
 
 
+@styled
 def histogram_figure(angle, d, ks_statistic, ks_pvalue, title, bins=50):
     """Histogram of return angles φ against the billiard-measure density (d−1)·cos φ·sin^(d−2) φ on [0, π/2]."""
     fig = _figure(6.4, 4.6, title)
@@ -283,13 +424,14 @@ def histogram_figure(angle, d, ks_statistic, ks_pvalue, title, bins=50):
     ax.set_ylim(0.0, 1.25 * max(ax.get_ylim()[1], float(np.max(analysis.cos_law_pdf(u, d)))))
     ax.set_xlabel("return angle φ to the normal [rad]")
     ax.set_ylabel("density [1/rad]")
-    ax.legend(fontsize=8, loc="upper left" if d > 3 else "upper right")
+    legend_outside(ax, "below")
     return fig
 
 
 # ---- escape and return times (SPEC §10) ------------------------------------------------------------------------
 
 
+@styled
 def escape_figure(s, S, rate, rate_err, start, exits, total, title, unit="path length [L]", expected=None):
     """The survival function S(s) (Kaplan–Meier: the fraction of trajectories still in the table after path s) on
     a log scale, with the fitted exponential tail A·exp(−γ s) for s ≥ ``start`` and its rate γ ± error.
@@ -310,7 +452,7 @@ def escape_figure(s, S, rate, rate_err, start, exits, total, title, unit="path l
     ax.set_xlim(0.0, None)
     ax.set_xlabel(unit)
     ax.set_ylabel("fraction still in the table S(s) [–]")
-    ax.legend(fontsize=8, loc="upper right")
+    legend_outside(ax, "below")
     return fig
 
 
@@ -328,9 +470,10 @@ def _dress(ax, spec):
     ax.set_xlabel(spec["xlabel"])
     ax.set_ylabel(spec["ylabel"])
     if spec.get("title"):
-        ax.set_title(spec["title"], fontsize=9)
+        ax.set_title(spec["title"])
 
 
+@styled
 def section_figure(panels, spin, title, spin_label):
     """Sections of phase space coloured by the (scaled) spin: ``panels`` as for :func:`phase_figure` (``x``,
     ``y``, labels, limits, ``vlines``); ``spin`` one value per point, on a diverging scale symmetric about 0."""

@@ -66,10 +66,11 @@ def _plot(run_file, kind, out, records, trajectories, colour, coordinate, scales
           plane="z=0.5"):
     fig = make_figure(run_file, kind, parse_records(records), trajectories, colour=colour, coordinate=coordinate,
                       scales=parse_scales(scales), fit_from=fit_from, wall=wall, plane=plane)
+    from ..plotting import save
     path = out or f"{os.path.splitext(run_file)[0]}_{kind}.png"
     try:
         os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
-        fig.savefig(path, dpi=dpi)
+        save(fig, path, dpi=dpi)
     except (OSError, ValueError) as exc:
         raise UserError(path, None, f"cannot write the figure: {getattr(exc, 'strerror', None) or exc}") from None
     return path
@@ -86,6 +87,7 @@ def make_figure(run_file, kind, records=slice(None), trajectories=None, **option
         run = Run.open(run_file)
         with run:
             traj = parse_trajectories(trajectories, run.trajectories, DEFAULT_TRAJECTORIES[kind], run.path)
+            check_records(records, len(run.step), run.path)
             try:
                 return _BUILDERS[kind](run, records, traj, **options)
             except ValueError as exc:
@@ -110,6 +112,14 @@ def parse_records(text):
     if len(vals) == 3 and vals[2] is not None and vals[2] <= 0:
         raise UserError("--records", None, f"the stride must be positive, got {vals[2]}")
     return slice(*vals)
+
+
+def check_records(records, available, file):
+    """Refuse a --records range that selects nothing (it drew a blank figure)."""
+    if len(range(available)[records]) == 0:
+        a, b, c = records.start, records.stop, records.step
+        text = ":".join("" if v is None else str(v) for v in ((a, b) if c is None else (a, b, c)))
+        raise UserError(file, "--records", f"{text} selects no records (the run has {available}: 0–{available - 1})")
 
 
 def parse_trajectories(text, available, default, file):
@@ -205,8 +215,12 @@ def _phase(run, rec, traj, colour="trajectory", **_):
     if len(wall) == 0:
         raise ValueError("no collisions in the selected records")
     geom = run.geometry()
-    s, nu = analysis.locate(geom, wall, pos)
+    nu = analysis.locate(geom, wall, pos)[1] if run.dimension == 2 else _normals_3d(geom, wall, pos)
     tangents = [w.tangents for w in geom.wall_list]
+    if run.dimension == 3 and any(t is None for t in tangents):
+        curved = [w.name for w in geom.wall_list if w.tangents is None]
+        raise UserError(run.path, "--kind phase", f"the spin planes are drawn in a flat wall's own axes, and "
+                                                  f"'{curved[0]}' is curved: use --kind poincare")
     panels = []
     if run.dimension == 2:
         _, sin_psi = analysis.birkhoff_coordinates(geom, wall, pos, vel)
@@ -240,6 +254,27 @@ def _phase(run, rec, traj, colour="trajectory", **_):
                                  labels=[f"trajectory {j}" for j in traj])
 
 
+def _normals_3d(geom, wall, pos):
+    """Inward unit normals at 3D collision points, from each wall's patch (flat, sphere or cylinder)."""
+    nu = np.full(pos.shape, np.nan)
+    for w, spec in enumerate(geom.wall_list):
+        on = wall == w
+        if not on.any():
+            continue
+        patch = spec.patches[0]
+        if patch[0] == "flat":
+            nu[on] = patch[2]
+        elif patch[0] == "sphere":
+            d = pos[on] - patch[1]
+            nu[on] = patch[3] * d / np.linalg.norm(d, axis=1)[:, None]
+        elif patch[0] == "cylinder":
+            d = pos[on].copy()
+            d[:, :2] -= np.asarray(patch[1], float)[:2]
+            d[:, 2] = 0.0
+            nu[on] = -d / np.linalg.norm(d, axis=1)[:, None]
+    return nu
+
+
 def _coordinate(run, name, traj, rec):
     field, comp, label, dims = COORDINATES[name]
     if run.dimension not in dims:
@@ -259,6 +294,10 @@ def _series(run, rec, traj, coordinate="x", scales=(0.01, 0.1, 1.0), **_):
 
 def _diffusion(run, rec, traj, coordinate="x", fit_from=0.1, **_):
     from .. import analysis, plotting
+    problem = analysis.diffusion_problem(run.geometry(), coordinate)
+    if problem:
+        raise UserError(run.path, "--coordinate" if coordinate not in analysis.DIFFUSING else "--kind diffusion",
+                        problem)
     if len(traj) < 2:
         raise ValueError("the diffusion plot needs an ensemble: at least 2 trajectories")
     x, _ = _coordinate(run, coordinate, traj, rec)
