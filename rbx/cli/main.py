@@ -20,6 +20,7 @@ def cli():
 cli.add_command(simulate)
 for _command in (plot.plot, histogram.histogram, lyapunov.lyapunov):
     cli.add_command(_command)
+cli.add_command(__import__("rbx.cli.animate", fromlist=["animate"]).animate)
 
 
 def main():

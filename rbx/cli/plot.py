@@ -215,7 +215,7 @@ def _phase(run, rec, traj, colour="trajectory", **_):
     if len(wall) == 0:
         raise ValueError("no collisions in the selected records")
     geom = run.geometry()
-    nu = analysis.locate(geom, wall, pos)[1] if run.dimension == 2 else _normals_3d(geom, wall, pos)
+    s, nu = analysis.locate(geom, wall, pos) if run.dimension == 2 else (None, _normals_3d(geom, wall, pos))
     tangents = [w.tangents for w in geom.wall_list]
     if run.dimension == 3 and any(t is None for t in tangents):
         curved = [w.name for w in geom.wall_list if w.tangents is None]
