@@ -57,5 +57,9 @@ bench: $(BENCH_STAMP)
 stress: $(STAMP)
 	$(PY) scripts/stress.py
 
+# every `rbx plot` kind on every example scene, from short runs: docs/gallery/*.png and docs/gallery.md
+gallery: $(STAMP)
+	MPLBACKEND=Agg $(PY) scripts/gallery.py
+
 clean:
 	rm -rf data runs figures/*.png figures/*.json

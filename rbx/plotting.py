@@ -24,8 +24,8 @@ MAX_LEGEND = 10
 STYLE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "rbx.mplstyle")
 #: at most this many free flights drawn as lines in a 2D orbit (3D: ORBIT3D_SEGMENTS), shared by the trajectories;
 #: beyond it the eye sees a solid block, so the rest of the run is shown as a density of the time spent
-ORBIT_SEGMENTS = 1500
-ORBIT3D_SEGMENTS = 600
+ORBIT_SEGMENTS = 800
+ORBIT3D_SEGMENTS = 400
 #: a to-scale 2D picture whose sides differ by more than this factor is drawn stretched (and says so)
 MAX_ASPECT = 6.0
 
@@ -65,10 +65,14 @@ def _figure(width, height, title):
 def legend_outside(ax, where="right", **kwargs):
     """A legend beside the axes (right) or under them (below), never over the data."""
     if where == "below":     # the figure's own legend, laid out under the axes by constrained layout
-        handles, labels = ax.get_legend_handles_labels()
+        axes = ax if isinstance(ax, (list, tuple)) else [ax]
+        handles, labels = [], []
+        for a in axes:
+            h, t = a.get_legend_handles_labels()
+            handles, labels = handles + h, labels + t
         short = max((len(t) for t in labels), default=0) < 20
-        return ax.figure.legend(handles, labels, loc="outside lower center",
-                                ncols=min(5, len(labels)) if short else min(2, len(labels)), **kwargs)
+        return axes[0].figure.legend(handles, labels, loc="outside lower center",
+                                     ncols=min(5, len(labels)) if short else min(2, len(labels)), **kwargs)
     return ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, **kwargs)
 
 
@@ -112,7 +116,7 @@ def _density(ax, paths, points_only, lo, hi, bins=200):
     h, xe, ye = np.histogram2d(q[:, 0], q[:, 1], bins=(nx, ny), range=[[lo[0], hi[0]], [lo[1], hi[1]]])
     h = np.ma.masked_equal(h, 0)
     ax.pcolormesh(xe, ye, h.T, cmap="Greys", norm=matplotlib.colors.LogNorm(vmin=1, vmax=max(h.max(), 2)),
-                  alpha=0.55, zorder=0, rasterized=True, label="time spent, whole run (log)")
+                  alpha=0.55, zorder=0, rasterized=True)
 
 
 def _colour(i):
@@ -270,7 +274,9 @@ def orbit3d_figure(paths, geom, title, labels=None, points_only=False):
     for i, p in enumerate(shown2):
         if len(p):
             ax2.plot(p[0, 0], p[0, 1], "o", color=_colour(i), ms=4, mec="white", mew=0.5, zorder=5)
-    ax2.set_aspect("equal", adjustable="datalim")
+    (x0, x1), (y0, y1) = ax2.get_xlim(), ax2.get_ylim()
+    if 1 / MAX_ASPECT <= (y1 - y0) / max(x1 - x0, 1e-300) <= MAX_ASPECT:
+        ax2.set_aspect("equal", adjustable="datalim")
     ax2.set_xlabel("x [L]")
     ax2.set_ylabel("y [L]")
     ax2.set_title("horizontal projection" + (f": lines, first {k2} collisions; grey, whole run" if k2 else ""))
@@ -375,7 +381,6 @@ def diffusion_figure(steps, msd, fit, displacement, title, coordinate="x"):
     ax.set_xlabel("collision step [–]")
     ax.set_ylabel(f"MSD ⟨Δ{coordinate}²⟩ [L²]")
     ax.set_title(f"mean-square displacement, {fit.trajectories} trajectories")
-    legend_outside(ax, "below")
     ax2 = fig.add_subplot(1, 2, 2)
     dx = np.asarray(displacement, float)
     dx = dx[np.isfinite(dx)]
@@ -393,7 +398,7 @@ def diffusion_figure(steps, msd, fit, displacement, title, coordinate="x"):
     ax2.set_xlabel(f"displacement Δ{coordinate} [L]")
     ax2.set_ylabel("density [1/L]")
     ax2.set_title("displacement distribution")
-    legend_outside(ax2, "below")
+    legend_outside([ax, ax2], "below")
     return fig
 
 
@@ -438,6 +443,7 @@ def escape_figure(s, S, rate, rate_err, start, exits, total, title, unit="path l
     ``expected``: (γ, label) of a predicted rate, drawn dashed."""
     fig = _figure(8.4, 5.0, title)
     ax = fig.add_subplot()
+    s, S = np.asarray(s)[np.asarray(S) > 0], np.asarray(S)[np.asarray(S) > 0]   # S = 0 has no place on a log axis
     ax.step(s, S, where="post", color=_colour(0), lw=1.2, label=f"Kaplan–Meier survival ({exits} of {total} exited)")
     if rate > 0 and np.isfinite(rate_err):
         x = np.linspace(start, float(np.max(s)) if len(s) else start + 1.0, 200)

@@ -238,7 +238,7 @@ def test_diffusion_fit_skips_trajectories_that_ended_early():
 def test_diffusion_figure_reports_the_fit(runs):
     fig = make_figure(runs["random"], "diffusion")
     left, right = labelled(fig)
-    legend = " ".join(t.get_text() for t in left.get_legend().get_texts())
+    legend = " ".join(t.get_text() for t in fig.legends[0].get_texts())
     assert "D = " in legend and "95% CI" in legend
     with Run.open(runs["random"]) as run:
         x = run.read("position", list(range(run.trajectories)))[..., 0]
@@ -310,3 +310,181 @@ def test_displacement_panel_draws_a_gaussian_density(runs):
     x, y = curve.get_xdata(), curve.get_ydata()
     assert np.trapezoid(y, x) == pytest.approx(1.0, abs=1e-3)
     assert x[np.argmax(y)] == pytest.approx(0.0, abs=(x[1] - x[0]))
+
+
+# ---- readable pictures on every example scene (issue 18) ---------------------------------------------------------
+
+EXAMPLES = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "configs", "examples")
+SCENES = sorted(f[:-5] for f in os.listdir(EXAMPLES) if f.endswith(".yaml") and f != "lyapunov-sinai.yaml")
+
+
+@pytest.fixture(scope="module")
+def scenes(tmp_path_factory):
+    """scene -> a short run of configs/examples/<scene>.yaml with every field recorded at every collision."""
+    import dataclasses
+    import rbx
+    from rbx.model import FIELDS
+    folder = tmp_path_factory.mktemp("scenes")
+    out = {}
+    for scene in SCENES:
+        config = os.path.join(EXAMPLES, scene + ".yaml")
+        exp = rbx.load(config)
+        over = {"collisions": 120}
+        if isinstance(exp.initial[0], str):          # sampled starts: a small ensemble
+            over["trajectories"] = 4
+        exp = rbx.load(config, over)
+        if "position" in exp.output.record:
+            exp = exp.replace(output=dataclasses.replace(exp.output, record=tuple(f.name for f in FIELDS), every=1))
+        path = str(folder / f"{scene}.h5")
+        rbx.simulate(exp, output=path, force=True)
+        out[scene] = path
+    return out
+
+
+def overlaps(a, b, slack=0.5):
+    return a.x0 < b.x1 - slack and b.x0 < a.x1 - slack and a.y0 < b.y1 - slack and b.y0 < a.y1 - slack
+
+
+def readable(fig):
+    """What matplotlib can tell about a drawn figure: data inside the axis limits (2D axes), no legend over any
+    data axes, no two tick labels of an axis overlapping -> list of problems (empty: readable)."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    FigureCanvasAgg(fig)
+    fig.set_dpi(40)
+    fig.canvas.draw()
+    renderer = fig.canvas.get_renderer()
+    problems = []
+    data_axes = [ax for ax in fig.axes if ax.get_label() != "<colorbar>"]
+    for ax in data_axes:
+        if ax.name != "3d":
+            lim = ax.dataLim
+            (x0, x1), (y0, y1) = sorted(ax.get_xlim()), sorted(ax.get_ylim())
+            tol = 1e-6 * max(x1 - x0, y1 - y0)
+            if np.all(np.isfinite([lim.x0, lim.x1, lim.y0, lim.y1])) and not (
+                    x0 - tol <= lim.x0 and lim.x1 <= x1 + tol and y0 - tol <= lim.y0 and lim.y1 <= y1 + tol):
+                problems.append(f"data {lim.bounds} outside the limits {(x0, x1, y0, y1)}")
+        axes_box = ax.get_window_extent(renderer)
+        for legend in [a.get_legend() for a in data_axes if a.get_legend()] + list(fig.legends):
+            if overlaps(legend.get_window_extent(renderer), axes_box):
+                problems.append(f"a legend covers the axes '{ax.get_title()}'")
+        for axis in ax._axis_map.values():
+            boxes = [t.get_window_extent(renderer) for t in axis.get_ticklabels()
+                     if t.get_visible() and t.get_text()]
+            boxes = [b for b in boxes if axes_box.x0 - 200 < b.x0 < axes_box.x1 + 200]
+            for i in range(len(boxes)):
+                for j in range(i + 1, len(boxes)):
+                    if overlaps(boxes[i], boxes[j]):
+                        problems.append(f"tick labels overlap on {axis.axis_name} of '{ax.get_title()}'")
+    return problems
+
+
+@pytest.mark.parametrize("scene", SCENES)
+def test_every_kind_on_every_scene_is_readable(scenes, scene):
+    """Every kind that applies to the scene renders readably; one that does not says why (a UserError)."""
+    from rbx.cli.plot import KINDS
+    drawn = []
+    for kind in KINDS:
+        try:
+            fig = make_figure(scenes[scene], kind)
+        except UserError as exc:
+            assert exc.problem and "\n" not in str(exc)
+            continue
+        assert readable(fig) == [], (kind, readable(fig))
+        drawn.append(kind)
+    assert "orbit" in drawn or scene == "escape-sinai"   # that example records no positions
+
+
+def test_the_readability_check_can_fail():
+    """A legend over the data, tick labels run together and data beyond the limits are all caught."""
+    from matplotlib.figure import Figure
+    fig = Figure(figsize=(2, 2))
+    ax = fig.add_subplot()
+    ax.plot([0, 1e6], [0, 1], label="a long legend entry over the data")
+    ax.legend(loc="center")
+    ax.set_xticks(np.linspace(0, 1e6, 30))
+    ax.set_xlim(0, 5e5)
+    problems = " | ".join(readable(fig))
+    assert "legend covers" in problems and "tick labels overlap" in problems and "outside the limits" in problems
+
+
+def test_long_strip_orbit_is_not_one_pixel_high(scenes):
+    fig = make_figure(scenes["strip"], "orbit")
+    readable(fig)
+    box = fig.axes[0].get_window_extent()
+    assert box.height > 0.2 * box.width
+
+
+def test_long_orbits_are_thinned(scenes):
+    from rbx import plotting
+    fig = make_figure(scenes["box"], "orbit3d")
+    flights = sum(len(line.get_data_3d()[0]) - 1 for line in fig.axes[0].get_lines()
+                  if line.get_color() not in ("0.15", "0.45") and len(line.get_data_3d()[0]) > 1)
+    assert 0 < flights <= plotting.ORBIT3D_SEGMENTS + 10
+
+
+def test_few_points_in_phase_are_as_large_as_the_legend_markers(runs):
+    """A periodic orbit in the phase portrait is a handful of points: drawn no smaller than the legend's."""
+    fig = make_figure(runs["circle"], "phase", records=slice(0, 6))
+    sizes = [float(np.sqrt(c.get_sizes()).min()) for ax in fig.axes for c in ax.collections if len(c.get_sizes())]
+    legend = [ax.get_legend() for ax in fig.axes if ax.get_legend()][0]
+    markers = [h.get_markersize() for h in legend.legend_handles if hasattr(h, "get_marker") and h.get_marker() == "o"]
+    assert sizes and markers and min(sizes) >= max(markers)
+
+
+def test_one_style_sheet(runs):
+    from rbx import plotting
+    assert os.path.isfile(plotting.STYLE)
+    fig = make_figure(runs["lshape"], "orbit")
+    assert fig.axes[0].xaxis.get_major_ticks()[0].label1.get_fontsize() == 8.0   # xtick.labelsize of the sheet
+
+
+# ---- refusals (one line, exit 2) ---------------------------------------------------------------------------------
+
+def rbx_fails(*args):
+    exe = os.path.join(os.path.dirname(sys.executable), "rbx")
+    r = subprocess.run([exe, *args], capture_output=True, text=True, timeout=300)
+    lines = r.stderr.strip().splitlines()
+    assert r.returncode == 2 and len(lines) == 1 and lines[0].startswith("rbx: "), (r.returncode, r.stderr)
+    return lines[0]
+
+
+def test_meaningless_selections_and_analyses_are_refused(runs, scenes):
+    line = rbx_fails("plot", runs["lshape"], "--kind", "orbit", "--records", "100:50")
+    assert ": --records: 100:50 selects no records" in line
+    line = rbx_fails("plot", scenes["box"], "--kind", "diffusion")
+    assert "--kind diffusion: the box table is bounded along x" in line
+    line = rbx_fails("plot", scenes["lorentz"], "--kind", "diffusion", "--coordinate", "time")
+    assert "--coordinate: the time is not a random coordinate" in line
+
+
+# ---- rbx animate ---------------------------------------------------------------------------------------------------
+
+def test_animate_writes_a_gif_with_the_frames_asked(scenes, tmp_path):
+    from PIL import Image
+    gif = tmp_path / "orbit.gif"
+    result = CliRunner().invoke(cli, ["animate", scenes["circle"], "-o", str(gif), "--frames", "7", "--fps", "10",
+                                      "--dpi", "30"])
+    assert result.exit_code == 0, result.output
+    with Image.open(gif) as im:
+        assert im.format == "GIF" and im.n_frames == 7
+        first = np.asarray(im.convert("RGB"))
+        im.seek(6)
+        last = np.asarray(im.convert("RGB"))
+    assert np.any(first != last)                 # the ball moved
+
+
+def test_animation_interpolates_the_free_flight():
+    from rbx.cli.animate import ball_frames
+    t, pos, theta = ball_frames(np.array([0.0, 1.0, 3.0]), np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 2.0]]),
+                                np.array([[1.0, 0.0], [0.0, 1.0], [0.0, 0.0]]), np.array([0.0, 1.0, 0.0]), 7)
+    np.testing.assert_allclose(t, [0, 0.5, 1, 1.5, 2, 2.5, 3])
+    np.testing.assert_allclose(pos[:, 0], [0, 0.5, 1, 1, 1, 1, 1])
+    np.testing.assert_allclose(pos[:, 1], [0, 0, 0, 0.5, 1, 1.5, 2])
+    np.testing.assert_allclose(theta, [0, 0.5, 1, 0.75, 0.5, 0.25, 0])
+
+
+def test_animate_refuses_what_it_cannot_draw(runs):
+    result = CliRunner().invoke(cli, ["animate", runs["random"], "-o", "x.gif"])
+    assert result.exit_code == 2 and "collisions/time" in result.stderr and len(result.stderr.splitlines()) == 1
+    result = CliRunner().invoke(cli, ["animate", runs["plates"], "-o", "x.gif"])
+    assert result.exit_code == 2 and "3D" in result.stderr
