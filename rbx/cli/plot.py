@@ -239,7 +239,7 @@ def _phase(run, rec, traj, colour="trajectory", **_):
                                    ylabel="sin ψ = v·e/|v|, e along the wall [–]", ylim=(-1.05, 1.05),
                                    title=f"boundary map on wall '{name}'"))
     for x, y, xn, yn in analysis.spin_planes(wall, nu, vel, spin, run.radius, run.kappa, tangents):
-        lim = 1.05 * float(np.max(np.abs(np.concatenate([x, y])))) or 1.0
+        lim = 1.15 * float(np.max(np.abs(np.concatenate([x, y])))) or 1.0
         panel = dict(x=x, y=y, xlabel=f"{xn} [L/T]", ylabel=f"{yn} [L/T]", equal=True, xlim=(-lim, lim),
                      ylim=(-lim, lim), title="tangential velocity against spin at collisions")
         if run.dimension == 2:
