@@ -350,6 +350,7 @@ def series_figure(steps, values, title, ylabel, labels=None, scales=(0.01, 0.1, 
         frac = "all" if f >= 1 else f"first 1/{round(1 / f)}" if abs(1 / f - round(1 / f)) < 1e-9 else f"first {f:g}"
         ax.set_title(f"{frac} of the run (steps {first:.0f} – {upto:.0f})")
         ax.set_xlabel("collision step [–]")
+        ax.xaxis.set_major_locator(MaxNLocator(integer=True))     # steps are whole collisions
         ax.set_ylabel(ylabel)
         if k == 0 and labels and 1 < len(values) <= MAX_LEGEND:
             legend_outside(ax)
