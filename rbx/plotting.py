@@ -277,7 +277,9 @@ def orbit3d_figure(paths, geom, title, labels=None, points_only=False):
     (x0, x1), (y0, y1) = ax2.get_xlim(), ax2.get_ylim()
     if 1 / MAX_ASPECT <= (y1 - y0) / max(x1 - x0, 1e-300) <= MAX_ASPECT:
         ax2.set_aspect("equal", adjustable="datalim")
-    ax2.set_xlabel("x [L]")
+        ax2.set_xlabel("x [L]")
+    else:
+        ax2.set_xlabel("x [L] (not to scale)")
     ax2.set_ylabel("y [L]")
     ax2.set_title("horizontal projection" + (f": lines, first {k2} collisions; grey, whole run" if k2 else ""))
     if labels and len(paths) <= MAX_LEGEND:
@@ -473,7 +475,12 @@ def _dress(ax, spec):
     if "ylim" in spec:
         ax.set_ylim(*spec["ylim"])
     if spec.get("equal"):
-        ax.set_aspect("equal", adjustable="box")
+        (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+        if 1 / MAX_ASPECT <= abs(y1 - y0) / max(abs(x1 - x0), 1e-300) <= MAX_ASPECT:
+            ax.set_aspect("equal", adjustable="box")
+        else:                                   # to scale it would be a sliver with its tick labels run together
+            ax.set_xlabel(spec["xlabel"] + " (not to scale)")
+            spec = dict(spec, xlabel=spec["xlabel"] + " (not to scale)")
     ax.set_xlabel(spec["xlabel"])
     ax.set_ylabel(spec["ylabel"])
     if spec.get("title"):

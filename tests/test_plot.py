@@ -357,12 +357,23 @@ def readable(fig):
     data_axes = [ax for ax in fig.axes if ax.get_label() != "<colorbar>"]
     for ax in data_axes:
         if ax.name != "3d":
-            lim = ax.dataLim
+            # the data: lines that are not the table's outline (drawn over a wider range and clipped) and scatter
+            # points; on a log axis only the positive values can be shown
+            from rbx.tables import SHRUNK_STYLE, TABLE_STYLE
+            table = {TABLE_STYLE["color"], SHRUNK_STYLE["color"]}
+            pts = [line.get_xydata() for line in ax.get_lines() if line.get_color() not in table
+                   and line.get_transform() is ax.transData and type(line).__name__ != "_AxLine"]
+            pts += [np.asarray(c.get_offsets()) for c in ax.collections if type(c).__name__ == "PathCollection"]
+            pts = np.concatenate([p.reshape(-1, 2) for p in pts if np.size(p)] or [np.zeros((0, 2))]).astype(float)
+            pts = pts[np.all(np.isfinite(pts), axis=1)]
+            for k, scale in enumerate((ax.get_xscale(), ax.get_yscale())):
+                if scale == "log":
+                    pts = pts[pts[:, k] > 0]
             (x0, x1), (y0, y1) = sorted(ax.get_xlim()), sorted(ax.get_ylim())
             tol = 1e-6 * max(x1 - x0, y1 - y0)
-            if np.all(np.isfinite([lim.x0, lim.x1, lim.y0, lim.y1])) and not (
-                    x0 - tol <= lim.x0 and lim.x1 <= x1 + tol and y0 - tol <= lim.y0 and lim.y1 <= y1 + tol):
-                problems.append(f"data {lim.bounds} outside the limits {(x0, x1, y0, y1)}")
+            if len(pts) and not (x0 - tol <= pts[:, 0].min() and pts[:, 0].max() <= x1 + tol
+                                 and y0 - tol <= pts[:, 1].min() and pts[:, 1].max() <= y1 + tol):
+                problems.append(f"data {pts.min(axis=0)}–{pts.max(axis=0)} outside the limits {(x0, x1, y0, y1)}")
         axes_box = ax.get_window_extent(renderer)
         for legend in [a.get_legend() for a in data_axes if a.get_legend()] + list(fig.legends):
             if overlaps(legend.get_window_extent(renderer), axes_box):
