@@ -80,9 +80,12 @@ def collide(v, W, nu, R, kappa, rank, basis, node, wall, work, n):
     for i in range(n):
         v[i] = (v[i] - 2.0 * vn * nu[i]) - alpha2 * work[1, i]
         work[2, i] = scale * nu[i]
+    # W is antisymmetric: the upper triangle is updated and mirrored (the lower one's increments are the exact
+    # negatives of the upper one's, the diagonal's exactly 0: the same matrix, in n(n−1)/2 updates instead of n²)
     for i in range(n):
-        for j in range(n):
+        for j in range(i + 1, n):
             W[i, j] += work[1, i] * work[2, j] - work[2, i] * work[1, j]
+            W[j, i] = -W[i, j]
 
 
 @jit_hot

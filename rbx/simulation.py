@@ -126,7 +126,8 @@ class Simulation:
             self.n, orient=self.follow_orientation, spin=rough, tree=r.uses_orientation or r.uses_random,
             record=bool(self.record), compensated=self.numerics.compensated,
             snap=self.numerics.snap, slab=self.geom.slab, stop_wall=self.stop_wall >= 0,
-            periodic=self.geom.lattice is not None, exit=bool(np.any(r.kind == rules.EXIT)))
+            periodic=self.geom.lattice is not None, exit=bool(np.any(r.kind == rules.EXIT)),
+            axes=self.geom.axis_box is not None)
         return (bits | self.force_bits) & ~self.drop_bits
 
     def kernel_groups(self):

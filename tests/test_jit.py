@@ -73,7 +73,7 @@ def test_the_kernels_take_named_groups():
 
 def test_the_groups():
     assert engine.Records._fields == RECORD_FIELDS             # one buffer per record field, in FIELDS order
-    assert engine.Table._fields == ("codes", "prim_wall", "params", "tol", "lattice_lo", "period")
+    assert engine.Table._fields == ("codes", "prim_wall", "params", "tol", "lattice_lo", "period", "box", "others")
     assert engine.Rules._fields == ("root", "kind", "rank", "first", "children", "cumprob", "axis", "basis")
     assert set(engine.Settings._fields) == {"flags", "stop_wall", "every", "mask", "renorm_every", "R", "kappa"}
     assert "pos" in engine.State._fields and len(engine.State._fields) == 14

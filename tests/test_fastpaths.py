@@ -1,0 +1,119 @@
+"""The engine's closed forms are the general loop's numbers, bit for bit: the axis-aligned box
+(geometry.box_collision, Geometry.axis_box) and the antisymmetric spin update of the collision map."""
+import numpy as np
+import pytest
+
+from rbx import config, engine
+from rbx.geometry import box_collision, next_collision
+from rbx.physics import collide
+
+R = 0.05
+
+
+def geometry(table, n):
+    d = {"table": table, "ball": {"radius": R},
+         "initial": {"position": [0.1] * n, "velocity": [1.0] + [0.5] * (n - 1)},
+         "boundary": {"default": {"rule": "constant", "rank": 0}}, "run": {"collisions": 1}}
+    return config.from_dict(d, "<test>").geometry()
+
+
+BOXED = {
+    "rectangle": ({"kind": "rectangle", "width": 2.0, "height": 1.0}, 2),
+    "box": ({"kind": "box", "size": [1.0, 1.3, 0.8]}, 3),
+    "sinai": ({"kind": "sinai", "size": [2.0, 1.5], "radius": 0.4}, 2),
+    "sinai3": ({"kind": "sinai", "size": [1.0, 1.3, 0.8], "radius": 0.2}, 3),
+    "box-obstacles": ({"kind": "box", "size": [2.0, 2.0, 2.0],
+                       "obstacles": [{"name": "s1", "sphere": {"center": [0.6, 0.6, 0.6], "radius": 0.2}},
+                                     {"name": "s2", "sphere": {"center": [1.4, 1.3, 1.2], "radius": 0.3}}]}, 3),
+}
+NOT_BOXED = {
+    "strip": ({"kind": "strip", "width": 1.0}, 2),             # a slab: its own closed form
+    "plates": ({"kind": "plates", "gap": 1.0}, 3),
+    "L-polygon": ({"kind": "polygon", "vertices": [[0, 0], [2, 0], [2, 2], [1, 2], [1, 1], [0, 1]]}, 2),
+    "stadium": ({"kind": "stadium", "radius": 0.5, "length": 1.0}, 2),
+    "circle": ({"kind": "circle", "radius": 1.0}, 2),
+    "lorentz": ({"kind": "lorentz", "cell": [1.0, 1.0], "radius": 0.3}, 2),    # periodic: the images
+    "periodic-box": ({"kind": "box", "size": [1.0, 1.0, 1.0], "periodic": True,
+                      "obstacles": [{"name": "s1", "sphere": {"center": [0.5, 0.5, 0.5], "radius": 0.2}}]}, 3),
+}
+
+
+@pytest.mark.parametrize("name", sorted(BOXED))
+def test_a_box_is_found_and_its_closed_form_is_the_general_loop(name):
+    table, n = BOXED[name]
+    geom = geometry(table, n)
+    box = geom.axis_box
+    assert box is not None and sorted(box.tolist()) == sorted(set(box.tolist()))
+    for i in range(n):                     # side 2i has normal +e_i, side 2i+1 normal −e_i
+        assert geom.params[box[2 * i], 4 + i] == 1.0 and geom.params[box[2 * i + 1], 4 + i] == -1.0
+    t = engine.make_table(geom, 1e-12)
+    assert sorted(t.box.tolist() + t.others.tolist()) == list(range(len(geom.codes)))
+    rng = np.random.default_rng(7)
+    lo = np.array([geom.params[box[2 * i], i] for i in range(n)])
+    hi = np.array([geom.params[box[2 * i + 1], i] for i in range(n)])
+    starts = [lo + (hi - lo) * rng.uniform(size=n) for _ in range(3000)]
+    dirs = [rng.normal(size=n) for _ in range(3000)]
+    # ties: from the centre of the box straight at a corner, and along an axis (zero components)
+    mid = (lo + hi) / 2
+    for corner in range(2 ** n):
+        s = np.array([1.0 if corner >> i & 1 else -1.0 for i in range(n)])
+        starts.append(mid.copy())
+        dirs.append(s * (hi - lo) / 2)
+        starts.append(mid.copy())
+        dirs.append(np.where(np.arange(n) == corner % n, s, 0.0))
+    # on a wall (t = 0 when moving out, the flight after a collision when moving in)
+    for i in range(n):
+        a = mid.copy()
+        a[i] = hi[i]
+        starts += [a, a]
+        dirs += [np.eye(n)[i], -np.eye(n)[i] + 0.3]
+    ties = 0
+    for a, v in zip(starts, dirs):
+        want = next_collision(geom.codes, geom.params, a, v, 1e-12, n)
+        got = box_collision(geom.codes, geom.params, a, v, 1e-12, n, t.box, t.others)
+        assert got[1] == want[1] and np.float64(got[0]).tobytes() == np.float64(want[0]).tobytes(), (a, v)
+        ties += sum(np.isclose(v @ np.eye(n)[i], 0.0) for i in range(n))
+    assert ties > 0
+
+
+@pytest.mark.parametrize("name", sorted(NOT_BOXED))
+def test_tables_that_are_not_a_box_take_the_general_loop(name):
+    table, n = NOT_BOXED[name]
+    geom = geometry(table, n)
+    assert geom.axis_box is None
+    t = engine.make_table(geom, 1e-12)
+    assert t.box.shape == (0,) and t.others.tolist() == list(range(len(geom.codes)))
+
+
+def full_update(v, W, nu, R, kappa):
+    """The completely rough map with every entry of W updated (the form before the antisymmetric update)."""
+    n = len(v)
+    vn = float(v @ nu)
+    u = np.array([(v[i] - vn * nu[i]) - R * sum(W[i, j] * nu[j] for j in range(n)) for i in range(n)])
+    a2 = 2.0 * kappa / (1.0 + kappa)
+    sc = 2.0 / ((1.0 + kappa) * R)
+    v2 = np.array([(v[i] - 2.0 * vn * nu[i]) - a2 * u[i] for i in range(n)])
+    w2 = np.array([sc * nu[i] for i in range(n)])
+    W2 = W.copy()
+    for i in range(n):
+        for j in range(n):
+            W2[i, j] += u[i] * w2[j] - w2[i] * u[j]
+    return v2, W2
+
+
+@pytest.mark.parametrize("n", (2, 3, 4))
+def test_the_antisymmetric_spin_update_is_the_full_update(n):
+    rng = np.random.default_rng(n)
+    for _ in range(500):
+        v = rng.normal(size=n)
+        X = rng.normal(size=(n, n))
+        W = X - X.T
+        nu = rng.normal(size=n)
+        nu /= np.linalg.norm(nu)
+        R, kappa = rng.uniform(0.05, 2.0), rng.uniform(0.01, 1.0)
+        want_v, want_W = full_update(v, W, nu, R, kappa)
+        v1, W1 = v.copy(), W.copy()
+        collide(v1, W1, nu, R, kappa, n - 1, np.zeros((1, 1, max(n - 1, 1), n)), 0, 0, np.empty((3, n)), n)
+        np.testing.assert_array_equal(v1, want_v)
+        np.testing.assert_array_equal(W1, want_W)
+        np.testing.assert_array_equal(W1, -W1.T)
