@@ -26,6 +26,8 @@ STYLE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "rbx.mplstyle")
 #: beyond it the eye sees a solid block, so the rest of the run is shown as a density of the time spent
 ORBIT_SEGMENTS = 800
 ORBIT3D_SEGMENTS = 400
+#: and at most this many of one trajectory: more flights than that fill a small table with ink
+PER_TRAJECTORY = 250
 #: a to-scale 2D picture whose sides differ by more than this factor is drawn stretched (and says so)
 MAX_ASPECT = 6.0
 
@@ -88,7 +90,7 @@ def _thin(paths, budget):
     total = sum(max(len(p) - 1, 0) for p in paths)
     if total <= budget:
         return paths, None
-    k = max(2, budget // max(len(paths), 1) + 1)
+    k = max(2, min(budget // max(len(paths), 1), PER_TRAJECTORY) + 1)
     return [p[:k] for p in paths], k - 1
 
 
@@ -211,7 +213,8 @@ def orbit_figure(paths, geom, title, labels=None, points_only=False):
         ax.set_aspect("equal", adjustable="box")
         # to scale, so the figure takes the table's shape (a wide, low figure for a wide table)
         width = 9.0 if ratio < 0.5 else 6.4
-        fig.set_size_inches(width, float(np.clip(width * ratio + 1.6, 3.2, 9.0)))
+        legend = 1.5 if labels and len(paths) <= MAX_LEGEND and ratio >= 0.5 else 0.0   # beside the axes
+        fig.set_size_inches(width, float(np.clip((width - legend - 0.8) * ratio + 1.6, 3.2, 9.0)))
         ax.set_xlabel("x [L]")
         ax.set_ylabel("y [L]")
     elif ratio < 1:
