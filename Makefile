@@ -12,8 +12,9 @@ $(STAMP): pyproject.toml
 	$(PY) -m pip install --quiet -e '.[dev]'
 	touch $(STAMP)
 
+# the tests that take minutes each (the bench, accuracy and stress documents, marked `heavy`) run with `make stress`
 test: $(STAMP)
-	$(PY) -m pytest -q -n 2 tests
+	$(PY) -m pytest -q -n 2 -m "not heavy" tests
 
 # ---- the paper's figures (SPEC §6) ----------------------------------------------------------------------------
 # data/<x>.h5 is one `rbx simulate` run of configs/experiments/<x>.yaml; a figure with several scenes has a folder
@@ -55,6 +56,7 @@ bench: $(BENCH_STAMP)
 	$(PY) scripts/accuracy.py
 
 stress: $(STAMP)
+	$(PY) -m pytest -q -n 2 -m heavy tests
 	$(PY) scripts/stress.py
 
 # every `rbx plot` kind on every example scene, from short runs: docs/gallery/*.png and docs/gallery.md

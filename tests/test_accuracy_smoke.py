@@ -4,6 +4,8 @@ import os
 import subprocess
 import sys
 
+import pytest
+
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 
 
@@ -33,6 +35,7 @@ def assert_well_formed(text):
             assert len(r) == len(header), (header, r)
 
 
+@pytest.mark.heavy
 def test_accuracy_writes_its_document(tmp_path):
     text = run("accuracy.py", tmp_path / "accuracy.md")
     assert "scripts/accuracy.py --quick" in text and "Machine:" in text
@@ -48,6 +51,7 @@ def test_accuracy_writes_its_document(tmp_path):
         assert {r[0] for r in rows} >= {"plain", "default"} and {r[1] for r in rows} == {"10", "100"}
 
 
+@pytest.mark.heavy
 def test_stress_writes_its_document(tmp_path):
     text = run("stress.py", tmp_path / "stress.md")
     assert "scripts/stress.py --quick" in text and "Machine:" in text and "## Summary" in text

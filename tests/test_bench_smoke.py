@@ -33,6 +33,7 @@ def is_number(cell):
     return bool(NUMBER.match(cell))
 
 
+@pytest.mark.heavy
 def test_bench_writes_its_document(tmp_path):
     out = tmp_path / "b.md"
     proc = subprocess.run([sys.executable, os.path.join(ROOT, "scripts", "bench.py"), "--quick", "--out", str(out)],
