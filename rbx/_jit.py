@@ -9,6 +9,7 @@ fails if any other module under rbx/ calls Numba's jit decorators or sets ``fast
 - ``error_model='numpy'``: a division by zero gives inf/nan instead of raising; ``inf`` means "no collision".
 - no ``fastmath``: the engine relies on ``inf`` and exact comparisons (fast-math would assume no infs).
 """
+import contextlib
 import hashlib
 import os
 import sys
@@ -69,6 +70,62 @@ def _cache_dir():
 
 # read by Numba when a kernel is decorated below (its cache locator), so it must be set before any of them
 numba.config.CACHE_DIR = _cache_dir()
+
+@contextlib.contextmanager
+def compile_lock(name):
+    """Hold an exclusive lock named ``name`` in the kernel cache folder while compiling a kernel: another process
+    (a second test worker, a CLI run started meanwhile) that needs the same kernel waits, then loads it from the
+    disk cache instead of compiling it a second time (each combination takes 10–60 s). The lock (``flock``) goes
+    with the process that holds it, so a killed compile blocks nobody; where no lock can be taken (no ``fcntl``, a
+    folder that refuses it), the kernel is compiled without one."""
+    fd = None
+    try:
+        import fcntl
+        fd = os.open(os.path.join(numba.config.CACHE_DIR, f".{name}.lock"), os.O_RDWR | os.O_CREAT, 0o600)
+        fcntl.flock(fd, fcntl.LOCK_EX)
+    except (ImportError, OSError):
+        if fd is not None:
+            os.close(fd)
+        fd = None
+    try:
+        yield
+    finally:
+        if fd is not None:
+            os.close(fd)          # releases the lock
+
+
+def _reuse_inlined_callees():
+    """Numba inlines a helper marked ``inline="always"`` by running its front end (bytecode to IR, and the inlining
+    of its own helpers) afresh at every call site of every kernel it compiles; the rbx loop inlines the same dozen
+    helpers into each combination of compiled bits, and the front end of ``box_collision`` alone took a third of a
+    kernel's compile. Numba deep-copies the helper's IR before it changes it (``InlineWorker.inline_ir``: "Always
+    copy the callee IR, it gets mutated"), so the IR made once for a helper of rbx is kept and handed out again.
+    Only rbx's own helpers, for the same typing context and SSA setting, and no local type declarations (the front
+    end reads no target: its context is made anew for each kernel, so it is not part of the key)."""
+    try:
+        from numba.core.inline_closurecall import InlineWorker
+        original = InlineWorker.run_untyped_passes
+    except (ImportError, AttributeError):       # another Numba: compile as it does
+        return
+    if getattr(original, "rbx_reuse", False):
+        return
+    made = {}
+
+    def run_untyped_passes(self, func, enable_ssa=False):
+        if not getattr(func, "__module__", "").startswith(__package__ + ".") or self.locals:
+            return original(self, func, enable_ssa)
+        key = (func, enable_ssa, id(self.typingctx))      # the target context is made anew for each kernel
+        if key not in made:
+            made[key] = original(self, func, enable_ssa)
+        else:
+            self.flags.enable_ssa = enable_ssa          # what the original does to the caller's flags
+        return made[key]
+
+    run_untyped_passes.rbx_reuse = True
+    InlineWorker.run_untyped_passes = run_untyped_passes
+
+
+_reuse_inlined_callees()
 
 _POLICY = dict(cache=True, error_model="numpy", fastmath=False, nogil=True)
 

@@ -1,8 +1,8 @@
 """The event loop (njit): free flight to the next wall, choose the rule, apply the collision map, record.
 
 Three tiers (STYLE, after stumpy): :mod:`rbx.simulation` validates and allocates → :func:`run_advance_all` runs
-slices of the trajectories on a thread pool through :func:`advance_all` (``nogil``; each trajectory writes only its
-own slots) → :func:`advance`, the serial loop of one trajectory. Kernels take arrays and scalars only, in five
+slices of the trajectories on a thread pool → :func:`kernel` ``(spec)``, the serial loop over a slice (``nogil``; each
+trajectory writes only its own slots), one compiled closure per combination of compiled bits. Kernels take arrays and scalars only, in five
 named groups (module-level named tuples, so that Numba types them and its disk cache finds them again):
 
 - :class:`Table`: the shrunk table's primitives (codes, wall of each primitive, parameters) and the flight
@@ -13,14 +13,14 @@ named groups (module-level named tuples, so that Numba types them and its disk c
 - :class:`State`: the state of the M trajectories, one row each, read and written in place;
 - :class:`Records`: the block's record buffers, one per field of :data:`rbx.model.FIELDS`, named as the fields.
 
-Beside them go only the per-call arguments (the trajectories' slice, their collision targets, ``spec`` — a
-compile-time literal, see :data:`COMPILED_BITS` — and the record counts). A named tuple of arrays costs nothing in
-the loop: Numba passes its members as separate arguments, and :func:`advance` is compiled without the runtime, so
-reading a member is no reference count.
+Beside them go only the per-call arguments (the trajectories' slice, their collision targets and the record
+counts); the compiled bits (:data:`COMPILED_BITS`) are constants of the loop's closure. A named tuple of arrays
+costs nothing in the loop: Numba passes its members as separate arguments, and the loop is compiled without the
+runtime, so reading a member is no reference count.
 
 Per collision (ARCHITECTURE.md, "The event loop"):
- 1. ``next_collision``: the smallest flight time over the shrunk table's primitives (inf: the trajectory escapes
-    and ends);
+ 1. ``box_collision``: the smallest flight time over the shrunk table's primitives, the sides of an axis-aligned
+    box in closed form (inf: the trajectory escapes and ends); slabs and periodic cells have their own search;
  2. free flight: ``a += τv``, ``t += τ``; the orientation only if a rule or a recorded field needs it;
  3. the contact normal ν at the new position;
  4. the rule tree of the wall picks a constant rule (rank, roughness basis) — hemisphere by the body-frame
@@ -33,10 +33,9 @@ from typing import NamedTuple
 
 import numba
 import numpy as np
-from numba import literally
 
-from ._jit import jit, jit_hot, jit_loop, stack_array
-from .geometry import box_collision, contact_normal, next_collision, periodic_flight, slab_collision, snap
+from ._jit import compile_lock, jit_hot, jit_loop, stack_array
+from .geometry import box_collision, contact_normal, periodic_flight, slab_collision, snap
 from .model import FIELD, FIELDS
 from .physics import collide, collide_slab
 from .rules import EXIT, choose
@@ -59,7 +58,7 @@ class Table(NamedTuple):
     tol: float              # flights shorter than this do not count (END_TOLERANCE × the table's size)
     lattice_lo: np.ndarray  # (n,) a periodic table's cell starts here (S_PERIODIC) …
     period: np.ndarray      # (n,) … and repeats with this period along each axis
-    box: np.ndarray         # (2n,) int64: the axis-aligned box's sides (S_AXES; Geometry.axis_box), else (0,) …
+    box: np.ndarray         # (2n,) int64: the sides of an axis-aligned box (Geometry.axis_box), else (0,) …
     others: np.ndarray      # (P′,) int64 … and the other primitives (all of them without a box)
 
 
@@ -225,8 +224,8 @@ def write_record(j, r, mask, t, a, v, W, theta, A, wall, rank, out, n):
 
 
 #: bits of ``spec``, the compile-time description of what a run needs (SPEC §7: skip what a scene does not need).
-#: ``spec`` reaches the kernels as a literal, so Numba compiles one specialised loop per combination in use and the
-#: branches a scene does not need disappear from its machine code (and the dimension becomes a constant).
+#: The compiled ones are constants of the loop (:func:`kernel`): Numba compiles one specialised loop per combination
+#: in use and the branches a scene does not need are not in it (and the dimension becomes a constant).
 S_DIM3 = 1          # 3D (else 2D)
 S_ORIENT = 2        # follow the orientation (a hemisphere rule or the recorded field needs it)
 S_SPIN = 4          # some rule is rough: spin arithmetic (else specular reflection only)
@@ -240,15 +239,16 @@ S_PERIODIC = 1024   # a periodic cell (Table.lattice_lo, period): the images of 
 S_EXIT = 2048       # some wall's rule is (or may resolve to) ``exit``: the trajectory ends at its contact
 S_AXES = 4096       # bounded by an axis-aligned box (Table.box): a division per axis, then the other primitives
 #: the bits compiled into the kernel; the others are tested at run time (a predictable branch). Each compiled
-#: combination in use costs a compile of ~5 s the first time (then it is on disk), so the bits compiled are the
+#: combination in use costs a compile of 5–15 s the first time (then it is on disk), so the bits compiled are the
 #: ones that pay: the dimension (loops of constant length, state in registers), spin arithmetic, the slab's closed
 #: form, and what SPEC §7 asks to skip (orientation, rule trees and random draws, per-collision records). Compiling
 #: the last three took the rough strip from 6.7 to 5.0 ns per collision and the rough plates from 8.5 to 6.2 (the
-#: run-time tests keep registers busy). Periodic cells and exits are compiled in too (with them as run-time branches
-#: the rectangle ran at 0.51 of its hand loop against 0.58 before the zoo; 0.53 compiled), and so is an axis-aligned
-#: box (S_AXES: rectangle specular 0.53 -> 0.80 of its hand loop, box 0.39 -> 0.72; CPU time, interleaved, with the
-#: machine loaded); the variants and the stop wall stay run-time bits.
-COMPILED_BITS = S_DIM3 | S_SPIN | S_SLAB | S_RECORD | S_TREE | S_ORIENT | S_PERIODIC | S_EXIT | S_AXES
+#: run-time tests keep registers busy). An axis-aligned box (S_AXES) is compiled too: rbx/hand of the rectangle
+#: 0.53 -> 0.80, box 0.39 -> 0.72, Sinai 0.69 -> 0.76 (specular, CPU time interleaved, load ~6), and 0.50, 0.64,
+#: 0.69 with the box a run-time branch. Periodic cells and exits are compiled because a scene without them then
+#: never compiles their code (the periodic search was 4.4 s of the 29 s a kernel took to compile while it was a
+#: run-time branch). The variants and the stop wall stay run-time bits.
+COMPILED_BITS = S_DIM3 | S_SPIN | S_SLAB | S_RECORD | S_TREE | S_ORIENT | S_AXES | S_PERIODIC | S_EXIT
 RUNTIME_BITS = ~COMPILED_BITS
 
 
@@ -274,193 +274,209 @@ def kahan_add(s, comp, j, i, x):
     return t
 
 
-@jit_loop
-def advance(j, stop, spec, table, rules, settings, state, out):
-    """Run trajectory j until it has made ``stop`` collisions in all -> records written to row j of ``out``.
+#: the compiled loops, one per combination of compiled bits in use (:func:`kernel`)
+_KERNELS = {}
 
-    ``table``, ``rules``, ``settings``, ``state``, ``out``: the groups :class:`Table`, :class:`Rules`,
-    :class:`Settings`, :class:`State`, :class:`Records`; ``spec``: the compiled bits, a literal. It ends early
-    (``state.alive[j] = False``) when no wall lies ahead (an escape) or, with ``S_STOP_WALL``, right after a
-    collision with ``settings.stop_wall`` (the return loop of the invariant-measure experiment). With
-    ``S_COMPENSATED``, ``state.comp[j]`` carries the rounding errors of the position (0…n−1) and time (n) sums.
 
-    Compiled without the Numba runtime (:data:`rbx._jit.jit_loop`): reading a member of a group is no reference
-    count, and the members used per collision are taken into locals once, here."""
-    literally(spec)
-    n = 3 if spec & S_DIM3 else 2
-    # ``spec``: the compiled bits (a literal); ``flags``: all bits, of which the run-time ones are taken. For a
-    # compiled bit, ``flags & RUNTIME_BITS & bit`` folds to 0, so ``on & bit`` is a constant and its branch goes.
-    on = spec | (settings.flags & RUNTIME_BITS)
-    codes, prim_wall, params, tol = table.codes, table.prim_wall, table.params, table.tol
-    R, kappa, every, renorm_every = settings.R, settings.kappa, settings.every, settings.renorm_every
-    comp = state.comp
-    # the trajectory's state in the kernel's own stack frame (registers, once n is a constant): see stack_array
-    a = stack_array(3, (n,))
-    v = stack_array(3, (n,))
-    Wj = stack_array(9, (n, n))
-    Aj = stack_array(9, (3, 3))
-    nu = stack_array(3, (n,))
-    work = stack_array(9, (3, n))
-    E = stack_array(9, (3, 3))
-    tmp = stack_array(9, (3, 3))
-    base = stack_array(3, (n,))            # periodic tables: the centre's cell, …
-    loc = stack_array(3, (n,))             # … its position relative to the image of the cell hit, …
-    off = stack_array(3, (n,))             # … and that image's shift (loc = a − off); …
-    ahead = stack_array(3, (n,))           # … and where the flight is looked at from
-    for i in range(n):
-        a[i] = state.pos[j, i]
-        v[i] = state.vel[j, i]
-        for k in range(n):
-            Wj[i, k] = state.W[j, i, k]
-    if on & S_ORIENT:
-        for i in range(3):
-            for k in range(3):
-                Aj[i, k] = state.A[j, i, k]
-    th = state.theta[j]
-    t = state.time[j]
-    c = state.ncoll[j]
-    d = state.draws[j]
-    key = state.keys[j]
-    w = state.last_wall[j]
-    rk = state.last_rank[j]
-    e0 = state.energy0[j]
-    half_inv_e0 = 0.5 / e0
-    nrec = 0
-    until_record = every - c % every           # collisions to the next record
-    until_renorm = renorm_every - c % renorm_every if renorm_every > 0 else 0
-    while c < stop:
-        # 1. next collision: the flight time and the primitive hit
-        if on & S_SLAB:
-            tau, p = slab_collision(params, a, v, n)
-        elif on & S_PERIODIC:
-            tau, p = periodic_flight(codes, params, a, v, tol, n, table.lattice_lo, table.period, base, loc, off,
-                                     ahead)
-        else:
-            if on & S_AXES:
-                tau, p = box_collision(codes, params, a, v, tol, n, table.box, table.others)
-            else:
-                tau, p = next_collision(codes, params, a, v, tol, n)
-        if p == -1:
-            state.alive[j] = False
-            break
-        # 2. free flight
-        if on & S_COMPENSATED:
+def kernel(spec):
+    """The compiled loop over trajectories for the compiled bits ``spec`` (``flags & COMPILED_BITS``): made on first
+    use by :func:`_make_kernel`, compiled (or loaded from the disk cache) on its first call."""
+    k = _KERNELS.get(spec)
+    if k is None:
+        k = _KERNELS[spec] = _make_kernel(spec)
+    return k
+
+
+def _make_kernel(spec):
+    """The serial loop of :func:`kernel` for ``spec``, with each compiled bit a constant of the closure.
+
+    Why a closure and not a literal argument: Numba prunes a branch on a constant (a closure variable) before it
+    inlines the helpers (its untyped passes: dead-branch pruning, then inlining), so a branch the scene does not
+    need is never copied, typed or lowered; a branch on a literal argument is pruned only by LLVM, after all of
+    that work. The Sinai rough kernel compiled in 29 s that way, most of it inlining and typing the periodic
+    search and rule trees it does not use. The closure's constants are part of Numba's cache key (its index keys
+    closures by their cell contents), so each combination has its own entry on disk."""
+    N = 3 if spec & S_DIM3 else 2
+    ORIENT, SPIN, TREE = bool(spec & S_ORIENT), bool(spec & S_SPIN), bool(spec & S_TREE)
+    RECORD, SLAB, PERIODIC = bool(spec & S_RECORD), bool(spec & S_SLAB), bool(spec & S_PERIODIC)
+    EXIT_, AXES = bool(spec & S_EXIT), bool(spec & S_AXES)
+
+    @jit_loop
+    def advance_all(j0, j1, stop, table, rules, settings, state, out, nrec):
+        """Run each live trajectory j0 ≤ j < j1 until it has made ``stop[j]`` collisions in all -> records written
+        to row j of ``out``, their number in ``nrec[j]``.
+
+        ``table``, ``rules``, ``settings``, ``state``, ``out``: the groups :class:`Table`, :class:`Rules`,
+        :class:`Settings`, :class:`State`, :class:`Records`. A trajectory ends early (``state.alive[j] = False``)
+        when no wall lies ahead (an escape), at an exit, or, with ``S_STOP_WALL``, right after a collision with
+        ``settings.stop_wall`` (the return loop of the invariant-measure experiment). With ``S_COMPENSATED``,
+        ``state.comp[j]`` carries the rounding errors of the position (0…n−1) and time (n) sums.
+
+        Compiled without the Numba runtime (:data:`rbx._jit.jit_loop`): reading a member of a group is no reference
+        count, and the members used per collision are taken into locals once, here; ``nogil``:
+        :func:`run_advance_all` runs slices of the trajectories on several threads at once (each writes only its
+        own rows)."""
+        n = N
+        on = settings.flags                        # the run-time bits are read from here (the compiled ones: constants)
+        codes, prim_wall, params, tol = table.codes, table.prim_wall, table.params, table.tol
+        R, kappa, every, renorm_every = settings.R, settings.kappa, settings.every, settings.renorm_every
+        comp = state.comp
+        # the trajectory's state in the kernel's own stack frame (registers, once n is a constant): see stack_array
+        a = stack_array(3, (n,))
+        v = stack_array(3, (n,))
+        Wj = stack_array(9, (n, n))
+        Aj = stack_array(9, (3, 3))
+        nu = stack_array(3, (n,))
+        work = stack_array(9, (3, n))
+        E = stack_array(9, (3, 3))
+        tmp = stack_array(9, (3, 3))
+        base = stack_array(3, (n,))            # periodic tables: the centre's cell, …
+        loc = stack_array(3, (n,))             # … its position relative to the image of the cell hit, …
+        off = stack_array(3, (n,))             # … and that image's shift (loc = a − off); …
+        ahead = stack_array(3, (n,))           # … and where the flight is looked at from
+        alive = state.alive
+        for j in range(j0, j1):
+            if not alive[j]:
+                continue
+            count = 0
             for i in range(n):
-                a[i] = kahan_add(a[i], comp, j, i, tau * v[i])
-            t = kahan_add(t, comp, j, n, tau)
-        else:
-            for i in range(n):
-                a[i] += tau * v[i]
-            t += tau
-        if on & S_SLAB:
-            a[n - 1] = params[p, n - 1]            # exactly on the wall: the normal coordinate is known
-            if on & S_COMPENSATED:
-                comp[j, n - 1] = 0.0
-        if on & S_ORIENT:
-            if n == 2:
-                th += tau * Wj[1, 0]
-            else:
-                rotate(Aj, Wj, tau, E, tmp)
-        # 3. contact normal (a slab's is ±e_{n−1}, known from the wall: no lookup; the rule tree and snapping
-        #    read it, and the slab map takes only its sign); in a periodic table, on the image hit
-        if on & S_SLAB:
-            for i in range(n - 1):
-                nu[i] = 0.0
-            nu[n - 1] = 1.0 if p == 0 else -1.0
-        elif on & S_PERIODIC:
-            for i in range(n):
-                loc[i] = a[i] - off[i]
-            contact_normal(codes[p], params, p, loc, nu, n)
-            if on & S_SNAP:
-                snap(codes[p], params, p, loc, nu, n)
-                for i in range(n):
-                    a[i] = loc[i] + off[i]
-        else:
-            contact_normal(codes[p], params, p, a, nu, n)
-            if on & S_SNAP:
-                snap(codes[p], params, p, a, nu, n)
-        # 4. rule
-        w = prim_wall[p]
-        if on & S_TREE:
-            node, d = choose(w, nu, Aj, th, key, d, rules.root, rules.kind, rules.first, rules.children,
-                             rules.cumprob, rules.axis, n)
-        else:
-            node = rules.root[w]
-        rk = rules.rank[node]
-        if on & S_EXIT:
-            if rules.kind[node] == EXIT:          # a hole: the contact is the trajectory's last record
+                a[i] = state.pos[j, i]
+                v[i] = state.vel[j, i]
+                for k in range(n):
+                    Wj[i, k] = state.W[j, i, k]
+            if ORIENT:
+                for i in range(3):
+                    for k in range(3):
+                        Aj[i, k] = state.A[j, i, k]
+            th = state.theta[j]
+            t = state.time[j]
+            c = state.ncoll[j]
+            d = state.draws[j]
+            key = state.keys[j]
+            w = state.last_wall[j]
+            rk = state.last_rank[j]
+            e0 = state.energy0[j]
+            half_inv_e0 = 0.5 / e0
+            count = 0
+            until_record = every - c % every           # collisions to the next record
+            until_renorm = renorm_every - c % renorm_every if renorm_every > 0 else 0
+            while c < stop[j]:
+                # 1. next collision: the flight time and the primitive hit
+                if SLAB:
+                    tau, p = slab_collision(params, a, v, n)
+                elif PERIODIC:
+                    tau, p = periodic_flight(codes, params, a, v, tol, n, table.lattice_lo, table.period, base, loc, off,
+                                             ahead)
+                else:
+                    tau, p = box_collision(codes, params, a, v, tol, n, table.box, table.others, AXES)
+                if p == -1:
+                    state.alive[j] = False
+                    break
+                # 2. free flight
+                if on & S_COMPENSATED:
+                    for i in range(n):
+                        a[i] = kahan_add(a[i], comp, j, i, tau * v[i])
+                    t = kahan_add(t, comp, j, n, tau)
+                else:
+                    for i in range(n):
+                        a[i] += tau * v[i]
+                    t += tau
+                if SLAB:
+                    a[n - 1] = params[p, n - 1]            # exactly on the wall: the normal coordinate is known
+                    if on & S_COMPENSATED:
+                        comp[j, n - 1] = 0.0
+                if ORIENT:
+                    if n == 2:
+                        th += tau * Wj[1, 0]
+                    else:
+                        rotate(Aj, Wj, tau, E, tmp)
+                # 3. contact normal (a slab's is ±e_{n−1}, known from the wall: no lookup; the rule tree and snapping
+                #    read it, and the slab map takes only its sign); in a periodic table, on the image hit
+                if SLAB:
+                    for i in range(n - 1):
+                        nu[i] = 0.0
+                    nu[n - 1] = 1.0 if p == 0 else -1.0
+                elif PERIODIC:
+                    for i in range(n):
+                        loc[i] = a[i] - off[i]
+                    contact_normal(codes[p], params, p, loc, nu, n)
+                    if on & S_SNAP:
+                        snap(codes[p], params, p, loc, nu, n)
+                        for i in range(n):
+                            a[i] = loc[i] + off[i]
+                else:
+                    contact_normal(codes[p], params, p, a, nu, n)
+                    if on & S_SNAP:
+                        snap(codes[p], params, p, a, nu, n)
+                # 4. rule
+                w = prim_wall[p]
+                if TREE:
+                    node, d = choose(w, nu, Aj, th, key, d, rules.root, rules.kind, rules.first, rules.children,
+                                     rules.cumprob, rules.axis, n)
+                else:
+                    node = rules.root[w]
+                rk = rules.rank[node]
+                if EXIT_:
+                    if rules.kind[node] == EXIT:          # a hole: the contact is the trajectory's last record
+                        c += 1
+                        if RECORD:
+                            until_record -= 1
+                            if until_record == 0:
+                                write_record(j, count, settings.mask, t, a, v, Wj, th, Aj, w, rk, out, n)
+                                count += 1
+                        state.alive[j] = False
+                        break
+                # 5. collision map
+                # Without spin arithmetic (a specular-only scene) the map is called with rank 0, a constant: only its
+                # reflection is compiled. Every renorm_every-th rough collision, the factor onto the initial energy is
+                # taken from the state before the map and applied after it: the map keeps the energy to an ulp, and
+                # computing the factor beside the map keeps it off the chain of operations that sets the speed.
+                f = 0.0
+                map_rank = 0
+                if SPIN:
+                    map_rank = rk
+                    if renorm_every > 0:
+                        until_renorm -= 1
+                        if until_renorm == 0:
+                            until_renorm = renorm_every
+                            f = energy_factor(v, Wj, R, kappa, e0, half_inv_e0, n)
+                if SLAB:
+                    collide_slab(v, Wj, nu[n - 1], R, kappa, map_rank, rules.basis, node, w, work, n)
+                else:
+                    collide(v, Wj, nu, R, kappa, map_rank, rules.basis, node, w, work, n)
+                if f != 0.0:
+                    scale_state(v, Wj, f, n)
                 c += 1
-                if on & S_RECORD:
+                # 6. record
+                if RECORD:
                     until_record -= 1
                     if until_record == 0:
-                        write_record(j, nrec, settings.mask, t, a, v, Wj, th, Aj, w, rk, out, n)
-                        nrec += 1
-                state.alive[j] = False
-                break
-        # 5. collision map
-        # Without spin arithmetic (a specular-only scene) the map is called with rank 0, a constant: only its
-        # reflection is compiled. Every renorm_every-th rough collision, the factor onto the initial energy is
-        # taken from the state before the map and applied after it: the map keeps the energy to an ulp, and
-        # computing the factor beside the map keeps it off the chain of operations that sets the speed.
-        f = 0.0
-        map_rank = 0
-        if on & S_SPIN:
-            map_rank = rk
-            if renorm_every > 0:
-                until_renorm -= 1
-                if until_renorm == 0:
-                    until_renorm = renorm_every
-                    f = energy_factor(v, Wj, R, kappa, e0, half_inv_e0, n)
-        if on & S_SLAB:
-            collide_slab(v, Wj, nu[n - 1], R, kappa, map_rank, rules.basis, node, w, work, n)
-        else:
-            collide(v, Wj, nu, R, kappa, map_rank, rules.basis, node, w, work, n)
-        if f != 0.0:
-            scale_state(v, Wj, f, n)
-        c += 1
-        # 6. record
-        if on & S_RECORD:
-            until_record -= 1
-            if until_record == 0:
-                until_record = every
-                write_record(j, nrec, settings.mask, t, a, v, Wj, th, Aj, w, rk, out, n)
-                nrec += 1
-        if on & S_STOP_WALL:
-            if w == settings.stop_wall:
-                state.alive[j] = False
-                break
-    for i in range(n):
-        state.pos[j, i] = a[i]
-        state.vel[j, i] = v[i]
-        for k in range(n):
-            state.W[j, i, k] = Wj[i, k]
-    if on & S_ORIENT:
-        for i in range(3):
-            for k in range(3):
-                state.A[j, i, k] = Aj[i, k]
-    state.theta[j] = th
-    state.time[j] = t
-    state.ncoll[j] = c
-    state.draws[j] = d
-    state.last_wall[j] = w
-    state.last_rank[j] = rk
-    return nrec
+                        until_record = every
+                        write_record(j, count, settings.mask, t, a, v, Wj, th, Aj, w, rk, out, n)
+                        count += 1
+                if on & S_STOP_WALL:
+                    if w == settings.stop_wall:
+                        state.alive[j] = False
+                        break
+            for i in range(n):
+                state.pos[j, i] = a[i]
+                state.vel[j, i] = v[i]
+                for k in range(n):
+                    state.W[j, i, k] = Wj[i, k]
+            if ORIENT:
+                for i in range(3):
+                    for k in range(3):
+                        state.A[j, i, k] = Aj[i, k]
+            state.theta[j] = th
+            state.time[j] = t
+            state.ncoll[j] = c
+            state.draws[j] = d
+            state.last_wall[j] = w
+            state.last_rank[j] = rk
+            nrec[j] = count
 
+    return advance_all
 
-@jit
-def advance_all(j0, j1, stop, spec, table, rules, settings, state, out, nrec):
-    """Advance the live trajectories j0 ≤ j < j1 to ``stop[j]`` collisions -> records written per trajectory into
-    ``out``, their number in ``nrec[j]``.
-
-    ``table``, ``rules``, ``settings``, ``state``, ``out``: :class:`Table`, :class:`Rules`, :class:`Settings`,
-    :class:`State`, :class:`Records`; ``spec``: the compiled bits (``settings.flags & COMPILED_BITS``), a literal.
-    Compiled ``nogil``: :func:`run_advance_all` runs slices of the trajectories on several threads at once (each
-    writes only its own rows)."""
-    literally(spec)
-    alive = state.alive
-    for j in range(j0, j1):
-        if alive[j]:
-            nrec[j] = advance(j, stop[j], spec, table, rules, settings, state, out)
 
 
 _POOL = [None, 0]           # a thread pool and its size, made on first use
@@ -474,17 +490,17 @@ def _pool(threads):
     return _POOL[0]
 
 
-#: (spec, fingerprint of the other arguments' types) -> the compiled entry point of advance_all for them
+#: (spec, fingerprint of the arguments' types) -> the compiled entry point of the spec's kernel for them
 _ENTRY = {}
 
 
 def _entry_point(stop, spec, groups, nrec):
-    """The compiled entry point of :func:`advance_all` for these arguments (compiled or loaded on first use).
+    """The compiled entry point of :func:`kernel` ``(spec)`` for these arguments (compiled or loaded on first use).
 
-    Its key in ``advance_all.overloads`` is the tuple of Numba types of the arguments, with ``spec`` as a literal;
-    ``numba.typeof`` of the groups' 34 arrays takes ~0.2 ms, 2–3 % of a block of the rough strip, so the entry
-    point is looked up first by Numba's own fingerprint of the arguments' types (the key of its dispatcher's type
-    cache: class and field names, dtypes, dimensions, layouts, writability; ~3 µs)."""
+    Its key in the kernel's ``overloads`` is the tuple of Numba types of the arguments; ``numba.typeof`` of the
+    groups' 34 arrays takes ~0.2 ms, 2–3 % of a block of the rough strip, so the entry point is looked up first by
+    Numba's own fingerprint of the arguments' types (the key of its dispatcher's type cache: class and field names,
+    dtypes, dimensions, layouts, writability; ~3 µs)."""
     key = None
     if compute_fingerprint is not None:            # absent from a Numba without it: the typeof path alone
         try:
@@ -495,12 +511,14 @@ def _entry_point(stop, spec, groups, nrec):
             key = None
     entry = _ENTRY.get(key)
     if entry is None:
-        sig = ((numba.types.int64, numba.types.int64, numba.typeof(stop), numba.types.literal(spec))
+        loop = kernel(spec)
+        sig = ((numba.types.int64, numba.types.int64, numba.typeof(stop))
                + tuple(numba.typeof(g) for g in groups) + (numba.typeof(nrec),))
-        cres = advance_all.overloads.get(sig)
+        cres = loop.overloads.get(sig)
         if cres is None:
-            advance_all(0, 0, stop, spec, *groups, nrec)    # compiles (or loads) the specialisation; runs nothing
-            cres = advance_all.overloads[sig]
+            with compile_lock(f"advance-{spec}"):
+                loop(0, 0, stop, *groups, nrec)     # compiles (or loads) the specialisation; runs nothing
+            cres = loop.overloads[sig]
         entry = cres.entry_point
         if key is not None:
             _ENTRY[key] = entry
@@ -518,11 +536,11 @@ def run_advance_all(stop, table, rules, settings, state, out):
     The trajectories are cut into slices (8 per thread, so that slices of short trajectories even out), each run
     by the compiled entry point of the specialisation on a thread of a pool; the kernel releases the GIL. Why not
     ``prange``: a parallel kernel takes ~15 s to compile against ~5 s for a serial one, for every combination of
-    compiled bits in use. Why the entry point (:func:`_entry_point`): ``spec`` is a literal, and resolving a literal
-    argument through the dispatcher costs ~10 ms per call (it re-types the call every time); a call through the
-    entry point, groups built, costs ~12 µs in all (``Simulation.advance`` with nothing to do). The first
-    call of a specialisation goes through the dispatcher (which compiles it or loads it from the cache). Each trajectory's numbers depend only on its own state and stream, never on the slicing or the thread
-    count."""
+    compiled bits in use. Why the entry point (:func:`_entry_point`): a call through the dispatcher types the 34
+    arrays of the groups (~0.2 ms); a call through the entry point, groups built, costs ~12 µs in all
+    (``Simulation.advance`` with nothing to do). The first call of a specialisation goes through the dispatcher
+    (which compiles it or loads it from the cache). Each trajectory's numbers depend only on its own state and
+    stream, never on the slicing or the thread count."""
     M = state.pos.shape[0]
     spec = int(settings.flags) & COMPILED_BITS
     nrec = np.zeros(M, np.int64)
@@ -530,10 +548,10 @@ def run_advance_all(stop, table, rules, settings, state, out):
     entry = _entry_point(stop, spec, groups, nrec)
     threads = max(1, min(numba.get_num_threads(), M))
     if threads == 1:
-        entry(0, M, stop, spec, *groups, nrec)
+        entry(0, M, stop, *groups, nrec)
         return nrec
     cuts = np.linspace(0, M, min(M, 8 * threads) + 1).astype(np.int64)
-    jobs = [_pool(threads).submit(entry, int(a), int(b), stop, spec, *groups, nrec)
+    jobs = [_pool(threads).submit(entry, int(a), int(b), stop, *groups, nrec)
             for a, b in zip(cuts[:-1], cuts[1:]) if b > a]
     for job in jobs:
         job.result()

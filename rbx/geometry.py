@@ -451,27 +451,32 @@ def next_collision(codes, params, a, v, tol, n):
 
 
 @jit_hot
-def box_collision(codes, params, a, v, tol, n, box, others):
-    """:func:`next_collision` for a table bounded by an axis-aligned box (:attr:`Geometry.axis_box`: primitive
-    ``box[2i]`` is the side x_i = lo of normal +e_i, ``box[2i+1]`` the side x_i = hi of normal −e_i) and holding
-    the primitives ``others`` -> (flight time, primitive). Per axis, the sign of v_i says which side is ahead and
-    one division gives its time: the half-space's ``max(d, 0)/−(v·ν)`` with d and v·ν reduced to their one non-zero
-    term, so the same number; ties go to the lower index, as in :func:`next_collision`."""
+def box_collision(codes, params, a, v, tol, n, box, others, boxed):
+    """:func:`next_collision` as the engine takes it -> (flight time, primitive). A table bounded by an
+    axis-aligned box (:attr:`Geometry.axis_box`: primitive ``box[2i]`` is the side x_i = lo of normal +e_i,
+    ``box[2i+1]`` the side x_i = hi of normal −e_i) has its sides in closed form: per axis, the sign of v_i says
+    which side is ahead and one division gives its time — the half-space's ``max(d, 0)/−(v·ν)`` with d and v·ν
+    reduced to their one non-zero term, so the same number (``boxed``: a compile-time constant in the engine,
+    so that a table without a box has no trace of it). Then the primitives ``others`` (all of them without a
+    box) by :func:`collision_time`. Ties go to the lower index, as in :func:`next_collision`: the
+    same flight times and primitives, bit for bit (tests/test_fastpaths.py). One function for both cases, so
+    that the kernel holds one copy of :func:`collision_time` (each inlined copy costs compile time)."""
     best = np.inf
     which = -1
-    for i in range(n):
-        vi = v[i]
-        if vi > 0.0:
-            q = box[2 * i + 1]
-            t = max(params[q, i] - a[i], 0.0) / vi
-        elif vi < 0.0:
-            q = box[2 * i]
-            t = max(a[i] - params[q, i], 0.0) / -vi
-        else:
-            continue
-        if t < best or (t == best and q < which):
-            best = t
-            which = q
+    if boxed:
+        for i in range(n):
+            vi = v[i]
+            if vi > 0.0:
+                q = box[2 * i + 1]
+                t = max(params[q, i] - a[i], 0.0) / vi
+            elif vi < 0.0:
+                q = box[2 * i]
+                t = max(a[i] - params[q, i], 0.0) / -vi
+            else:
+                continue
+            if t < best or (t == best and q < which):
+                best = t
+                which = q
     for m in range(others.shape[0]):
         k = others[m]
         t = collision_time(codes[k], params, k, a, v, tol, n)

@@ -40,3 +40,27 @@ def test_an_unwritable_cache_falls_back_to_a_private_folder(tmp_path):
     with h5py.File(tmp_path / "good.h5") as a, h5py.File(tmp_path / "bad.h5") as b:
         for f in a["collisions"]:
             np.testing.assert_array_equal(a["collisions"][f][...], b["collisions"][f][...])
+
+
+def test_a_second_process_waits_for_a_kernel_being_compiled():
+    """_jit.compile_lock: while one process compiles a combination, another that needs it waits (then loads it from
+    the disk cache instead of compiling it a second time, as two test workers or a CLI run beside a notebook did)."""
+    code = ("import sys, rbx._jit as j\nprint('waiting', flush=True)\n"
+            "with j.compile_lock('advance-probe'):\n    print('got it', flush=True)\n")
+    with _jit.compile_lock("advance-probe"):
+        child = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+        assert child.stdout.readline().strip() == "waiting"
+        try:
+            child.wait(timeout=3)
+        except subprocess.TimeoutExpired:
+            pass
+        assert child.poll() is None, "the second process did not wait for the lock"
+    out, _ = child.communicate(timeout=120)
+    assert out.strip() == "got it" and child.returncode == 0
+
+
+def test_the_front_end_of_an_inlined_helper_is_made_once():
+    """_jit._reuse_inlined_callees: the IR Numba makes for an inlined rbx helper is kept and handed out again (it is
+    copied before Numba changes it), so the second kernel of a process does not run the helpers' front end again."""
+    from numba.core.inline_closurecall import InlineWorker
+    assert getattr(InlineWorker.run_untyped_passes, "rbx_reuse", False)

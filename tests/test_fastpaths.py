@@ -70,7 +70,7 @@ def test_a_box_is_found_and_its_closed_form_is_the_general_loop(name):
     ties = 0
     for a, v in zip(starts, dirs):
         want = next_collision(geom.codes, geom.params, a, v, 1e-12, n)
-        got = box_collision(geom.codes, geom.params, a, v, 1e-12, n, t.box, t.others)
+        got = box_collision(geom.codes, geom.params, a, v, 1e-12, n, t.box, t.others, True)
         assert got[1] == want[1] and np.float64(got[0]).tobytes() == np.float64(want[0]).tobytes(), (a, v)
         ties += sum(np.isclose(v @ np.eye(n)[i], 0.0) for i in range(n))
     assert ties > 0

@@ -55,7 +55,8 @@ def test_every_kernel_module_is_in_the_cache_key():
 
 
 def test_the_loop_is_compiled_without_the_runtime():
-    assert engine.advance.targetoptions.get("_nrt") is False      # jit_loop
+    assert engine.kernel(0).targetoptions.get("_nrt") is False      # jit_loop
+    assert engine.kernel(0).targetoptions.get("nogil") is True      # run on several threads at once
     assert engine.write_record.targetoptions.get("_nrt") is False  # jit_hot, inlined into the loop
 
 
@@ -65,10 +66,20 @@ def _params(f):
 
 def test_the_kernels_take_named_groups():
     groups = ["table", "rules", "settings", "state", "out"]
-    assert _params(engine.advance_all) == ["j0", "j1", "stop", "spec"] + groups + ["nrec"]
-    assert _params(engine.advance) == ["j", "stop", "spec"] + groups
+    assert _params(engine.kernel(0)) == ["j0", "j1", "stop"] + groups + ["nrec"]
     assert _params(engine.run_advance_all) == ["stop"] + groups
-    assert len(_params(engine.advance_all)) <= 10
+    assert len(_params(engine.kernel(0))) <= 10
+
+
+def test_one_kernel_per_combination_of_compiled_bits():
+    """kernel(spec) is made once per combination, its compiled bits constants of the closure (pruned before Numba
+    inlines the helpers): the specular rectangle's loop holds no periodic search, rule tree or record writer."""
+    assert engine.kernel(engine.S_AXES) is engine.kernel(engine.S_AXES)
+    assert engine.kernel(engine.S_AXES) is not engine.kernel(engine.S_AXES | engine.S_SPIN)
+    closure = dict(zip(engine.kernel(engine.S_AXES).py_func.__code__.co_freevars,
+                       (c.cell_contents for c in engine.kernel(engine.S_AXES).py_func.__closure__)))
+    assert closure["AXES"] is True and closure["N"] == 2
+    assert not any(closure[k] for k in ("ORIENT", "SPIN", "TREE", "RECORD", "SLAB", "PERIODIC", "EXIT_"))
 
 
 def test_the_groups():
