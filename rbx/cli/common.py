@@ -1,4 +1,5 @@
-"""What every command shares: the user-error convention (exit 2, one line), the progress bar. (Run files are
+"""What every command shares: the user-error convention (exit 2, one line), the ``--scheduler`` options, the
+progress bar. (Run files are
 opened with :class:`rbx.runfile.Run`; its :class:`rbx.runfile.FileError` becomes a user error here.)
 
 A user error is printed as ``rbx: <file>: <key>: <problem>`` on stderr (the parts that apply) and the command
@@ -109,6 +110,47 @@ class Command(click.Command):
                 line = f"{info_name}: {exc.format_message()} (see '{name} --help')"
             click.echo(f"rbx: {line}", err=True)
             raise click.exceptions.Exit(EXIT_USER_ERROR) from None
+
+
+# ---- the Dask cluster of --scheduler (simulate, histogram, lyapunov) ---------------------------------------
+
+def check_cluster_options(cluster):
+    """--slices and --task-collisions only with --scheduler."""
+    if cluster["scheduler"] is None:
+        for name in ("slices", "task_collisions"):
+            if cluster[name] is not None:
+                raise UserError(None, "--" + name.replace("_", "-"), "only with --scheduler (it cuts a run into "
+                                                                      "tasks for a Dask cluster)")
+
+
+def connect(cluster):
+    """The :class:`rbx.cluster.Cluster` of ``--scheduler`` as a context manager (None: a local run); an
+    unreachable scheduler is a user error."""
+    from ..api import cluster_for
+    from ..cluster import SchedulerUnreachable
+    if cluster["scheduler"] is not None:
+        _quiet_dask()
+    try:
+        on = cluster_for(cluster["scheduler"], "--scheduler", cluster["slices"], cluster["task_collisions"])
+    except SchedulerUnreachable as exc:
+        raise UserError(None, exc.key, exc.problem) from None
+    if cluster["scheduler"] is not None and on.threads() == 0:
+        click.echo("rbx: warning: --scheduler: the cluster has no workers yet: the run waits for them"
+                   + ("" if cluster["slices"] else " (and is cut for one worker thread; --slices to cut it finer)"),
+                   err=True)
+    return on
+
+
+def _quiet_dask():
+    """Dask's client logs its connection's ups and downs to stderr; rbx says itself what went wrong."""
+    import logging
+    try:
+        import distributed  # noqa: F401 - it sets its loggers' levels when imported: set them after
+    except ImportError:
+        return
+    for name in ("distributed", "distributed.client", "distributed.comm", "distributed.core",
+                 "distributed.batched"):
+        logging.getLogger(name).setLevel(logging.CRITICAL)
 
 
 # ---- progress -----------------------------------------------------------------------------------------------

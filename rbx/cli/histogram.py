@@ -3,7 +3,8 @@ import os
 
 import click
 
-from .common import Command, Progress, UserError, check_memory, interrupted_exit, report_and_exit
+from .common import (Command, Progress, UserError, check_cluster_options, check_memory, connect, interrupted_exit,
+                     report_and_exit)
 
 
 @click.command(cls=Command)
@@ -45,7 +46,6 @@ def _histogram(config, out, trajectories, seed, force, quiet, cluster):
     from ..cluster import ClusterError
     from ..histogram import return_experiment
     from ..runfile import write_returns
-    from .simulate import check_cluster_options, connect
 
     check_cluster_options(cluster)
 

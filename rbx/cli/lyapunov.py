@@ -3,7 +3,8 @@ import json
 
 import click
 
-from .common import Command, UserError, interrupted_exit, report_and_exit, user_errors
+from .common import (Command, UserError, check_cluster_options, connect, interrupted_exit, report_and_exit,
+                     user_errors)
 
 
 @click.command(cls=Command)
@@ -41,7 +42,6 @@ def _lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json,
     from .. import api
     from ..cluster import ClusterError
     from ..dynamics import lyapunov as spectrum
-    from .simulate import check_cluster_options, connect
 
     check_cluster_options(cluster)
 

@@ -14,7 +14,8 @@ import signal
 
 import click
 
-from .common import Command, Progress, UserError, check_memory, display_path, report_and_exit, user_errors
+from .common import (Command, Progress, UserError, check_cluster_options, check_memory, connect, display_path,
+                     report_and_exit, user_errors)
 
 OVERRIDES = ("collisions", "trajectories", "seed")
 
@@ -64,45 +65,6 @@ def simulate(config, out, collisions, trajectories, seed, max_size, resume, forc
             code = 128 + stop.signum
     if code:
         raise SystemExit(code)
-
-
-def check_cluster_options(cluster):
-    """--slices and --task-collisions only with --scheduler."""
-    if cluster["scheduler"] is None:
-        for name in ("slices", "task_collisions"):
-            if cluster[name] is not None:
-                raise UserError(None, "--" + name.replace("_", "-"), "only with --scheduler (it cuts a run into "
-                                                                      "tasks for a Dask cluster)")
-
-
-def connect(cluster):
-    """The :class:`rbx.cluster.Cluster` of ``--scheduler`` as a context manager (None: a local run); an
-    unreachable scheduler is a user error."""
-    from ..api import cluster_for
-    from ..cluster import SchedulerUnreachable
-    if cluster["scheduler"] is not None:
-        _quiet_dask()
-    try:
-        on = cluster_for(cluster["scheduler"], "--scheduler", cluster["slices"], cluster["task_collisions"])
-    except SchedulerUnreachable as exc:
-        raise UserError(None, exc.key, exc.problem) from None
-    if cluster["scheduler"] is not None and on.threads() == 0:
-        click.echo("rbx: warning: --scheduler: the cluster has no workers yet: the run waits for them"
-                   + ("" if cluster["slices"] else " (and is cut for one worker thread; --slices to cut it finer)"),
-                   err=True)
-    return on
-
-
-def _quiet_dask():
-    """Dask's client logs its connection's ups and downs to stderr; rbx says itself what went wrong."""
-    import logging
-    try:
-        import distributed  # noqa: F401 - it sets its loggers' levels when imported: set them after
-    except ImportError:
-        return
-    for name in ("distributed", "distributed.client", "distributed.comm", "distributed.core",
-                 "distributed.batched"):
-        logging.getLogger(name).setLevel(logging.CRITICAL)
 
 
 def _simulate(config, out, overrides, force, quiet, stop, cluster):
