@@ -10,6 +10,9 @@ The records in the file are first cut back to what ``final/`` accounts for: an u
 records before its checkpoint, so after a hard kill between the two the file may hold a few records past the
 saved state; those are dropped and recomputed. A file with no ``final/`` (stopped before its first block) starts
 over from the config's initial state.
+
+A ``.partial`` already marked complete (a run killed between marking it and renaming it) needs no simulation:
+:func:`finish_complete` renames it.
 """
 import weakref
 
@@ -17,7 +20,8 @@ import numpy as np
 
 from . import __version__
 from .model import ConfigError
-from .runfile import STATE_GROUPS, acquire_lock, latest_state, release_lock
+from . import runfile
+from .runfile import STATE_GROUPS, acquire_lock, check_target, latest_state, release_lock
 from .simulation import Simulation
 
 #: what ``final/`` must hold to continue (Simulation takes the rest from the config)
@@ -178,3 +182,19 @@ def version_note(run):
     if written != __version__:
         return f"written by rbx {written}, continued with rbx {__version__}"
     return None
+
+
+def finish_complete(partial, path, force=False):
+    """Rename the complete run ``partial`` (``OUT.h5.partial``, marked ``complete = true``: its process was killed
+    before the rename) to ``path`` as the end of a run would have: under the run's lock (a stale one is taken
+    over), never over an existing file without ``force``. Raises :class:`rbx.runfile.FileError`."""
+    acquire_lock(path)
+    try:
+        check_target(path, force, None, partial_ok=True)
+        runfile._publish(partial, path, True, force, _rename_failed)
+    finally:
+        release_lock(path)
+
+
+def _rename_failed(message):
+    raise runfile.FileError(None, None, message)

@@ -11,6 +11,7 @@ requested length and writes the same records as an uninterrupted run.
 import errno
 import os
 import signal
+import weakref
 
 import click
 
@@ -103,7 +104,7 @@ def _simulate(config, out, overrides, force, quiet, stop, cluster):
 def _resume(config, run_file, out, overrides, force, quiet, stop, cluster):
     from ..api import check_target, compile_kernels
     from ..resume import load, version_note
-    from ..runfile import Run, temporary_path
+    from ..runfile import Run, acquire_lock, lock_path, release_lock, temporary_path
 
     if config is not None:
         raise UserError(None, "--resume", "give either CONFIG or --resume RUN.h5, not both")
@@ -119,6 +120,9 @@ def _resume(config, run_file, out, overrides, force, quiet, stop, cluster):
     in_place = tmp == source
     run = Run.open(run_file)
     if run.complete:
+        run.close()
+        if source.endswith(".partial"):     # killed after marking it complete, before renaming it
+            return _rename_complete(run_file, source, path, out, force)
         click.echo(f"rbx: {display_path(run_file)}: the run is complete; nothing to resume", err=True)
         return 0
     note = version_note(run)
@@ -127,6 +131,11 @@ def _resume(config, run_file, out, overrides, force, quiet, stop, cluster):
             sim, write_initial, done = load(run, run_file)
         except MemoryError:
             raise UserError(run_file, "run.trajectories", "the trajectories do not fit in the free memory") from None
+    if lock_path(path) != lock_path(source):
+        # -o OTHER.h5: OTHER's own lock too (load took RUN's), held to the final rename like a new run's, so that
+        # two resumes into one OTHER cannot write one OTHER.h5.partial (with --force the second truncated it)
+        acquire_lock(path)
+        sim.locks.append(weakref.finalize(sim, release_lock, path))
     if path != source:
         check_target(path, force, None, key="-o", partial_ok=in_place, force_hint="--force")
     if os.path.exists(tmp) and not force and not in_place:
@@ -139,6 +148,19 @@ def _resume(config, run_file, out, overrides, force, quiet, stop, cluster):
         if stop.start_running():
             raise KeyboardInterrupt
         return _continue(sim, source, path, tmp, in_place, force, quiet, stop, write_initial, done, run_file)
+
+
+def _rename_complete(run_file, source, path, out, force):
+    """A ``.partial`` marked complete: its run was killed between marking it and renaming it to ``OUT.h5``, so
+    resuming it only does that rename (under the run's lock; never over a file without ``--force``)."""
+    from ..resume import finish_complete
+    if out and path != source[:-len(".partial")]:
+        raise UserError(None, "-o", f"{display_path(run_file)} holds a complete run that was not yet renamed; resume "
+                                    "it without -o to rename it to its own output")
+    finish_complete(source, path, force)
+    click.echo(f"rbx: {display_path(run_file)}: the run was complete (stopped before its rename): renamed to "
+               f"{display_path(path)}", err=True)
+    return 0
 
 
 def _continue(sim, source, path, tmp, in_place, force, quiet, stop, write_initial, done, run_file):
