@@ -241,14 +241,18 @@ S_AXES = 4096       # bounded by an axis-aligned box (Table.box): a division per
 #: the bits compiled into the kernel; the others are tested at run time (a predictable branch). Each compiled
 #: combination in use costs a compile of 5–15 s the first time (then it is on disk), so the bits compiled are the
 #: ones that pay: the dimension (loops of constant length, state in registers), spin arithmetic, the slab's closed
-#: form, and what SPEC §7 asks to skip (orientation, rule trees and random draws, per-collision records). Compiling
-#: the last three took the rough strip from 6.7 to 5.0 ns per collision and the rough plates from 8.5 to 6.2 (the
-#: run-time tests keep registers busy). An axis-aligned box (S_AXES) is compiled too: rbx/hand of the rectangle
-#: 0.53 -> 0.80, box 0.39 -> 0.72, Sinai 0.69 -> 0.76 (specular, CPU time interleaved, load ~6), and 0.50, 0.64,
-#: 0.69 with the box a run-time branch. Periodic cells and exits are compiled because a scene without them then
-#: never compiles their code (the periodic search was 4.4 s of the 29 s a kernel took to compile while it was a
-#: run-time branch). The variants and the stop wall stay run-time bits.
-COMPILED_BITS = S_DIM3 | S_SPIN | S_SLAB | S_RECORD | S_TREE | S_ORIENT | S_AXES | S_PERIODIC | S_EXIT
+#: form, and what SPEC §7 asks to skip (the orientation, rule trees and random draws). Compiling these took the
+#: rough strip from 6.7 to 5.0 ns per collision and the rough plates from 8.5 to 6.2 (the run-time tests keep
+#: registers busy); as a run-time bit the orientation costs the rough plates 0.99 -> 0.86 of their hand loop. An
+#: axis-aligned box (S_AXES) is compiled too: rbx/hand of the rectangle 0.53 -> 0.80, box 0.39 -> 0.72, Sinai
+#: 0.69 -> 0.76 (specular, CPU time interleaved, load ~6), and 0.50, 0.64, 0.69 with the box a run-time branch.
+#: Periodic cells and exits are compiled because a scene without them then never compiles their code (the
+#: periodic search was 4.4 s of the 29 s a kernel took to compile while it was a run-time branch). Per-collision
+#: records are a run-time bit: compiled, they doubled the combinations in use (the test suite compiled 71 loops,
+#: 50 without it) for 1.14 -> 1.08 of the strip's hand loop and 0.99 -> 0.96 of the plates' (interleaved, load
+#: ~2; the record branch is never taken when nothing is recorded). The variants and the stop wall are run-time
+#: bits too.
+COMPILED_BITS = S_DIM3 | S_SPIN | S_SLAB | S_TREE | S_ORIENT | S_AXES | S_PERIODIC | S_EXIT
 RUNTIME_BITS = ~COMPILED_BITS
 
 
@@ -298,7 +302,7 @@ def _make_kernel(spec):
     closures by their cell contents), so each combination has its own entry on disk."""
     N = 3 if spec & S_DIM3 else 2
     ORIENT, SPIN, TREE = bool(spec & S_ORIENT), bool(spec & S_SPIN), bool(spec & S_TREE)
-    RECORD, SLAB, PERIODIC = bool(spec & S_RECORD), bool(spec & S_SLAB), bool(spec & S_PERIODIC)
+    SLAB, PERIODIC = bool(spec & S_SLAB), bool(spec & S_PERIODIC)
     EXIT_, AXES = bool(spec & S_EXIT), bool(spec & S_AXES)
 
     @jit_loop
@@ -419,7 +423,7 @@ def _make_kernel(spec):
                 if EXIT_:
                     if rules.kind[node] == EXIT:          # a hole: the contact is the trajectory's last record
                         c += 1
-                        if RECORD:
+                        if on & S_RECORD:
                             until_record -= 1
                             if until_record == 0:
                                 write_record(j, count, settings.mask, t, a, v, Wj, th, Aj, w, rk, out, n)
@@ -448,7 +452,7 @@ def _make_kernel(spec):
                     scale_state(v, Wj, f, n)
                 c += 1
                 # 6. record
-                if RECORD:
+                if on & S_RECORD:
                     until_record -= 1
                     if until_record == 0:
                         until_record = every

@@ -932,7 +932,8 @@ def write_document(args, cmd, results, wall):
 
     # 8
     L += heading(args, "## 8. What each skip saves", "skips") + [
-          "SPEC §7: the kernel leaves out what a scene does not need, by compiling it out (`engine.COMPILED_BITS`). "
+          "SPEC §7: the kernel leaves out what a scene does not need, by compiling it out (`engine.COMPILED_BITS`) "
+          "or behind a predictable run-time branch (per-collision records, the variants). "
           "Here each skip is undone on one scene — the work forced in (`Simulation.force_bits`) or the fast path "
           "left out (`Simulation.drop_bits`), the orbit the same — one trajectory, nothing recorded, one thread.",
           ""]
