@@ -25,16 +25,25 @@ from numba.np.arrayobj import make_array, populate_array
 #: listed)
 KERNEL_MODULES = ("_jit", "engine", "geometry", "physics", "rng", "rules", "tangent")
 #: modules whose values the kernels compile in as constants (the record bits of rbx.model.FIELDS): the cache key
-#: covers them too
+#: covers those values (:func:`_compiled_constants`), not the modules' whole text, so that an edit elsewhere in
+#: rbx/model.py (a config key, a docstring) does not compile every kernel again
 KERNEL_CONSTANTS = ("model",)
+
+
+def _compiled_constants():
+    """What the kernels read from :data:`KERNEL_CONSTANTS` modules, as text: each record field's name (the order
+    of ``engine.Records``) and its bit of the record mask."""
+    from .model import FIELDS
+    return repr([(f.name, int(f.bit)) for f in FIELDS])
 
 
 def kernel_source_hash():
     h = hashlib.sha256(numba.__version__.encode())
     here = os.path.dirname(os.path.abspath(__file__))
-    for name in KERNEL_MODULES + KERNEL_CONSTANTS:
+    for name in KERNEL_MODULES:
         with open(os.path.join(here, name + ".py"), "rb") as f:
             h.update(f.read())
+    h.update(_compiled_constants().encode())
     return h.hexdigest()[:16]
 
 

@@ -28,6 +28,23 @@ def test_the_cache_key_covers_the_kernels_and_their_constants():
     assert _jit.kernel_source_hash() in _jit.numba.config.CACHE_DIR
 
 
+def test_the_cache_key_follows_the_record_bits_not_the_rest_of_the_model(monkeypatch):
+    """The kernels compile in each record field's bit (engine's F_* constants) and the fields' order (Records):
+    a change of either is a new key; an edit elsewhere in rbx/model.py is not (it would compile every kernel again)."""
+    import dataclasses
+
+    from rbx import model
+    key = _jit.kernel_source_hash()
+    fields = list(model.FIELDS)
+    swapped = [dataclasses.replace(fields[0], bit=fields[1].bit), dataclasses.replace(fields[1], bit=fields[0].bit)]
+    monkeypatch.setattr(model, "FIELDS", tuple(swapped + fields[2:]))
+    assert _jit.kernel_source_hash() != key
+    monkeypatch.setattr(model, "FIELDS", tuple([fields[1], fields[0]] + fields[2:]))
+    assert _jit.kernel_source_hash() != key
+    monkeypatch.setattr(model, "FIELDS", tuple(fields))
+    assert _jit.kernel_source_hash() == key
+
+
 def test_an_unwritable_cache_falls_back_to_a_private_folder(tmp_path):
     blocker = tmp_path / "not-a-folder"
     blocker.write_text("a file where the cache folder should be")
