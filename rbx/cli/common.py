@@ -1,10 +1,11 @@
 """What every command shares: the user-error convention (exit 2, one line), the ``--scheduler`` options, the
-progress bar. (Run files are
-opened with :class:`rbx.runfile.Run`; its :class:`rbx.runfile.FileError` becomes a user error here.)
+progress bar. (Run files are opened with :class:`rbx.runfile.Run`; its :class:`rbx.runfile.FileError` becomes a
+user error here.)
 
 A user error is printed as ``rbx: <file>: <key>: <problem>`` on stderr (the parts that apply) and the command
 exits with code 2, without a traceback (``--debug`` adds one). Commands built with ``cls=Command`` print click's
-own usage errors (a bad option value, a missing argument) the same way.
+own usage errors (a bad option value, a missing argument, an unknown option or command) the same way
+(:class:`OneLineUsage`).
 """
 import contextlib
 import sys
@@ -93,23 +94,67 @@ def report_and_exit(exc, debug):
     sys.exit(EXIT_USER_ERROR)
 
 
-class Command(click.Command):
-    """A click command whose usage errors are one line and exit 2 like every other user error:
-    ``rbx: --collisions: 'abc' is not a valid integer.``, ``rbx: simulate: No such option: --colisions …``."""
+def usage_line(exc, command_path):
+    """One of click's usage errors as the line printed after ``rbx: ``: the option, argument or command at fault
+    first, then the problem, on one line (click's own message may span several: the choices of a missing option).
+
+    ``rbx: --collisions: 'abc' is not a valid integer.``, ``rbx: --colisions: No such option of rbx simulate; did
+    you mean --collisions? (see 'rbx simulate --help')``, ``rbx: simlate: No such command; did you mean simulate?
+    (commands: animate, …)``."""
+    def flat(text):
+        return " ".join(str(text).split())
+
+    see = f" (see '{command_path} --help')"
+    if isinstance(exc, click.BadParameter) and exc.param is not None and exc.ctx is not None:
+        where = ", ".join(x.strip("'") for x in exc.param.get_error_hint(exc.ctx).split(" / "))
+        return f"{where}: {flat(exc.message or exc.format_message())}"
+    if isinstance(exc, click.NoSuchOption):
+        maybe = f"; did you mean {' or '.join(exc.possibilities)}?" if exc.possibilities else ""
+        return f"{exc.option_name}: No such option of {command_path}{maybe}{see}"
+    if isinstance(exc, click.BadOptionUsage):
+        return f"{exc.option_name}: {flat(exc.format_message())}{see}"
+    group = exc.ctx.command if exc.ctx is not None and isinstance(exc.ctx.command, click.Group) else None
+    commands = f"(commands: {', '.join(group.list_commands(exc.ctx))}; see '{command_path} --help')" if group else see
+    if hasattr(exc, "command_name"):       # click.exceptions.NoSuchCommand (click >= 8.4)
+        maybe = f"; did you mean {' or '.join(exc.possibilities)}?" if exc.possibilities else ""
+        return f"{exc.command_name}: No such command{maybe} {commands}"
+    if isinstance(exc, click.exceptions.NoArgsIsHelpError) and group is not None:   # plain `rbx`
+        return f"COMMAND: missing {commands}"
+    return f"{command_path.split()[-1]}: {flat(exc.format_message())}{see}"
+
+
+class OneLineUsage:
+    """Mixed into click's command classes (:class:`Command`, :class:`Group`): a usage error (unknown option,
+    missing argument, bad value, unknown command), found while parsing the command line or raised by a command
+    while it runs, is one line ``rbx: <option or argument>: <problem>`` on stderr and exit 2, like every other
+    user error, never click's usage block."""
 
     def make_context(self, info_name, args, parent=None, **extra):
         try:
             return super().make_context(info_name, args, parent=parent, **extra)
         except click.UsageError as exc:
-            if isinstance(exc, click.BadParameter) and exc.param is not None and exc.ctx is not None:
-                # the option or argument as the key: rbx: --collisions: 'abc' is not a valid integer.
-                where = ", ".join(x.strip("'") for x in exc.param.get_error_hint(exc.ctx).split(" / "))
-                line = f"{where}: {exc.message or exc.format_message()}"
-            else:
-                name = exc.ctx.command_path if exc.ctx is not None else info_name
-                line = f"{info_name}: {exc.format_message()} (see '{name} --help')"
-            click.echo(f"rbx: {line}", err=True)
-            raise click.exceptions.Exit(EXIT_USER_ERROR) from None
+            path = f"{parent.command_path} {info_name}" if parent is not None else info_name
+            self._usage_exit(exc, path)
+
+    def invoke(self, ctx):
+        try:
+            return super().invoke(ctx)
+        except click.UsageError as exc:     # a group's unknown command; a command's own ctx.fail
+            self._usage_exit(exc, exc.ctx.command_path if exc.ctx is not None else ctx.command_path)
+
+    @staticmethod
+    def _usage_exit(exc, command_path):
+        click.echo(f"rbx: {usage_line(exc, command_path)}", err=True)
+        raise click.exceptions.Exit(EXIT_USER_ERROR) from None
+
+
+class Command(OneLineUsage, click.Command):
+    """A command of rbx (``@click.command(cls=Command)``): usage errors are one line, exit 2."""
+
+
+class Group(OneLineUsage, click.Group):
+    """The ``rbx`` group: its own usage errors (``rbx --bogus``, ``rbx simlate``, a bare ``rbx``) are one line,
+    exit 2, too."""
 
 
 # ---- the Dask cluster of --scheduler (simulate, histogram, lyapunov) ---------------------------------------

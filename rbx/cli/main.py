@@ -6,11 +6,12 @@ import sys
 import click
 
 from .. import __version__
+from .common import Group
 from .simulate import simulate
 from . import histogram, lyapunov, plot
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+@click.group(cls=Group, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(__version__, prog_name="rbx")
 def cli():
     """Simulate non-standard (rough) billiards: a spinning disc or ball in a table, with the strict collision

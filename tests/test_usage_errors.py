@@ -1,0 +1,108 @@
+"""One voice on the command line (issue 18): every usage mistake of every command is exactly one line
+``rbx: <file, option, argument or command>: <problem>`` on stderr, exit 2, nothing on stdout, never click's
+usage block nor a traceback. Real ``rbx`` processes (the console script), a table of command × mistake."""
+import subprocess
+
+import pytest
+
+from tests.test_interrupt import RBX
+
+#: (command line, what the line names first). Files named here do not exist, except the folder ``folder``.
+MISTAKES = {
+    "rbx": [
+        ([], "COMMAND"),                                        # no command
+        (["--bogus"], "--bogus"),                               # unknown option
+        (["simlate", "x.yaml"], "simlate"),                     # unknown command (did you mean simulate?)
+        (["bogus"], "bogus"),
+    ],
+    "simulate": [
+        (["simulate"], "CONFIG"),                               # missing argument
+        (["simulate", "x.yaml", "y.yaml"], "simulate"),          # extra argument
+        (["simulate", "--bogus"], "--bogus"),                   # unknown option
+        (["simulate", "x.yaml", "--colisions", "9"], "--colisions"),
+        (["simulate", "x.yaml", "--collisions"], "--collisions"),   # option without its value
+        (["simulate", "x.yaml", "--collisions", "abc"], "--collisions"),   # bad value
+        (["simulate", "x.yaml", "--slices", "0"], "--slices"),  # out of range
+        (["simulate", "x.yaml", "--slices", "2"], "--slices"),  # only with --scheduler
+        (["simulate", "x.yaml"], "x.yaml"),                     # missing file
+        (["simulate", "folder"], "folder"),                     # a folder for a file
+        (["simulate", "--resume"], "--resume"),
+        (["simulate", "--resume", "x.h5"], "x.h5"),
+        (["simulate", "--resume", "folder"], "folder"),
+        (["simulate", "x.yaml", "--resume", "x.h5"], "--resume"),   # both
+    ],
+    "plot": [
+        (["plot"], "OUT.h5"),
+        (["plot", "x.h5"], "--kind"),                           # a required option (its choices on one line)
+        (["plot", "--bogus"], "--bogus"),
+        (["plot", "x.h5", "--kind"], "--kind"),
+        (["plot", "x.h5", "--kind", "orbt"], "--kind"),
+        (["plot", "x.h5", "--kind", "orbit", "--dpi", "abc"], "--dpi"),
+        (["plot", "x.h5", "--kind", "orbit", "--dpi", "100000"], "--dpi"),
+        (["plot", "x.h5", "--kind", "orbit"], "x.h5"),
+        (["plot", "folder", "--kind", "orbit"], "folder"),
+        (["plot", "x.h5", "y.h5", "z.h5", "--kind", "orbit"], "plot"),
+    ],
+    "histogram": [
+        (["histogram"], "CONFIG"),
+        (["histogram", "--bogus"], "--bogus"),
+        (["histogram", "x.yaml", "y.yaml"], "histogram"),
+        (["histogram", "x.yaml", "--trajectories", "abc"], "--trajectories"),
+        (["histogram", "x.yaml", "--seed"], "--seed"),
+        (["histogram", "x.yaml", "--task-collisions", "0"], "--task-collisions"),
+        (["histogram", "x.yaml"], "x.yaml"),
+        (["histogram", "folder"], "CONFIG"),
+    ],
+    "lyapunov": [
+        (["lyapunov"], "CONFIG"),
+        (["lyapunov", "--bogus"], "--bogus"),
+        (["lyapunov", "x.yaml", "y.yaml"], "lyapunov"),
+        (["lyapunov", "x.yaml", "--segments", "0"], "--segments"),
+        (["lyapunov", "x.yaml", "--warmup", "-1"], "--warmup"),
+        (["lyapunov", "x.yaml", "--collisions", "1e3"], "--collisions"),
+        (["lyapunov", "x.yaml", "--json", "yes"], "lyapunov"),
+        (["lyapunov", "x.yaml"], "x.yaml"),
+        (["lyapunov", "folder"], "CONFIG"),
+    ],
+    "animate": [
+        (["animate"], "RUN.h5"),
+        (["animate", "x.h5"], "-o, --output"),
+        (["animate", "--bogus"], "--bogus"),
+        (["animate", "x.h5", "-o"], "-o"),
+        (["animate", "x.h5", "-o", "a.gif", "--fps", "0"], "--fps"),
+        (["animate", "x.h5", "-o", "a.gif", "--trajectory", "one"], "--trajectory"),
+        (["animate", "x.h5", "-o", "a.gif"], "x.h5"),
+        (["animate", "folder", "-o", "a.gif"], "folder"),
+        (["animate", "x.h5", "-o", "a.txt"], "a.txt"),
+    ],
+}
+
+CASES = [pytest.param(args, first, id=f"{command}:{' '.join(args) or '(nothing)'}")
+         for command, cases in MISTAKES.items() for args, first in cases]
+
+
+def test_every_command_is_in_the_table():
+    from rbx.cli.main import cli
+    assert set(MISTAKES) == {"rbx", *cli.commands}
+
+
+@pytest.mark.parametrize("args, first", CASES)
+def test_a_usage_mistake_is_one_line_and_exit_2(args, first, tmp_path):
+    (tmp_path / "folder").mkdir()
+    res = subprocess.run([RBX, *args], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert "Traceback" not in res.stderr, res.stderr
+    assert res.returncode == 2, res.stderr
+    assert res.stdout == "", res.stdout
+    assert res.stderr.endswith("\n") and res.stderr.count("\n") == 1, res.stderr      # exactly one line
+    line = res.stderr.rstrip("\n")
+    assert line.strip() and line.startswith(f"rbx: {first}: "), line
+    assert "Usage:" not in line and "Error:" not in line, line
+
+
+def test_a_near_miss_is_named(tmp_path):
+    """An unknown command or option close to one that exists says which."""
+    res = subprocess.run([RBX, "simlate"], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert "did you mean simulate" in res.stderr, res.stderr
+    res = subprocess.run([RBX, "simulate", "x.yaml", "--colisions", "9"], cwd=tmp_path, capture_output=True,
+                         text=True, timeout=300)
+    assert "did you mean --collisions" in res.stderr, res.stderr
