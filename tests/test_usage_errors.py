@@ -1,7 +1,12 @@
 """One voice on the command line (issue 18): every usage mistake of every command is exactly one line
 ``rbx: <file, option, argument or command>: <problem>`` on stderr, exit 2, nothing on stdout, never click's
-usage block nor a traceback. Real ``rbx`` processes (the console script), a table of command × mistake."""
+usage block nor a traceback. Real ``rbx`` processes (the console script), a table of command × mistake. And what a
+command says when it works: a progress bar on a terminal only, then one summary line."""
+import os
+import pty
+import re
 import subprocess
+import sys
 
 import pytest
 
@@ -106,3 +111,67 @@ def test_a_near_miss_is_named(tmp_path):
     res = subprocess.run([RBX, "simulate", "x.yaml", "--colisions", "9"], cwd=tmp_path, capture_output=True,
                          text=True, timeout=300)
     assert "did you mean --collisions" in res.stderr, res.stderr
+
+
+# ---- progress and summary ---------------------------------------------------------------------------------------
+
+#: ``python -c`` running the CLI with small blocks and a progress bar that may appear at once (delay 0), so that a
+#: short run calls it many times
+PROGRESS_AT_ONCE = ("import sys, rbx.simulation as s, rbx.cli.common as c; s.BLOCK_WORK = 3000\n"
+                    "init = c.Progress.__init__\n"
+                    "def at_once(self, *a, **k):\n"
+                    "    init(self, *a, **k); self.delay = 0\n"
+                    "c.Progress.__init__ = at_once\n"
+                    "from rbx.cli.main import main; sys.argv[0] = 'rbx'; main()")
+
+SUMMARY = re.compile(r"rbx: wrote run\.h5: 3 trajectories × 20000 collisions in [0-9.]+ (s|min)[^\n]*setting up\)")
+
+
+def progress_config(folder):
+    from tests.test_interrupt import strip_random, write_config
+    write_config(folder, strip_random(20_000, trajectories=3, every=7, record=("time", "position")))
+
+
+def test_a_redirected_run_logs_no_progress_bar_and_one_summary_line(tmp_path):
+    """stderr to a file (a batch job's log): no progress bar at all (it wrote a \\r line per update: the run here
+    updates it dozens of times), and the run ends with its one summary line; --quiet leaves that out too."""
+    progress_config(tmp_path)
+    with open(tmp_path / "log", "w") as log:
+        res = subprocess.run([sys.executable, "-c", PROGRESS_AT_ONCE, "simulate", "exp.yaml", "-o", "run.h5"],
+                             cwd=tmp_path, stdout=subprocess.PIPE, stderr=log, text=True, timeout=900)
+    text = (tmp_path / "log").read_text()
+    assert res.returncode == 0, text
+    assert "\r" not in text and "collisions/s" not in text, text
+    assert SUMMARY.fullmatch(text.rstrip("\n")) and text.count("\n") == 1, text
+    assert res.stdout == ""
+    res = subprocess.run([RBX, "simulate", "exp.yaml", "-o", "run.h5", "--force", "--quiet"], cwd=tmp_path,
+                         capture_output=True, text=True, timeout=900)
+    assert res.returncode == 0 and res.stderr == "" and res.stdout == "", res.stderr
+
+
+def test_on_a_terminal_the_progress_bar_shows_rate_and_time_left(tmp_path):
+    """stderr a terminal (a pseudo-terminal here): the bar, redrawn in place, with the collisions per second and
+    the time left, then the summary on its own line."""
+    progress_config(tmp_path)
+    leader, follower = pty.openpty()
+    try:
+        proc = subprocess.Popen([sys.executable, "-c", PROGRESS_AT_ONCE, "simulate", "exp.yaml", "-o", "run.h5"],
+                                cwd=tmp_path, stdout=subprocess.DEVNULL, stderr=follower)
+        os.close(follower)
+        chunks = []
+        while True:
+            try:
+                chunk = os.read(leader, 4096)
+            except OSError:         # the terminal's other end closed: the process ended
+                break
+            if not chunk:
+                break
+            chunks.append(chunk)
+        assert proc.wait(timeout=900) == 0
+    finally:
+        os.close(leader)
+    text = b"".join(chunks).decode().replace("\r\n", "\n")
+    bars = [part for part in text.split("\r") if part.startswith("simulate [")]
+    assert bars, text
+    assert re.search(r"\d+(\.\d+)?( [kMG])? collisions/s .* eta [0-9]", bars[-1]) and "100.0%" in bars[-1], bars[-1]
+    assert SUMMARY.fullmatch(text.rsplit("\n", 2)[-2]), text

@@ -7,11 +7,13 @@ recorded collisions the flight is free, so the centre is a + v·(t − tᵢ) and
 Pillow (no system package); MP4 with ffmpeg when it is installed.
 """
 import os
+import time
 
 import click
 import numpy as np
 
-from .common import Command, UserError, interrupted_exit, report_and_exit, user_errors
+from .common import (Command, UserError, display_path, duration, interrupted_exit, quiet_option, report_and_exit,
+                     summary, user_errors)
 
 NEEDED = ("time", "position", "velocity", "orientation")
 
@@ -27,17 +29,20 @@ NEEDED = ("time", "position", "velocity", "orientation")
 @click.option("--frames", default=200, show_default=True, type=click.IntRange(2, 20000),
               help="Number of frames, evenly spaced in time over the records.")
 @click.option("--dpi", default=80, show_default=True, type=click.IntRange(20, 600), help="Resolution of a frame.")
+@quiet_option
 @click.option("--debug", is_flag=True, help="Show a traceback with user errors.")
-def animate(run_file, out, trajectory, records, fps, frames, dpi, debug):
+def animate(run_file, out, trajectory, records, fps, frames, dpi, quiet, debug):
     """Animate the ball of a 2D run RUN.h5 (written by rbx simulate with time, position, velocity and orientation
     recorded at every collision) moving in its table."""
+    began = time.perf_counter()
     try:
         path = write_animation(run_file, out, trajectory, records, fps, frames, dpi)
     except UserError as exc:
         report_and_exit(exc, debug)
     except KeyboardInterrupt:
         interrupted_exit()
-    click.echo(f"wrote {path}: {frames} frames at {fps} fps")
+    summary(quiet, f"wrote {display_path(path)}: {frames} frames at {fps} fps in "
+                   f"{duration(time.perf_counter() - began)}")
 
 
 #: without --records, at most this many collisions are animated (a long run would flash past)

@@ -1,10 +1,11 @@
 """``rbx histogram CONFIG``: the invariant-measure experiment (paper §2.7, SPEC §4)."""
 import os
+import time
 
 import click
 
-from .common import (Command, Progress, UserError, check_cluster_options, check_memory, connect, interrupted_exit,
-                     report_and_exit)
+from .common import (Command, Progress, UserError, check_cluster_options, check_memory, connect, display_path,
+                     duration, interrupted_exit, quiet_option, report_and_exit, summary)
 
 
 @click.command(cls=Command)
@@ -21,7 +22,7 @@ from .common import (Command, Progress, UserError, check_cluster_options, check_
               help="With --scheduler: tasks per round (default: 4 per worker thread).")
 @click.option("--task-collisions", "task_collisions", type=click.IntRange(min=1), metavar="N",
               help="With --scheduler: collisions one task makes.")
-@click.option("--quiet", is_flag=True, help="No progress bar.")
+@quiet_option
 @click.option("--debug", is_flag=True, help="Show a traceback with user errors.")
 def histogram(config, out, trajectories, seed, force, scheduler, slices, task_collisions, quiet, debug):
     """Test the invariance of the billiard measure (paper §2.7): return angles against cos φ·sin^(d−2) φ.
@@ -31,15 +32,16 @@ def histogram(config, out, trajectories, seed, force, scheduler, slices, task_co
     angles to returns/angle in output.path, prints the Kolmogorov–Smirnov statistic and p-value and draws the
     histogram against the predicted density."""
     cluster = {"scheduler": scheduler, "slices": slices, "task_collisions": task_collisions}
+    began = time.perf_counter()
     try:
-        _histogram(config, out, trajectories, seed, force, quiet, cluster)
+        _histogram(config, out, trajectories, seed, force, quiet, cluster, began)
     except UserError as exc:
         report_and_exit(exc, debug)
     except KeyboardInterrupt:
         interrupted_exit()
 
 
-def _histogram(config, out, trajectories, seed, force, quiet, cluster):
+def _histogram(config, out, trajectories, seed, force, quiet, cluster, began):
     from .. import config as cfgmod
     from .. import plotting
     from ..analysis import scene_title
@@ -67,7 +69,7 @@ def _histogram(config, out, trajectories, seed, force, quiet, cluster):
             raise UserError(p, None, "exists; use --force to overwrite it")
 
     with connect(cluster) as on:
-        progress = Progress("histogram", quiet=quiet)
+        progress = Progress("histogram", quiet=quiet, trajectories=cfg.run.trajectories)
         try:
             result = return_experiment(cfg, progress=progress, cluster=on)
         except ClusterError as exc:     # the cluster failed mid-run: not the user's input, exit 1
@@ -104,4 +106,5 @@ def _histogram(config, out, trajectories, seed, force, quiet, cluster):
     else:
         click.echo(f"Kolmogorov–Smirnov against the law of the billiard measure (density {plotting.density_name(d)}, "
                    f"d = {d}): D = {result.ks_statistic:.4g}, p = {result.ks_pvalue:.4g}")
-    click.echo(f"wrote {h5_path} (returns/angle) and {fig_path}")
+    summary(quiet, f"wrote {display_path(h5_path)} (returns/angle) and {display_path(fig_path)}: {result.samples} "
+                   f"samples in {duration(time.perf_counter() - began)}")

@@ -1,10 +1,11 @@
 """``rbx lyapunov CONFIG``: the Lyapunov spectrum of the flow (SPEC §10; docs/tangent-map.md)."""
 import json
+import time
 
 import click
 
-from .common import (Command, UserError, check_cluster_options, connect, interrupted_exit, report_and_exit,
-                     user_errors)
+from .common import (Command, UserError, check_cluster_options, connect, duration, interrupted_exit, quiet_option,
+                     report_and_exit, summary, user_errors)
 
 
 @click.command(cls=Command)
@@ -22,23 +23,27 @@ from .common import (Command, UserError, check_cluster_options, connect, interru
                    "(tcp://HOST:PORT) or scheduler file (docs/cluster.md). Same results as a local run.")
 @click.option("--slices", type=click.IntRange(min=1), metavar="N",
               help="With --scheduler: tasks, each a slice of the trajectories (default: 4 per worker thread).")
+@quiet_option
 @click.option("--debug", is_flag=True, help="Show a traceback with user errors.")
-def lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json, scheduler, slices, debug):
+def lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json, scheduler, slices, quiet, debug):
     """The Lyapunov spectrum of the flow, per unit time, largest first, with standard errors.
 
     Benettin's method on the linearised dynamics (free flight, collision time, collision map with the wall's
     curvature and the spin), along each of run.trajectories trajectories of CONFIG for run.collisions collisions.
     Coordinates: position, R√κ·orientation, velocity, R√κ·spin (6 exponents in 2D, 12 in 3D)."""
     cluster = {"scheduler": scheduler, "slices": slices, "task_collisions": None}
+    began = time.perf_counter()
     try:
-        _lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json, cluster)
+        _lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json, cluster, quiet or as_json, began)
     except UserError as exc:
         report_and_exit(exc, debug)
     except KeyboardInterrupt:
         interrupted_exit()
 
 
-def _lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json, cluster):
+def _lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json, cluster, quiet, began):
+    """``quiet``: no summary line (nor with --json: its output is the JSON object alone, for programs that read
+    both streams)."""
     from .. import api
     from ..cluster import ClusterError
     from ..dynamics import lyapunov as spectrum
@@ -62,6 +67,8 @@ def _lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json,
         except ClusterError as exc:     # the cluster failed mid-run: not the user's input, exit 1
             click.echo(f"rbx: {exc}; nothing computed", err=True)
             raise SystemExit(1) from None
+    said = (f"lyapunov: {len(result.time)} trajectories × {exp.run.collisions} collisions in "
+            f"{duration(time.perf_counter() - began)}")
     if as_json:
         click.echo(json.dumps(result.to_dict()))
         return
@@ -73,3 +80,4 @@ def _lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json,
     click.echo(f"  sum = {result.exponents.sum(): .3e}")
     if result.ended is not None and result.ended.any():
         click.echo(f"{int(result.ended.sum())} trajectories left the table (an exit or an escape) before the end")
+    summary(quiet, said)

@@ -1,11 +1,13 @@
 """``rbx plot OUT.h5 --kind K``: pictures from a run (SPEC §4). Reads the file, picks records and trajectories,
 computes with :mod:`rbx.analysis` and draws with :mod:`rbx.plotting`; never simulates."""
 import os
+import time
 
 import click
 import numpy as np
 
-from .common import Command, UserError, interrupted_exit, report_and_exit, user_errors
+from .common import (Command, UserError, display_path, duration, interrupted_exit, quiet_option, report_and_exit,
+                     summary, user_errors)
 
 #: the plot kinds (``--kind``); kind K is drawn by the function ``_K`` below
 KINDS = ("orbit", "orbit3d", "phase", "series", "diffusion", "escape", "birkhoff", "poincare")
@@ -46,12 +48,15 @@ DEFAULT_TRAJECTORIES = {"orbit": 10, "orbit3d": 10, "phase": 20, "series": 1, "d
               help="poincare: the section plane, z=0.5 (or x=, y=) or n=NX,NY,NZ;c=C for n·x = C.")
 @click.option("--dpi", default=150, show_default=True, type=click.IntRange(10, 1200),
               help="Resolution of raster figures (10 to 1200; 100 000 used to exhaust the memory).")
+@quiet_option
 @click.option("--debug", is_flag=True, help="Show a traceback with user errors.")
-def plot(run_file, kind, out, records, trajectories, colour, coordinate, scales, fit_from, wall, plane, dpi, debug):
+def plot(run_file, kind, out, records, trajectories, colour, coordinate, scales, fit_from, wall, plane, dpi, quiet,
+         debug):
     """Draw a picture of the run OUT.h5 (written by rbx simulate).
 
     escape: the survival function of escape or return times (walls with the rule exit) with the fitted rate;
     birkhoff: the boundary map of a 2D run coloured by the spin; poincare: a 3D run's section by a plane."""
+    began = time.perf_counter()
     try:
         path = _plot(run_file, kind, out, records, trajectories, colour, coordinate, scales, fit_from, dpi,
                      wall=wall, plane=plane)
@@ -59,7 +64,8 @@ def plot(run_file, kind, out, records, trajectories, colour, coordinate, scales,
         report_and_exit(exc, debug)
     except KeyboardInterrupt:
         interrupted_exit()
-    click.echo(f"wrote {path}")
+    summary(quiet, f"wrote {display_path(path)}: {kind} of {display_path(run_file)} in "
+                   f"{duration(time.perf_counter() - began)}")
 
 
 def _plot(run_file, kind, out, records, trajectories, colour, coordinate, scales, fit_from, dpi, wall=None,

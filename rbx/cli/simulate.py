@@ -11,12 +11,13 @@ requested length and writes the same records as an uninterrupted run.
 import errno
 import os
 import signal
+import time
 import weakref
 
 import click
 
 from .common import (Command, Progress, UserError, check_cluster_options, check_memory, connect, display_path,
-                     report_and_exit, user_errors)
+                     duration, quiet_option, report_and_exit, summary, user_errors)
 
 OVERRIDES = ("collisions", "trajectories", "seed")
 
@@ -39,13 +40,14 @@ OVERRIDES = ("collisions", "trajectories", "seed")
               help="With --scheduler: tasks per round (default: 4 per worker thread).")
 @click.option("--task-collisions", "task_collisions", type=click.IntRange(min=1), metavar="N",
               help="With --scheduler: collisions one task makes (default: 2e8, fewer for tables of many walls).")
-@click.option("--quiet", is_flag=True, help="No progress bar.")
+@quiet_option
 @click.option("--debug", is_flag=True, help="Show a traceback with user errors.")
 def simulate(config, out, collisions, trajectories, seed, max_size, resume, force, scheduler, slices, task_collisions,
              quiet, debug):
     """Run the experiment CONFIG (YAML) and write its trajectories to HDF5."""
     from ..api import StopFlag
 
+    began = time.perf_counter()
     stop = StopFlag()
     overrides = {"collisions": collisions, "trajectories": trajectories, "seed": seed, "max_size": max_size}
     cluster = {"scheduler": scheduler, "slices": slices, "task_collisions": task_collisions}
@@ -55,9 +57,9 @@ def simulate(config, out, collisions, trajectories, seed, max_size, resume, forc
             with user_errors():
                 check_cluster_options(cluster)
                 if resume is not None:
-                    code = _resume(config, resume, out, overrides, force, quiet, stop, cluster)
+                    code = _resume(config, resume, out, overrides, force, quiet, stop, cluster, began)
                 else:
-                    code = _simulate(config, out, overrides, force, quiet, stop, cluster)
+                    code = _simulate(config, out, overrides, force, quiet, stop, cluster, began)
         except UserError as exc:
             report_and_exit(exc, debug)
         except KeyboardInterrupt:   # raised by StopFlag only while setting up, before any file is written
@@ -68,7 +70,7 @@ def simulate(config, out, collisions, trajectories, seed, max_size, resume, forc
         raise SystemExit(code)
 
 
-def _simulate(config, out, overrides, force, quiet, stop, cluster):
+def _simulate(config, out, overrides, force, quiet, stop, cluster, began):
     from .. import config as cfgmod
     from ..api import check_target, compile_kernels, run_to_file
     from ..simulation import Simulation
@@ -98,10 +100,10 @@ def _simulate(config, out, overrides, force, quiet, stop, cluster):
         compile_kernels(sim)
         if stop.start_running():
             raise KeyboardInterrupt
-        return _execute(sim, path, stop, quiet, 0, lambda **how: run_to_file(sim, path, force=force, **how))
+        return _execute(sim, path, stop, quiet, 0, lambda **how: run_to_file(sim, path, force=force, **how), began)
 
 
-def _resume(config, run_file, out, overrides, force, quiet, stop, cluster):
+def _resume(config, run_file, out, overrides, force, quiet, stop, cluster, began):
     from ..api import check_target, compile_kernels
     from ..resume import load, version_note
     from ..runfile import Run, acquire_lock, lock_path, release_lock, temporary_path
@@ -147,7 +149,7 @@ def _resume(config, run_file, out, overrides, force, quiet, stop, cluster):
         compile_kernels(sim)
         if stop.start_running():
             raise KeyboardInterrupt
-        return _continue(sim, source, path, tmp, in_place, force, quiet, stop, write_initial, done, run_file)
+        return _continue(sim, source, path, tmp, in_place, force, quiet, stop, write_initial, done, run_file, began)
 
 
 def _rename_complete(run_file, source, path, out, force):
@@ -163,7 +165,7 @@ def _rename_complete(run_file, source, path, out, force):
     return 0
 
 
-def _continue(sim, source, path, tmp, in_place, force, quiet, stop, write_initial, done, run_file):
+def _continue(sim, source, path, tmp, in_place, force, quiet, stop, write_initial, done, run_file, began):
     """The running part of --resume: a copy (or the .partial itself) made consistent, then streamed."""
     import shutil
 
@@ -194,12 +196,14 @@ def _continue(sim, source, path, tmp, in_place, force, quiet, stop, write_initia
         raise
     return _execute(sim, path, stop, quiet, done, lambda **how: stream(sim, h5, tmp, path, fresh=False,
                                                                        write_initial=write_initial,
-                                                                       replace=force or path == source, **how))
+                                                                       replace=force or path == source, **how),
+                    began)
 
 
-def _execute(sim, path, stop, quiet, done, start):
+def _execute(sim, path, stop, quiet, done, start, began):
     """Run ``sim`` into ``path`` with ``start(progress=, should_stop=, report=)`` (:func:`rbx.api.run_to_file`
-    for a new run, :func:`rbx.runfile.stream` for a resumed one: the same code as the API) -> exit code.
+    for a new run, :func:`rbx.runfile.stream` for a resumed one: the same code as the API) -> exit code. A run
+    that finished ends with the summary line (unless ``quiet``); ``began``: when the command started.
 
     The file is renamed from ``.partial`` to ``path`` however the run ends (complete, interrupted, or an
     unexpected error), so ``path`` always holds every record computed so far, and ``complete`` says whether that
@@ -208,7 +212,7 @@ def _execute(sim, path, stop, quiet, done, start):
     from ..runfile import DiskFull, temporary_path
     from ..simulation import NonFiniteState
 
-    progress = Progress("simulate", quiet=quiet, start=done)
+    progress = Progress("simulate", quiet=quiet, start=done, trajectories=sim.M)
     complete = False
     failure = None
     try:
@@ -241,6 +245,11 @@ def _execute(sim, path, stop, quiet, done, start):
                    f"{sim.cfg.run.collisions} collisions; the file holds every record so far (complete = false). "
                    f"Continue with: rbx simulate --resume {display_path(where)}", err=True)
         return 128 + stop.signum
+    ran = time.perf_counter() - progress.start
+    N = sim.cfg.run.collisions
+    summary(quiet, f"wrote {display_path(path)}: {sim.M} trajector{'y' if sim.M == 1 else 'ies'} × {N} collisions"
+                   + (f" (resumed at {done})" if done else "") + f" in {duration(ran)} "
+                   f"({duration(progress.start - began)} setting up)")
     return 0
 
 
