@@ -175,3 +175,21 @@ def test_on_a_terminal_the_progress_bar_shows_rate_and_time_left(tmp_path):
     assert bars, text
     assert re.search(r"\d+(\.\d+)?( [kMG])? collisions/s .* eta [0-9]", bars[-1]) and "100.0%" in bars[-1], bars[-1]
     assert SUMMARY.fullmatch(text.rsplit("\n", 2)[-2]), text
+
+
+def test_the_bar_is_drawn_on_terminals_and_notebooks_only():
+    """A captured stream gets nothing; a Jupyter notebook's stderr (rbx.simulate(progress=True)) is drawn on, as it
+    shows \\r updates in place."""
+    import io
+
+    from rbx.cli.common import Progress
+
+    class OutStream(io.StringIO):      # what ipykernel puts in sys.stderr
+        pass
+    OutStream.__module__ = "ipykernel.iostream"
+    for stream, drawn in ((io.StringIO(), False), (OutStream(), True)):
+        bar = Progress("simulate", delay=0, stream=stream, trajectories=3)
+        bar(5, 10)
+        bar(10, 10)
+        bar.close()
+        assert ("\r" in stream.getvalue() and "eta" in stream.getvalue()) == drawn, stream.getvalue()

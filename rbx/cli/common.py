@@ -201,7 +201,10 @@ def _quiet_dask():
 # ---- progress -----------------------------------------------------------------------------------------------
 
 def is_terminal(stream):
-    """True if ``stream`` is a terminal (a redirected or captured stream is not)."""
+    """True if ``stream`` is a terminal (a redirected or captured stream is not), or a Jupyter notebook's stderr
+    (``rbx.simulate(progress=True)`` there: it draws ``\r`` updates in place, as a terminal does)."""
+    if type(stream).__module__.startswith("ipykernel."):
+        return True
     try:
         return bool(stream.isatty())
     except (AttributeError, ValueError, OSError):   # no isatty, or closed
