@@ -21,8 +21,8 @@ import numpy as np
 import yaml
 
 from . import tables
-from .model import (DEFAULT_MAX_SIZE, RECORD_FIELDS, Ball, ConfigError, Constant, Exit, Experiment, Hemisphere,
-                    Numerics, Output, Random, RunSettings)
+from .model import (COMPRESSIONS, DEFAULT_MAX_SIZE, RECORD_FIELDS, Ball, ConfigError, Constant, Exit, Experiment,
+                    Hemisphere, Numerics, Output, Random, RunSettings)
 from .physics import kappa_of
 
 SECTIONS = ("table", "boundary", "ball", "initial", "run", "output", "numerics")
@@ -352,9 +352,7 @@ def _from_dict(data, source, overrides):
     resolved["run"] = {"collisions": collisions, "trajectories": trajectories, "seed": seed}
 
     output = _output(_section(data, "output"), base, c, overrides)
-    resolved["output"] = {"path": output.path, "record": list(output.record), "every": output.every}
-    if output.max_size != DEFAULT_MAX_SIZE:   # stored only when given, as numerics
-        resolved["output"]["max_size"] = output.max_size
+    resolved["output"] = output.resolved()
 
     numerics = _numerics(_section(data, "numerics"), c)
     if "numerics" in data:   # stored only when given, so that files of runs without it read the same as before
@@ -481,7 +479,7 @@ def _boundary(value, base, c, n, geom, kind):
 
 
 def _output(out, base, c, overrides):
-    c.mapping(out, "output", ("path", "record", "every", "max_size"))
+    c.mapping(out, "output", ("path", "record", "every", "max_size", "compression"))
     opath = out.get("path")
     if opath is not None:
         if not isinstance(opath, str) or not opath.strip():
@@ -505,7 +503,29 @@ def _output(out, base, c, overrides):
         max_size = parse_size(overrides["max_size"], _Checker(None), OVERRIDE_OPTIONS["max_size"])
     else:
         max_size = parse_size(out.get("max_size", DEFAULT_MAX_SIZE), c, "output.max_size")
-    return Output(opath, record, every, max_size)
+    return Output(opath, record, every, max_size, _compression(out.get("compression", "none"), c))
+
+
+def _compression(value, c):
+    """``output.compression``: ``none``, ``lzf``, ``gzip`` or ``gzip:LEVEL`` (0-9) -> its normal form (``none``,
+    ``lzf``, ``gzip:LEVEL``; plain ``gzip`` is level 4, h5py's default)."""
+    key = "output.compression"
+    if not isinstance(value, str):
+        c.fail(key, f"expected one of {', '.join(COMPRESSIONS)} (gzip with a level: gzip:0 … gzip:9), got "
+                    f"{_kind(value)}")
+    name, colon, level = value.strip().lower().partition(":")
+    if name not in COMPRESSIONS:
+        c.fail(key, f"unknown compression {value!r}" + _hint(name, COMPRESSIONS, "one of")
+               + "; gzip takes a level: gzip:0 … gzip:9")
+    if name != "gzip":
+        if colon:
+            c.fail(key, f"{name} takes no level, got {value!r}")
+        return name
+    if not colon:
+        return "gzip:4"
+    if not re.fullmatch(r"[0-9]", level.strip()):
+        c.fail(key, f"the gzip level must be a whole number from 0 to 9, got {level.strip()!r}")
+    return f"gzip:{int(level)}"
 
 
 def parse_size(value, c, key):

@@ -107,14 +107,30 @@ class RunSettings:
 DEFAULT_MAX_SIZE = 10 * 2**30
 
 
+#: the values of ``output.compression`` (``gzip`` takes a level: ``gzip:0`` … ``gzip:9``, ``gzip`` is ``gzip:4``)
+COMPRESSIONS = ("none", "gzip", "lzf")
+
+
 @dataclass(frozen=True)
 class Output:
     """Where the run goes (None: nowhere given), which fields are recorded (in :data:`FIELDS` order), every k-th,
-    and the largest file (bytes) the run may write: a larger estimate is refused before anything is written."""
+    the largest file (bytes) the run may write (a larger estimate is refused before anything is written), and
+    the compression of the record datasets (``none``, ``lzf``, ``gzip:LEVEL``; docs/runfile.md measures them)."""
     path: str | None
     record: tuple
     every: int
     max_size: float = DEFAULT_MAX_SIZE
+    compression: str = "none"
+
+    def resolved(self):
+        """The ``output`` section as stored in a run file's config (``max_size`` and ``compression`` only when
+        not the default, so that files of runs without them read the same as before) -> dict."""
+        out = {"path": self.path, "record": list(self.record), "every": self.every}
+        if self.max_size != DEFAULT_MAX_SIZE:
+            out["max_size"] = self.max_size
+        if self.compression != "none":
+            out["compression"] = self.compression
+        return out
 
 
 #: default period (in collisions) of the projection onto the initial energy in rough scenes (docs/accuracy.md)
@@ -167,8 +183,7 @@ class Experiment:
             if "run" in changes:
                 resolved["run"] = dataclasses.asdict(new.run)
             if "output" in changes:
-                resolved["output"] = {"path": new.output.path, "record": list(new.output.record),
-                                      "every": new.output.every}
+                resolved["output"] = new.output.resolved()
             if "numerics" in changes:
                 resolved["numerics"] = dataclasses.asdict(new.numerics)
             object.__setattr__(new, "resolved", resolved)

@@ -2,13 +2,13 @@
 
 Writing: the root attributes (:data:`ROOT_ATTRS`, one list for run files and return-angle files), the
 ``collisions/`` datasets made from :data:`rbx.model.FIELDS` (each with its ``units`` and ``description`` as dataset
-attributes), the streaming writer :class:`H5Sink`, the checkpoint digest (:func:`state_digest`), the
-``OUT.h5.partial`` → ``OUT.h5`` lifecycle (:func:`check_target`, :func:`create`, :func:`stream`) and the
-``returns/`` group of ``rbx histogram`` (:func:`write_returns`). Reading: one class, :class:`Run`, for ``rbx plot``,
-``rbx simulate --resume``, the figure scripts and the Python API (:func:`rbx.open`), and the same class holds a run
-made in memory (:func:`rbx.simulate` without ``output``); :func:`read_returns` reads ``returns/``. A file that is
-not what the caller needs raises :class:`FileError` (``<file>: <key>: <problem>``; the CLI prints it as one line
-and exits 2).
+attributes, compressed as ``output.compression`` says: :func:`compression_options`), the streaming writer
+:class:`H5Sink`, the checkpoint digest (:func:`state_digest`), the ``OUT.h5.partial`` → ``OUT.h5`` lifecycle
+(:func:`check_target`, :func:`create`, :func:`stream`) and the ``returns/`` group of ``rbx histogram``
+(:func:`write_returns`). Reading: one class, :class:`Run`, for ``rbx plot``, ``rbx simulate --resume``, the figure
+scripts and the Python API (:func:`rbx.open`), and the same class holds a run made in memory (:func:`rbx.simulate`
+without ``output``); :func:`read_returns` reads ``returns/``. A file that is not what the caller needs raises
+:class:`FileError` (``<file>: <key>: <problem>``; the CLI prints it as one line and exits 2).
 
 Layout (T trajectories, N records; trajectory axis first):
 
@@ -123,6 +123,18 @@ def write_root_attrs(h5, cfg, complete):
         h5.attrs[k] = np.array(v, dtype=h5py.string_dtype()) if k == "wall_names" else v
 
 
+def compression_options(compression):
+    """``output.compression`` (``none``, ``lzf``, ``gzip:LEVEL``) -> keyword arguments of h5py's
+    ``create_dataset``. Compressed datasets are byte-shuffled first (the bytes of a float by significance:
+    the exponents and high bytes of neighbouring records compress, the low bytes do not)."""
+    name, _, level = compression.partition(":")
+    if name == "none":
+        return {}
+    if name == "gzip":
+        return {"compression": "gzip", "compression_opts": int(level or 4), "shuffle": True}
+    return {"compression": name, "shuffle": True}
+
+
 class H5Sink:
     """Streams the records of a :class:`rbx.simulation.Simulation` into an open HDF5 file (``fresh``: a new file,
     whose attributes and datasets are created here; else a file being resumed)."""
@@ -135,6 +147,7 @@ class H5Sink:
         if fresh:
             write_root_attrs(h5, cfg, complete=False)
             g = h5.create_group("collisions")
+            filters = compression_options(cfg.output.compression)
             for name in cfg.output.record:
                 f = FIELD[name]
                 tail = f.shape(n)
@@ -147,7 +160,7 @@ class H5Sink:
                 # fletcher32: a checksum per chunk, checked on every read, so that changed bytes on disk are an
                 # error rather than silently different numbers
                 ds = g.create_dataset(name, shape=(M, 0) + tail, maxshape=(M, None) + tail, dtype=f.dtype,
-                                      chunks=(tchunk, rchunk) + tail, fillvalue=f.fill, fletcher32=True)
+                                      chunks=(tchunk, rchunk) + tail, fillvalue=f.fill, fletcher32=True, **filters)
                 ds.attrs["units"], ds.attrs["description"] = f.units, f.description
             g.create_dataset("count", data=np.zeros(M, np.int64))
             g.create_dataset("step", shape=(0,), maxshape=(None,), dtype=np.int64, chunks=(4096,))
