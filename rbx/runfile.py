@@ -3,12 +3,13 @@
 Writing: the root attributes (:data:`ROOT_ATTRS`, one list for run files and return-angle files), the
 ``collisions/`` datasets made from :data:`rbx.model.FIELDS` (each with its ``units`` and ``description`` as dataset
 attributes, compressed as ``output.compression`` says: :func:`compression_options`), the streaming writer
-:class:`H5Sink`, the checkpoint digest (:func:`state_digest`), the ``OUT.h5.partial`` → ``OUT.h5`` lifecycle
-(:func:`check_target`, :func:`create`, :func:`stream`) and the ``returns/`` group of ``rbx histogram``
-(:func:`write_returns`). Reading: one class, :class:`Run`, for ``rbx plot``, ``rbx simulate --resume``, the figure
-scripts and the Python API (:func:`rbx.open`), and the same class holds a run made in memory (:func:`rbx.simulate`
-without ``output``); :func:`read_returns` reads ``returns/``. A file that is not what the caller needs raises
-:class:`FileError` (``<file>: <key>: <problem>``; the CLI prints it as one line and exits 2).
+:class:`H5Sink`, the checkpoint digest (:func:`state_digest`), the ``OUT.h5.partial.new`` → ``OUT.h5.partial`` →
+``OUT.h5`` lifecycle (:func:`check_target`, :func:`create`, :func:`publish_new`, :func:`stream`) and the
+``returns/`` group of ``rbx histogram`` (:func:`write_returns`). Reading: one class, :class:`Run`, for ``rbx plot``,
+``rbx simulate --resume``, the figure scripts and the Python API (:func:`rbx.open`), and the same class holds a run
+made in memory (:func:`rbx.simulate` without ``output``); :func:`read_returns` reads ``returns/``. A file that is
+not what the caller needs raises :class:`FileError` (``<file>: <key>: <problem>``; the CLI prints it as one line
+and exits 2).
 
 Layout (T trajectories, N records; trajectory axis first):
 
@@ -374,6 +375,13 @@ def temporary_path(path):
     return f"{path}.partial"
 
 
+def creation_path(path):
+    """Where a new run's file is made, before its structure is complete: ``OUT.h5.partial.new``, renamed to
+    ``OUT.h5.partial`` once the structure is on disk (:func:`stream`), so that a ``.partial`` is never a torn
+    HDF5 file. A leftover one (a run killed in its first milliseconds) holds no records: the next run removes it."""
+    return f"{temporary_path(path)}.new"
+
+
 def check_target(path, force, key, file=None, config_source=None, partial_ok=False, force_hint="--force"):
     """Refuse to write ``path`` when it is a folder, the config or a file it includes (``config_source``: the
     config's path, or a sequence of it and its includes), or (without ``force``) when it exists or
@@ -399,27 +407,35 @@ def check_target(path, force, key, file=None, config_source=None, partial_ok=Fal
 
 
 def create(path, force=False):
-    """Open ``path.partial`` for a new run (folders made as needed) -> ``h5py.File``. OSError if it cannot.
+    """Open a new file for a new run (folders made as needed) -> ``h5py.File`` at :func:`creation_path`
+    (``OUT.h5.partial.new``), which :func:`stream` renames to ``OUT.h5.partial`` once the run's structure is
+    written and on disk (:func:`publish_new`). OSError if it cannot.
 
-    The run's lock (:func:`acquire_lock`, ``OUT.h5.lock``) is taken first and held until :func:`stream` ends; the
-    ``.partial`` is created exclusively too (O_EXCL, not HDF5's file locking, which is often off on shared file
-    systems): of two runs started on one output, the second fails here instead of both writing one file. With
-    ``force`` a leftover ``.partial`` is removed first (never one a live run holds the lock of)."""
+    The run's lock (:func:`acquire_lock`, ``OUT.h5.lock``) is taken first and held until :func:`stream` ends; a
+    ``.partial`` that exists is refused (and its rename later does not replace one that appeared meanwhile):
+    of two runs started on one output, the second fails here instead of both writing one file. With ``force`` a
+    leftover ``.partial`` is removed first (never one a live run holds the lock of). A leftover ``.partial.new``
+    is removed when no run holds the lock (a killed run's: it holds no records); the ``.partial.new`` of a run
+    of this same process (which holds the lock already) is created exclusively, so the second fails."""
     import h5py
     os.makedirs(os.path.dirname(os.path.abspath(path)) or ".", exist_ok=True)
-    tmp = temporary_path(path)
-    acquire_lock(path)          # first: --force must not remove the .partial of a run still writing it
+    tmp, new = temporary_path(path), creation_path(path)
+    lock = acquire_lock(path)   # first: --force must not remove the .partial of a run still writing it
     try:
         if force and os.path.exists(tmp):
             os.remove(tmp)
-        h5 = h5py.File(tmp, "w-")
-        h5.flush()                # an empty but valid HDF5 file until the run's skeleton is flushed
-        return h5
+        if os.path.exists(tmp):
+            raise FileExistsError(tmp)
+        if _HELD.get(lock) == 1:      # the lock was free: no live run is making this file
+            with contextlib.suppress(FileNotFoundError):
+                os.remove(new)
+        return h5py.File(new, "w-")
     except (FileExistsError, OSError) as exc:
         release_lock(path)
-        if os.path.exists(tmp):
-            raise FileError(tmp, None, "exists: another run is writing it (or was killed); remove it or use "
-                                       "--force") from None
+        for busy in (tmp, new):
+            if os.path.exists(busy):
+                raise FileError(busy, None, "exists: another run is writing it (or was killed); remove it or use "
+                                            "--force") from None
         raise exc
     except BaseException:
         release_lock(path)
@@ -626,10 +642,46 @@ def _is_complete_run(path):
         return False
 
 
+def publish_new(h5, tmp):
+    """Rename a file made by :func:`create` (open as ``h5``, at ``tmp + '.new'``) to ``tmp`` once its structure is
+    written: flushed and fsynced first, so that ``tmp`` is a whole HDF5 file from the instant it exists (a kill
+    while HDF5 wrote the structure of a new ``.partial`` used to leave a torn file). Not over a ``tmp`` that
+    appeared meanwhile: :class:`FileError`. Nothing to do for any other file (a resumed one)."""
+    new = f"{tmp}.new"
+    if os.path.abspath(h5.filename) != os.path.abspath(new):
+        return
+    h5.flush()
+    with contextlib.suppress(Exception):   # another file driver: HDF5's flush is all there is
+        os.fsync(h5.id.get_vfd_handle())
+    try:
+        os.link(new, tmp)                  # atomic, and fails if tmp exists
+    except FileExistsError:
+        raise FileError(tmp, None, "appeared while this run was starting (another run?); remove it or use "
+                                   "--force") from None
+    except OSError:                        # a file system without hard links: check, then rename
+        if os.path.exists(tmp):
+            raise FileError(tmp, None, "appeared while this run was starting (another run?)") from None
+        os.replace(new, tmp)
+    else:
+        os.remove(new)
+    _fsync_folder(tmp)
+
+
+def _fsync_folder(path):
+    """Make a rename in ``path``'s folder durable (where the system allows opening a folder)."""
+    with contextlib.suppress(OSError):
+        fd = os.open(os.path.dirname(os.path.abspath(path)) or ".", os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
 def stream(sim, h5, tmp, path, *, fresh=True, progress=None, should_stop=None, write_initial=None, report=None,
            replace=False):
-    """Run ``sim`` into the open file ``h5`` (at ``tmp``), mark it complete or not, close it and rename it to
-    ``path`` -> True if the run finished (False: ``should_stop()`` said stop).
+    """Run ``sim`` into the open file ``h5`` (at ``tmp``, or made by :func:`create` and renamed to ``tmp`` once
+    its structure is written: :func:`publish_new`), mark it complete or not, close it and rename it to ``path``
+    -> True if the run finished (False: ``should_stop()`` said stop).
 
     The rename happens however the run ends (complete, interrupted, an error), so the records computed so far
     are in ``path`` and ``complete`` says whether that is all of them (SPEC §4), with two exceptions that keep
@@ -640,9 +692,12 @@ def stream(sim, h5, tmp, path, *, fresh=True, progress=None, should_stop=None, w
     finished one. A rename that fails is passed to ``report``. Errors writing (OSError) propagate."""
     complete = False
     sink = None
+    new = os.path.abspath(h5.filename) == os.path.abspath(f"{tmp}.new")
     try:
         with h5:
             sink = H5Sink(h5, sim.cfg, fresh=fresh)
+            publish_new(h5, tmp)
+            new = False
             try:
                 complete = sim.run(sink, progress=progress, should_stop=should_stop, write_initial=write_initial)
             finally:
@@ -652,9 +707,13 @@ def stream(sim, h5, tmp, path, *, fresh=True, progress=None, should_stop=None, w
         return complete
     finally:
         try:
-            if sink is not None and sink.reserved:
-                trim(tmp)
-            _publish(tmp, path, complete, replace, report)
+            if new:      # stopped before its structure was written: nothing worth keeping
+                with contextlib.suppress(OSError):
+                    os.remove(f"{tmp}.new")
+            else:
+                if sink is not None and sink.reserved:
+                    trim(tmp)
+                _publish(tmp, path, complete, replace, report)
         finally:
             # the run's lock (taken by create, or by rbx.resume.load for the file resumed), released last
             release_lock(path)
@@ -1065,7 +1124,7 @@ def _write_returns(path, cfg, result, names):
                   "ks_pvalue": result.ks_pvalue, "seconds": result.seconds}
         assert set(values) == set(RETURNS_ATTRS)
         g.attrs.update(values)
-    os.replace(temporary_path(path), path)
+    os.replace(creation_path(path), path)
 
 
 def read_returns(path):
