@@ -120,19 +120,26 @@ def _resume(config, run_file, out, overrides, force, quiet, stop, cluster, began
     path = os.path.abspath(out) if out else default
     tmp = temporary_path(path)
     in_place = tmp == source
-    run = Run.open(run_file)
-    if run.complete:
-        run.close()
-        if source.endswith(".partial"):     # killed after marking it complete, before renaming it
-            return _rename_complete(run_file, source, path, out, force)
-        click.echo(f"rbx: {display_path(run_file)}: the run is complete; nothing to resume", err=True)
-        return 0
-    note = version_note(run)
-    with run:
-        try:
-            sim, write_initial, done = load(run, run_file)
-        except MemoryError:
-            raise UserError(run_file, "run.trajectories", "the trajectories do not fit in the free memory") from None
+    # the source's lock before its file is read: a run still writing it is named in one line (reading a file that
+    # HDF5 is writing can fail as "damaged"); load takes the lock for itself, this hold ends once it has
+    acquire_lock(source)
+    try:
+        run = Run.open(run_file)
+        if run.complete:
+            run.close()
+            if source.endswith(".partial"):     # killed after marking it complete, before renaming it
+                return _rename_complete(run_file, source, path, out, force)
+            click.echo(f"rbx: {display_path(run_file)}: the run is complete; nothing to resume", err=True)
+            return 0
+        note = version_note(run)
+        with run:
+            try:
+                sim, write_initial, done = load(run, run_file)
+            except MemoryError:
+                raise UserError(run_file, "run.trajectories",
+                                "the trajectories do not fit in the free memory") from None
+    finally:
+        release_lock(source)
     if lock_path(path) != lock_path(source):
         # -o OTHER.h5: OTHER's own lock too (load took RUN's), held to the final rename like a new run's, so that
         # two resumes into one OTHER cannot write one OTHER.h5.partial (with --force the second truncated it)
