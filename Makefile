@@ -4,7 +4,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: test reproduce-figures bench stress clean
+.PHONY: test reproduce-figures bench stress gallery clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -54,6 +54,7 @@ $(BENCH_STAMP): $(STAMP)
 bench: $(BENCH_STAMP)
 	$(PY) scripts/bench.py
 	$(PY) scripts/accuracy.py
+	$(PY) scripts/bench_cluster.py --collisions 40000000 --output docs/benchmarks-cluster.md
 
 stress: $(STAMP)
 	$(PY) -m pytest -q -n 2 -m heavy tests

@@ -1,9 +1,10 @@
 """How fast rbx runs on a Dask cluster (docs/cluster.md): a scheduler and 1 or 2 workers started here on
 127.0.0.1, an ensemble of the random strip run on them and on the local thread pool, and the overhead of a task.
 
-    python scripts/bench_cluster.py [--trajectories M] [--collisions N] [--repeats K]
+    python scripts/bench_cluster.py [--trajectories M] [--collisions N] [--repeats K] [--output FILE]
 
-Prints a markdown table. Each timing is ``time.perf_counter`` around ``Simulation.run`` alone (connected, the
+Prints a markdown table (and writes it, with the machine and the command, to ``--output``: `make bench` writes
+docs/benchmarks-cluster.md). Each timing is ``time.perf_counter`` around ``Simulation.run`` alone (connected, the
 kernels compiled and loaded on the workers by a warm-up run), the median of ``--repeats`` runs; every cluster run
 is checked to end in the local run's final state, bit for bit. The workers get one kernel thread each
 (``NUMBA_NUM_THREADS=1``), the local pool ``numba.get_num_threads()`` threads.
@@ -89,6 +90,7 @@ def main():
     ap.add_argument("--trajectories", type=int, default=16)
     ap.add_argument("--collisions", type=int, default=4_000_000)
     ap.add_argument("--repeats", type=int, default=3)
+    ap.add_argument("--output", metavar="FILE", help="also write the table, the machine and the command here")
     args = ap.parse_args()
     exp = experiment(args.trajectories, args.collisions)
     total = args.trajectories * args.collisions
@@ -114,15 +116,26 @@ def main():
                             overhead = seconds / each.tasks_run, each.tasks_run
             finally:
                 dask.stop()
-    print(f"{args.trajectories} trajectories × {args.collisions} collisions of the random strip, record: [] "
-          f"({os.cpu_count()} cores; {os.getloadavg()[0]:.1f} load average)\n")
-    print("| where | seconds | M collisions/s | final state = local, bit for bit |\n|---|---|---|---|")
-    for label, seconds, same in rows:
-        print(f"| {label} | {seconds:.2f} | {total / seconds / 1e6:.1f} | {'—' if same is None else same} |")
     one, two = rows[1][1], rows[2][1]
-    print(f"\n2 workers / 1 worker: {one / two:.2f}×")
-    print(f"task overhead: {1e3 * overhead[0]:.1f} ms of wall time per task ({overhead[1]} tasks of 1 collision "
-          "per trajectory, 8 slices, 2 workers)")
+    lines = [f"{args.trajectories} trajectories × {args.collisions} collisions of the random strip, record: [] "
+             f"({os.cpu_count()} cores; {os.getloadavg()[0]:.1f} load average at the end)", "",
+             "| where | seconds (median of %d) | M collisions/s | final state = local, bit for bit |" % args.repeats,
+             "|---|---|---|---|"]
+    for label, seconds, same in rows:
+        lines.append(f"| {label} | {seconds:.2f} | {total / seconds / 1e6:.1f} | {'—' if same is None else same} |")
+    lines += ["", f"2 workers / 1 worker: {one / two:.2f}×",
+              f"task overhead: {1e3 * overhead[0]:.1f} ms of wall time per task ({overhead[1]} tasks of 1 collision "
+              "per trajectory, 8 slices, 2 workers)"]
+    print("\n".join(lines))
+    if args.output:
+        import platform
+        head = ["# rbx on a Dask cluster: measured", "",
+                f"Written by `{' '.join(['python'] + sys.argv)}` on {time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}; "
+                f"machine: {platform.node()}, {platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+                f"Python {platform.python_version()}. A scheduler and 1, then 2 workers (one kernel thread each) "
+                "started on 127.0.0.1; each timing is the median of the repeats, `Simulation.run` alone, kernels "
+                "loaded. docs/cluster.md explains the numbers.", ""]
+        Path(args.output).write_text("\n".join(head + lines) + "\n")
 
 
 if __name__ == "__main__":
