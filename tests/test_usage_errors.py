@@ -193,3 +193,19 @@ def test_the_bar_is_drawn_on_terminals_and_notebooks_only():
         bar(10, 10)
         bar.close()
         assert ("\r" in stream.getvalue() and "eta" in stream.getvalue()) == drawn, stream.getvalue()
+
+
+@pytest.mark.parametrize("words,cword,expected", [
+    ("rbx sim", 1, "plain,simulate"),
+    ("rbx simulate --col", 2, "plain,--collisions"),
+    ("rbx plot x.h5 --ki", 3, "plain,--kind"),
+])
+def test_shell_completion_names_commands_and_options(words, cword, expected):
+    """README: `eval "$(_RBX_COMPLETE=bash_source rbx)"` completes commands and options (click's completion, through
+    rbx's own group and commands)."""
+    source = subprocess.run([RBX], env=dict(os.environ, _RBX_COMPLETE="bash_source"), capture_output=True,
+                            text=True, timeout=120)
+    assert source.returncode == 0 and "_rbx_completion()" in source.stdout, source.stderr
+    env = dict(os.environ, COMP_WORDS=words, COMP_CWORD=str(cword), _RBX_COMPLETE="bash_complete")
+    res = subprocess.run([RBX], env=env, capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0 and expected in res.stdout.split(), (res.stdout, res.stderr)
