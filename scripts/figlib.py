@@ -22,7 +22,6 @@ import json
 import operator
 import os
 import sys
-import time
 
 OPS = {"<": operator.lt, "<=": operator.le, ">": operator.gt, ">=": operator.ge}
 
@@ -40,7 +39,6 @@ class Figure:
         self.caption = " ".join(caption.strip().split())
         self.measured = []
         self.checks = []
-        self.started = time.perf_counter()
 
     def measure(self, name, value, unit=""):
         """A measured quantity, reported in figures/README.md."""
@@ -58,6 +56,7 @@ class Figure:
         os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
         # no timestamps in the PNG: the same data gives the same bytes
         mpl_figure.savefig(out, dpi=dpi, metadata={"Software": None})
+        # nothing that depends on the run (no timings): re-plotting the same data writes the same JSON
         record = {
             "label": self.label,
             "caption": self.caption,
@@ -65,7 +64,6 @@ class Figure:
             "configs": [_config_of(d) for d in args.data],
             "measured": self.measured,
             "checks": self.checks,
-            "seconds_to_plot": round(time.perf_counter() - self.started, 2),
         }
         with open(os.path.splitext(out)[0] + ".json", "w") as f:
             json.dump(record, f, indent=1)
