@@ -125,8 +125,8 @@ def draw_scales(axes, steps, x, upto, colour="tab:blue"):
         ax.plot(*envelope(steps[sel], x[sel]), color=colour, lw=0.6 if n <= 5000 else 0.35)
         ax.set_xlim(0, n)
         ax.set_ylabel("x [L]")
+        ax.set_xlabel("collisions (∝ time: the flight time is constant)")
         ax.set_title(f"the first {n} collisions: range of x {np.ptp(x[sel]):.4g} L", fontsize=8.5)
-    axes[-1].set_xlabel("collision step (∝ time)")
 
 
 def memory_envelope(rho, bins=60):
@@ -138,16 +138,16 @@ def memory_envelope(rho, bins=60):
     return centres, top, np.diff(edges)
 
 
-def draw_memory(ax, m, bound, colour="tab:blue"):
+def draw_memory(ax, m, level, level_label, colour="tab:blue"):
     """Largest |ρ| per logarithmic lag bin, the largest that noise alone gives in such a bin (σ·√(2 ln n) for n
-    lags), and the bound of the figure's check."""
+    lags), and a reference level of |ρ| (``level_label`` says what it separates)."""
     lag, top, size = memory_envelope(m["rho"])
     ax.loglog(lag, top, ".-", color=colour, lw=0.9, ms=3, label="largest |ρ(L)| in the lag bin")
     ax.loglog(lag, m["noise"] * np.sqrt(2 * np.log(np.maximum(size, 2))), "--", color="tab:green", lw=1.0,
               label="largest that noise gives in the bin")
     a, b = m["memory window"]
     ax.axvspan(a, b, color="0.9", zorder=0, label=f"long range: lags {a}–{b}")
-    ax.axhline(bound, color="tab:red", lw=0.9, ls=":", label=f"bound of the check ({bound:g})")
+    ax.axhline(level, color="tab:red", lw=0.9, ls=":", label=f"{level_label} ({level:g})")
     ax.set_xlim(1, len(m["rho"]))
     ax.set_ylim(3e-4, 1.2)
     ax.set_xlabel("lag L [collisions]")
@@ -172,7 +172,7 @@ def main():
     out.suptitle(f"graph · {title}\none orbit, x along the channel at three time scales", fontsize=9)
     axes = out.subplots(4, 1, gridspec_kw={"height_ratios": [1, 1, 1, 0.9]})
     draw_scales(axes[:3], steps, x, m["scales"])
-    draw_memory(axes[3], m, MEMORY)
+    draw_memory(axes[3], m, MEMORY, "long-range memory: |ρ| above")
     axes[3].set_title(f"autocorrelation ρ of the velocity v_x along the channel: largest |ρ| at long lags "
                       f"{m['memory']:.3f} (lag {m['memory lag']}); the range of x grows as "
                       f"steps^{m['range exponent']:.2f}", fontsize=8.5)

@@ -104,7 +104,7 @@ def draw_ensemble(axes, e, m):
     ax.axvspan(fit.start, fit.stop, color="0.92", zorder=0, label="fit window")
     ax.set_ylim(0, 1.35 * m["D"])
     ax.set_xlim(s[0], s[-1])
-    ax.set_xlabel("collision step")
+    ax.set_xlabel("collisions since the start (∝ time)")
     ax.set_ylabel("MSD/(2·step) [L²/collision]")
     ax.set_title(f"{fit.trajectories} trajectories from one start: apparent diffusion coefficient", fontsize=8.5)
     ax.legend(fontsize=7, loc="lower right")
@@ -116,7 +116,7 @@ def draw_ensemble(axes, e, m):
     ax.loglog(t, fit.msd(t), "-", color="tab:orange", lw=2.5, alpha=0.6,
               label=f"fit 2Dt + c: c = {fit.intercept:.0f} ± {fit.intercept_half_width:.0f} L²")
     ax.loglog(s, 2 * m["D"] * s, ":", color="0.4", lw=1.0, label="slope 1")
-    ax.set_xlabel("collision step")
+    ax.set_xlabel("collisions since the start (∝ time)")
     ax.set_ylabel("MSD ⟨(x − x₀)²⟩ [L²]")
     ax.set_title(f"mean-square displacement: log–log slope {m['slope']:.3f} over the fit window", fontsize=8.5)
     ax.legend(fontsize=7, loc="upper left")
@@ -168,7 +168,7 @@ def main():
     left, right = out.subfigures(1, 2, width_ratios=[1.15, 1])
     la = left.subplots(4, 1, gridspec_kw={"height_ratios": [1, 1, 1, 0.9]})
     draw_scales(la[:3], steps, x, o["scales"], colour="tab:purple")
-    draw_memory(la[3], o, MEMORYLESS, colour="tab:purple")
+    draw_memory(la[3], o, MEMORYLESS, "no long-range memory: |ρ| below", colour="tab:purple")
     k, p = e["kappa"], e["p"]
     la[3].set_title(f"memory of v_x: largest |ρ| at long lags {o['memory']:.4f}; ρ(1) = {o['rho1']:.3f} "
                     f"(exact (1 + (1−2p)κ)/(1 + κ) = {(1 + (1 - 2 * p) * k) / (1 + k):.3f})", fontsize=8.5)
