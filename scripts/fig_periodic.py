@@ -153,8 +153,8 @@ def main():
     fig.measure(f"{name}: no period up to {head.length // 2}; smallest relative mismatch", head.mismatch)
     fig.check(f"{name}: bounded: free flights completed", t["flights"], ">=", t["requested"])
     fig.check(f"{name}: s·n constant (relative spread)", inv_spread, "<=", 1e-9)
-    fig.check(f"{name}: bounded by the closed-form supremum, to rounding: (supremum − largest distance) / supremum", gap(len(s)), ">=",
-              -1e-9)
+    fig.check(f"{name}: bounded by the closed-form supremum, to rounding: (supremum − largest distance) / supremum",
+              gap(len(s)), ">=", -1e-9)
     fig.check(f"{name}: the band is filled: (supremum − largest distance) / supremum", gap(len(s)), "<=", 1e-6)
     fig.check(f"{name}: not periodic: smallest mismatch of the first 1000 collisions", head.mismatch, ">=", 1e-3)
 
@@ -164,7 +164,8 @@ def main():
     for k, (r, per) in enumerate(periodic):
         ax = out.add_subplot(gs[k, 0])
         draw_wedge_orbit(ax, r, r["flights"])
-        label = f"period {per.period} (state repeats to {per.mismatch:.1e}, relative)" if per.period else "no period found"
+        label = (f"period {per.period} (state repeats to {per.mismatch:.1e}, relative)" if per.period
+                 else "no period found")
         ax.set_title(f"{r['angle']:.4g}° wedge: {r['flights']} free flights, {label}", fontsize=8.5)
     right = gs[:, 1].subgridspec(2, 1, height_ratios=[2.3, 1])
     ax = out.add_subplot(right[0])

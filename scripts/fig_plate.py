@@ -1,20 +1,25 @@
-"""A uniform ball (κ = 2/5, radius 0.1) between two parallel plates 1 apart, completely rough (rank 2) on both. Left:
-the path of its centre for the first 200 collisions, in space. Middle: its horizontal projection, the first 60
-collisions as a path over every 10th of all 10⁶ collision points (grey), with the circle reached in the first 10³
-collisions. Right: the largest horizontal distance from the start reached up to each collision. The orbit is
-bounded: it fills a thin elliptical ring, its excursion (0.4967) is reached at the second collision and never
-exceeded in the next 10⁶, and the time-averaged mean-square displacement does not grow with the lag. Why: between
-parallel plates the rank-2 map acts on the pairs (v_x, R√κ·ω_y) and (v_y, −R√κ·ω_x) as the same reflection, one per
-plate; no state except a spin about the normal (which does not move the ball) is left alone by both plates
-(rbx.analysis.conserved_drift gives 0), so each pair turns by a fixed rotation every two collisions, the horizontal
-velocity is quasi-periodic with mean zero and the position stays within a fixed distance. Why these parameters: the
-paper's uniform ball; a start whose horizontal spin is not perpendicular to its horizontal velocity (v = (0.2, −0.4,
-0.7), ω = (1, −2, −0.3)) — with ω perpendicular to v, as in configs/examples/plates.yaml, the orbit stays in one
-vertical plane and its projection is a segment; the same start in Figure roughrank; 10⁶ collisions (a fraction of a
-second) are far longer than the excursion takes to saturate.
+"""A uniform ball (κ = 2/5, radius 0.1) between two parallel plates 1 apart, completely rough (rank 2) on both. Top
+left: the path of its centre for the first 200 collisions, in space. Top right: its horizontal projection, the first
+60 collisions as a path over every 10th of all 10⁶ collision points (grey), with the circle reached in the first 10³
+collisions. Bottom left: the largest horizontal distance from the start reached up to each collision. Bottom right:
+the time-averaged mean-square displacement of the horizontal position, the mean of |(x, y)(i + lag) − (x, y)(i)|²
+over every collision i of the orbit, against the lag (it oscillates, as the orbit is quasi-periodic, without
+growing), with the slope a diffusing orbit would have (∝ lag) and the level a bounded stationary orbit reaches (twice
+the variance of (x, y) over the orbit). The orbit is bounded: it fills a thin elliptical ring, its excursion (0.4967)
+is reached at the second collision and never exceeded in the next 10⁶, and the time-averaged mean-square displacement
+does not grow with the lag (growth exponent in the table). Why: between parallel plates the rank-2 map acts on the
+pairs (v_x, R√κ·ω_y) and (v_y, −R√κ·ω_x) as the same reflection, one per plate; no state except a spin about the
+normal (which does not move the ball) is left alone by both plates (rbx.analysis.conserved_drift gives 0), so each
+pair turns by a fixed rotation every two collisions, the horizontal velocity is quasi-periodic with mean zero and the
+position stays within a fixed distance. Why these parameters: the paper's uniform ball; a start whose horizontal spin
+is not perpendicular to its horizontal velocity (v = (0.2, −0.4, 0.7), ω = (1, −2, −0.3)) — with ω perpendicular to
+v, as in configs/examples/plates.yaml, the orbit stays in one vertical plane and its projection is a segment; the
+same start in Figure roughrank; 10⁶ collisions (a fraction of a second) are far longer than the excursion takes to
+saturate.
 """
 import numpy as np
 from matplotlib.figure import Figure as MplFigure
+from matplotlib.ticker import MaxNLocator
 
 from figlib import Figure, arguments
 from rbx import analysis
@@ -94,6 +99,27 @@ def draw_plates(ax, gap, lo, hi):
         ax.plot_surface(X, Y, np.full_like(X, z), color="0.5", alpha=0.15, linewidth=0)
 
 
+def draw_tamsd(ax, m, xy, every, points=120):
+    """The time-averaged MSD of the horizontal position against the lag (log–log) on a dense grid of lags (the
+    lags of the fitted exponent marked), with the slope of diffusion through its first point and the plateau of a
+    bounded stationary orbit, 2·(var x + var y)."""
+    lags, tamsd = m["lags"], m["tamsd"]
+    dense = np.unique(np.round(np.geomspace(lags[0], lags[-1], points) / every).astype(int)) * every
+    values = analysis.time_averaged_msd(xy, dense // every)
+    ax.loglog(dense, values, ".", color="tab:blue", ms=4,
+              label="⟨|r(i + lag) − r(i)|²⟩ over collisions i, r = (x, y)")
+    ax.loglog(lags, tamsd, "o", mfc="none", mec="k", ms=6, label="the lags of the fitted growth exponent")
+    ax.loglog(lags, tamsd[0] * lags / lags[0], "k:", lw=0.9, label="∝ lag (diffusion)")
+    plateau = 2 * float(np.sum(np.var(xy, axis=0)))
+    ax.axhline(plateau, color="tab:red", ls="--", lw=0.9, label=f"2·(var x + var y) = {plateau:.4f} L²")
+    ax.set_ylim(0.5 * min(values[values > 0].min(), tamsd.min(), plateau), 30 * max(values.max(), plateau))
+    ax.set_xlabel("lag [collisions]")
+    ax.set_ylabel("time-averaged mean-square displacement [L²]")
+    ax.set_title(f"time-averaged MSD: growth exponent {m['tamsd_exponent']:.3f} (diffusion 1, ballistic 2)",
+                 fontsize=8.5)
+    ax.legend(fontsize=7, loc="upper left")
+
+
 def main():
     args = arguments(__doc__)
     fig = Figure("plate", caption=__doc__)
@@ -110,9 +136,9 @@ def main():
 
     p = o["position"]
     gap = o["geom"].size
-    out = MplFigure(figsize=(15.0, 5.2), layout="constrained")
+    out = MplFigure(figsize=(13.0, 10.5), layout="constrained")
     out.suptitle(f"plate · {o['title']}", fontsize=9)
-    ax = out.add_subplot(1, 3, 1, projection="3d")
+    ax = out.add_subplot(2, 2, 1, projection="3d")
     q = p[:SHOWN_3D + 1]
     ax.plot(q[:, 0], q[:, 1], q[:, 2], color="tab:blue", lw=0.6)
     ax.plot([q[0, 0]], [q[0, 1]], [q[0, 2]], "o", color="k", ms=3)
@@ -120,12 +146,14 @@ def main():
     draw_plates(ax, gap, lo, hi)
     span = max(hi - lo)
     ax.set_box_aspect((max(hi[0] - lo[0], 0.3 * span), max(hi[1] - lo[1], 0.3 * span), gap))
+    for axis in (ax.xaxis, ax.yaxis):
+        axis.set_major_locator(MaxNLocator(4))
     ax.set_xlabel("x [L]")
     ax.set_ylabel("y [L]")
     ax.set_zlabel("z [L]")
     ax.set_title(f"the first {SHOWN_3D} collisions in space", fontsize=8.5)
 
-    ax = out.add_subplot(1, 3, 2)
+    ax = out.add_subplot(2, 2, 2)
     ax.plot(p[::10, 0], p[::10, 1], ".", color="0.6", ms=1, alpha=0.5, rasterized=True,
             label=f"every 10th of all {m['N']} collision points")
     ax.plot(p[:SHOWN_2D + 1, 0], p[:SHOWN_2D + 1, 1], color="tab:blue", lw=0.6,
@@ -138,13 +166,13 @@ def main():
     ax.set_xlabel("x [L]")
     ax.set_ylabel("y [L]")
     ax.set_title("horizontal projection", fontsize=8.5)
-    ax.legend(fontsize=7, loc="upper right", markerscale=8)
+    ax.legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.13), markerscale=8)
 
-    ax = out.add_subplot(1, 3, 3)
+    ax = out.add_subplot(2, 2, 3)
     s = o["steps"]
     i = np.unique(np.geomspace(1, len(s) - 1, 2000).astype(int))
     ax.semilogx(s[i], m["excursion"][i], color="tab:blue", lw=1.0, label="largest |(x, y) − (x₀, y₀)| so far")
-    ax.axvline(m["n1"], color="0.5", lw=0.8, ls=":")
+    ax.axvline(m["n1"], color="0.5", lw=0.8, ls=":", label=f"{m['n1']} collisions")
     ax.set_ylim(0, 1.3 * m["eN"])
     ax.set_xlim(1, m["N"])
     ax.set_xlabel("collisions")
@@ -152,6 +180,9 @@ def main():
     ax.set_title(f"excursion: {m['e1']:.4f} L after {m['n1']}, {m['eN']:.4f} L after {m['N']} collisions",
                  fontsize=8.5)
     ax.legend(fontsize=7, loc="lower right")
+
+    ax = out.add_subplot(2, 2, 4)
+    draw_tamsd(ax, m, p[:, :2], o["every"])
     fig.save(out, args)
 
 
