@@ -46,7 +46,7 @@ def draw_orbit(ax, geom, points, result, shown, legend=True):
     for parity, (r, colour) in enumerate(zip(result.caustics.radii, COLOURS)):
         name = "segments 1–2, 3–4, …" if parity == 0 else "segments 2–3, 4–5, …"
         ax.plot(r * np.cos(t), r * np.sin(t), color=colour, lw=1.1, ls=(0, (4, 2)),
-                label=f"r = {r:.4f} ({name})")
+                label=f"caustic, radius {r:.4f} L ({name})")
         ax.plot(mid[parity::2, 0], mid[parity::2, 1], ".", color=colour, ms=3.0)
     ax.set_aspect("equal")
     ax.set_xlim(-1.05, 1.05)
@@ -54,7 +54,8 @@ def draw_orbit(ax, geom, points, result, shown, legend=True):
     ax.set_xticks([-1, 0, 1])
     ax.set_yticks([-1, 0, 1])
     if legend:
-        ax.legend(fontsize=6.5, loc="lower center", bbox_to_anchor=(0.5, -0.02), framealpha=0.9)
+        # below the axes: inside, it covered the orbit and the table's rim
+        ax.legend(fontsize=6.5, loc="upper center", bbox_to_anchor=(0.5, -0.16))
 
 
 def binned_max(x, bins=500):
@@ -117,12 +118,14 @@ def main():
                                    "tab:green")):
         x, y = binned_max(series)
         ax2.semilogy(x + 1, np.maximum(y, floor), lw=1.0, color=colour, label=label)
-    ax2.axhline(BOUND, color="tab:red", lw=1.0, ls="--", label=f"bound of the checks ({BOUND:g})")
+    ax2.axhline(BOUND, color="tab:red", lw=1.0, ls="--",
+                label=f"largest deviation still taken as rounding ({BOUND:g})")
     ax2.set_ylim(1e-17, 1e-7)
     ax2.set_xlim(0, res.collisions)
-    ax2.set_xlabel("collision")
-    ax2.set_ylabel(f"largest |deviation| over bins of {max(1, len(va) // 500)} collisions")
-    ax2.set_title("departure from the proposition, all collisions", fontsize=8.5)
+    ax2.set_xlabel("collision number")
+    ax2.set_ylabel(f"largest |deviation| per bin of {max(1, len(va) // 500)} collisions\n[rad or L, see legend]")
+    ax2.set_title("departures from a constant vertex angle, two caustics and tangency at the midpoints,\n"
+                  f"all {res.collisions} collisions", fontsize=8.5)
     ax2.legend(fontsize=7, loc="upper left")
     fig.save(out, args)
 

@@ -51,16 +51,15 @@ def main():
               min(abs(a.vertex_angle - b.vertex_angle) for i, a in enumerate(results) for b in results[i + 1:]),
               ">=", 0.1)
 
-    out = MplFigure(figsize=(12.0, 4.6), layout="constrained")
+    out = MplFigure(figsize=(12.0, 5.3), layout="constrained")
     out.suptitle(f"circle · {title}", fontsize=9)
     axes = out.subplots(1, len(results))
     for k, (ax, (p, _, w), res) in enumerate(zip(np.atleast_1d(axes), tracks, results), 1):
         draw_orbit(ax, geom, p, res, SHOWN)
-        ax.set_title(f"orbit {k}: ω₀ = {w[0]:g}, vertex angle {np.degrees(res.vertex_angle):.3f}°\n"
+        ax.set_title(f"orbit {k}: ω₀ = {w[0]:g} 1/T, vertex angle {np.degrees(res.vertex_angle):.3f}°\n"
                      f"first {SHOWN} of {res.collisions} free flights", fontsize=8.5)
         ax.set_xlabel("x [L]")
-        if k == 1:
-            ax.set_ylabel("y [L]")
+        ax.set_ylabel("y [L]")
     fig.save(out, args)
 
 
