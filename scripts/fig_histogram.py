@@ -104,12 +104,12 @@ def main():
     n = len(r["angle"])
     for level, style in ((0.95, "--"), (0.99, ":")):
         b = ks_band(n, level)
-        ax2.axhline(b, color="0.3", ls=style, lw=0.9, label=f"KS band, {round(100 * level)}%")
+        ax2.axhline(b, color="0.3", ls=style, lw=0.9, label=f"sampling noise: {round(100 * level)}% Kolmogorov–Smirnov band")
         ax2.axhline(-b, color="0.3", ls=style, lw=0.9)
     ax2.set_xlim(0, np.pi / 2)
     ax2.set_ylim(-2.2 * ks_band(n, 0.99), 2.2 * ks_band(n, 0.99))
-    ax2.set_xlabel("φ [rad]")
-    ax2.set_ylabel("empirical distribution − sin²φ")
+    ax2.set_xlabel("angle φ to the normal [rad]")
+    ax2.set_ylabel("empirical distribution function − sin²φ")
     ax2.set_title("departure from the predicted distribution function", fontsize=8.5)
     ax2.legend(fontsize=7.5, loc="upper right")
 
@@ -121,11 +121,11 @@ def main():
     n_eff = len(returned_side) * len(started_side) / (len(returned_side) + len(started_side))
     for level, style in ((0.95, "--"), (0.99, ":")):
         b = ks_band(n_eff, level)
-        ax3.axhline(b, color="0.3", ls=style, lw=0.9, label=f"two-sample KS band, {round(100 * level)}%")
+        ax3.axhline(b, color="0.3", ls=style, lw=0.9, label=f"sampling noise: {round(100 * level)}% two-sample Kolmogorov–Smirnov band")
         ax3.axhline(-b, color="0.3", ls=style, lw=0.9)
     ax3.set_xlim(0, np.pi / 2)
     ax3.set_ylim(-2.2 * ks_band(n_eff, 0.99), 2.2 * ks_band(n_eff, 0.99))
-    ax3.set_xlabel("φ [rad]")
+    ax3.set_xlabel("return angle φ to the normal [rad]")
     ax3.set_ylabel("difference of empirical distribution functions")
     ax3.set_title(f"the {100 * np.mean(side):.0f}% that meet a side wall: returns (even samples) against starts (odd)",
                   fontsize=8.5)
