@@ -15,7 +15,7 @@ Layout (T trajectories, N records; trajectory axis first):
 
 | path | shape (2D / 3D) | dtype | meaning |
 |---|---|---|---|
-| ``/`` attrs | | | :data:`ROOT_ATTRS`: ``rbx_version``, ``dimension``, ``config`` (resolved YAML), ``complete``, ``schema_version``, ``table_kind``, ``wall_names``, ``radius``, ``kappa``, ``collisions_requested`` |
+| ``/`` attrs | | | :data:`ROOT_ATTRS`: ``rbx_version``, ``dimension``, ``config`` (resolved YAML), ``complete``, ``schema_version``, ``table_kind``, ``wall_names``, ``radius``, ``kappa``, ``collisions_requested``; and :data:`PROVENANCE_ATTRS`: ``created``, ``numba_version``, ``numpy_version``, ``h5py_version``, ``hdf5_version``, ``python_version``, ``command``, ``host`` |
 | ``collisions/time`` | (T, N) | f8 | time of the record |
 | ``collisions/position``, ``velocity`` | (T, N, n) | f8 | centre and its velocity |
 | ``collisions/angular_velocity`` | (T, N) / (T, N, 3) | f8 | space-frame ω |
@@ -23,11 +23,13 @@ Layout (T trajectories, N records; trajectory axis first):
 | ``collisions/wall``, ``rank`` | (T, N) | i4 | wall index hit (−1 for record 0), roughness rank used |
 | ``collisions/count`` | (T,) | i8 | records written for each trajectory (rows past it are NaN / −1) |
 | ``collisions/step`` | (N,) | i8 | collision number of each record (0, every, 2·every, …) |
+| ``collisions/trajectory``, ``record``, ``axis``, ``axis2`` | (T,), (N,), (n,), (3,) | i8 / text | HDF5 dimension scales (:data:`SCALES`) naming the datasets' axes for netCDF readers (xarray with h5netcdf); files written before them have none, and nothing here reads them |
 | ``final/*`` | (T, …) | | the last state of every trajectory, its ``collisions`` and ``draws`` counts and ``alive`` flag (for ``--resume``); attributes ``sequence`` and ``digest`` (hash of the state, see :func:`state_digest`) |
 | ``final_previous/*`` | (T, …) | | the state one block earlier: each checkpoint writes over the older of the two (digest last), so a process killed at any instant leaves one verified state (:func:`latest_state` takes the newest that verifies); the newest is named ``final`` when the run stops |
 | ``returns/angle`` | (K,) | f8 | ``rbx histogram`` files only (no ``collisions/``): return angles φ; see :func:`write_returns` |
 
-Only the fields in ``output.record`` are present. Every ``collisions/`` dataset carries the attributes ``units``
+The ``config`` attribute names the file written as ``output.path``. Only the fields in ``output.record`` are
+present. Every ``collisions/`` dataset carries the attributes ``units``
 and ``description`` (from :data:`rbx.model.FIELDS`). Datasets grow along the record axis in chunks, so memory does
 not grow with the run's length; ``count`` and ``final/`` are rewritten after every block and the file is flushed,
 so an interrupted run leaves a readable file with ``complete = False``.
@@ -60,9 +62,27 @@ ROOT_ATTRS = {
     "collisions_requested": "run.collisions: the length the run was asked for",
 }
 SPEC_ATTRS = ("rbx_version", "dimension", "config", "complete")
+#: where a file comes from: root attributes written with :data:`ROOT_ATTRS` -> meaning (:func:`provenance`). Not
+#: required when reading (files written before them lack them); a resumed run keeps those of its first start.
+PROVENANCE_ATTRS = {
+    "created": "when the file was created (UTC, ISO 8601)",
+    "numba_version": "version of Numba that compiled the kernels",
+    "numpy_version": "version of NumPy", "h5py_version": "version of h5py",
+    "hdf5_version": "version of the HDF5 library h5py wrote the file with",
+    "python_version": "version of Python",
+    "command": "the command line of the process that wrote the file (sys.argv, shell-quoted)",
+    "host": "name of the machine that wrote the file",
+}
 #: the datasets of collisions/ besides the record fields -> (units, description)
 INDEX_DATASETS = {"count": ("1", "records written for each trajectory (rows past it are NaN / −1)"),
                   "step": ("1", "collision number of each record (0, every, 2·every, …)")}
+#: the dimension scales of collisions/ (HDF5 dimension scales: netCDF readers such as
+#: ``xarray.open_dataset(path, engine="h5netcdf", group="collisions")`` name the datasets' dimensions by them)
+#: -> (units, description). ``axis`` only when a field has a vector part, ``axis2`` for the 3D orientation matrix.
+SCALES = {"trajectory": ("1", "trajectory index"),
+          "record": ("1", "record index (record i is the state after collision step[i])"),
+          "axis": ("1", "space axis (x, y[, z]): row of the 3D orientation matrix (space frame)"),
+          "axis2": ("1", "column of the 3D orientation matrix (body frame axis)")}
 
 
 #: room kept free on the disk beyond a block's records, its new chunks and the state, for HDF5's metadata
@@ -91,9 +111,13 @@ class FileError(Exception):
 
 # ---- writing ---------------------------------------------------------------------------------------------------
 
-def config_yaml(cfg):
-    """The experiment's resolved config as the YAML text stored in the root attribute ``config``."""
-    return yaml.safe_dump(_plain(cfg.resolved), sort_keys=False)
+def config_yaml(cfg, path=None):
+    """The experiment's resolved config as the YAML text stored in the root attribute ``config``; ``path``: the
+    file actually written (``-o``, ``output=``), stored as ``output.path`` in place of the config's own."""
+    resolved = cfg.resolved
+    if path is not None:
+        resolved = dict(resolved, output=dict(resolved.get("output") or {}, path=os.path.abspath(os.fspath(path))))
+    return yaml.safe_dump(_plain(resolved), sort_keys=False)
 
 
 def _plain(x):
@@ -108,9 +132,10 @@ def _plain(x):
     return x
 
 
-def root_attrs(cfg, complete):
-    """The values of :data:`ROOT_ATTRS` for an experiment -> dict (written to files, held by in-memory runs)."""
-    values = {"rbx_version": __version__, "dimension": cfg.dimension, "config": config_yaml(cfg),
+def root_attrs(cfg, complete, path=None):
+    """The values of :data:`ROOT_ATTRS` for an experiment -> dict (written to files, held by in-memory runs);
+    ``path``: the file written (see :func:`config_yaml`)."""
+    values = {"rbx_version": __version__, "dimension": cfg.dimension, "config": config_yaml(cfg, path),
               "complete": bool(complete), "schema_version": SCHEMA_VERSION, "table_kind": cfg.table_kind,
               "wall_names": list(cfg.wall_names), "radius": cfg.ball.radius, "kappa": cfg.ball.kappa,
               "collisions_requested": cfg.run.collisions}
@@ -118,10 +143,38 @@ def root_attrs(cfg, complete):
     return values
 
 
-def write_root_attrs(h5, cfg, complete):
+def provenance():
+    """The values of :data:`PROVENANCE_ATTRS` for this process, now -> dict."""
+    import datetime
+    import platform
+    import shlex
+    import socket
+    import sys
+
     import h5py
-    for k, v in root_attrs(cfg, complete).items():
+    values = {"created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
+              "numba_version": _version("numba"), "numpy_version": np.__version__, "h5py_version": h5py.__version__,
+              "hdf5_version": h5py.version.hdf5_version, "python_version": platform.python_version(),
+              "command": shlex.join(sys.argv), "host": socket.gethostname()}
+    assert tuple(values) == tuple(PROVENANCE_ATTRS)
+    return values
+
+
+def _version(package):
+    from importlib import metadata
+    try:
+        return metadata.version(package)
+    except metadata.PackageNotFoundError:
+        return "not installed"
+
+
+def write_root_attrs(h5, cfg, complete, path=None):
+    """Write :data:`ROOT_ATTRS` (``path``: the file written, see :func:`config_yaml`) and
+    :data:`PROVENANCE_ATTRS`."""
+    import h5py
+    for k, v in root_attrs(cfg, complete, path).items():
         h5.attrs[k] = np.array(v, dtype=h5py.string_dtype()) if k == "wall_names" else v
+    h5.attrs.update(provenance())
 
 
 def compression_options(compression):
@@ -138,15 +191,16 @@ def compression_options(compression):
 
 class H5Sink:
     """Streams the records of a :class:`rbx.simulation.Simulation` into an open HDF5 file (``fresh``: a new file,
-    whose attributes and datasets are created here; else a file being resumed)."""
+    whose attributes and datasets are created here; else a file being resumed). ``path``: the file the run
+    is written to in the end (stored as ``output.path`` in the config attribute)."""
 
-    def __init__(self, h5, cfg, fresh=True):
+    def __init__(self, h5, cfg, fresh=True, path=None):
         self.h5 = h5
         M, n = cfg.run.trajectories, cfg.dimension
         self.every = cfg.output.every
         records = cfg.run.collisions // cfg.output.every + 1       # the most records a trajectory can have
         if fresh:
-            write_root_attrs(h5, cfg, complete=False)
+            write_root_attrs(h5, cfg, complete=False, path=path)
             g = h5.create_group("collisions")
             filters = compression_options(cfg.output.compression)
             for name in cfg.output.record:
@@ -167,8 +221,13 @@ class H5Sink:
             g.create_dataset("step", shape=(0,), maxshape=(None,), dtype=np.int64, chunks=(4096,))
             for name, (units, text) in INDEX_DATASETS.items():
                 g[name].attrs["units"], g[name].attrs["description"] = units, text
+            _make_scales(g, M, n)
             h5.flush()    # the skeleton on disk at once: a kill from here on leaves a file that opens
         self.g = h5["collisions"]
+        #: datasets a write can add a chunk of CHUNK_BYTES to (the scales' are small, or never grow)
+        self.chunked = sum(1 for name in self.g if name not in SCALES)
+        if not fresh:
+            _extend_record_scale(self.g)      # resume cut the records back (or emptied them)
         #: bytes of one saved state, twice over (the new one is written beside the last), for the space check
         self.state_bytes = 2 * M * (4 * n + n * n + 9 + 8) * 8
         #: room was reserved in the file beyond HDF5's end (:meth:`_reserve`): :func:`trim` the file once closed
@@ -187,6 +246,7 @@ class H5Sink:
             ds[:, start:start + b] = arr
         g["step"].resize(start + b, axis=0)
         g["step"][start:] = np.arange(start, start + b) * self.every
+        _extend_record_scale(g)
         g["count"][...] = g["count"][...] + nrec
 
     def _check_space(self, nbytes, chunks=True):
@@ -196,7 +256,7 @@ class H5Sink:
         checkpoint is intact and the file can be resumed once there is space."""
         import shutil
         # a write can allocate a whole new chunk in every dataset, and HDF5 adds its metadata
-        need = nbytes + self.state_bytes + (2 * CHUNK_BYTES * len(self.g) if chunks else 0) + DISK_MARGIN
+        need = nbytes + self.state_bytes + (2 * CHUNK_BYTES * self.chunked if chunks else 0) + DISK_MARGIN
         try:
             free = shutil.disk_usage(os.path.dirname(os.path.abspath(self.h5.filename)) or ".").free
         except OSError:
@@ -276,6 +336,43 @@ class H5Sink:
             if name in self.h5 and "final_previous" not in self.h5:
                 self.h5.move(name, "final_previous")
         self.h5.flush()
+
+
+def _make_scales(g, M, n):
+    """The dimension scales :data:`SCALES` of ``collisions/``, attached to every dataset's axes (``trajectory``
+    first, ``record`` second, then ``axis`` and ``axis2`` for a field's vector or matrix part)."""
+    import h5py
+    tails = {len(g[name].shape) - 2 for name in g if name in FIELD}
+    made = {"trajectory": g.create_dataset("trajectory", data=np.arange(M, dtype=np.int64)),
+            "record": g.create_dataset("record", shape=(0,), maxshape=(None,), dtype=np.int64, chunks=(4096,))}
+    names = np.array(["x", "y", "z"][:n], dtype=h5py.string_dtype())
+    if tails & {1, 2}:
+        made["axis"] = g.create_dataset("axis", data=names)
+    if 2 in tails:
+        made["axis2"] = g.create_dataset("axis2", data=names)
+    for name, ds in made.items():
+        ds.make_scale(name)
+        ds.attrs["units"], ds.attrs["description"] = SCALES[name]
+    for name in g:
+        if name in made:
+            continue
+        ds = g[name]
+        dims = ("trajectory",) if name == "count" else ("record",) if name == "step" else \
+            ("trajectory", "record", "axis", "axis2")[:ds.ndim]
+        for i, dim in enumerate(dims):
+            ds.dims[i].attach_scale(made[dim])
+
+
+def _extend_record_scale(g):
+    """The ``record`` scale as long as ``step`` (files written before the scales have none)."""
+    if "record" not in g:
+        return
+    scale, length = g["record"], g["step"].shape[0]
+    old = scale.shape[0]
+    if old != length:
+        scale.resize(length, axis=0)
+        if length > old:
+            scale[old:] = np.arange(old, length)
 
 
 #: the groups that may hold a saved state: ``final`` (the newest), ``final_previous`` (the one before), and
@@ -681,7 +778,8 @@ def stream(sim, h5, tmp, path, *, fresh=True, progress=None, should_stop=None, w
            replace=False):
     """Run ``sim`` into the open file ``h5`` (at ``tmp``, or made by :func:`create` and renamed to ``tmp`` once
     its structure is written: :func:`publish_new`), mark it complete or not, close it and rename it to ``path``
-    -> True if the run finished (False: ``should_stop()`` said stop).
+    -> True if the run finished (False: ``should_stop()`` said stop). The config stored in the file names
+    ``path`` as its ``output.path``.
 
     The rename happens however the run ends (complete, interrupted, an error), so the records computed so far
     are in ``path`` and ``complete`` says whether that is all of them (SPEC §4), with two exceptions that keep
@@ -695,7 +793,9 @@ def stream(sim, h5, tmp, path, *, fresh=True, progress=None, should_stop=None, w
     new = os.path.abspath(h5.filename) == os.path.abspath(f"{tmp}.new")
     try:
         with h5:
-            sink = H5Sink(h5, sim.cfg, fresh=fresh)
+            sink = H5Sink(h5, sim.cfg, fresh=fresh, path=path)
+            if not fresh:
+                _store_path(h5, sim.cfg, path)
             publish_new(h5, tmp)
             new = False
             try:
@@ -719,6 +819,17 @@ def stream(sim, h5, tmp, path, *, fresh=True, progress=None, should_stop=None, w
             release_lock(path)
             for release in getattr(sim, "locks", ()):
                 release()
+
+
+def _store_path(h5, cfg, path):
+    """A resumed run written to another file (``--resume RUN.h5 -o OUT.h5``): its stored config names that file."""
+    try:
+        stored = yaml.safe_load(_text(h5.attrs["config"]))
+        if (stored.get("output") or {}).get("path") == os.path.abspath(path):
+            return
+    except Exception:   # noqa: BLE001 - unreadable: written anew below
+        pass
+    h5.attrs["config"] = config_yaml(cfg, path)
 
 
 def trim(path):
@@ -1110,7 +1221,7 @@ def write_returns(path, cfg, result):
 
 def _write_returns(path, cfg, result, names):
     with create(path) as h5:
-        write_root_attrs(h5, cfg, complete=True)
+        write_root_attrs(h5, cfg, complete=True, path=path)
         g = h5.create_group("returns")
         g.create_dataset("angle", data=result.angle)
         g.create_dataset("trajectory", data=np.nonzero(result.returned)[0].astype(np.int64))
