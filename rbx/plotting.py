@@ -53,9 +53,28 @@ def styled(build):
 
 
 def save(fig, path, dpi=None):
-    """``fig.savefig(path)`` with rbx's style (dpi: the style's unless given)."""
+    """``fig.savefig(path)`` with rbx's style (dpi: the style's unless given), its panels lettered."""
+    letter_panels(fig)
     with style():
         fig.savefig(path, dpi=dpi if dpi is not None else "figure")
+
+
+def letter_panels(fig):
+    """Panel letters on a figure of several panels: "(a) ", "(b) ", … before each panel's title, in reading order
+    (row by row of the figure's grid), so that a caption or a text can name a panel. A panel is an axes placed on
+    the grid: colour bars and insets are not lettered. Lettering twice changes nothing."""
+    panels = []
+    for ax in fig.axes:
+        spec = ax.get_subplotspec()
+        if spec is not None:
+            panels.append((spec.rowspan.start, spec.colspan.start, ax))
+    if len(panels) < 2:
+        return
+    for k, (_, _, ax) in enumerate(sorted(panels, key=lambda p: p[:2])):
+        letter = f"({chr(ord('a') + k)})"
+        title = ax.title.get_text()
+        if not title.startswith(letter):
+            ax.title.set_text(f"{letter} {title}".rstrip())     # the title's own font and size kept
 
 
 def _figure(width, height, title):

@@ -23,6 +23,8 @@ import operator
 import os
 import sys
 
+from rbx.plotting import letter_panels
+
 OPS = {"<": operator.lt, "<=": operator.le, ">": operator.gt, ">=": operator.ge}
 
 
@@ -54,6 +56,7 @@ class Figure:
     def save(self, mpl_figure, args, dpi=150):
         out = args.output
         os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
+        letter_panels(mpl_figure)          # (a), (b), … as rbx plot letters its panels
         # no timestamps in the PNG: the same data gives the same bytes
         mpl_figure.savefig(out, dpi=dpi, metadata={"Software": None})
         # nothing that depends on the run (no timings): re-plotting the same data writes the same JSON

@@ -499,3 +499,29 @@ def test_animate_refuses_what_it_cannot_draw(runs):
     assert result.exit_code == 2 and "collisions/time" in result.stderr and len(result.stderr.splitlines()) == 1
     result = CliRunner().invoke(cli, ["animate", runs["plates"], "-o", "x.gif"])
     assert result.exit_code == 2 and "3D" in result.stderr
+
+
+def test_panels_are_lettered_in_reading_order_and_once():
+    """plotting.letter_panels (called by plotting.save and the paper figures' figlib): (a), (b), … before the titles
+    of a figure's grid panels, row by row; a colour bar is no panel, a one-panel figure gets no letter, the title's
+    own font size is kept, and lettering again changes nothing."""
+    from matplotlib.figure import Figure
+
+    from rbx.plotting import letter_panels
+    fig = Figure(layout="constrained")
+    grid = fig.add_gridspec(2, 3)
+    right = fig.add_subplot(grid[:, 2])           # spans both rows: the third panel of the first row
+    top = [fig.add_subplot(grid[0, k]) for k in range(2)]
+    bottom = fig.add_subplot(grid[1, :2])
+    top[0].set_title("orbit", fontsize=7)
+    fig.colorbar(top[1].imshow(np.zeros((2, 2))), ax=top[1])
+    letter_panels(fig)
+    letter_panels(fig)
+    assert [top[0].get_title(), top[1].get_title(), right.get_title(), bottom.get_title()] == \
+        ["(a) orbit", "(b)", "(c)", "(d)"]
+    assert top[0].title.get_fontsize() == 7
+    assert len(fig.axes) == 5 and sum(ax.get_title().startswith("(") for ax in fig.axes) == 4
+    single = Figure()
+    single.add_subplot().set_title("alone")
+    letter_panels(single)
+    assert single.axes[0].get_title() == "alone"
