@@ -22,6 +22,7 @@ import rbx  # noqa: E402
 from rbx.cli.common import UserError  # noqa: E402
 from rbx.cli.plot import KINDS, make_figure  # noqa: E402
 from rbx.model import FIELDS  # noqa: E402
+from rbx.plotting import save  # noqa: E402
 
 #: what each kind shows, for the caption
 SHOWS = {
@@ -97,7 +98,7 @@ def main(argv=None):
                     failed += 1
                     continue
                 name = f"{scene}-{kind}.png"
-                fig.savefig(os.path.join(pictures, name), dpi=args.dpi)
+                save(fig, os.path.join(pictures, name), dpi=args.dpi)     # as rbx plot saves it
                 print(f"  wrote {name}", flush=True)
                 lines += [f"![{scene} {kind}](gallery/{name})", "",
                           f"*{scene}, `rbx plot --kind {kind}`*: {SHOWS[kind]}.", ""]
