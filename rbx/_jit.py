@@ -136,6 +136,53 @@ def _reuse_inlined_callees():
 
 _reuse_inlined_callees()
 
+
+class _BlasAvailable:
+    """Whether SciPy's BLAS is there, asked when Numba first needs to know (its truth value), not when
+    ``numba.np.arraymath`` is imported."""
+    def __init__(self, check):
+        self.check, self.known = check, None
+
+    def __bool__(self):
+        if self.known is None:
+            try:
+                self.check()
+                self.known = True
+            except ImportError:
+                self.known = False
+        return self.known
+
+
+def _defer_blas_check():
+    """Numba loads its array implementations (``numba.np.arraymath``) when a process first compiles or loads a
+    kernel, and that module asks at import whether a BLAS is there by importing ``scipy.linalg``: 0.38 s of the
+    1.5 s a warm ``rbx simulate`` took to start, for ``np.correlate`` and ``np.convolve`` alone (its one reader,
+    ``_HAVE_BLAS``), which no rbx kernel calls. The module is imported here with that question deferred: its answer
+    is the same, found the first time something compiles one of those two (:class:`_BlasAvailable`). Any other
+    Numba: left as it is."""
+    if "numba.np.arraymath" in sys.modules:
+        return
+    try:
+        from numba.np import linalg
+        ensure_blas = linalg.ensure_blas
+    except (ImportError, AttributeError):
+        return
+
+    def later():
+        raise ImportError("asked later")
+
+    linalg.ensure_blas = later
+    try:
+        from numba.np import arraymath
+    finally:
+        linalg.ensure_blas = ensure_blas
+    if getattr(arraymath, "ensure_blas", None) is later and arraymath._HAVE_BLAS is False:
+        arraymath.ensure_blas = ensure_blas
+        arraymath._HAVE_BLAS = _BlasAvailable(ensure_blas)
+
+
+_defer_blas_check()
+
 _POLICY = dict(cache=True, error_model="numpy", fastmath=False, nogil=True)
 
 jit = numba.njit(**_POLICY)

@@ -106,3 +106,26 @@ def test_the_entry_point_is_found_by_the_fingerprint_of_the_types(monkeypatch):
         np.testing.assert_array_equal(records[f], records2[f])
     for k in final:
         np.testing.assert_array_equal(final[k], final2[k])
+
+
+def test_the_blas_question_is_asked_later_with_the_same_answer():
+    """Numba asks whether SciPy's BLAS is there when it loads its array implementations, by importing
+    scipy.linalg (0.13 s of a warm 0.57 s `rbx simulate`); rbx/_jit.py defers the question. A run must not import
+    scipy.linalg, and the deferred answer must be Numba's own (true here: SciPy is installed, so np.convolve
+    compiles)."""
+    import subprocess
+    import sys
+    probe = ("import sys\n"
+             "from rbx.simulation import run_in_memory\n"
+             "from rbx import config\n"
+             f"run_in_memory(config.load({STRIP!r}, overrides={{'collisions': 10}}))\n"
+             "print('scipy.linalg' in sys.modules)\n"
+             "from numba.np import arraymath\n"
+             "print(type(arraymath._HAVE_BLAS).__name__)\n"
+             "import numpy as np, numba\n"
+             "print(numba.njit(lambda a, b: np.convolve(a, b))(np.ones(3), np.ones(2)).tolist())\n"
+             "print(bool(arraymath._HAVE_BLAS), 'scipy.linalg' in sys.modules)\n")
+    out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout.split("\n")
+    assert out[:4] == ["False", "_BlasAvailable", "[1.0, 2.0, 2.0, 1.0]", "True True"], out
+    from scipy.linalg import cython_blas  # noqa: F401  (what Numba's own check imports)
+    assert _jit._BlasAvailable(lambda: None) and not _jit._BlasAvailable(lambda: (_ for _ in ()).throw(ImportError()))
