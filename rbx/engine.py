@@ -35,7 +35,7 @@ import numba
 import numpy as np
 
 from ._jit import compile_lock, jit_hot, jit_loop, stack_array
-from .geometry import box_collision, contact_normal, periodic_flight, slab_collision, snap
+from .geometry import SEGMENT, box_collision, contact_normal, periodic_flight, slab_collision, snap
 from .model import FIELD, FIELDS
 from .physics import collide, collide_slab
 from .rules import EXIT, choose
@@ -60,6 +60,7 @@ class Table(NamedTuple):
     period: np.ndarray      # (n,) … and repeats with this period along each axis
     box: np.ndarray         # (2n,) int64: the sides of an axis-aligned box (Geometry.axis_box), else (0,) …
     others: np.ndarray      # (P′,) int64 … and the other primitives (all of them without a box)
+    first_hit: bool         # a convex boundary of pieces (Geometry.convex_boundary): the first hit in ``others``
 
 
 def make_table(geom, tol):
@@ -68,10 +69,14 @@ def make_table(geom, tol):
     lo, period = geom.lattice if geom.lattice is not None else (np.zeros(n), np.ones(n))
     box = geom.axis_box
     box = np.zeros(0, dtype=np.int64) if box is None else box
-    others = np.array([k for k in range(len(geom.codes)) if k not in set(box.tolist())], dtype=np.int64)
+    others = [k for k in range(len(geom.codes)) if k not in set(box.tolist())]
+    first = geom.convex_boundary
+    if first:       # the cheaper segments are asked first (box_collision stops at the first hit)
+        others.sort(key=lambda k: geom.codes[k] != SEGMENT)
     return Table(codes=geom.codes, prim_wall=geom.walls, params=np.ascontiguousarray(geom.params), tol=float(tol),
                  lattice_lo=np.ascontiguousarray(lo, dtype=np.float64),
-                 period=np.ascontiguousarray(period, dtype=np.float64), box=box, others=others)
+                 period=np.ascontiguousarray(period, dtype=np.float64), box=box,
+                 others=np.array(others, dtype=np.int64), first_hit=bool(first))
 
 
 class Rules(NamedTuple):
@@ -323,6 +328,7 @@ def _make_kernel(spec):
         n = N
         on = settings.flags                        # the run-time bits are read from here (the compiled ones: constants)
         codes, prim_wall, params, tol = table.codes, table.prim_wall, table.params, table.tol
+        first_hit = table.first_hit
         R, kappa, every, renorm_every = settings.R, settings.kappa, settings.every, settings.renorm_every
         comp = state.comp
         # the trajectory's state in the kernel's own stack frame (registers, once n is a constant): see stack_array
@@ -372,7 +378,8 @@ def _make_kernel(spec):
                     tau, p = periodic_flight(codes, params, a, v, tol, n, table.lattice_lo, table.period, base, loc, off,
                                              ahead)
                 else:
-                    tau, p = box_collision(codes, params, a, v, tol, n, table.box, table.others, AXES)
+                    tau, p = box_collision(codes, params, a, v, tol, n, table.box, table.others, AXES,
+                                            first_hit)
                 if p == -1:
                     state.alive[j] = False
                     break

@@ -71,6 +71,8 @@ class Geometry:
     lattice: tuple | None = None
     #: built from its wall pieces alone (:func:`from_pieces`: the zoo), not by a kind's own builder
     from_pieces: bool = False
+    #: joints of its boundary pieces where the direction of travel turns (a corner, convex or reflex), not tangent
+    corners: int = 0
 
     @property
     def wall_names(self):
@@ -99,6 +101,20 @@ class Geometry:
                 return None              # two parallel walls on one side: not a box (leave it to the loop)
             box[2 * i + side] = k
         return box if np.all(box >= 0) else None
+
+    @property
+    def convex_boundary(self):
+        """Bounded by one closed curve of segments and focusing arcs alone, with no reflex joint and no obstacle (a
+        stadium, a convex custom table): the free region is convex, so a flight from inside meets its boundary
+        once, and each of these primitives reports only points of its own piece (a segment within its length, an
+        arc within its angles). The first primitive that reports a hit is then the next collision, and the kernel
+        stops looking there (:func:`box_collision`'s ``first``). Not for half-spaces or a cylinder (their answer
+        is where an unbounded line or surface is crossed, which may lie beyond another wall: the smallest is taken)
+        nor for a table with a reflex joint or a dispersing wall (they are ``CONVEX_ARC``, ``SPHERE_OUT``). Every
+        joint tangent (:attr:`corners` 0): at a corner the shrunk pieces cross before their ends (a segment keeps
+        its whole length), so a piece can report a hit beyond the other one; tangent pieces meet end to end."""
+        return (self.dimension == 2 and self.lattice is None and not self.slab and len(self.codes) > 0
+                and self.corners == 0 and all(c == SEGMENT or c == FOCUS_ARC for c in self.codes))
 
     def clearance(self, points):
         """Signed distance of centre positions (…, n) inside the shrunk table (≥ 0 inside) -> (…) array."""
@@ -451,7 +467,7 @@ def next_collision(codes, params, a, v, tol, n):
 
 
 @jit_hot
-def box_collision(codes, params, a, v, tol, n, box, others, boxed):
+def box_collision(codes, params, a, v, tol, n, box, others, boxed, first):
     """:func:`next_collision` as the engine takes it -> (flight time, primitive). A table bounded by an
     axis-aligned box (:attr:`Geometry.axis_box`: primitive ``box[2i]`` is the side x_i = lo of normal +e_i,
     ``box[2i+1]`` the side x_i = hi of normal −e_i) has its sides in closed form: per axis, the sign of v_i says
@@ -460,7 +476,12 @@ def box_collision(codes, params, a, v, tol, n, box, others, boxed):
     so that a table without a box has no trace of it). Then the primitives ``others`` (all of them without a
     box) by :func:`collision_time`. Ties go to the lower index, as in :func:`next_collision`: the
     same flight times and primitives, bit for bit (tests/test_fastpaths.py). One function for both cases, so
-    that the kernel holds one copy of :func:`collision_time` (each inlined copy costs compile time)."""
+    that the kernel holds one copy of :func:`collision_time` (each inlined copy costs compile time).
+
+    ``first`` (``Table.first_hit``: :attr:`Geometry.convex_boundary`, a run-time value): the first primitive of
+    ``others`` that reports a hit is the next collision: the loop stops there (``others`` lists the segments before
+    the arcs, the cheaper test first). The same primitive and flight time as the smallest over all of them, except where two adjacent
+    pieces both report a hit within the tolerance at their joint (then either is the contact, a tolerance apart)."""
     best = np.inf
     which = -1
     if boxed:
@@ -483,6 +504,8 @@ def box_collision(codes, params, a, v, tol, n, box, others, boxed):
         if t < best or (t == best and k < which):
             best = t
             which = k
+            if first:
+                break
     return best, which
 
 
@@ -791,6 +814,8 @@ def _boundary(geom, piece, R, first_wall, codes, walls, rows, wall_list):
         wall = Wall(q.name)
         prev = frames[i - 1]
         turn = prev["t1"][0] * f["t0"][1] - prev["t1"][1] * f["t0"][0]
+        if abs(turn) > 1e-9 or prev["t1"] @ f["t0"] <= 0.0:
+            geom.corners += 1
         if turn < -1e-12:   # a reflex joint: an arc of radius R about it, from this piece's normal to the last's
             n_out, n_in = f["n0"], prev["n1"]
             span = _ccw_span(n_out, n_in)
@@ -846,7 +871,8 @@ def add_pieces(geom, pieces, R):
     wall_list = list(geom.wall_list)
     g = Geometry(geom.kind, n, geom.codes, geom.walls, geom.params, wall_list, geom.size, outline=geom.outline,
                  shrunk_outline=geom.shrunk_outline, circle=geom.circle, table=geom.table, slab=False,
-                 can_sample=geom.can_sample, shrunk_radius=R, lattice=geom.lattice, from_pieces=geom.from_pieces)
+                 can_sample=geom.can_sample, shrunk_radius=R, lattice=geom.lattice, from_pieces=geom.from_pieces,
+                 corners=geom.corners)
     if geom.pieces is None:     # a table of the paper's kinds: its own walls are pieces too, for clearance
         g.pieces = [q for q in T.walls(geom.kind, geom.table or {}) if not isinstance(q, T.Sphere)] \
             if geom.table is not None else []
