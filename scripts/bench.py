@@ -1,9 +1,11 @@
 """How fast rbx is, measured: collisions per second per scene and rule, against minimal hand-written njit loops,
-the cost of each recorded field (in memory and to HDF5 through the CLI), ensembles on 1 and 2 threads, compile
+the whole `rbx simulate` command against a minimal standalone njit program (scripts/minimal_loop.py), the cost of
+each recorded field (in memory and to HDF5 through the CLI), ensembles on 1 and 2 threads, compile
 time against the on-disk cache, the numerical variants, a public peer, and what each skip of SPEC §7 saves. Writes
 docs/benchmarks.md and its plots docs/benchmarks-*.png (`make bench`).
 
     python scripts/bench.py [--quick] [--out docs/benchmarks.md] [--repeats K] [--seconds S] [--collisions N]
+                            [--process-collisions N]
 
 Every timing is ``time.perf_counter`` around the work alone (``Simulation.run``; the whole ``rbx simulate``
 command for the CLI), after a warm-up run of the same configuration (compiled or loaded from the cache), with the
@@ -219,6 +221,308 @@ def stadium_loop(x, y, vx, vy, w, length, rho, rough, N):
     return x + y + vx + vy + (w if rough else 0.0) + t
 
 
+@numba.njit(cache=True)
+def rectangle_rough_loop(x, y, vx, vy, w, width, height, N):
+    """Rough disc in a rectangle [0, width] × [0, height]: :func:`rectangle_loop`'s wall, the rough 2D map."""
+    t = 0.0
+    for _ in range(N):
+        tx = (width - R - x) / vx if vx > 0 else (R - x) / vx
+        ty = (height - R - y) / vy if vy > 0 else (R - y) / vy
+        tau = min(tx, ty)
+        x += tau * vx
+        y += tau * vy
+        t += tau
+        if tau == ty:
+            nx, ny = 0.0, (-1.0 if vy > 0 else 1.0)
+        else:
+            nx, ny = (-1.0 if vx > 0 else 1.0), 0.0
+        vx, vy, w = _map2(vx, vy, w, nx, ny, True)
+    return x + y + vx + vy + w + t
+
+
+@numba.njit(cache=True, inline="always")
+def _map3(vx, vy, vz, wx, wy, wz, nx, ny, nz):
+    """The completely rough 3D map (rank 2) at a wall of inward normal ν = (nx, ny, nz): u = v + ω × r with
+    r = −Rν, Δv = −2α(u − (v·ν)ν), v' = v + Δv − 2(v·ν)ν, ω' = ω + r × Δv/(κR²)."""
+    a2, sc = 2 * KAPPA / (1 + KAPPA), 1 / (KAPPA * R)
+    vn = vx * nx + vy * ny + vz * nz
+    ux = vx - R * (wy * nz - wz * ny) - vn * nx
+    uy = vy - R * (wz * nx - wx * nz) - vn * ny
+    uz = vz - R * (wx * ny - wy * nx) - vn * nz
+    dvx, dvy, dvz = -a2 * ux, -a2 * uy, -a2 * uz
+    return (vx + dvx - 2 * vn * nx, vy + dvy - 2 * vn * ny, vz + dvz - 2 * vn * nz,
+            wx - sc * (ny * dvz - nz * dvy), wy - sc * (nz * dvx - nx * dvz), wz - sc * (nx * dvy - ny * dvx))
+
+
+@numba.njit(cache=True)
+def box_rough_loop(x, y, z, vx, vy, vz, wx, wy, wz, lx, ly, lz, N):
+    """Rough ball (rank 2) in a box [0, lx] × [0, ly] × [0, lz]: :func:`box_loop`'s wall, the rough 3D map."""
+    t = 0.0
+    for _ in range(N):
+        tx = (lx - R - x) / vx if vx > 0 else (R - x) / vx
+        ty = (ly - R - y) / vy if vy > 0 else (R - y) / vy
+        tz = (lz - R - z) / vz if vz > 0 else (R - z) / vz
+        tau = min(tx, ty, tz)
+        x += tau * vx
+        y += tau * vy
+        z += tau * vz
+        t += tau
+        nx = ny = nz = 0.0
+        if tau == tx:
+            nx = -1.0 if vx > 0 else 1.0
+        elif tau == ty:
+            ny = -1.0 if vy > 0 else 1.0
+        else:
+            nz = -1.0 if vz > 0 else 1.0
+        vx, vy, vz, wx, wy, wz = _map3(vx, vy, vz, wx, wy, wz, nx, ny, nz)
+    return x + y + z + vx + vy + vz + wx + wy + wz + t
+
+
+@numba.njit(cache=True)
+def lpolygon_loop(x, y, vx, vy, w, rough, N):
+    """A disc in the L polygon of SCENES, (0,0) (2,0) (2,2) (1,2) (1,1) (0,1), shrunk by R (rbx.geometry.polygon):
+    the four outer sides as lines (their extensions lie outside the table: a flight meets another wall first),
+    the two inner sides as segments (x = 1 + R for y ≥ 1, y = 1 − R for x ≤ 1: their extensions cross the table)
+    and the reflex corner (1, 1) as a disc of radius R hit from outside (its smaller root; only its quarter in
+    x ≥ 1, y ≤ 1 can be reached)."""
+    t = 0.0
+    for _ in range(N):
+        tx = (2.0 - R - x) / vx if vx > 0 else (R - x) / vx
+        ty = (2.0 - R - y) / vy if vy > 0 else (R - y) / vy
+        tau, kind = (tx, 0) if tx < ty else (ty, 1)
+        if vx < 0.0 and x >= 1.0 + R:                   # the inner side x = 1 + R, normal +x, for y ≥ 1
+            ti = (1.0 + R - x) / vx
+            if ti < tau and y + ti * vy >= 1.0:
+                tau, kind = ti, 2
+        if vy > 0.0 and y <= 1.0 - R:                   # the inner side y = 1 − R, normal −y, for x ≤ 1
+            ti = (1.0 - R - y) / vy
+            if ti < tau and x + ti * vx <= 1.0:
+                tau, kind = ti, 3
+        dx, dy = x - 1.0, y - 1.0
+        b = dx * vx + dy * vy
+        if b < 0.0:                                     # the corner: approaching its centre
+            vv = vx * vx + vy * vy
+            c = (np.sqrt(dx * dx + dy * dy) - R) * (np.sqrt(dx * dx + dy * dy) + R)
+            disc = b * b - vv * c
+            if disc > 0.0:
+                td = c / (np.sqrt(disc) - b)
+                if td < tau:
+                    tau, kind = max(td, 0.0), 4
+        x += tau * vx
+        y += tau * vy
+        t += tau
+        if kind == 0:
+            nx, ny = (-1.0, 0.0) if vx > 0 else (1.0, 0.0)
+        elif kind == 1:
+            nx, ny = (0.0, -1.0) if vy > 0 else (0.0, 1.0)
+        elif kind == 2:
+            nx, ny = 1.0, 0.0
+        elif kind == 3:
+            nx, ny = 0.0, -1.0
+        else:
+            m = 1.0 / np.sqrt((x - 1.0) ** 2 + (y - 1.0) ** 2)
+            nx, ny = (x - 1.0) * m, (y - 1.0) * m
+        vx, vy, w = _map2(vx, vy, w, nx, ny, rough)
+    return x + y + vx + vy + (w if rough else 0.0) + t
+
+
+@numba.njit(cache=True)
+def wedge_loop(x, y, vx, vy, w, n1x, n1y, N):
+    """Rough disc in a wedge: the walls y = R (normal (0, 1)) and x·ν₁ = R (normal ν₁ = (n1x, n1y)), the nearer
+    of those ahead; a division only for a wall ahead (a trajectory that escapes gets an infinite flight: the
+    checksum is then not finite). From the scene's start the orbit settles on a 2-cycle between the two walls."""
+    t = 0.0
+    for _ in range(N):
+        tau, nx, ny = np.inf, 0.0, 1.0
+        if vy < 0:
+            tau = (R - y) / vy
+        vn1 = vx * n1x + vy * n1y
+        if vn1 < 0:
+            t1 = (R - (x * n1x + y * n1y)) / vn1
+            if t1 < tau:
+                tau, nx, ny = t1, n1x, n1y
+        x += tau * vx
+        y += tau * vy
+        t += tau
+        vx, vy, w = _map2(vx, vy, w, nx, ny, True)
+    return x + y + vx + vy + w + t
+
+
+@numba.njit(cache=True)
+def strip_hemisphere_loop(x, y, vx, vy, w, width, N):
+    """Disc in a strip under the hemisphere rule (axis y in the body frame): rough iff the contact point
+    −ν rotated by −θ has a positive y component, i.e. iff ν_y cos θ < 0; θ += τω in flight. The sign of cos θ
+    is read off the parity of ⌊θ/π + ½⌋ (a multiplication and a floor instead of a cosine)."""
+    a2, sc = 2 * KAPPA / (1 + KAPPA), 1 / (KAPPA * R)
+    inv_pi = 1.0 / np.pi
+    t = 0.0
+    th = 0.0
+    for _ in range(N):
+        if vy > 0:
+            tau, y, s = (width - R - y) / vy, width - R, 1.0
+        else:
+            tau, y, s = (R - y) / vy, R, -1.0
+        x += tau * vx
+        t += tau
+        th += tau * w
+        cos_pos = (np.int64(np.floor(th * inv_pi + 0.5)) & 1) == 0
+        vy = -vy
+        if cos_pos == (s > 0):                  # ν_y = −s: rough iff s·cos θ > 0
+            dv = -a2 * (vx - w * s * R)
+            vx += dv
+            w -= sc * s * dv
+    return x + y + vx + vy + w + t
+
+
+@numba.njit(cache=True)
+def plates_hemisphere_loop(x, y, z, vx, vy, vz, wx, wy, wz, gap, N):
+    """Ball between plates under the hemisphere rule (axis z in the body frame): rough iff ν·(A e_z) < 0. Only
+    the body axis b = A e_z is followed, b ← exp(τW) b by Rodrigues' formula (rbx turns the whole matrix A)."""
+    a2, sc = 2 * KAPPA / (1 + KAPPA), 1 / (KAPPA * R)
+    t = 0.0
+    bx, by, bz = 0.0, 0.0, 1.0
+    for _ in range(N):
+        if vz > 0:
+            tau, z, s = (gap - R - z) / vz, gap - R, 1.0
+        else:
+            tau, z, s = (R - z) / vz, R, -1.0
+        x += tau * vx
+        y += tau * vy
+        t += tau
+        om = np.sqrt(wx * wx + wy * wy + wz * wz)
+        phi = tau * om
+        if phi != 0.0:
+            sn = np.sin(phi) / om
+            c1 = (1.0 - np.cos(phi)) / (om * om)
+            cx, cy, cz = wy * bz - wz * by, wz * bx - wx * bz, wx * by - wy * bx       # ω × b
+            bx, by, bz = (bx + sn * cx + c1 * (wy * cz - wz * cy), by + sn * cy + c1 * (wz * cx - wx * cz),
+                          bz + sn * cz + c1 * (wx * cy - wy * cx))
+        vz = -vz
+        if s * bz > 0.0:                        # ν_z = −s: rough iff ν_z b_z < 0
+            ux, uy = vx + wy * s * R, vy - wx * s * R
+            dvx, dvy = -a2 * ux, -a2 * uy
+            vx += dvx
+            vy += dvy
+            wx += -s * dvy * sc
+            wy += s * dvx * sc
+    return x + y + z + vx + vy + vz + wx + wy + wz + t
+
+
+# rbx.rng's counter-based stream, written out (the same numbers): draw k of the stream ``key`` is
+# mix(key + (k + 1)·golden), its top 53 bits the uniform
+_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
+_M1 = np.uint64(0xBF58476D1CE4E5B9)
+_M2 = np.uint64(0x94D049BB133111EB)
+
+
+@numba.njit(cache=True, inline="always")
+def _draw_bits(key, k):
+    """The 64 random bits of draw k of the stream ``key`` (rbx.rng.uniform before its scaling to [0, 1))."""
+    z = key + (k + np.uint64(1)) * _GOLDEN
+    z = (z ^ (z >> np.uint64(30))) * _M1
+    z = (z ^ (z >> np.uint64(27))) * _M2
+    return z ^ (z >> np.uint64(31))
+
+
+@numba.njit(cache=True)
+def strip_random_loop(x, y, vx, vy, w, width, key, N):
+    """Disc in a strip under the random rule: draw k of the trajectory's stream (rbx.rng) picks specular (u < ½)
+    or rough. u = (bits >> 11)·2⁻⁵³ < ½ iff the top bit is 0: no conversion to a float."""
+    a2, sc = 2 * KAPPA / (1 + KAPPA), 1 / (KAPPA * R)
+    t = 0.0
+    k = np.uint64(0)
+    for _ in range(N):
+        if vy > 0:
+            tau, y, s = (width - R - y) / vy, width - R, 1.0
+        else:
+            tau, y, s = (R - y) / vy, R, -1.0
+        x += tau * vx
+        t += tau
+        vy = -vy
+        if _draw_bits(key, k) >> np.uint64(63):
+            dv = -a2 * (vx - w * s * R)
+            vx += dv
+            w -= sc * s * dv
+        k += np.uint64(1)
+    return x + y + vx + vy + w + t
+
+
+@numba.njit(cache=True)
+def plates_random_loop(x, y, z, vx, vy, vz, wx, wy, wz, gap, key, p1, p2, dirs, N):
+    """Ball between plates under the random rule: draw k (rbx.rng) picks one of three rank-1 directions dirs[i]
+    (in the plates' tangent axes x, y) by the cumulative probabilities p1, p2; the slip velocity is projected on
+    it (rbx.physics.collide_slab at rank 1)."""
+    a2, sc = 2 * KAPPA / (1 + KAPPA), 1 / (KAPPA * R)
+    t = 0.0
+    k = np.uint64(0)
+    for _ in range(N):
+        if vz > 0:
+            tau, z, s = (gap - R - z) / vz, gap - R, 1.0
+        else:
+            tau, z, s = (R - z) / vz, R, -1.0
+        x += tau * vx
+        y += tau * vy
+        t += tau
+        vz = -vz
+        u = np.float64(_draw_bits(key, k) >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+        k += np.uint64(1)
+        i = 0 if u < p1 else (1 if u < p2 else 2)
+        ex, ey = dirs[i, 0], dirs[i, 1]
+        ux, uy = vx + wy * s * R, vy - wx * s * R
+        p = ux * ex + uy * ey
+        dvx, dvy = -a2 * p * ex, -a2 * p * ey
+        vx += dvx
+        vy += dvy
+        wx += -s * dvy * sc
+        wy += s * dvx * sc
+    return x + y + z + vx + vy + vz + wx + wy + wz + t
+
+
+@numba.njit(cache=True)
+def sphere_loop(x, y, z, vx, vy, vz, wx, wy, wz, rho, N):
+    """Rough ball (rank 2) in a sphere of shrunk radius rho: :func:`circle_loop` in 3D."""
+    t = 0.0
+    for _ in range(N):
+        b = x * vx + y * vy + z * vz
+        vv = vx * vx + vy * vy + vz * vz
+        c = x * x + y * y + z * z - rho * rho
+        tau = (np.sqrt(b * b - vv * c) - b) / vv
+        x += tau * vx
+        y += tau * vy
+        z += tau * vz
+        t += tau
+        m = -1.0 / np.sqrt(x * x + y * y + z * z)
+        vx, vy, vz, wx, wy, wz = _map3(vx, vy, vz, wx, wy, wz, x * m, y * m, z * m)
+    return x + y + z + vx + vy + vz + wx + wy + wz + t
+
+
+@numba.njit(cache=True)
+def cylinder_loop(x, y, z, vx, vy, vz, wx, wy, wz, rho, height, N):
+    """Rough ball (rank 2) in a cylinder of axis z: the side (shrunk radius rho, the larger root across the axis)
+    and the caps z = R, z = height − R (the sign of vz)."""
+    t = 0.0
+    for _ in range(N):
+        tz = (height - R - z) / vz if vz > 0 else (R - z) / vz
+        b = x * vx + y * vy
+        vv = vx * vx + vy * vy
+        c = x * x + y * y - rho * rho
+        ts = (np.sqrt(b * b - vv * c) - b) / vv
+        if ts < tz:
+            tau = ts
+        else:
+            tau = tz
+        x += tau * vx
+        y += tau * vy
+        z += tau * vz
+        t += tau
+        if ts < tz:
+            m = -1.0 / np.sqrt(x * x + y * y)
+            vx, vy, vz, wx, wy, wz = _map3(vx, vy, vz, wx, wy, wz, x * m, y * m, 0.0)
+        else:
+            vx, vy, vz, wx, wy, wz = _map3(vx, vy, vz, wx, wy, wz, 0.0, 0.0, -1.0 if vz > 0 else 1.0)
+    return x + y + z + vx + vy + vz + wx + wy + wz + t
+
+
 # ---- the scenes, rules and configs ----------------------------------------------------------------------------------
 #: name -> (table, position, velocity, angular velocity): one explicit start per scene, well inside the table
 SCENES = {
@@ -288,6 +592,18 @@ def rbx_config(name, N, rule_name="rough"):
     return config.from_dict(d, "<bench>")
 
 
+def rules_key(seed=0, trajectory=0):
+    """The key of the stream that a trajectory's random rules draw from (``Simulation.keys``; scene_dict's seed 0,
+    its one trajectory 0) -> numpy uint64."""
+    from rbx.rng import PURPOSE_RULES, stream_key
+    return np.uint64(stream_key(seed, trajectory, PURPOSE_RULES))
+
+
+#: the 3D random rule of :func:`rule` as the hand loop takes it: cumulative probabilities of its first two choices
+#: (the last takes the rest) and its rank-1 directions in the plates' tangent axes x, y (rbx.model.roughness_direction)
+RANDOM3 = (tuple(np.cumsum([1 / 3, 1 / 3, 1 - 2 / 3])[:2]),
+           np.array([[math.cos(math.radians(d)), math.sin(math.radians(d))] for d in (0, 60, 120)]))
+
 #: (scene, rule) -> hand-written loop of N collisions from the scene's start (returns a checksum of the final state)
 HAND = {
     ("strip", "rough"): lambda N: strip_loop(0.0, 0.5, 0.6, 0.8, 1.5, 1.0, N),
@@ -299,10 +615,24 @@ HAND = {
     ("sinai", "rough"): lambda N: sinai_loop(0.3, 0.3, 0.83, 0.31, 0.7, 2.0, 1.5, 1.0, 0.75, 0.4 + R, True, N),
     ("stadium", "specular"): lambda N: stadium_loop(0.5, 0.1, 0.83, 0.31, 0.7, 1.0, 0.5 - R, False, N),
     ("stadium", "rough"): lambda N: stadium_loop(0.5, 0.1, 0.83, 0.31, 0.7, 1.0, 0.5 - R, True, N),
+    ("rectangle", "rough"): lambda N: rectangle_rough_loop(0.5, 0.5, 0.83, 0.31, 0.7, 2.0, 1.0, N),
+    ("box", "rough"): lambda N: box_rough_loop(0.5, 0.6, 0.4, 0.3, -0.5, 0.7, 1.0, -2.0, -0.3, 1.0, 1.3, 0.8, N),
+    ("L-polygon", "specular"): lambda N: lpolygon_loop(0.5, 0.5, 0.83, 0.31, 0.7, False, N),
+    ("L-polygon", "rough"): lambda N: lpolygon_loop(0.5, 0.5, 0.83, 0.31, 0.7, True, N),
+    ("wedge60", "rough"): lambda N: wedge_loop(1.5, 0.2, -0.2, 0.05, -3.0, np.sin(np.radians(60)),
+                                               -np.cos(np.radians(60)), N),
+    ("strip", "hemisphere"): lambda N: strip_hemisphere_loop(0.0, 0.5, 0.6, 0.8, 1.5, 1.0, N),
+    ("plates", "hemisphere"): lambda N: plates_hemisphere_loop(0, 0, 0.5, 0.2, -0.4, 0.7, 1.0, -2.0, -0.3, 1.0, N),
+    ("strip", "random"): lambda N: strip_random_loop(0.0, 0.5, 0.6, 0.8, 1.5, 1.0, rules_key(), N),
+    ("plates", "random"): lambda N: plates_random_loop(0, 0, 0.5, 0.2, -0.4, 0.7, 1.0, -2.0, -0.3, 1.0, rules_key(),
+                                                       *RANDOM3[0], RANDOM3[1], N),
+    ("sphere", "rough"): lambda N: sphere_loop(0.1, 0.2, 0.3, 0.3, -0.5, 0.7, 1.0, -2.0, -0.3, 1.0 - R, N),
+    ("cylinder", "rough"): lambda N: cylinder_loop(0.1, 0.2, 0.7, 0.3, -0.5, 0.7, 1.0, -2.0, -0.3, 1.0 - R, 1.5, N),
 }
 #: collisions over which a hand loop's orbit is checked against rbx's (tests/test_bench_smoke.py): chaotic tables
-#: separate nearby orbits exponentially, so rounding differences grow past 1e-9 after 15-20 collisions
-HAND_CHECK_COLLISIONS = {"sinai": 12, "stadium": 12}
+#: separate nearby orbits exponentially, so rounding differences grow past 1e-9 after 15-20 collisions (the
+#: L-polygon, dispersed by its rounded reflex corner, after ~300; the rough cylinder after ~500)
+HAND_CHECK_COLLISIONS = {"sinai": 12, "stadium": 12, "L-polygon": 100, "cylinder": 200}
 
 FIELDS = RECORD_FIELDS
 FIELD_VALUES = {2: {"time": 1, "position": 2, "velocity": 2, "angular_velocity": 1, "orientation": 1, "wall": 0.5,
@@ -322,6 +652,8 @@ VARIANTS = [("default (renormalize 16)", {}), ("renormalize 0 (off)", {"renormal
             ("compensated", {"compensated": True}), ("snap", {"snap": True}),
             ("compensated + snap", {"compensated": True, "snap": True})]
 PEER_SCENES = ("rectangle", "strip")         # specular: what the peer simulates
+PROCESS_SCENES = ("strip", "plates")         # rough: rbx simulate against scripts/minimal_loop.py, whole processes
+MINIMAL_PROGRAM = os.path.join(os.path.dirname(os.path.abspath(__file__)), "minimal_loop.py")
 #: what each skip saves (SPEC §7): (scene, rule, what the kernel skips, Simulation attribute, engine bit). The
 #: kernel is made to do the work anyway (force_bits) or to leave out a fast path (drop_bits); same orbit either way
 SKIPS = [("strip", "rough", "orientation update (θ += τω)", "force_bits", "S_ORIENT"),
@@ -343,6 +675,7 @@ class Timing:
     times: list
     escaped: int = None
     extra: float = 0.0          # bytes written, for the HDF5 runs
+    limit: tuple = None         # HDF5 runs: (seconds of rbx's writer alone, of a plain write, bytes): writer_limit
 
     @property
     def seconds(self):
@@ -484,6 +817,47 @@ def section_hand(args, rates):
     return res
 
 
+def minimal_run(scene, N, env=None):
+    """The minimal njit program (scripts/minimal_loop.py) of ``scene`` for N collisions in a subprocess -> (wall
+    seconds, the checksum it prints)."""
+    cmd = [sys.executable, MINIMAL_PROGRAM, scene, str(N)]
+    t0 = time.perf_counter()
+    proc = subprocess.run(cmd, capture_output=True, text=True, env=env)
+    dt = time.perf_counter() - t0
+    if proc.returncode != 0:
+        raise RuntimeError(f"{' '.join(cmd)} failed:\n{proc.stderr[-2000:]}")
+    return dt, float(proc.stdout)
+
+
+def section_process(args, tmp):
+    """scene -> (work Timing of rbx, of the minimal program; start-up Timing of rbx, of the minimal program).
+
+    Issue 17 asks what a user gets from the command, not from the kernel alone: `rbx simulate CONFIG --force
+    --quiet -o OUT.h5 --collisions N` (nothing recorded, one trajectory, rough) against
+    `python scripts/minimal_loop.py SCENE N`, a plain @njit loop of the same scene and orbit that imports numpy and
+    numba only — both whole processes, wall time from the start of the subprocess to its exit, so Python's start-up,
+    the imports, loading the compiled code from the cache and (for rbx) the config, the file and the blocks are in.
+    Each command is run once first (the caches filled or loaded: warm), then the two are run in turn, repeat by
+    repeat (a change of load hits both), ``args.process_collisions`` collisions each; then the same for one collision
+    (the start-up)."""
+    N = args.process_collisions
+    res = {}
+    for scene in PROCESS_SCENES:
+        d = scene_dict(scene, "rough")
+        cli_run(d, tmp, "process", 1)               # warm-up: compiled or loaded from the caches
+        minimal_run(scene, 1)
+        work, start = ([], []), ([], [])
+        for size, out in ((N, work), (1, start)):
+            for _ in range(args.repeats):
+                out[0].append(cli_run(d, tmp, "process", size)[0])
+                out[1].append(minimal_run(scene, size)[0])
+        res[scene] = (Timing(N, work[0]), Timing(N, work[1]), Timing(1, start[0]), Timing(1, start[1]))
+        rbx, mini, rs, ms = res[scene]
+        log(f"process  {scene:10s} N={N:.0e} rbx {rbx.seconds:.2f} s  minimal {mini.seconds:.2f} s  minimal / rbx "
+            f"{mini.seconds / rbx.seconds:.2f}  start-up rbx {rs.seconds:.2f} s minimal {ms.seconds:.2f} s")
+    return res
+
+
 def field_bytes(n, fields, every):
     return 8 * sum(FIELD_VALUES[n][f] for f in fields) / every
 
@@ -509,11 +883,50 @@ def section_fields(args, tmp):
                 N = int(max(1000, min(mem.rate * args.h5_seconds, args.file_cap / per_coll if per_coll else 1e12)))
                 runs = [cli_run(d, tmp, "fields", N) for _ in range(args.repeats)]
                 h5 = Timing(N, [t for t, _ in runs], extra=statistics.median(s for _, s in runs))
+                if fields:
+                    lim = [writer_limit(d, N, tmp) for _ in range(args.repeats)]
+                    h5.limit = (statistics.median(x[0] for x in lim), statistics.median(x[1] for x in lim),
+                                lim[0][2])
             rows.append((label, fields, mem, h5))
             log(f"fields   {scene:10s} {label:16s} memory {mem.rate:10.3e}/s"
                 + (f"  HDF5 wall {h5.seconds:.2f} s" if h5 else ""))
         res[scene] = rows
     return res, startup
+
+
+def writer_limit(d, N, tmp):
+    """What writing the records of an N-collision run costs without the engine -> (seconds through rbx's own HDF5
+    writer, seconds of a plain file write of the same bytes, bytes). The blocks are the ones the run hands its
+    sink (captured from a one-block run: the same fields, shapes, block length and values), written N/block times
+    over: to a fresh run file by :class:`rbx.runfile.H5Sink` (h5py with rbx's chunks, checksums and bookkeeping:
+    the limit of the recording path), and with ``file.write`` to a plain file (what the disk takes)."""
+    import h5py
+    from rbx.runfile import H5Sink
+    cfg = config.from_dict({**d, "run": {**d["run"], "collisions": N}}, "<bench>")
+    sim = Simulation(cfg)
+    b = sim.records_per_block()
+    one = config.from_dict({**d, "run": {**d["run"], "collisions": b * cfg.output.every}}, "<bench>")
+    sink = MemorySink()
+    Simulation(one).run(sink)
+    block = max(sink.blocks, key=lambda x: next(iter(x.values())).shape[1])
+    nrec = np.full(cfg.run.trajectories, next(iter(block.values())).shape[1], np.int64)
+    reps = max(1, -(-(N // cfg.output.every) // int(nrec[0])))
+    path = os.path.join(tmp, "limit.h5")
+    t0 = time.perf_counter()
+    with h5py.File(path, "w") as h5:
+        out = H5Sink(h5, cfg, fresh=True, path=path)
+        for _ in range(reps):
+            out.write(block, nrec)
+    t_h5 = time.perf_counter() - t0
+    raw = b"".join(np.ascontiguousarray(a).tobytes() for a in block.values())
+    t0 = time.perf_counter()
+    with open(os.path.join(tmp, "limit.bin"), "wb") as f:
+        for _ in range(reps):
+            f.write(raw)
+    t_raw = time.perf_counter() - t0
+    os.remove(path)
+    os.remove(os.path.join(tmp, "limit.bin"))
+    return t_h5, t_raw, reps * len(raw)
 
 
 def section_ensembles(args):
@@ -784,7 +1197,7 @@ def write_document(args, cmd, results, wall):
     out = args.out
     stem = os.path.splitext(os.path.basename(out))[0]
     folder = os.path.dirname(os.path.abspath(out))
-    rates, hand, (fields, startup), ens, jit, variants, (peer_version, peer_reason, peer), skips = results
+    rates, hand, process, (fields, startup), ens, jit, variants, (peer_version, peer_reason, peer), skips = results
     pngs = {k: f"{stem}-{k}.png" for k in ("rates", "fields", "scaling")}
     plot_rates(os.path.join(folder, pngs["rates"]), rates)
     plot_fields(os.path.join(folder, pngs["fields"]), fields, startup)
@@ -822,7 +1235,10 @@ def write_document(args, cmd, results, wall):
           "The hand-written loop (in `scripts/bench.py`) is a plain `@njit` loop for that scene and rule alone, "
           "with the wall known in closed form: our proxy for the speed limit. It computes the same orbit "
           "(tests/test_bench_smoke.py checks it against rbx), but it does not renormalize the energy, check "
-          "for escapes, count draws or support any other table. `rbx` is the default engine (energy projected back "
+          "for escapes, keep the state's bookkeeping or support any other table. Each follows only what its rule "
+          "reads: a hemisphere loop the sign of cos θ (from ⌊θ/π + ½⌋, 2D) or the body axis A·e_z (3D, not the "
+          "whole matrix A); a random loop draws from rbx's own stream (`rbx.rng`, the trajectory's key), the 2D "
+          "choice read off the draw's top bit. `rbx` is the default engine (energy projected back "
           f"every {RENORMALIZE_EVERY} collisions in rough scenes); `rbx, renormalize 0` turns that off, which "
           "is the like-for-like comparison. The three are timed in turn, run by run (median of "
           f"{args.repeats} each), so that a change of load on the machine hits them alike.", ""]
@@ -836,7 +1252,27 @@ def write_document(args, cmd, results, wall):
           ""]
 
     # 3
-    L += heading(args, "## 3. The cost of recording", "fields") + [
+    L += heading(args, "## 3. Whole processes: `rbx simulate` against a minimal njit program", "process") + [
+          "What a user waits for: the command `rbx simulate CONFIG --force --quiet -o OUT.h5 --collisions N` "
+          "(rough rule, one trajectory, nothing recorded) against `python scripts/minimal_loop.py SCENE N`, a "
+          "standalone program that imports numpy and numba only and runs the same loop as section 2's hand-written "
+          "one (the same orbit; cached on disk with `cache=True`, as a user's would be). Wall time of each whole "
+          "process, from its start to its exit: Python's start-up, the imports, loading the compiled code from the "
+          "cache, and for rbx the config, the run file and the blocks. Each command is run once first (warm "
+          f"caches), then the two in turn, run by run, median of {args.repeats} each; `start-up` is the same for "
+          "one collision. `minimal / rbx` is the minimal program's wall time over rbx's: rbx's speed as a fraction "
+          "of the minimal program's.", ""]
+    rows = []
+    for s, (rbx, mini, rs, ms) in process.items():
+        rows.append([s, f"{rbx.N:,}", f"{rbx.seconds:.2f}", f"{mini.seconds:.2f}", f"{mini.seconds / rbx.seconds:.2f}",
+                     f"{rs.seconds:.2f}", f"{ms.seconds:.2f}"])
+    L += table(["scene", "collisions", "rbx simulate (s)", "minimal program (s)", "minimal / rbx",
+                "rbx start-up, 1 collision (s)", "minimal start-up, 1 collision (s)"], rows)
+    L += ["", "Targets of issue 17: minimal / rbx ≥ 0.9 for 10⁹ collisions of the rough strip and plates; "
+          "`rbx simulate`'s warm start-up ≤ 0.5 s.", ""]
+
+    # 4
+    L += heading(args, "## 4. The cost of recording", "fields") + [
           "One trajectory, rough rule, each field alone, all of them, and all of them every 10 and 100 "
           "collisions. **In memory**: `Simulation.run` into a `MemorySink` (the API; it keeps copies of every "
           f"block), N capped at {args.memory_cap / 1e6:.0f} MB of records. **HDF5**: the real command "
@@ -844,7 +1280,11 @@ def write_document(args, cmd, results, wall):
           f"{args.h5_seconds:g} s of work (at most {args.file_cap / 1e6:.0f} MB of file); its work is the wall "
           "time less the start-up (the same command for one collision, median of runs: import, loading the "
           "kernels from the cache, creating the file), and the rates and MB/s come from that work. `relative` is "
-          "the time per collision over that of nothing recorded in memory.", ""]
+          "the time per collision over that of nothing recorded in memory. The limits, without the engine "
+          "(`writer_limit`): **writer alone**, the same blocks (fields, length, values) written as often by rbx's "
+          "HDF5 writer (`runfile.H5Sink`: h5py, rbx's chunks and checksums); **plain write**, the same bytes by "
+          "`file.write` to a plain file (page cache, no fsync: what the disk side takes). MB/s are of the records' "
+          "bytes.", ""]
     for scene, rows in fields.items():
         base_mem = rows[0][2].seconds / rows[0][2].N
         n = len(SCENES[scene][1])
@@ -852,7 +1292,7 @@ def write_document(args, cmd, results, wall):
         for label, fs, mem, h5 in rows:
             if h5 is None:
                 trs.append([label, f"{field_bytes(n, fs, 1):g}", rate_s(mem.rate),
-                            f"{mem.seconds / mem.N / base_mem:.2f}"] + ["not run (--quick)"] * 6)
+                            f"{mem.seconds / mem.N / base_mem:.2f}"] + ["not run (--quick)"] * 8)
                 continue
             work = h5_work(h5, startup[scene])
             ok = h5_ok(h5, startup[scene])
@@ -861,15 +1301,18 @@ def write_document(args, cmd, results, wall):
                         f"{h5.N:,}", f"{h5.seconds:.2f}", f"{h5.extra / 1e6:.1f}",
                         rate_s(h5.N / work) if ok else "within start-up noise",
                         f"{work / h5.N / base_mem:.2f}" if ok else "—",
-                        f"{h5.extra / 1e6 / work:.0f}" if ok and h5.extra > 1e5 else "—"])
+                        f"{h5.extra / 1e6 / work:.0f}" if ok and h5.extra > 1e5 else "—"]
+                       + ([f"{h5.limit[2] / 1e6 / h5.limit[0]:.0f}", f"{h5.limit[2] / 1e6 / h5.limit[1]:.0f}"]
+                          if h5.limit else ["—", "—"]))
         L += [f"### {scene} ({n}D, rough); `rbx simulate` start-up {startup[scene].seconds:.2f} s", ""]
         L += table(["recorded", "bytes/record", "memory collisions/s", "memory relative", "HDF5 N", "HDF5 wall s",
-                    "file MB", "HDF5 collisions/s", "HDF5 relative", "HDF5 MB/s"], trs)
+                    "file MB", "HDF5 collisions/s", "HDF5 relative", "HDF5 MB/s", "writer alone MB/s",
+                    "plain write MB/s"], trs)
         L += [""]
     L += [f"![cost of each recorded field]({pngs['fields']})", ""]
 
-    # 4
-    L += heading(args, "## 4. Ensembles and threads", "ensembles") + [
+    # 5
+    L += heading(args, "## 5. Ensembles and threads", "ensembles") + [
           "`run.trajectories: M`, starts drawn from the billiard measure, rough rule, nothing recorded, N "
           "collisions in all (N/M each), `numba.set_num_threads(k)`. Collisions per second in total.", ""]
     rows = []
@@ -881,8 +1324,8 @@ def write_document(args, cmd, results, wall):
     L += table(["scene", "M", "collisions per trajectory (1 thread)", "1 thread", "2 threads", "speed-up"], rows)
     L += ["", f"![ensembles and threads]({pngs['scaling']})", ""]
 
-    # 5
-    L += heading(args, "## 5. Compilation and the on-disk cache", "jit") + [
+    # 6
+    L += heading(args, "## 6. Compilation and the on-disk cache", "jit") + [
           "`rbx simulate` of a 1000-collision config recording every field, rough rule, one trajectory, in a "
           "subprocess: first with an empty `NUMBA_CACHE_DIR` (every kernel that run needs is compiled), then the "
           "same command again with the cache it left. Wall time of the whole command, median over "
@@ -893,8 +1336,8 @@ def write_document(args, cmd, results, wall):
     L += ["", "Each further combination of compile-time bits (dimension, rule kinds, recording, variants: "
           "`Simulation.spec()`) compiles once more on first use, then loads from the same cache.", ""]
 
-    # 6
-    L += heading(args, "## 6. Numerical variants", "variants") + [
+    # 7
+    L += heading(args, "## 7. Numerical variants", "variants") + [
           "Speed only (their accuracy is in docs/accuracy.md): rough rule, one trajectory, nothing recorded; "
           "`numerics.renormalize` (period of the projection onto the initial energy, 0 = off), "
           "`numerics.compensated` (compensated summation of time and position), `numerics.snap` (centre put on the wall at "
@@ -908,8 +1351,8 @@ def write_document(args, cmd, results, wall):
     L += table(["scene", "variant", "collisions/s", "relative"], rows)
     L += [""]
 
-    # 7
-    L += heading(args, "## 7. A public peer: `billiards` (PyPI)", "peer") + [
+    # 8
+    L += heading(args, "## 8. A public peer: `billiards` (PyPI)", "peer") + [
           "[`billiards`](https://pypi.org/project/billiards/) simulates 2D billiards event by event: balls (with "
           "a radius) against each other and against obstacles (infinite walls, discs), specular only and in pure "
           "Python with NumPy. It fits the specular rectangle (four infinite walls) and the specular strip (two); "
@@ -930,8 +1373,8 @@ def write_document(args, cmd, results, wall):
                     for s, (p, r, dev) in peer.items()])
     L += [""]
 
-    # 8
-    L += heading(args, "## 8. What each skip saves", "skips") + [
+    # 9
+    L += heading(args, "## 9. What each skip saves", "skips") + [
           "SPEC §7: the kernel leaves out what a scene does not need, by compiling it out (`engine.COMPILED_BITS`) "
           "or behind a predictable run-time branch (per-collision records, the variants). "
           "Here each skip is undone on one scene — the work forced in (`Simulation.force_bits`) or the fast path "
@@ -952,12 +1395,12 @@ def write_document(args, cmd, results, wall):
         L += ["The same run measured in several rows (“as run”) gives the spread of one measurement on this "
               "machine: " + "; ".join(f"{sc} {lo:.1f}–{hi:.1f} ns" for sc, (lo, hi) in noisy.items()) + ". A "
               "saving smaller than that spread (or negative) is not resolved by this measurement.", ""]
-    L += notes(rates, hand, fields, ens, variants)
+    L += notes(rates, hand, process, fields, ens, variants)
     with open(out, "w") as fh:
         fh.write("\n".join(L) + "\n")
 
 
-def notes(rates, hand, fields, ens, variants):
+def notes(rates, hand, process, fields, ens, variants):
     """Facts read off the numbers (no judgement beyond them)."""
     L = ["## What stands out", ""]
     ok = [(k, t) for k, t in rates.items() if t.escaped is None]
@@ -978,6 +1421,10 @@ def notes(rates, hand, fields, ens, variants):
         if r == "rough":
             L.append(f"- {s} (rough) against its hand-written loop: {dflt.rate / h.rate:.2f} with the default "
                      f"renormalization, {off.rate / h.rate:.2f} without (target 0.9).")
+    for s, (rbx, mini, rs, ms) in process.items():
+        L.append(f"- {s} (rough) as whole processes, {rbx.N:,} collisions: `rbx simulate` {rbx.seconds:.2f} s, the "
+                 f"minimal program {mini.seconds:.2f} s (minimal / rbx {mini.seconds / rbx.seconds:.2f}, target 0.9); "
+                 f"start-up {rs.seconds:.2f} s against {ms.seconds:.2f} s (target ≤ 0.5 s).")
     for scene, rows in fields.items():
         base = rows[0][2].seconds / rows[0][2].N
         single = [r for r in rows if len(r[1]) == 1]
@@ -1004,7 +1451,7 @@ def fmt_load():
         return "unknown"
 
 
-SECTIONS = ("rates", "hand", "fields", "ensembles", "jit", "variants", "peer", "skips")
+SECTIONS = ("rates", "hand", "process", "fields", "ensembles", "jit", "variants", "peer", "skips")
 
 
 def main(argv=None):
@@ -1013,14 +1460,17 @@ def main(argv=None):
     ap.add_argument("--repeats", type=int, help="timed runs per measurement (median); default 3, quick 1")
     ap.add_argument("--seconds", type=float, help="least duration of one timed run; default 0.4, quick 0.002")
     ap.add_argument("--collisions", type=int, help="a fixed number of collisions instead of --seconds")
+    ap.add_argument("--process-collisions", type=int,
+                    help="collisions of each whole-process run (section 3); default 10⁹, quick 10⁵")
     ap.add_argument("--out", default=os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "docs",
                                                   "benchmarks.md"))
     args = ap.parse_args(argv)
     args.repeats = args.repeats or (1 if args.quick else 3)
     args.seconds = args.seconds or (0.002 if args.quick else 0.4)
-    args.h5_seconds = 0.01 if args.quick else 1.0          # work per `rbx simulate` run of section 3
+    args.h5_seconds = 0.01 if args.quick else 1.0          # work per `rbx simulate` run of section 4
     args.memory_cap = 2e6 if args.quick else 256e6         # bytes of records kept by a MemorySink run
     args.file_cap = 2e6 if args.quick else 400e6           # bytes of an HDF5 file
+    args.process_collisions = args.process_collisions or (10 ** 5 if args.quick else 10 ** 9)   # section 3
     args.load0 = fmt_load()
     argv = sys.argv[1:] if argv is None else argv
     cmd = " ".join(["python scripts/bench.py"] + [a if a != args.out else os.path.relpath(a) for a in argv])
@@ -1037,13 +1487,14 @@ def main(argv=None):
     with tempfile.TemporaryDirectory(prefix="rbx-bench-") as tmp:
         rates = section("rates", section_rates)
         hand = section("hand", section_hand, rates)
+        process = section("process", section_process, tmp)
         fields = section("fields", section_fields, tmp)
         ens = section("ensembles", section_ensembles)
         jit = section("jit", section_jit, tmp)
         variants = section("variants", section_variants)
         peer = section("peer", section_peer, rates)
         skips = section("skips", section_skips)
-    results = (rates, hand, fields, ens, jit, variants, peer, skips)
+    results = (rates, hand, process, fields, ens, jit, variants, peer, skips)
     write_document(args, cmd, results, time.perf_counter() - t0)
     log(f"wrote {args.out} in {time.perf_counter() - t0:.0f} s")
     return results

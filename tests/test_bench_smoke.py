@@ -1,6 +1,6 @@
 """scripts/bench.py runs at tiny sizes (--quick) in a subprocess and writes every section, table and plot of its
-document, so that it cannot rot; no timing is judged. The hand-written loops it compares rbx with must simulate
-the same orbits, or their ratio means nothing."""
+document, so that it cannot rot; no timing is judged. The hand-written loops and the minimal program
+(scripts/minimal_loop.py) it compares rbx with must simulate the same orbits, or their ratio means nothing."""
 import os
 import re
 import subprocess
@@ -41,9 +41,9 @@ def test_bench_writes_its_document(tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     text = out.read_text()
     assert "scripts/bench.py --quick" in text and "Machine:" in text and "numba" in text and "Engine:" in text
-    titles = ["## 1. Collisions per second", "## 2. Against a minimal hand-written loop", "## 3. The cost of recording",
-              "## 4. Ensembles and threads", "## 5. Compilation", "## 6. Numerical variants", "## 7. A public peer",
-              "## 8. What each skip saves", "## What stands out"]
+    titles = ["## 1. Collisions per second", "## 2. Against a minimal hand-written loop", "## 3. Whole processes",
+              "## 4. The cost of recording", "## 5. Ensembles and threads", "## 6. Compilation",
+              "## 7. Numerical variants", "## 8. A public peer", "## 9. What each skip saves", "## What stands out"]
     positions = [text.index(t) for t in titles]
     assert positions == sorted(positions)
     for stem in ("rates", "fields", "scaling"):
@@ -63,10 +63,14 @@ def test_bench_writes_its_document(tmp_path):
         assert all(is_number(c) or c.startswith("escapes after ") or c == "not expressible" for c in r[3:]), r
         assert is_number(r[4]), r                  # the rough rule never escapes in these scenes
     # 2: each hand-written loop, with its ratio
-    hand, skip = by_first[("scene", "rule")]      # sections 2 and 8, in that order
+    hand, skip = by_first[("scene", "rule")]      # sections 2 and 9, in that order
     assert [(r[0], r[1]) for r in hand] == list(bench.HAND)
     assert all(is_number(r[2]) and is_number(r[4]) and is_number(r[5]) for r in hand)
-    # 3: two scenes, every field, `every`, memory always, HDF5 where run
+    # 3: rbx simulate against the minimal program, whole processes: N collisions and one (start-up)
+    (proc,), = [v for k, v in by_first.items() if k == ("scene", "collisions")]
+    assert [r[0] for r in proc] == list(bench.PROCESS_SCENES)
+    assert all(is_number(c) for r in proc for c in r[1:]), proc
+    # 4: two scenes, every field, `every`, memory always, HDF5 where run
     fields = by_first[("recorded", "bytes/record")]
     assert len(fields) == len(bench.FIELD_SCENES)
     for rows in fields:
@@ -74,29 +78,29 @@ def test_bench_writes_its_document(tmp_path):
         assert all(is_number(r[2]) and is_number(r[3]) for r in rows)
         run = [r for r in rows if r[0] in bench.QUICK_H5_CASES]
         assert all(is_number(r[4]) and is_number(r[5]) and is_number(r[6]) for r in run)
-    # 4: 1 … 1000 trajectories on 1 and 2 threads
+    # 5: 1 … 1000 trajectories on 1 and 2 threads
     (ens,), = [v for k, v in by_first.items() if k == ("scene", "M")]
     assert [int(r[1]) for r in ens] == list(bench.ENSEMBLE_SIZES) * len(bench.ENSEMBLE_SCENES)
     assert all(is_number(r[3]) and is_number(r[4]) for r in ens)
-    # 5: compile against cached start-up, 2D and 3D
+    # 6: compile against cached start-up, 2D and 3D
     (jit,), = [v for k, v in by_first.items() if k == ("scene", "first run, empty cache (s)")]
     assert [r[0] for r in jit] == list(bench.JIT_SCENES) and all(is_number(c) for r in jit for c in r[1:])
-    # 6: every variant on strip and circle
+    # 7: every variant on strip and circle
     (var,), = [v for k, v in by_first.items() if k == ("scene", "variant")]
     assert len(var) == len(bench.VARIANTS) * len(bench.VARIANT_SCENES)
     assert all(is_number(r[2]) for r in var)
-    # 7: the peer, measured or said to be missing
+    # 8: the peer, measured or said to be missing
     (peer,), = [v for k, v in by_first.items() if k == ("scene", "billiards collisions/s")]
     assert [r[0] for r in peer] == list(bench.PEER_SCENES)
     assert all(is_number(r[1]) or r[1].startswith("not installed") for r in peer)
-    # 8: every skip, with and without it
+    # 9: every skip, with and without it
     assert [(r[0], r[1], r[2]) for r in skip] == [s[:3] for s in bench.SKIPS]
     assert all(is_number(r[3]) and is_number(r[4]) for r in skip)
 
 
 @pytest.mark.parametrize("i", range(len(bench.SKIPS)))
 def test_undoing_a_skip_keeps_the_orbit(i):
-    # section 8 compares the kernel with and without each skip: only the work may differ, not the orbit
+    # section 9 compares the kernel with and without each skip: only the work may differ, not the orbit
     from rbx import config, engine
     from rbx.simulation import MemorySink, Simulation
     scene, rule, _, attr, bit = bench.SKIPS[i]
@@ -123,6 +127,16 @@ def test_hand_written_loops_agree_with_rbx(scene, rule):
     assert bench.HAND[scene, rule](N) == pytest.approx(s, rel=1e-9, abs=1e-9)
     # and it is not a coincidence of the sum: one collision more or less changes it
     assert bench.HAND[scene, rule](N + 1) != pytest.approx(s, rel=1e-9, abs=1e-9)
+
+
+@pytest.mark.parametrize("scene", bench.PROCESS_SCENES)
+def test_the_minimal_program_runs_the_hand_loop(scene):
+    # section 3 times scripts/minimal_loop.py against rbx simulate: it must be section 2's loop, the same orbit
+    import minimal_loop
+    for N in (1000, 1001):
+        assert minimal_loop.run(scene, N) == pytest.approx(bench.HAND[scene, "rough"](N), rel=1e-12)
+    dt, checksum = bench.minimal_run(scene, 1000)      # as the bench runs it: a process printing its checksum
+    assert checksum == minimal_loop.run(scene, 1000)
 
 
 def test_a_missing_peer_is_reported_not_fatal(monkeypatch):
