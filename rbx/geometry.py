@@ -261,7 +261,11 @@ def polygon(p, R, kind="polygon", names=None):
             a1 = a1 if a1 >= a0 else a1 + 2 * np.pi
             walls[i].patches.append(("arc", V[i], R, a0, a1, 1.0))
             shrunk.extend(V[i] + R * np.stack([np.cos(t), np.sin(t)]) for t in np.linspace(a1, a0, 8))
-        codes.append(SEGMENT)
+        # an edge whose line has the whole polygon on its inner side (the L's four outer sides) is a half-space:
+        # its line's crossing can never come before the flight leaves the table, so the smallest time is the same
+        # without the segment's ends, and four axis-aligned ones make an axis box (Geometry.axis_box: closed form)
+        supporting = bool(np.all((V - V[i]) @ N[i] >= -1e-14 * size))
+        codes.append(HALFSPACE if supporting else SEGMENT)
         wall_idx.append(i)
         rows.append(_row(2, starts[i], N[i], T[i], lengths[i]))
         shrunk.extend([starts[i], ends[i]])

@@ -22,6 +22,9 @@ BOXED = {
     "box": ({"kind": "box", "size": [1.0, 1.3, 0.8]}, 3),
     "sinai": ({"kind": "sinai", "size": [2.0, 1.5], "radius": 0.4}, 2),
     "sinai3": ({"kind": "sinai", "size": [1.0, 1.3, 0.8], "radius": 0.2}, 3),
+    # its four outer sides have the whole polygon on one side: half-spaces, an axis box; the two inner sides and
+    # the rounded reflex corner are the other primitives
+    "L-polygon": ({"kind": "polygon", "vertices": [[0, 0], [2, 0], [2, 2], [1, 2], [1, 1], [0, 1]]}, 2),
     "box-obstacles": ({"kind": "box", "size": [2.0, 2.0, 2.0],
                        "obstacles": [{"name": "s1", "sphere": {"center": [0.6, 0.6, 0.6], "radius": 0.2}},
                                      {"name": "s2", "sphere": {"center": [1.4, 1.3, 1.2], "radius": 0.3}}]}, 3),
@@ -29,7 +32,6 @@ BOXED = {
 NOT_BOXED = {
     "strip": ({"kind": "strip", "width": 1.0}, 2),             # a slab: its own closed form
     "plates": ({"kind": "plates", "gap": 1.0}, 3),
-    "L-polygon": ({"kind": "polygon", "vertices": [[0, 0], [2, 0], [2, 2], [1, 2], [1, 1], [0, 1]]}, 2),
     "stadium": ({"kind": "stadium", "radius": 0.5, "length": 1.0}, 2),
     "circle": ({"kind": "circle", "radius": 1.0}, 2),
     "lorentz": ({"kind": "lorentz", "cell": [1.0, 1.0], "radius": 0.3}, 2),    # periodic: the images
@@ -112,7 +114,7 @@ NOT_CONVEX_BOUNDARY = {
     "mushroom": ({"kind": "mushroom", "cap_radius": 1.0, "stem_width": 0.6, "stem_height": 1.0}, 2),
     "stadium-obstacle": ({"kind": "stadium", "radius": 0.5, "length": 1.0,
                           "obstacles": [{"name": "post", "disc": {"center": [0.5, 0.0], "radius": 0.1}}]}, 2),
-    "sinai": BOXED["sinai"], "L-polygon": NOT_BOXED["L-polygon"], "circle": NOT_BOXED["circle"],
+    "sinai": BOXED["sinai"], "L-polygon": BOXED["L-polygon"], "circle": NOT_BOXED["circle"],
     "lorentz": NOT_BOXED["lorentz"], "cylinder": ({"kind": "cylinder", "radius": 1.0, "height": 1.5}, 3),
     "custom-cornered": (CORNERED, 2),
 }
