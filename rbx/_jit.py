@@ -14,6 +14,7 @@ import hashlib
 import os
 import sys
 import tempfile
+import time
 
 import numba
 from numba import types
@@ -91,7 +92,15 @@ def compile_lock(name):
     try:
         import fcntl
         fd = os.open(os.path.join(numba.config.CACHE_DIR, f".{name}.lock"), os.O_RDWR | os.O_CREAT, 0o600)
-        fcntl.flock(fd, fcntl.LOCK_EX)
+        # asked again every 20 ms rather than waited for in one blocking call: Ctrl-C while another process
+        # compiles must end this one now, and a blocking flock sees the signal only if the kernel delivers it to
+        # this very thread (else Python runs its handler when the other compile is done, up to a minute later)
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                time.sleep(0.02)
     except (ImportError, OSError):
         if fd is not None:
             os.close(fd)

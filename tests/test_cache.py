@@ -2,8 +2,10 @@
 a private temporary folder keyed the same way, with one warning line — never to Numba's own fallback (the
 package's __pycache__, keyed by file timestamps only, which served stale kernels after an edit)."""
 import os
+import signal
 import subprocess
 import sys
+import time
 
 import h5py
 import numpy as np
@@ -74,6 +76,25 @@ def test_a_second_process_waits_for_a_kernel_being_compiled():
         assert child.poll() is None, "the second process did not wait for the lock"
     out, _ = child.communicate(timeout=120)
     assert out.strip() == "got it" and child.returncode == 0
+
+
+def test_ctrl_c_while_waiting_for_another_compile_ends_the_wait():
+    """A process waiting for the compile lock is interrupted at once, even when the signal reaches another of its
+    threads (the main thread has it blocked here: the kernel then delivers it elsewhere, and a blocking flock in the
+    main thread never saw it, so Python's handler ran only once the other process had compiled)."""
+    code = ("import signal, threading, time, rbx._jit as j\n"
+            "threading.Thread(target=time.sleep, args=(60,), daemon=True).start()\n"
+            "signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})\n"
+            "print('waiting', flush=True)\n"
+            "try:\n    with j.compile_lock('interrupt-probe'):\n        print('got it', flush=True)\n"
+            "except KeyboardInterrupt:\n    print('interrupted', flush=True)\n")
+    with _jit.compile_lock("interrupt-probe"):
+        child = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
+        assert child.stdout.readline().strip() == "waiting"
+        time.sleep(0.2)
+        child.send_signal(signal.SIGINT)
+        out, _ = child.communicate(timeout=60)      # while this process still holds the lock
+    assert out.strip() == "interrupted", out
 
 
 def test_the_front_end_of_an_inlined_helper_is_made_once():

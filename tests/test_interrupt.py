@@ -417,12 +417,17 @@ def test_ctrl_c_in_histogram_and_while_starting_is_one_line_and_130(tmp_path, de
            "run": {"trajectories": 10**7, "collisions": 1000}, "output": {"path": "ret.h5"}}
     (tmp_path / "h.yaml").write_text(yaml.safe_dump(cfg))
     proc = subprocess.Popen([RBX, "histogram", "h.yaml", "-o", "h.png", "--quiet"], cwd=tmp_path,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            env={**os.environ, "PYTHONFAULTHANDLER": "1"})
     wait_until_loaded(proc, "numba")
     time.sleep(delay)
     assert proc.poll() is None
     proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=120)
+    try:
+        _, err = proc.communicate(timeout=120)
+    except subprocess.TimeoutExpired:   # once in a full suite: say where it hung (faulthandler dumps every thread)
+        proc.send_signal(signal.SIGABRT)
+        raise AssertionError("no exit 120 s after Ctrl-C; the stacks:\n" + proc.communicate(timeout=60)[1]) from None
     assert proc.returncode == 130 and "Traceback" not in err and err.count("\n") == 1, err
     assert err.startswith("rbx: interrupted") and not (tmp_path / "h.png").exists()
 
