@@ -191,7 +191,7 @@ def finish_complete(partial, path, force=False):
     acquire_lock(path)
     try:
         check_target(path, force, None, partial_ok=True)
-        runfile._publish(partial, path, True, force, _rename_failed)
+        runfile.publish(partial, path, True, force, _rename_failed)
     finally:
         release_lock(path)
 

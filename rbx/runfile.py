@@ -813,7 +813,7 @@ def stream(sim, h5, tmp, path, *, fresh=True, progress=None, should_stop=None, w
             else:
                 if sink is not None and sink.reserved:
                     trim(tmp)
-                _publish(tmp, path, complete, replace, report)
+                publish(tmp, path, complete, replace, report)
         finally:
             # the run's lock (taken by create, or by rbx.resume.load for the file resumed), released last
             release_lock(path)
@@ -841,8 +841,8 @@ def trim(path):
             pass
 
 
-def _publish(tmp, path, complete, replace, report):
-    """Rename ``tmp`` to ``path`` by the rules of :func:`stream`."""
+def publish(tmp, path, complete, replace, report):
+    """Rename ``tmp`` to ``path`` by the rules of :func:`stream` (also the last step of a resume in place)."""
     def say(message):
         if report is not None:
             report(message)

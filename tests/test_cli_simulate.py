@@ -159,7 +159,7 @@ def test_an_unfinished_run_never_replaces_a_complete_result(tmp_path):
     tmp = runfile.temporary_path(str(old))
     os.replace(fragment, tmp)
     said = []
-    runfile._publish(tmp, str(old), complete=False, replace=True, report=said.append)   # --force, then Ctrl-C
+    runfile.publish(tmp, str(old), complete=False, replace=True, report=said.append)   # --force, then Ctrl-C
     assert old.read_bytes() == before and os.path.exists(tmp) and "kept" in said[0]
 
 
@@ -170,9 +170,9 @@ def test_a_file_that_appeared_meanwhile_is_not_replaced_without_force(tmp_path):
     tmp = runfile.temporary_path(str(other))
     os.replace(ours, tmp)
     with pytest.raises(runfile.FileError) as info:
-        runfile._publish(tmp, str(other), complete=True, replace=False, report=None)
+        runfile.publish(tmp, str(other), complete=True, replace=False, report=None)
     assert "appeared while this run was writing" in str(info.value)
     assert other.read_bytes() == before and os.path.exists(tmp)
     ours_inode = os.stat(tmp).st_ino
-    runfile._publish(tmp, str(other), complete=True, replace=True, report=None)     # with --force: replaced
+    runfile.publish(tmp, str(other), complete=True, replace=True, report=None)     # with --force: replaced
     assert not os.path.exists(tmp) and os.stat(other).st_ino == ours_inode
