@@ -1126,10 +1126,12 @@ def plot_rates(path, rates):
                 ax.text(j + (i - 1.5) * width, lo * 1.1, rates[s, r].escaped if isinstance(rates[s, r].escaped, str)
                         else "escapes", rotation=90, ha="center", va="bottom",
                         fontsize=7)
-    ax.set_xticks(np.arange(len(scenes)), scenes)
+    # 14 scene names side by side ran into each other (wedge60, rectangle, L-polygon, plates): tilted
+    ax.set_xticks(np.arange(len(scenes)), scenes, rotation=30, ha="right", rotation_mode="anchor")
     ax.set_ylabel("collisions / s (one core)")
-    ax.set_title("rbx, one trajectory, nothing recorded")
-    ax.legend(ncol=4, fontsize=8)
+    ax.set_title("rbx, one trajectory, nothing recorded", pad=24)
+    # above the axes: inside, it covered the strip's and the plates' tallest bars
+    ax.legend(ncol=4, fontsize=8, loc="lower center", bbox_to_anchor=(0.5, 1.0), frameon=False)
     ax.grid(axis="y", alpha=0.3)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
@@ -1140,6 +1142,7 @@ def plot_fields(path, fields, startup):
     import matplotlib
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
+    import matplotlib.ticker
     fig, axes = plt.subplots(1, len(fields), figsize=(11, 4.5), sharey=True)
     for ax, (scene, rows) in zip(np.atleast_1d(axes), fields.items()):
         labels = [r[0] for r in rows]
@@ -1151,6 +1154,10 @@ def plot_fields(path, fields, startup):
         ax.barh(y - 0.2, mem, 0.4, label="in memory (MemorySink)")
         ax.barh(y + 0.2, h5, 0.4, label="HDF5 (rbx simulate, start-up subtracted)")
         ax.set_xscale("log")
+        # ticks at 1, 2, 5, 10, … written plainly (matplotlib labelled a short log range "2 × 10⁰")
+        ax.xaxis.set_major_locator(matplotlib.ticker.LogLocator(subs=(1.0, 2.0, 5.0)))
+        ax.xaxis.set_major_formatter(matplotlib.ticker.FuncFormatter(lambda x, _: f"{x:g}"))
+        ax.xaxis.set_minor_formatter(matplotlib.ticker.NullFormatter())
         ax.set_yticks(y, labels)
         ax.invert_yaxis()
         ax.axvline(1, color="k", lw=0.8)
@@ -1168,13 +1175,13 @@ def plot_scaling(path, ens):
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
     fig, ax = plt.subplots(figsize=(6, 4))
-    for scene in ENSEMBLE_SCENES:
+    for k, scene in enumerate(ENSEMBLE_SCENES):      # a colour per scene, a line style per thread count
         for threads, style in ((1, "o-"), (2, "s--")):
-            ax.plot(ENSEMBLE_SIZES, [ens[scene, M, threads].rate for M in ENSEMBLE_SIZES], style,
-                    label=f"{scene}, {threads} thread{'s' if threads > 1 else ''}")
+            ax.plot(ENSEMBLE_SIZES, [ens[scene, M, threads].rate / 1e6 for M in ENSEMBLE_SIZES], style,
+                    color=f"C{k}", label=f"{scene}, {threads} thread{'s' if threads > 1 else ''}")
     ax.set_xscale("log")
     ax.set_xlabel("trajectories M")
-    ax.set_ylabel("collisions / s in total")
+    ax.set_ylabel("million collisions / s in total")
     ax.set_ylim(bottom=0)
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
