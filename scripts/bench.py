@@ -33,29 +33,10 @@ from rbx import config
 from rbx.model import RECORD_FIELDS, RENORMALIZE_EVERY
 from rbx.simulation import MemorySink, Simulation
 
-KAPPA, R = 0.5, 0.1
+from minimal_loop import KAPPA, R, plates_loop, strip_loop   # the rough strip and plates: section 3's program
 
 
 # ---- minimal hand-written loops: our proxy for the speed limit of each scene ---------------------------------------
-@numba.njit(cache=True)
-def strip_loop(x, y, vx, vy, w, width, N):
-    """Rough disc in a strip: the walls are known from the sign of vy."""
-    a2, sc = 2 * KAPPA / (1 + KAPPA), 1 / (KAPPA * R)
-    t = 0.0
-    for _ in range(N):
-        if vy > 0:
-            tau, y, s = (width - R - y) / vy, width - R, 1.0
-        else:
-            tau, y, s = (R - y) / vy, R, -1.0
-        x += tau * vx
-        t += tau
-        dv = -a2 * (vx - w * s * R)        # slip velocity along x; ν = (0, −s), r = (0, sR)
-        vx += dv
-        vy = -vy
-        w -= sc * s * dv
-    return x + y + vx + vy + w + t
-
-
 @numba.njit(cache=True)
 def circle_loop(x, y, vx, vy, w, rho, N):
     """Rough disc in a circle of radius rho (shrunk): larger root of |a + τv|² = ρ²."""
@@ -79,31 +60,6 @@ def circle_loop(x, y, vx, vy, w, rho, N):
         vy += dvy - 2 * vn * ny
         w += sc * (ny * dvx - dvy * nx)               # W₁₀ += (ν₁Δv₀ − Δv₁ν₀)/(κR)
     return x + y + vx + vy + w + t
-
-
-@numba.njit(cache=True)
-def plates_loop(x, y, z, vx, vy, vz, wx, wy, wz, gap, N):
-    """Rough ball (rank 2) between plates."""
-    a2, sc = 2 * KAPPA / (1 + KAPPA), 1 / (KAPPA * R)
-    t = 0.0
-    for _ in range(N):
-        if vz > 0:
-            tau, z, s = (gap - R - z) / vz, gap - R, 1.0
-        else:
-            tau, z, s = (R - z) / vz, R, -1.0
-        x += tau * vx
-        y += tau * vy
-        t += tau
-        # ν = (0, 0, −s), r = (0, 0, sR); u = v + ω × r
-        ux, uy = vx + wy * s * R, vy - wx * s * R
-        dvx, dvy = -a2 * ux, -a2 * uy
-        vx += dvx
-        vy += dvy
-        vz = -vz
-        # ω += r × Δv / (2λ) = sR (−Δv_y, Δv_x, 0) / (κR²)
-        wx += -s * dvy * sc
-        wy += s * dvx * sc
-    return x + y + z + vx + vy + vz + wx + wy + wz + t
 
 
 @numba.njit(cache=True)

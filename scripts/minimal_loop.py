@@ -4,9 +4,10 @@ same scene (its section "Whole processes"); it imports numpy and numba only.
 
     python scripts/minimal_loop.py strip|plates N
 
-Runs N collisions from the scene's start in scripts/bench.py (SCENES; R = 0.1, κ = 0.5: the same loops as
-bench.strip_loop and bench.plates_loop, the same orbit as rbx) and prints a checksum of the final state (time +
-position + velocity + angular velocity). The loops are cached on disk (``cache=True``) as a user's would be.
+Runs N collisions from the scene's start in scripts/bench.py (SCENES; R = 0.1, κ = 0.5; the same orbit as rbx)
+and prints a checksum of the final state (time + position + velocity + angular velocity). The loops are cached on
+disk (``cache=True``) as a user's would be. They are also section 2's hand-written loops of these two scenes
+(bench.py imports them from here: one definition).
 """
 import sys
 
