@@ -264,7 +264,10 @@ def orbit3d_figure(paths, geom, title, labels=None, points_only=False):
     """The 3D path of the centre between plates or in a box, beside its horizontal projection (x, y). A long
     orbit is drawn as its first flights (:data:`ORBIT3D_SEGMENTS` in all in 3D)."""
     fig = _figure(11.0, 5.2, title)
-    ax = fig.add_subplot(1, 2, 1, projection="3d")
+    # a gap column between the panels: constrained layout does not see a 3D axes' z label, which then ran into
+    # the projection's y label
+    gs = fig.add_gridspec(1, 3, width_ratios=[1.0, 0.1, 1.0])
+    ax = fig.add_subplot(gs[0, 0], projection="3d")
     lo, hi = _extent(paths, 3)
     style = dict(ls="none", marker=".", ms=2) if points_only else dict(lw=0.6)
     shown, k = _thin(paths, ORBIT3D_SEGMENTS)
@@ -284,7 +287,7 @@ def orbit3d_figure(paths, geom, title, labels=None, points_only=False):
     ax.set_ylabel("y [L]")
     ax.set_zlabel("z [L]")
     ax.set_title("3D path of the centre" + (f" (first {k} collisions each)" if k else ""))
-    ax2 = fig.add_subplot(1, 2, 2)
+    ax2 = fig.add_subplot(gs[0, 2])
     lo2, hi2 = _extent(paths)
     draw_table_2d(ax2, geom, lo2, hi2)
     _round_caps(ax2)
