@@ -33,10 +33,15 @@ def stream_key(seed, trajectory, purpose):
 
 
 @jit
+def draw_bits(key, counter):
+    """The 64 random bits of draw number ``counter`` of the stream ``key`` (:func:`uniform` keeps the top 53)."""
+    return _mix(np.uint64(key) + (np.uint64(counter) + np.uint64(1)) * _GOLDEN)
+
+
+@jit
 def uniform(key, counter):
     """Draw number ``counter`` of the stream ``key`` -> float in [0, 1) with 53 random bits."""
-    x = _mix(np.uint64(key) + (np.uint64(counter) + np.uint64(1)) * _GOLDEN)
-    return np.float64(x >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+    return np.float64(draw_bits(key, counter) >> np.uint64(11)) * (1.0 / 9007199254740992.0)
 
 
 def uniforms(seed, trajectory, purpose, start, count):

@@ -31,12 +31,18 @@ import yaml
 
 from rbx import config
 from rbx.model import RECORD_FIELDS, RENORMALIZE_EVERY
+from rbx.rng import draw_bits, uniform
 from rbx.simulation import MemorySink, Simulation
 
-from minimal_loop import KAPPA, R, plates_loop, strip_loop   # the rough strip and plates: section 3's program
+# the rough strip and plates (section 3's standalone program) and their pieces, shared with the loops below
+from minimal_loop import A2, KAPPA, R, SC, plates_loop, plates_rough, slab_wall, strip_loop, strip_rough
 
 
 # ---- minimal hand-written loops: our proxy for the speed limit of each scene ---------------------------------------
+# The loops share the pieces that compile to the same code (the slab's wall and rough maps of minimal_loop.py,
+# _map2, _map3, rbx.rng's draws); the Sinai and L loops write their wall and disc tests out: as shared helpers
+# (a disc time returning inf, a side normal by kind) the hand loops ran slower (Sinai 19 -> 21 ns, L 9.9 -> 13.1
+# ns per collision), which would flatter rbx's ratio.
 @numba.njit(cache=True)
 def circle_loop(x, y, vx, vy, w, rho, N):
     """Rough disc in a circle of radius rho (shrunk): larger root of |a + τv|² = ρ²."""
@@ -309,24 +315,18 @@ def strip_hemisphere_loop(x, y, vx, vy, w, width, N):
     """Disc in a strip under the hemisphere rule (axis y in the body frame): rough iff the contact point
     −ν rotated by −θ has a positive y component, i.e. iff ν_y cos θ < 0; θ += τω in flight. The sign of cos θ
     is read off the parity of ⌊θ/π + ½⌋ (a multiplication and a floor instead of a cosine)."""
-    a2, sc = 2 * KAPPA / (1 + KAPPA), 1 / (KAPPA * R)
     inv_pi = 1.0 / np.pi
     t = 0.0
     th = 0.0
     for _ in range(N):
-        if vy > 0:
-            tau, y, s = (width - R - y) / vy, width - R, 1.0
-        else:
-            tau, y, s = (R - y) / vy, R, -1.0
+        tau, y, s = slab_wall(y, vy, width)
         x += tau * vx
         t += tau
         th += tau * w
         cos_pos = (np.int64(np.floor(th * inv_pi + 0.5)) & 1) == 0
         vy = -vy
         if cos_pos == (s > 0):                  # ν_y = −s: rough iff s·cos θ > 0
-            dv = -a2 * (vx - w * s * R)
-            vx += dv
-            w -= sc * s * dv
+            vx, w = strip_rough(vx, w, s)
     return x + y + vx + vy + w + t
 
 
@@ -334,14 +334,10 @@ def strip_hemisphere_loop(x, y, vx, vy, w, width, N):
 def plates_hemisphere_loop(x, y, z, vx, vy, vz, wx, wy, wz, gap, N):
     """Ball between plates under the hemisphere rule (axis z in the body frame): rough iff ν·(A e_z) < 0. Only
     the body axis b = A e_z is followed, b ← exp(τW) b by Rodrigues' formula (rbx turns the whole matrix A)."""
-    a2, sc = 2 * KAPPA / (1 + KAPPA), 1 / (KAPPA * R)
     t = 0.0
     bx, by, bz = 0.0, 0.0, 1.0
     for _ in range(N):
-        if vz > 0:
-            tau, z, s = (gap - R - z) / vz, gap - R, 1.0
-        else:
-            tau, z, s = (R - z) / vz, R, -1.0
+        tau, z, s = slab_wall(z, vz, gap)
         x += tau * vx
         y += tau * vy
         t += tau
@@ -355,50 +351,23 @@ def plates_hemisphere_loop(x, y, z, vx, vy, vz, wx, wy, wz, gap, N):
                           bz + sn * cz + c1 * (wx * cy - wy * cx))
         vz = -vz
         if s * bz > 0.0:                        # ν_z = −s: rough iff ν_z b_z < 0
-            ux, uy = vx + wy * s * R, vy - wx * s * R
-            dvx, dvy = -a2 * ux, -a2 * uy
-            vx += dvx
-            vy += dvy
-            wx += -s * dvy * sc
-            wy += s * dvx * sc
+            vx, vy, wx, wy = plates_rough(vx, vy, wx, wy, s)
     return x + y + z + vx + vy + vz + wx + wy + wz + t
-
-
-# rbx.rng's counter-based stream, written out (the same numbers): draw k of the stream ``key`` is
-# mix(key + (k + 1)·golden), its top 53 bits the uniform
-_GOLDEN = np.uint64(0x9E3779B97F4A7C15)
-_M1 = np.uint64(0xBF58476D1CE4E5B9)
-_M2 = np.uint64(0x94D049BB133111EB)
-
-
-@numba.njit(cache=True, inline="always")
-def _draw_bits(key, k):
-    """The 64 random bits of draw k of the stream ``key`` (rbx.rng.uniform before its scaling to [0, 1))."""
-    z = key + (k + np.uint64(1)) * _GOLDEN
-    z = (z ^ (z >> np.uint64(30))) * _M1
-    z = (z ^ (z >> np.uint64(27))) * _M2
-    return z ^ (z >> np.uint64(31))
 
 
 @numba.njit(cache=True)
 def strip_random_loop(x, y, vx, vy, w, width, key, N):
     """Disc in a strip under the random rule: draw k of the trajectory's stream (rbx.rng) picks specular (u < ½)
     or rough. u = (bits >> 11)·2⁻⁵³ < ½ iff the top bit is 0: no conversion to a float."""
-    a2, sc = 2 * KAPPA / (1 + KAPPA), 1 / (KAPPA * R)
     t = 0.0
     k = np.uint64(0)
     for _ in range(N):
-        if vy > 0:
-            tau, y, s = (width - R - y) / vy, width - R, 1.0
-        else:
-            tau, y, s = (R - y) / vy, R, -1.0
+        tau, y, s = slab_wall(y, vy, width)
         x += tau * vx
         t += tau
         vy = -vy
-        if _draw_bits(key, k) >> np.uint64(63):
-            dv = -a2 * (vx - w * s * R)
-            vx += dv
-            w -= sc * s * dv
+        if draw_bits(key, k) >> np.uint64(63):
+            vx, w = strip_rough(vx, w, s)
         k += np.uint64(1)
     return x + y + vx + vy + w + t
 
@@ -408,29 +377,25 @@ def plates_random_loop(x, y, z, vx, vy, vz, wx, wy, wz, gap, key, p1, p2, dirs, 
     """Ball between plates under the random rule: draw k (rbx.rng) picks one of three rank-1 directions dirs[i]
     (in the plates' tangent axes x, y) by the cumulative probabilities p1, p2; the slip velocity is projected on
     it (rbx.physics.collide_slab at rank 1)."""
-    a2, sc = 2 * KAPPA / (1 + KAPPA), 1 / (KAPPA * R)
     t = 0.0
     k = np.uint64(0)
     for _ in range(N):
-        if vz > 0:
-            tau, z, s = (gap - R - z) / vz, gap - R, 1.0
-        else:
-            tau, z, s = (R - z) / vz, R, -1.0
+        tau, z, s = slab_wall(z, vz, gap)
         x += tau * vx
         y += tau * vy
         t += tau
         vz = -vz
-        u = np.float64(_draw_bits(key, k) >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+        u = uniform(key, k)
         k += np.uint64(1)
         i = 0 if u < p1 else (1 if u < p2 else 2)
         ex, ey = dirs[i, 0], dirs[i, 1]
         ux, uy = vx + wy * s * R, vy - wx * s * R
         p = ux * ex + uy * ey
-        dvx, dvy = -a2 * p * ex, -a2 * p * ey
+        dvx, dvy = -A2 * p * ex, -A2 * p * ey
         vx += dvx
         vy += dvy
-        wx += -s * dvy * sc
-        wy += s * dvx * sc
+        wx += -s * dvy * SC
+        wy += s * dvx * SC
     return x + y + z + vx + vy + vz + wx + wy + wz + t
 
 
@@ -1419,13 +1384,20 @@ def fmt_load():
 SECTIONS = ("rates", "hand", "process", "fields", "ensembles", "jit", "variants", "peer", "skips")
 
 
+def _positive(text):
+    """argparse type: a whole number ≥ 1."""
+    if not text.isdigit() or int(text) < 1:
+        raise argparse.ArgumentTypeError(f"a whole number ≥ 1, got {text!r}")
+    return int(text)
+
+
 def main(argv=None):
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="tiny sizes (for the smoke test): numbers mean nothing")
     ap.add_argument("--repeats", type=int, help="timed runs per measurement (median); default 3, quick 1")
     ap.add_argument("--seconds", type=float, help="least duration of one timed run; default 0.4, quick 0.002")
     ap.add_argument("--collisions", type=int, help="a fixed number of collisions instead of --seconds")
-    ap.add_argument("--process-collisions", type=int,
+    ap.add_argument("--process-collisions", type=_positive,
                     help="collisions of each whole-process run (section 3); default 10⁹, quick 10⁵")
     ap.add_argument("--out", default=os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "docs",
                                                   "benchmarks.md"))

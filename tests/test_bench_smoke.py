@@ -139,6 +139,15 @@ def test_the_minimal_program_runs_the_hand_loop(scene):
     assert checksum == minimal_loop.run(scene, 1000)
 
 
+@pytest.mark.parametrize("args,key", [(["strip", "x"], "N"), (["strip", "-5"], "N"), (["cube", "3"], "scene"),
+                                      (["strip"], "usage")])
+def test_the_minimal_program_refuses_bad_arguments_in_one_line(args, key):
+    import subprocess
+    res = subprocess.run([sys.executable, bench.MINIMAL_PROGRAM, *args], capture_output=True, text=True)
+    assert res.returncode == 2 and res.stdout == "", res
+    assert res.stderr.count("\n") == 1 and res.stderr.startswith(f"minimal_loop.py: {key}"), res.stderr
+
+
 def test_a_missing_peer_is_reported_not_fatal(monkeypatch):
     monkeypatch.setitem(sys.modules, "billiards", None)      # as if not installed: `import billiards` fails
     version, reason, measured = bench.section_peer(None, {})
