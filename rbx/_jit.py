@@ -24,7 +24,7 @@ from numba.np.arrayobj import make_array, populate_array
 
 #: every module that defines kernels (tests/test_jit.py checks that each module under rbx/ importing this one is
 #: listed)
-KERNEL_MODULES = ("_jit", "engine", "geometry", "physics", "rng", "rules", "tangent")
+KERNEL_MODULES = ("_jit", "engine", "geometry", "physics", "rng", "rules", "tangent", "trig")
 #: modules whose values the kernels compile in as constants (the record bits of rbx.model.FIELDS): the cache key
 #: covers those values (:func:`_compiled_constants`), not the modules' whole text, so that an edit elsewhere in
 #: rbx/model.py (a config key, a docstring) does not compile every kernel again

@@ -39,6 +39,7 @@ from .geometry import SEGMENT, box_collision, contact_normal, periodic_flight, s
 from .model import FIELD, FIELDS
 from .physics import collide, collide_slab
 from .rules import EXIT, choose
+from .trig import sincos
 
 try:                # Numba's fingerprint of a value's type (private: see _entry_point)
     from numba._dispatcher import compute_fingerprint
@@ -86,8 +87,9 @@ class Rules(NamedTuple):
     rank: np.ndarray        # (nodes,) roughness rank (constant nodes)
     first: np.ndarray       # (nodes,) first child in ``children``
     children: np.ndarray    # (links,) child nodes
-    cumprob: np.ndarray     # (links,) cumulative probabilities (random nodes)
+    threshold: np.ndarray   # (links,) uint64 thresholds on a draw's 53 bits (random nodes)
     axis: np.ndarray        # (nodes, n) body-frame axis (hemisphere nodes)
+    phase: np.ndarray       # (nodes, walls) 2D hemisphere nodes on flat walls, else NaN (rbx.rules.phases)
     basis: np.ndarray       # (nodes, walls, n-1, n) roughness basis (constant nodes)
 
 
@@ -144,8 +146,9 @@ def rotate(A, W, tau, E, tmp):
     phi = tau * w
     if phi == 0.0:
         return
-    s = np.sin(phi) / w                  # the two divisions once, not once per entry (no fast-math to hoist them)
-    c1 = (1.0 - np.cos(phi)) / (w * w)
+    c, sn = sincos(phi)                  # inline: a libm call spills the loop's registers
+    s = sn / w                           # the two divisions once, not once per entry (no fast-math to hoist them)
+    c1 = (1.0 - c) / (w * w)
     for i in range(3):
         for j in range(3):
             k2 = 0.0
@@ -243,6 +246,7 @@ S_STOP_WALL = 512   # end a trajectory when it hits ``stop_wall``
 S_PERIODIC = 1024   # a periodic cell (Table.lattice_lo, period): the images of the primitives around the centre
 S_EXIT = 2048       # some wall's rule is (or may resolve to) ``exit``: the trajectory ends at its contact
 S_AXES = 4096       # bounded by an axis-aligned box (Table.box): a division per axis, then the other primitives
+S_ROUND_HEMI = 8192  # 2D: a hemisphere rule on a wall without one normal: cos θ, sin θ (rbx.rules.choose)
 #: the bits compiled into the kernel; the others are tested at run time (a predictable branch). Each compiled
 #: combination in use costs a compile of 5–15 s the first time (then it is on disk), so the bits compiled are the
 #: ones that pay: the dimension (loops of constant length, state in registers), spin arithmetic, the slab's closed
@@ -257,16 +261,17 @@ S_AXES = 4096       # bounded by an axis-aligned box (Table.box): a division per
 #: 50 without it) for 1.14 -> 1.08 of the strip's hand loop and 0.99 -> 0.96 of the plates' (interleaved, load
 #: ~2; the record branch is never taken when nothing is recorded). The variants and the stop wall are run-time
 #: bits too.
-COMPILED_BITS = S_DIM3 | S_SPIN | S_SLAB | S_TREE | S_ORIENT | S_AXES | S_PERIODIC | S_EXIT
+COMPILED_BITS = S_DIM3 | S_SPIN | S_SLAB | S_TREE | S_ORIENT | S_AXES | S_PERIODIC | S_EXIT | S_ROUND_HEMI
 RUNTIME_BITS = ~COMPILED_BITS
 
 
 def make_spec(n, orient=False, spin=True, tree=False, record=False, compensated=False, snap=False,
-              slab=False, stop_wall=False, periodic=False, exit=False, axes=False):
+              slab=False, stop_wall=False, periodic=False, exit=False, axes=False, round_hemisphere=False):
     """The ``spec`` bits from flags (:class:`rbx.simulation.Simulation` derives them from the config)."""
     flags = ((n == 3, S_DIM3), (orient, S_ORIENT), (spin, S_SPIN), (tree, S_TREE), (record, S_RECORD),
              (compensated, S_COMPENSATED), (snap, S_SNAP), (slab, S_SLAB),
-             (stop_wall, S_STOP_WALL), (periodic, S_PERIODIC), (exit, S_EXIT), (axes, S_AXES))
+             (stop_wall, S_STOP_WALL), (periodic, S_PERIODIC), (exit, S_EXIT), (axes, S_AXES),
+             (round_hemisphere, S_ROUND_HEMI))
     return sum(bit for on, bit in flags if on)
 
 
@@ -308,7 +313,7 @@ def _make_kernel(spec):
     N = 3 if spec & S_DIM3 else 2
     ORIENT, SPIN, TREE = bool(spec & S_ORIENT), bool(spec & S_SPIN), bool(spec & S_TREE)
     SLAB, PERIODIC = bool(spec & S_SLAB), bool(spec & S_PERIODIC)
-    EXIT_, AXES = bool(spec & S_EXIT), bool(spec & S_AXES)
+    EXIT_, AXES, ROUND_HEMI = bool(spec & S_EXIT), bool(spec & S_AXES), bool(spec & S_ROUND_HEMI)
 
     @jit_loop
     def advance_all(j0, j1, stop, table, rules, settings, state, out, nrec):
@@ -423,7 +428,7 @@ def _make_kernel(spec):
                 w = prim_wall[p]
                 if TREE:
                     node, d = choose(w, nu, Aj, th, key, d, rules.root, rules.kind, rules.first, rules.children,
-                                     rules.cumprob, rules.axis, n)
+                                     rules.threshold, rules.axis, rules.phase, n, ROUND_HEMI)
                 else:
                     node = rules.root[w]
                 rk = rules.rank[node]

@@ -312,7 +312,7 @@ def tangent_advance(j, stop, t_end, ortho, slab, periodic, spin, tree, renorm_ev
         w = prim_wall[p]
         if tree:
             node, d = choose(w, nu, A, th, key, d, rules.root, rules.kind, rules.first, rules.children,
-                             rules.cumprob, rules.axis, n)
+                             rules.threshold, rules.axis, rules.phase, n, True)
         else:
             node = rules.root[w]
         state.last_wall[j] = w

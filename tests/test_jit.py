@@ -79,13 +79,14 @@ def test_one_kernel_per_combination_of_compiled_bits():
     closure = dict(zip(engine.kernel(engine.S_AXES).py_func.__code__.co_freevars,
                        (c.cell_contents for c in engine.kernel(engine.S_AXES).py_func.__closure__)))
     assert closure["AXES"] is True and closure["N"] == 2
-    assert not any(closure[k] for k in ("ORIENT", "SPIN", "TREE", "SLAB", "PERIODIC", "EXIT_"))
+    assert not any(closure[k] for k in ("ORIENT", "SPIN", "TREE", "SLAB", "PERIODIC", "EXIT_", "ROUND_HEMI"))
 
 
 def test_the_groups():
     assert engine.Records._fields == RECORD_FIELDS             # one buffer per record field, in FIELDS order
     assert engine.Table._fields == ("codes", "prim_wall", "params", "tol", "lattice_lo", "period", "box", "others", "first_hit")
-    assert engine.Rules._fields == ("root", "kind", "rank", "first", "children", "cumprob", "axis", "basis")
+    assert engine.Rules._fields == ("root", "kind", "rank", "first", "children", "threshold", "axis", "phase",
+                                     "basis")
     assert set(engine.Settings._fields) == {"flags", "stop_wall", "every", "mask", "renorm_every", "R", "kappa"}
     assert "pos" in engine.State._fields and len(engine.State._fields) == 14
     for group in (engine.Table, engine.Rules, engine.Settings, engine.State, engine.Records):
