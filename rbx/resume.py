@@ -95,28 +95,89 @@ def _load(run, source):
         expected = 1 + collisions // cfg.output.every   # record 0 and one per ``every`` collisions
         if g["step"].shape[0] < expected.max() or np.any(g["count"][...] < expected):
             raise damaged("collisions/count", "fewer records than the saved state accounts for")
-        _check_readable(g, cfg, int(expected.max()), damaged)
-        _check_last_records(g, cfg, state, expected, damaged)
+        torn = _torn_chunks(g, cfg, int(expected.max()), damaged)
+        _check_last_records(g, cfg, state, expected, damaged, torn)
+    else:
+        torn = {}
+    sim = Simulation(cfg, state)
+    sim.torn_chunks = torn
     done = int(running[0]) if running.size else cfg.run.collisions
-    return Simulation(cfg, state), False, done
+    return sim, False, done
 
 
-def _check_readable(g, cfg, length, damaged):
+def _torn_chunks(g, cfg, length, damaged):
     """The chunks the resumed file keeps and rewrites (those holding the last records the state accounts for) must
-    read: a kill while HDF5 rewrote one leaves it failing its checksum, and cutting the records back would then
-    fail inside HDF5."""
+    read. A kill while HDF5 rewrote one can leave it failing its Fletcher-32 checksum: HDF5 writes a partly filled
+    chunk whole, in place, and the kill lands between its sectors. The records the saved state accounts for are
+    the same bytes in the old and the new version of the chunk (only records after them and the checksum
+    differ), so such a chunk is read from its raw bytes and rewritten by :func:`make_consistent`, and the check of
+    the last records against the saved state reads it so. A chunk that cannot be read so (compressed, or of the
+    wrong size) refuses the resume in one line -> {field: {chunk offset: chunk array}}."""
+    torn = {}
     for f in cfg.output.record:
         ds = g[f]
-        step = ds.chunks[1] if ds.chunks else 1
-        first = max(0, (length - 1) // step * step)
-        try:
-            ds[:, first:length]
-        except OSError:
-            raise damaged(f"collisions/{f}", "a chunk of the last saved records fails its checksum (the process was "
-                                             "killed while HDF5 rewrote it: run the config again)") from None
+        if not ds.chunks:
+            continue
+        tc, rc = ds.chunks[:2]
+        M = ds.shape[0]
+        for r0 in range(max(0, (length - 1) // rc * rc), length, rc):
+            for t0 in range(0, M, tc):
+                try:
+                    ds[t0:min(t0 + tc, M), r0:min(r0 + rc, length)]
+                except OSError:
+                    chunk = _raw_chunk(ds, (t0, r0) + (0,) * (ds.ndim - 2))
+                    if chunk is None:
+                        raise damaged(f"collisions/{f}", "a chunk of the last saved records fails its checksum (the "
+                                                         "process was killed while HDF5 rewrote it: run the config "
+                                                         "again)") from None
+                    torn.setdefault(f, {})[(t0, r0) + (0,) * (ds.ndim - 2)] = chunk
+    return torn
 
 
-def _check_last_records(g, cfg, state, expected, damaged):
+def _raw_chunk(ds, offset):
+    """The chunk at ``offset`` decoded from its raw bytes without its checksum, or None where that cannot be done:
+    a pipeline other than Fletcher-32 alone (a compressed chunk's bytes are not its values), or a size other than
+    the chunk's values and the 4 bytes of the checksum."""
+    if ds.compression is not None or ds.shuffle or not ds.fletcher32:
+        return None
+    try:
+        mask, raw = ds.id.read_direct_chunk(offset)
+    except (OSError, ValueError, KeyError):
+        return None
+    nbytes = int(np.prod(ds.chunks)) * ds.dtype.itemsize
+    if mask != 0 or len(raw) != nbytes + 4:
+        return None
+    return np.frombuffer(raw[:nbytes], dtype=ds.dtype).reshape(ds.chunks).copy()
+
+
+def _column(ds, column, torn):
+    """Record ``column`` of every trajectory, the chunks in ``torn`` taken from there."""
+    out = np.empty((ds.shape[0],) + ds.shape[2:], ds.dtype)
+    tc, rc = (ds.chunks or ds.shape)[:2]
+    r0 = column // rc * rc
+    for t0 in range(0, ds.shape[0], tc):
+        t1 = min(t0 + tc, ds.shape[0])
+        chunk = torn.get((t0, r0) + (0,) * (ds.ndim - 2))
+        out[t0:t1] = chunk[:t1 - t0, column - r0] if chunk is not None else ds[t0:t1, column]
+    return out
+
+
+def _rewrite_torn(g, torn):
+    """Write the chunks :func:`_torn_chunks` read back, each with a checksum of its values: HDF5 makes the checksum
+    (the chunk written to a dataset of the same shape and filter in a file in memory, whose raw chunk is then
+    copied), so the chunk reads and keeps being checked like every other."""
+    import h5py
+    for f, chunks in torn.items():
+        ds = g[f]
+        with h5py.File("torn-chunk", "w", driver="core", backing_store=False) as mem:
+            scratch = mem.create_dataset("x", shape=ds.chunks, dtype=ds.dtype, chunks=ds.chunks, fletcher32=True)
+            for offset, chunk in chunks.items():
+                scratch[...] = chunk
+                mask, raw = scratch.id.read_direct_chunk((0,) * ds.ndim)
+                ds.id.write_direct_chunk(offset, raw, filter_mask=mask)
+
+
+def _check_last_records(g, cfg, state, expected, damaged, torn):
     """The last record of each running trajectory must be its saved state when it stopped on a recorded
     collision: records and state from different blocks (a hard kill) would otherwise continue silently from the
     wrong point. (Ended trajectories do not continue, so they need no check.)"""
@@ -127,7 +188,7 @@ def _check_last_records(g, cfg, state, expected, damaged):
     column = int(expected[rows[0]]) - 1          # the running trajectories share it
     saved_as = {"wall": "last_wall", "rank": "last_rank"}
     for f in cfg.output.record:
-        last = g[f][:, column][rows]
+        last = _column(g[f], column, torn.get(f, {}))[rows]
         saved = np.asarray(state[saved_as.get(f, f)])[rows].reshape(last.shape).astype(last.dtype)
         if not np.array_equal(last, saved):
             raise damaged(f"collisions/{f}", "the last records are not the saved state (the process was killed "
@@ -141,6 +202,7 @@ def make_consistent(h5, sim, write_initial):
     if write_initial:
         _reset(h5, g, sim.cfg)
     else:
+        _rewrite_torn(g, sim.torn_chunks)
         _cut_back(g, sim.cfg, sim.ncoll)
         # keep only the state slot it continues from: a slot a kill left unverified must be the next one written,
         # never the one this run's records now rest on

@@ -81,6 +81,9 @@ class Simulation:
         #: callables giving back the run locks (:func:`rbx.runfile.acquire_lock`) this run holds, called by
         #: :func:`rbx.runfile.stream` when its file is done
         self.locks = []
+        #: a resumed run: the record chunks its kill tore, read from their raw bytes ({field: {offset: chunk}},
+        #: :func:`rbx.resume.load`), written back by :func:`rbx.resume.make_consistent`
+        self.torn_chunks = {}
 
     def _initial_state(self):
         cfg = self.cfg

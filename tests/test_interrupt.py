@@ -483,3 +483,56 @@ def test_a_full_disk_stops_the_run_cleanly_and_it_resumes_exactly(tmp_path, monk
                          text=True, timeout=300)
     assert res.returncode == 0, res.stderr
     assert_same_records(read_run(tmp_path / "run.h5"), read_run(tmp_path / "ref.h5"))
+
+
+def _last_saved_chunk(f, field):
+    """(chunk offset, byte offset, size, records the state accounts for) of the chunk holding trajectory 0's last
+    saved record of ``field``."""
+    length = int(f["collisions/count"][...].max())
+    ds = f[f"collisions/{field}"]
+    r0 = (length - 1) // ds.chunks[1] * ds.chunks[1]
+    offset = (0, r0) + (0,) * (ds.ndim - 2)
+    info = ds.id.get_chunk_info_by_coord(offset)
+    return offset, info.byte_offset, info.size, length
+
+
+@pytest.mark.parametrize("tear", ["checksum", "after-the-saved-records", "the-last-saved-record"])
+def test_a_chunk_torn_by_a_kill_is_read_from_its_raw_bytes(tear, tmp_path, tiny_blocks):
+    """A kill while HDF5 rewrote a partly filled chunk leaves it failing its Fletcher-32 checksum: its old
+    sectors and its new ones mixed. The saved records are the same bytes in both, so resume reads the chunk raw,
+    says so in a warning line, and the records equal the uninterrupted run's, every chunk checksummed again. A
+    tear that reaches the last saved record is caught by its comparison with the saved state: refused."""
+    cfg = scene("strip-random", 3000, 2, 1, record=["time", "position"])
+    exp = write_config(tmp_path, cfg)
+    assert invoke(exp, "-o", tmp_path / "ref.h5").exit_code == 0
+    tiny_blocks(3)
+    assert invoke(exp, "-o", tmp_path / "run.h5").exit_code == 130
+    with h5py.File(tmp_path / "run.h5", "r") as f:
+        offset, at, size, length = _last_saved_chunk(f, "time")
+        rc = f["collisions/time"].chunks[1]
+        assert f["collisions/time"].shape[1] == length and length % rc   # a partly filled chunk
+    raw = bytearray((tmp_path / "run.h5").read_bytes())
+    if tear == "checksum":
+        where = at + size - 4                               # the checksum's sector not rewritten
+    elif tear == "after-the-saved-records":
+        where = at + 8 * (length - offset[1])               # trajectory 0's first record after the saved ones
+    else:
+        where = at + 8 * (length - 1 - offset[1])           # its last saved record
+    raw[where:where + 4] = bytes(b ^ 0x5A for b in raw[where:where + 4])
+    (tmp_path / "run.h5").write_bytes(bytes(raw))
+    with h5py.File(tmp_path / "run.h5", "r") as f, pytest.raises(OSError):
+        f["collisions/time"][...]                           # torn indeed: HDF5 refuses the chunk
+    res = invoke("--resume", tmp_path / "run.h5")
+    if tear == "the-last-saved-record":
+        assert res.exit_code == 2
+        line, = res.stderr.strip().splitlines()
+        assert "collisions/time" in line and "not the saved state" in line
+        return
+    assert res.exit_code == 0, res.stderr
+    line, = res.stderr.strip().splitlines()
+    assert "warning" in line and "collisions/time" in line and "1 chunk(s)" in line and "checksum" in line
+    assert_same_records(read_run(tmp_path / "run.h5"), read_run(tmp_path / "ref.h5"))
+    with h5py.File(tmp_path / "run.h5", "r") as f:
+        ds = f["collisions/time"]
+        masks = [ds.id.get_chunk_info(i).filter_mask for i in range(ds.id.get_num_chunks())]
+        assert masks and not any(masks)                     # every chunk has its checksum again

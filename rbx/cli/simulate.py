@@ -152,6 +152,10 @@ def _resume(config, run_file, out, overrides, force, quiet, stop, cluster, began
                                    "remove it or use --force")
     if note:
         click.echo(f"rbx: {display_path(run_file)}: warning: {note}", err=True)
+    for field, chunks in sim.torn_chunks.items():
+        click.echo(f"rbx: {display_path(run_file)}: warning: collisions/{field}: {len(chunks)} chunk(s) of the last "
+                   "saved records failed their checksum (torn by the kill while HDF5 rewrote them): the saved "
+                   "records were read from the raw bytes of the chunks", err=True)
     with connect(cluster) as sim.cluster:
         compile_kernels(sim)
         if stop.start_running():
