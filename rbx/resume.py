@@ -199,6 +199,7 @@ def make_consistent(h5, sim, write_initial):
     """Bring the records of a writable copy in line with the state :func:`load` read: cut records past it (or,
     with ``write_initial``, all of them) and set ``count``."""
     g = h5["collisions"]
+    runfile.note_resume(h5, 0 if write_initial else int(sim.ncoll.max(initial=0)))
     if write_initial:
         _reset(h5, g, sim.cfg)
     else:

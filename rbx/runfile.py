@@ -15,7 +15,7 @@ Layout (T trajectories, N records; trajectory axis first):
 
 | path | shape (2D / 3D) | dtype | meaning |
 |---|---|---|---|
-| ``/`` attrs | | | :data:`ROOT_ATTRS`: ``rbx_version``, ``dimension``, ``config`` (resolved YAML), ``complete``, ``schema_version``, ``table_kind``, ``wall_names``, ``radius``, ``kappa``, ``collisions_requested``; and :data:`PROVENANCE_ATTRS`: ``created``, ``numba_version``, ``numpy_version``, ``h5py_version``, ``hdf5_version``, ``python_version``, ``command``, ``host`` |
+| ``/`` attrs | | | :data:`ROOT_ATTRS`: ``rbx_version``, ``dimension``, ``config`` (resolved YAML), ``complete``, ``schema_version``, ``table_kind``, ``wall_names``, ``radius``, ``kappa``, ``collisions_requested``; and :data:`PROVENANCE_ATTRS`: ``created``, ``numba_version``, ``numpy_version``, ``h5py_version``, ``hdf5_version``, ``python_version``, ``command``, ``host``, ``resumed`` |
 | ``collisions/time`` | (T, N) | f8 | time of the record |
 | ``collisions/position``, ``velocity`` | (T, N, n) | f8 | centre and its velocity |
 | ``collisions/angular_velocity`` | (T, N) / (T, N, 3) | f8 | space-frame ω |
@@ -63,7 +63,8 @@ ROOT_ATTRS = {
 }
 SPEC_ATTRS = ("rbx_version", "dimension", "config", "complete")
 #: where a file comes from: root attributes written with :data:`ROOT_ATTRS` -> meaning (:func:`provenance`). Not
-#: required when reading (files written before them lack them); a resumed run keeps those of its first start.
+#: required when reading (files written before them lack them); a resumed run keeps those of its first start and
+#: adds a line to ``resumed`` (:func:`note_resume`).
 PROVENANCE_ATTRS = {
     "created": "when the file was created (UTC, ISO 8601)",
     "numba_version": "version of Numba that compiled the kernels",
@@ -72,6 +73,8 @@ PROVENANCE_ATTRS = {
     "python_version": "version of Python",
     "command": "the command line of the process that wrote the file (sys.argv, shell-quoted)",
     "host": "name of the machine that wrote the file",
+    "resumed": "one line per resume of the run: when, where, from which collision, the command and the versions "
+               "(empty if never resumed)",
 }
 #: the datasets of collisions/ besides the record fields -> (units, description)
 INDEX_DATASETS = {"count": ("1", "records written for each trajectory (rows past it are NaN / −1)"),
@@ -155,9 +158,20 @@ def provenance():
     values = {"created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
               "numba_version": _version("numba"), "numpy_version": np.__version__, "h5py_version": h5py.__version__,
               "hdf5_version": h5py.version.hdf5_version, "python_version": platform.python_version(),
-              "command": shlex.join(sys.argv), "host": socket.gethostname()}
+              "command": shlex.join(sys.argv), "host": socket.gethostname(), "resumed": ""}
     assert tuple(values) == tuple(PROVENANCE_ATTRS)
     return values
+
+
+def note_resume(h5, collisions):
+    """Add a line to the ``resumed`` attribute of a file a run continues (from ``collisions``): the records after
+    it were computed then, there, by that software, which the provenance of the first start does not say."""
+    p = provenance()
+    line = (f"{p['created']} on {p['host']}, from collision {collisions}: {p['command']} (rbx {__version__}, "
+            f"numba {p['numba_version']}, numpy {p['numpy_version']}, h5py {p['h5py_version']}, "
+            f"HDF5 {p['hdf5_version']}, Python {p['python_version']})")
+    before = _text(h5.attrs["resumed"]) if "resumed" in h5.attrs else ""
+    h5.attrs["resumed"] = f"{before}\n{line}" if before else line
 
 
 def _version(package):

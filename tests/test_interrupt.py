@@ -175,6 +175,8 @@ def test_real_interrupt_then_real_resume_equals_an_uninterrupted_run(tmp_path):
     resumed, reference = read_run(tmp_path / "run.h5"), read_run(tmp_path / "ref.h5")
     assert bool(resumed["attrs"]["complete"])
     assert_same_records(resumed, reference)
+    line, = runfile._text(resumed["attrs"]["resumed"]).splitlines()     # the resume's own provenance
+    assert f"from collision {int(part['final/collisions'].max())}: " in line and "simulate --resume run.h5" in line
 
 
 # ---- deterministic interruptions in-process ----------------------------------------------------------------------
@@ -256,6 +258,13 @@ def test_resume_twice_equals_an_uninterrupted_run(name, tmp_path, tiny_blocks):
     resumed = read_run(run)
     assert bool(resumed["attrs"]["complete"])
     assert_same_records(resumed, read_run(ref))
+    # the provenance says when and from where each part was computed: one line per resume
+    assert runfile._text(read_run(ref)["attrs"]["resumed"]) == ""
+    lines = runfile._text(resumed["attrs"]["resumed"]).splitlines()
+    assert len(lines) == 2
+    for line, cut in zip(lines, (cut1, cut2)):
+        assert f"from collision {int(cut['final/collisions'].max())}:" in line
+        assert f"on {os.uname().nodename}" in line and "numba " in line
 
 
 def test_resume_of_a_run_stopped_before_its_first_block(tmp_path, monkeypatch):
