@@ -462,9 +462,11 @@ def check_size(cfg, path, key_file=None):
     raises :class:`FileError` before anything is written. ``key_file``: (file, key) the limit is named by."""
     import shutil
     need = estimated_size(cfg)
+    # compression: the size before it (what it saves depends on the numbers, unknown before the run)
+    raw = "" if cfg.output.compression == "none" else " before compression"
     if need > cfg.output.max_size:
         file, key = key_file or (cfg.source, "output.max_size")
-        raise FileError(file, key, f"the run would write about {format_size(need)} "
+        raise FileError(file, key, f"the run would write about {format_size(need)}{raw} "
                                    f"({cfg.run.trajectories} trajectories × {cfg.run.collisions // cfg.output.every + 1}"
                                    f" records of {', '.join(cfg.output.record)}), more than the limit "
                                    f"{format_size(cfg.output.max_size)}; raise output.max_size or --max-size if that "
@@ -477,7 +479,7 @@ def check_size(cfg, path, key_file=None):
     except OSError:
         return
     if need > free:
-        raise FileError(path, None, f"the run would write about {format_size(need)} but the disk has "
+        raise FileError(path, None, f"the run would write about {format_size(need)}{raw} but the disk has "
                                     f"{format_size(free)} free")
 
 
