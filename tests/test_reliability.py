@@ -174,6 +174,37 @@ def test_a_write_that_meets_a_full_file_system_stops_cleanly_and_resumes_exactly
     assert os.path.getsize(tmp_path / "run.h5") <= os.path.getsize(tmp_path / "ref.h5") + (256 << 10)
 
 
+
+def test_a_killed_run_resumed_in_place_on_a_disk_still_full_stops_cleanly_and_resumes_later(tmp_path):
+    """A SIGKILLed run leaves OUT.h5.partial; --resume continues it in place. On a disk still full (a file size
+    limit a little above the file's size) the resume cuts the records back to the saved state and stops before
+    its first block: one line saying the file cannot grow (after the stale lock's warning), exit 1, the file
+    renamed to OUT.h5 with its checkpoint; resumed with room, the records are the uninterrupted run's."""
+    write_config(tmp_path, strip_random(30_000, trajectories=3, every=1, record=("time", "position", "wall")))
+    res = rbx("simulate", "exp.yaml", "-o", "ref.h5", "--quiet", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    res = subprocess.run(small_blocks(kill_at=3) + ["simulate", "exp.yaml", "-o", "run.h5", "--quiet"],
+                         cwd=tmp_path, capture_output=True, text=True, timeout=900)
+    assert res.returncode == -9 and (tmp_path / "run.h5.partial").exists()
+    limit = os.path.getsize(tmp_path / "run.h5.partial") + 1000
+
+    def limited():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (limit, limit))
+
+    res = subprocess.run([RBX, "simulate", "--resume", "run.h5.partial", "--quiet"], cwd=tmp_path,
+                         capture_output=True, text=True, timeout=900, preexec_fn=limited)
+    assert res.returncode == 1, res.stderr
+    stale, line = res.stderr.strip().splitlines()
+    assert stale.startswith("rbx: run.h5.lock: warning: a stale lock")
+    assert line.startswith("rbx: run.h5: the file is not allowed to grow") and "--resume run.h5" in line, line
+    assert not (tmp_path / "run.h5.partial").exists() and not (tmp_path / "run.h5.lock").exists()
+    part = read_run(tmp_path / "run.h5")
+    assert not part["attrs"]["complete"] and 0 < part["final/collisions"].max() < 30_000
+    res = rbx("simulate", "--resume", "run.h5", "--quiet", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert_same_records(read_run(tmp_path / "run.h5"), read_run(tmp_path / "ref.h5"))
+
 # ---- compensated summation --------------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("name", ["strip-random", "circle-rough"])
