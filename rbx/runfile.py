@@ -86,6 +86,10 @@ SCALES = {"trajectory": ("1", "trajectory index"),
           "record": ("1", "record index (record i is the state after collision step[i])"),
           "axis": ("1", "space axis (x, y[, z]): row of the 3D orientation matrix (space frame)"),
           "axis2": ("1", "column of the 3D orientation matrix (body frame axis)")}
+#: the NAME of a dimension scale that holds no values: netCDF-4's "dimension without a variable" (its readers
+#: number such a dimension 0, 1, …). The ``record`` scale is one: its values 0 … N−1 took 8 bytes per record, a
+#: third of a file recording ``time`` alone
+DIMENSION_ONLY = "This is a netCDF dimension but not a netCDF variable."
 
 
 #: room kept free on the disk beyond a block's records, its new chunks and the state, for HDF5's metadata
@@ -358,14 +362,14 @@ def _make_scales(g, M, n):
     import h5py
     tails = {len(g[name].shape) - 2 for name in g if name in FIELD}
     made = {"trajectory": g.create_dataset("trajectory", data=np.arange(M, dtype=np.int64)),
-            "record": g.create_dataset("record", shape=(0,), maxshape=(None,), dtype=np.int64, chunks=(4096,))}
+            "record": g.create_dataset("record", shape=(0,), maxshape=(None,), dtype=np.float32, chunks=(4096,))}
     names = np.array(["x", "y", "z"][:n], dtype=h5py.string_dtype())
     if tails & {1, 2}:
         made["axis"] = g.create_dataset("axis", data=names)
     if 2 in tails:
         made["axis2"] = g.create_dataset("axis2", data=names)
     for name, ds in made.items():
-        ds.make_scale(name)
+        ds.make_scale(f"{DIMENSION_ONLY}{0:10}" if name == "record" else name)   # record: no values written
         ds.attrs["units"], ds.attrs["description"] = SCALES[name]
     for name in g:
         if name in made:
@@ -378,14 +382,15 @@ def _make_scales(g, M, n):
 
 
 def _extend_record_scale(g):
-    """The ``record`` scale as long as ``step`` (files written before the scales have none)."""
+    """The ``record`` scale as long as ``step`` (files written before the scales have none). Its values are written
+    only in files written before it became a dimension without values (:data:`DIMENSION_ONLY`)."""
     if "record" not in g:
         return
     scale, length = g["record"], g["step"].shape[0]
     old = scale.shape[0]
     if old != length:
         scale.resize(length, axis=0)
-        if length > old:
+        if length > old and DIMENSION_ONLY not in _text(scale.attrs.get("NAME", b"")):
             scale[old:] = np.arange(old, length)
 
 
