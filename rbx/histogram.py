@@ -65,7 +65,7 @@ def _quiet(cfg):
     return cfg.replace(output=dataclasses.replace(cfg.output, record=(), every=1))
 
 
-def return_experiment(cfg, progress=None, _spin_scale=1.0, cluster=None):
+def return_experiment(cfg, progress=None, _spin_scale=1.0, cluster=None, should_stop=None):
     """Run the return-angle experiment of a validated config with ``initial: {sample: billiard, wall: W}`` ->
     :class:`Returns`.
 
@@ -73,7 +73,8 @@ def return_experiment(cfg, progress=None, _spin_scale=1.0, cluster=None):
     ``run.collisions`` collisions; the others are counted in ``returned``). Without a wall the states are drawn
     on the whole boundary and the return is the next collision, on any wall (the boundary map itself).
     ``_spin_scale`` multiplies the sampled spins: a deliberately wrong sampler, for testing that the test can
-    fail. ``cluster``: a :class:`rbx.cluster.Cluster` to follow the trajectories on (the same result)."""
+    fail. ``cluster``: a :class:`rbx.cluster.Cluster` to follow the trajectories on (the same result).
+    ``should_stop()`` is polled between blocks: if it says stop, KeyboardInterrupt (the experiment is not whole)."""
     if cfg.initial[0] != "sample":
         raise ValueError("the return experiment needs initial: {sample: billiard, wall: NAME}")
     start = time.perf_counter()
@@ -88,7 +89,9 @@ def return_experiment(cfg, progress=None, _spin_scale=1.0, cluster=None):
     initial = analysis.normal_angle(state["velocity"], state["angular_velocity"], state["normal"], R, kappa)
     sim = Simulation(cfg, state=state, stop_wall=-1 if wall is None else wall)
     sim.cluster = cluster
-    sim.run(_NullSink(), progress=progress)
+    sim.run(_NullSink(), progress=progress, should_stop=should_stop)
+    if should_stop is not None and should_stop():
+        raise KeyboardInterrupt
     fin = sim.final_state()
     hit = fin["last_wall"]
     returned = (fin["collisions"] > 0) & (hit >= 0)

@@ -8,6 +8,7 @@ own usage errors (a bad option value, a missing argument, an unknown option or c
 (:class:`OneLineUsage`).
 """
 import contextlib
+import signal
 import sys
 import time
 
@@ -78,11 +79,11 @@ def check_memory(cfg, overrides, command="simulate"):
                                    f"machine has ({available / 2**30:.3g} GiB)")
 
 
-def interrupted_exit():
-    """Ctrl-C in a command that writes nothing until it is done (plot, histogram): one line, exit 130 (click
-    would print 'Aborted!' and exit 1)."""
-    click.echo("rbx: interrupted by SIGINT; nothing written", err=True)
-    sys.exit(130)
+def interrupted_exit(signum=signal.SIGINT):
+    """Ctrl-C (or ``signum``) in a command that writes nothing until it is done (plot, histogram): one line, exit
+    128 + signum (click would print 'Aborted!' and exit 1)."""
+    click.echo(f"rbx: interrupted by {signal.Signals(signum).name}; nothing written", err=True)
+    sys.exit(128 + int(signum))
 
 
 def report_and_exit(exc, debug):

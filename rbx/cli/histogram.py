@@ -1,5 +1,6 @@
 """``rbx histogram CONFIG``: the invariant-measure experiment (paper §2.7, SPEC §4)."""
 import os
+import signal
 import time
 
 import click
@@ -31,17 +32,23 @@ def histogram(config, out, trajectories, seed, force, scheduler, slices, task_co
     NAME}, follows each until it returns to that wall (at most run.collisions collisions), writes the return
     angles to returns/angle in output.path, prints the Kolmogorov–Smirnov statistic and p-value and draws the
     histogram against the predicted density."""
+    from ..api import StopFlag
     cluster = {"scheduler": scheduler, "slices": slices, "task_collisions": task_collisions}
     began = time.perf_counter()
+    # SIGINT/SIGTERM: KeyboardInterrupt while setting up and drawing; while the trajectories run, a flag polled
+    # between blocks, so that no exception is raised while the main thread waits on the kernels' threads (one
+    # full-suite run hung there for 120 s after Ctrl-C, its worker threads idle)
+    stop = StopFlag()
     try:
-        _histogram(config, out, trajectories, seed, force, quiet, cluster, began)
+        with stop.installed():
+            _histogram(config, out, trajectories, seed, force, quiet, cluster, began, stop)
     except UserError as exc:
         report_and_exit(exc, debug)
     except KeyboardInterrupt:
-        interrupted_exit()
+        interrupted_exit(stop.signum or signal.SIGINT)
 
 
-def _histogram(config, out, trajectories, seed, force, quiet, cluster, began):
+def _histogram(config, out, trajectories, seed, force, quiet, cluster, began, stop):
     from .. import config as cfgmod
     from .. import plotting
     from ..analysis import scene_title
@@ -70,12 +77,15 @@ def _histogram(config, out, trajectories, seed, force, quiet, cluster, began):
 
     with connect(cluster) as on:
         progress = Progress("histogram", quiet=quiet, trajectories=cfg.run.trajectories)
+        if stop.start_running():
+            raise KeyboardInterrupt
         try:
-            result = return_experiment(cfg, progress=progress, cluster=on)
+            result = return_experiment(cfg, progress=progress, cluster=on, should_stop=stop)
         except ClusterError as exc:     # the cluster failed mid-run: not the user's input, exit 1
             click.echo(f"rbx: {exc}; nothing written", err=True)
             raise SystemExit(1) from None
         finally:
+            stop.running = False        # a signal from here on aborts at once again
             progress.close()
     try:
         write_returns(h5_path, cfg, result)
