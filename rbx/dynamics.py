@@ -71,9 +71,16 @@ def _advance(kernel, state, Y, sums, stop, t_end=np.inf, ortho=True, threads=Non
         tangent_advance_all(0, M, *args)
         return
     cuts = np.linspace(0, M, threads + 1).astype(np.int64)
-    with ThreadPoolExecutor(max_workers=threads) as pool:
+    pool = ThreadPoolExecutor(max_workers=threads)
+    try:
         for job in [pool.submit(tangent_advance_all, int(a), int(b), *args) for a, b in zip(cuts[:-1], cuts[1:])]:
             job.result()
+    except BaseException:
+        # Ctrl-C (KeyboardInterrupt) while the slices run: do not wait for them (a whole segment); the kernels
+        # run on, and the command ends the process (rbx.cli.common.interrupted_exit)
+        pool.shutdown(wait=False, cancel_futures=True)
+        raise
+    pool.shutdown()
 
 
 def _measure(kernel, state, Y, sums, cuts):

@@ -444,6 +444,24 @@ def test_ctrl_c_in_histogram_and_while_starting_is_one_line_and_130(tmp_path, de
         assert err.startswith(f"rbx: interrupted by {sig.name}; nothing written"), err
 
 
+def test_ctrl_c_in_lyapunov_does_not_wait_for_the_running_segment(tmp_path):
+    """The kernels' threads cannot be interrupted: the command leaves them and ends the process (one line, 130).
+    It used to wait for the running segment: here 10⁹ collisions of 2 trajectories, minutes of work."""
+    cfg = {"table": {"kind": "sinai", "size": [2.0, 1.5], "radius": 0.4}, "ball": {"radius": 0.1},
+           "boundary": {"default": {"rule": "constant", "rank": 1}},
+           "initial": {"position": [0.3, 0.3], "velocity": [0.83, 0.31], "angular_velocity": 0.7},
+           "run": {"trajectories": 2, "collisions": 10**10}}
+    (tmp_path / "l.yaml").write_text(yaml.safe_dump(cfg))
+    proc = subprocess.Popen([RBX, "lyapunov", "l.yaml", "--quiet", "--warmup", "0"], cwd=tmp_path,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    wait_until_loaded(proc, "numba")
+    time.sleep(3.0)
+    assert proc.poll() is None
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130 and err == "rbx: interrupted by SIGINT; nothing written\n", err
+
+
 @pytest.mark.parametrize("kill", ["torn-newest-state", "between-the-renames"])
 def test_a_kill_inside_the_checkpoint_leaves_a_state_to_resume_from(kill, tmp_path, tiny_blocks):
     """The checkpoint writes the new state beside the last one and swaps their names only once it verifies: a

@@ -8,6 +8,7 @@ own usage errors (a bad option value, a missing argument, an unknown option or c
 (:class:`OneLineUsage`).
 """
 import contextlib
+import os
 import signal
 import sys
 import time
@@ -80,10 +81,16 @@ def check_memory(cfg, overrides, command="simulate"):
 
 
 def interrupted_exit(signum=signal.SIGINT):
-    """Ctrl-C (or ``signum``) in a command that writes nothing until it is done (plot, histogram): one line, exit
-    128 + signum (click would print 'Aborted!' and exit 1)."""
+    """Ctrl-C (or ``signum``) in a command that writes nothing until it is done (plot, histogram, lyapunov): one
+    line, exit 128 + signum (click would print 'Aborted!' and exit 1).
+
+    By ``os._exit``, not ``sys.exit``: the kernels' threads cannot be interrupted, and Python's exit joins them,
+    so a Ctrl-C in ``rbx lyapunov`` waited for the running segment (minutes for a long run). Nothing is being
+    written here: the files the command had open were closed as the exception unwound to this point."""
     click.echo(f"rbx: interrupted by {signal.Signals(signum).name}; nothing written", err=True)
-    sys.exit(128 + int(signum))
+    sys.stdout.flush()
+    sys.stderr.flush()
+    os._exit(128 + int(signum))
 
 
 def report_and_exit(exc, debug):
