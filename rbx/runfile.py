@@ -743,12 +743,18 @@ def _at_exit():
 
     def release_all():
         if os.getpid() == owner:
-            for lock in list(_HELD):
-                _HELD.pop(lock, None)
-                _remove_own_lock(lock)
+            release_held_locks()
 
     atexit.register(release_all)
     _EXIT_HOOK.append(release_all)
+
+
+def release_held_locks():
+    """Remove every lock this process still holds: what the exit hook does, for an exit that skips Python's own
+    (``rbx.cli.common.hard_exit``)."""
+    for lock in list(_HELD):
+        _HELD.pop(lock, None)
+        _remove_own_lock(lock)
 
 
 def _is_complete_run(path):

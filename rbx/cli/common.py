@@ -88,9 +88,19 @@ def interrupted_exit(signum=signal.SIGINT):
     so a Ctrl-C in ``rbx lyapunov`` waited for the running segment (minutes for a long run). Nothing is being
     written here: the files the command had open were closed as the exception unwound to this point."""
     click.echo(f"rbx: interrupted by {signal.Signals(signum).name}; nothing written", err=True)
+    hard_exit(128 + int(signum))
+
+
+def hard_exit(code):
+    """End the process now with ``code``, without Python's exit: it joins the kernels' threads (which cannot be
+    interrupted) and runs the finalisers of Numba and LLVM, which crashed (exit −11, after the line was printed)
+    when a Ctrl-C had stopped a compile midway. The output is flushed and the run locks this process holds are
+    removed first; nothing else is being written when a command ends this way."""
+    from ..runfile import release_held_locks
     sys.stdout.flush()
     sys.stderr.flush()
-    os._exit(128 + int(signum))
+    release_held_locks()
+    os._exit(code)
 
 
 def report_and_exit(exc, debug):

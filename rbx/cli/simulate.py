@@ -17,7 +17,7 @@ import weakref
 import click
 
 from .common import (Command, Progress, UserError, check_cluster_options, check_memory, connect, display_path,
-                     duration, quiet_option, report_and_exit, summary, user_errors)
+                     duration, hard_exit, quiet_option, report_and_exit, summary, user_errors)
 
 OVERRIDES = ("collisions", "trajectories", "seed")
 
@@ -62,10 +62,20 @@ def simulate(config, out, collisions, trajectories, seed, max_size, resume, forc
                     code = _simulate(config, out, overrides, force, quiet, stop, cluster, began)
         except UserError as exc:
             report_and_exit(exc, debug)
-        except KeyboardInterrupt:   # raised by StopFlag only while setting up, before any file is written
-            click.echo(f"rbx: interrupted by {signal.Signals(stop.signum).name} before the run started; "
-                       "nothing written", err=True)
-            code = 128 + stop.signum
+        except (KeyboardInterrupt, Exception) as exc:
+            # KeyboardInterrupt: raised by StopFlag only while setting up, before any file is written. Another
+            # error after a signal: the KeyboardInterrupt raised inside a callback of Numba's compiler is lost
+            # there, and the compile fails later ("RuntimeError: no compiled object yet", 1 in ~20 tries)
+            if not (isinstance(exc, KeyboardInterrupt) or (stop.signum and not stop.running)):
+                raise
+            click.echo(f"rbx: interrupted by {signal.Signals(stop.signum or signal.SIGINT).name} before the run "
+                       "started; nothing written", err=True)
+            code = -(128 + (stop.signum or signal.SIGINT))
+    if code is not None and code < 0:
+        # a compile stopped midway: Python's exit ran Numba's and LLVM's finalisers on it and crashed (exit −11
+        # after the line, 1 in ~8 tries at random instants); here, after the except block, the simulation it set
+        # up is gone and its locks with it
+        hard_exit(-code)
     if code:
         raise SystemExit(code)
 
