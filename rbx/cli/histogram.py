@@ -46,6 +46,10 @@ def histogram(config, out, trajectories, seed, force, scheduler, slices, task_co
         report_and_exit(exc, debug)
     except KeyboardInterrupt:
         interrupted_exit(stop.signum or signal.SIGINT)
+    except Exception:
+        if not stop.signum:     # an error after a signal: Numba's compiler can lose the KeyboardInterrupt
+            raise
+        interrupted_exit(stop.signum)
 
 
 def _histogram(config, out, trajectories, seed, force, quiet, cluster, began, stop):

@@ -1,5 +1,6 @@
 """``rbx lyapunov CONFIG``: the Lyapunov spectrum of the flow (SPEC §10; docs/tangent-map.md)."""
 import json
+import signal
 import time
 
 import click
@@ -31,14 +32,22 @@ def lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json, 
     Benettin's method on the linearised dynamics (free flight, collision time, collision map with the wall's
     curvature and the spin), along each of run.trajectories trajectories of CONFIG for run.collisions collisions.
     Coordinates: position, R√κ·orientation, velocity, R√κ·spin (6 exponents in 2D, 12 in 3D)."""
+    from ..api import StopFlag
     cluster = {"scheduler": scheduler, "slices": slices, "task_collisions": None}
     began = time.perf_counter()
+    stop = StopFlag()      # never running: every signal raises KeyboardInterrupt, and stop.signum says it came
     try:
-        _lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json, cluster, quiet or as_json, began)
+        with stop.installed():
+            _lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json, cluster, quiet or as_json,
+                      began)
     except UserError as exc:
         report_and_exit(exc, debug)
     except KeyboardInterrupt:
-        interrupted_exit()
+        interrupted_exit(stop.signum or signal.SIGINT)
+    except Exception:
+        if not stop.signum:     # an error after a signal: Numba's compiler can lose the KeyboardInterrupt
+            raise
+        interrupted_exit(stop.signum)
 
 
 def _lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json, cluster, quiet, began):
