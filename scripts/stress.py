@@ -810,6 +810,8 @@ def kill_survey(kills, seed=1, block_work=3000, src=None, log=print, extra_env=N
                     try:
                         same_records = same(read(os.path.join(folder, "run.h5")), reference)
                         outcome = "exact" if same_records else "other:different"
+                        if same_records and "failed their checksum" in res.stderr:
+                            outcome = "exact, a torn chunk read raw"   # rbx.resume: the chunk the kill tore
                     except Exception as exc:   # noqa: BLE001 - counted, not raised
                         outcome = f"other:unreadable ({type(exc).__name__})"
                 elif res.returncode == 2 and len([x for x in lines if "warning" not in x]) == 1:
@@ -837,9 +839,11 @@ def main(argv=None):
                     help="only the kill survey: SIGKILL a real run this many times at random instants, resume each, "
                          "count the outcomes (docs/reliability.md)")
     ap.add_argument("--kill-src", default=None, help="with --kills: a source tree to run instead of the installed rbx")
+    ap.add_argument("--kill-seed", type=int, default=1, help="with --kills: the seed of the kill instants")
     args = ap.parse_args(argv)
     if args.kills:
-        print(kill_survey(args.kills, src=args.kill_src, log=lambda m: print(m, file=sys.stderr, flush=True)))
+        print(kill_survey(args.kills, seed=args.kill_seed, src=args.kill_src,
+                          log=lambda m: print(m, file=sys.stderr, flush=True)))
         return None
     groups = set(args.groups.split(","))
     t_start = time.perf_counter()
