@@ -1213,8 +1213,8 @@ def write_document(args, cmd, results, wall):
           "HDF5 writer (`runfile.H5Sink`: h5py, rbx's chunks and checksums); **plain write**, the same bytes by "
           "`file.write` to a plain file (page cache, no fsync: what the disk side takes); both as collisions per "
           "second of the same run, to set beside `HDF5 collisions/s`. `HDF5 MB/s` counts the whole file: the "
-          "records and, per record, its `step` and `record` index (16 bytes: a run recording `time` alone writes "
-          "three times its records' bytes).", ""]
+          "records and, per record, its `step` (8 bytes: a run recording `time` alone writes twice its records' "
+          "bytes; before commit 079f207 the `record` scale stored its values too, 8 bytes more per record).", ""]
     for scene, rows in fields.items():
         base_mem = rows[0][2].seconds / rows[0][2].N
         n = len(SCENES[scene][1])
