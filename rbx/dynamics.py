@@ -5,7 +5,6 @@ The linearised dynamics and Benettin's method run in compiled code (:mod:`rbx.ta
 orbit; the derivation of the tangent map is in docs/tangent-map.md, the escape statistics in docs/dynamics.md.
 """
 import contextlib
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -56,6 +55,7 @@ def _advance(kernel, state, Y, sums, stop, t_end=np.inf, ortho=True, threads=Non
     on which other trajectories share the arrays."""
     import numba
 
+    from . import engine
     from ._jit import compile_lock
     from .tangent import tangent_advance_all
     flags, R, kappa, table, rules = kernel
@@ -70,17 +70,9 @@ def _advance(kernel, state, Y, sums, stop, t_end=np.inf, ortho=True, threads=Non
     if threads == 1:
         tangent_advance_all(0, M, *args)
         return
-    cuts = np.linspace(0, M, threads + 1).astype(np.int64)
-    pool = ThreadPoolExecutor(max_workers=threads)
-    try:
-        for job in [pool.submit(tangent_advance_all, int(a), int(b), *args) for a, b in zip(cuts[:-1], cuts[1:])]:
-            job.result()
-    except BaseException:
-        # Ctrl-C (KeyboardInterrupt) while the slices run: do not wait for them (a whole segment); the kernels
-        # run on, and the command ends the process (rbx.cli.common.interrupted_exit)
-        pool.shutdown(wait=False, cancel_futures=True)
-        raise
-    pool.shutdown()
+    # on the engine's pool: a Ctrl-C does not wait for the running slices (a whole segment; the command then ends
+    # the process, rbx.cli.common.interrupted_exit)
+    engine.run_slices(threads, tangent_advance_all, np.linspace(0, M, threads + 1).astype(np.int64), *args)
 
 
 def _measure(kernel, state, Y, sums, cuts):

@@ -567,8 +567,20 @@ def run_advance_all(stop, table, rules, settings, state, out):
         entry(0, M, stop, *groups, nrec)
         return nrec
     cuts = np.linspace(0, M, min(M, 8 * threads) + 1).astype(np.int64)
-    jobs = [_pool(threads).submit(entry, int(a), int(b), stop, *groups, nrec)
-            for a, b in zip(cuts[:-1], cuts[1:]) if b > a]
-    for job in jobs:
-        job.result()
+    run_slices(threads, entry, cuts, stop, *groups, nrec)
     return nrec
+
+
+def run_slices(threads, function, cuts, *args):
+    """``function(a, b, *args)`` for each slice a:b of ``cuts`` on the shared pool of ``threads`` threads; returns
+    when all are done (the engine's blocks, :mod:`rbx.dynamics`'s tangent segments). Interrupted while waiting
+    (Ctrl-C in a notebook, an error in one slice): the slices not started are cancelled and the exception passes
+    on at once; those running finish on their own (a kernel cannot be stopped), so nobody waits for them."""
+    jobs = [_pool(threads).submit(function, int(a), int(b), *args) for a, b in zip(cuts[:-1], cuts[1:]) if b > a]
+    try:
+        for job in jobs:
+            job.result()
+    except BaseException:
+        for job in jobs:
+            job.cancel()
+        raise

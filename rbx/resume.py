@@ -125,13 +125,18 @@ def _torn_chunks(g, cfg, length, damaged):
                 try:
                     ds[t0:min(t0 + tc, M), r0:min(r0 + rc, length)]
                 except OSError:
-                    chunk = _raw_chunk(ds, (t0, r0) + (0,) * (ds.ndim - 2))
+                    chunk = _raw_chunk(ds, _offset(ds, t0, r0))
                     if chunk is None:
                         raise damaged(f"collisions/{f}", "a chunk of the last saved records fails its checksum (the "
                                                          "process was killed while HDF5 rewrote it: run the config "
                                                          "again)") from None
-                    torn.setdefault(f, {})[(t0, r0) + (0,) * (ds.ndim - 2)] = chunk
+                    torn.setdefault(f, {})[_offset(ds, t0, r0)] = chunk
     return torn
+
+
+def _offset(ds, t0, r0):
+    """The offset of the chunk of ``ds`` that starts at trajectory t0, record r0 (HDF5's key of a chunk)."""
+    return (t0, r0) + (0,) * (ds.ndim - 2)
 
 
 def _raw_chunk(ds, offset):
@@ -157,7 +162,7 @@ def _column(ds, column, torn):
     r0 = column // rc * rc
     for t0 in range(0, ds.shape[0], tc):
         t1 = min(t0 + tc, ds.shape[0])
-        chunk = torn.get((t0, r0) + (0,) * (ds.ndim - 2))
+        chunk = torn.get(_offset(ds, t0, r0))
         out[t0:t1] = chunk[:t1 - t0, column - r0] if chunk is not None else ds[t0:t1, column]
     return out
 

@@ -91,6 +91,23 @@ def interrupted_exit(signum=signal.SIGINT):
     hard_exit(128 + int(signum))
 
 
+@contextlib.contextmanager
+def ending_on_signals(stop):
+    """Run a command that writes nothing until it is done (histogram, lyapunov) under the signal handlers of
+    ``stop`` (:class:`rbx.api.StopFlag`): a KeyboardInterrupt, or an error that follows a signal (Numba's compiler
+    can lose the KeyboardInterrupt and fail later), ends it by :func:`interrupted_exit` naming the signal. User
+    errors pass on."""
+    try:
+        with stop.installed():
+            yield
+    except KeyboardInterrupt:
+        interrupted_exit(stop.signum or signal.SIGINT)
+    except Exception as exc:
+        if not stop.signum or isinstance(exc, UserError):
+            raise
+        interrupted_exit(stop.signum)
+
+
 def hard_exit(code):
     """End the process now with ``code``, without Python's exit: it joins the kernels' threads (which cannot be
     interrupted) and runs the finalisers of Numba and LLVM, which crashed (exit −11, after the line was printed)

@@ -1,12 +1,11 @@
 """``rbx histogram CONFIG``: the invariant-measure experiment (paper §2.7, SPEC §4)."""
 import os
-import signal
 import time
 
 import click
 
 from .common import (Command, Progress, UserError, check_cluster_options, check_memory, connect, display_path,
-                     duration, interrupted_exit, quiet_option, report_and_exit, summary)
+                     duration, ending_on_signals, quiet_option, report_and_exit, summary)
 
 
 @click.command(cls=Command)
@@ -40,16 +39,10 @@ def histogram(config, out, trajectories, seed, force, scheduler, slices, task_co
     # full-suite run hung there for 120 s after Ctrl-C, its worker threads idle)
     stop = StopFlag()
     try:
-        with stop.installed():
+        with ending_on_signals(stop):
             _histogram(config, out, trajectories, seed, force, quiet, cluster, began, stop)
     except UserError as exc:
         report_and_exit(exc, debug)
-    except KeyboardInterrupt:
-        interrupted_exit(stop.signum or signal.SIGINT)
-    except Exception:
-        if not stop.signum:     # an error after a signal: Numba's compiler can lose the KeyboardInterrupt
-            raise
-        interrupted_exit(stop.signum)
 
 
 def _histogram(config, out, trajectories, seed, force, quiet, cluster, began, stop):

@@ -1,11 +1,10 @@
 """``rbx lyapunov CONFIG``: the Lyapunov spectrum of the flow (SPEC §10; docs/tangent-map.md)."""
 import json
-import signal
 import time
 
 import click
 
-from .common import (Command, UserError, check_cluster_options, connect, duration, interrupted_exit, quiet_option,
+from .common import (Command, UserError, check_cluster_options, connect, duration, ending_on_signals, quiet_option,
                      report_and_exit, summary, user_errors)
 
 
@@ -37,17 +36,11 @@ def lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json, 
     began = time.perf_counter()
     stop = StopFlag()      # never running: every signal raises KeyboardInterrupt, and stop.signum says it came
     try:
-        with stop.installed():
+        with ending_on_signals(stop):
             _lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json, cluster, quiet or as_json,
                       began)
     except UserError as exc:
         report_and_exit(exc, debug)
-    except KeyboardInterrupt:
-        interrupted_exit(stop.signum or signal.SIGINT)
-    except Exception:
-        if not stop.signum:     # an error after a signal: Numba's compiler can lose the KeyboardInterrupt
-            raise
-        interrupted_exit(stop.signum)
 
 
 def _lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json, cluster, quiet, began):
