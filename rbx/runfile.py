@@ -42,6 +42,7 @@ import numpy as np
 import yaml
 
 from . import __version__
+from . import journal
 from .model import FIELD, FIELDS, RECORD_FIELDS, ConfigError
 
 SCHEMA_VERSION = 1
@@ -275,14 +276,16 @@ class H5Sink:
         import shutil
         # a write can allocate a whole new chunk in every dataset, and HDF5 adds its metadata
         need = nbytes + self.state_bytes + (2 * CHUNK_BYTES * self.chunked if chunks else 0) + DISK_MARGIN
+        # the checkpoint's journal (rbx.journal), another file, holds what is rewritten in place: at most as much
+        journal_bytes = need - DISK_MARGIN
         try:
-            free = shutil.disk_usage(os.path.dirname(os.path.abspath(self.h5.filename)) or ".").free
+            free = shutil.disk_usage(os.path.dirname(os.path.abspath(file_path(self.h5))) or ".").free
         except OSError:
             free = None
-        if free is not None and free < need:
+        if free is not None and free < need + journal_bytes:
             self.full = True
             raise DiskFull(f"the disk is full: {format_size(free)} free, the next block needs about "
-                           f"{format_size(need)}")
+                           f"{format_size(need + journal_bytes)}")
         self._reserve(need)
 
     def _reserve(self, need):
@@ -291,11 +294,10 @@ class H5Sink:
         ENOSPC (or EFBIG under a file size limit), which HDF5 does not survive (h5py then crashed closing the
         file). HDF5 writes its new chunks and metadata into this room; :func:`trim` gives back what is left."""
         import errno
-        try:
-            fd = self.h5.id.get_vfd_handle()
-            used = self.h5.id.get_filesize()        # HDF5's end of file, not counting an earlier reservation
-        except Exception:   # noqa: BLE001 - another file driver: the check above is all there is
+        jf = journal_of(self.h5)
+        if jf is None:      # another file driver: the check above is all there is
             return
+        fd, used = jf.fd, jf.size                   # HDF5's end of file, not counting an earlier reservation
         try:
             os.posix_fallocate(fd, 0, used + need)
         except OSError as exc:
@@ -337,6 +339,7 @@ class H5Sink:
         fin.attrs["sequence"] = sequence
         fin.attrs["digest"] = state_digest(state)     # last: until it is written the group does not verify
         self.h5.flush()
+        commit(self.h5)      # the file changes here, all at once: a kill before leaves the last checkpoint's
 
     def settle(self):
         """Name the newest saved state ``final`` (and the other ``final_previous``), once the run stops writing
@@ -535,19 +538,20 @@ def create(path, force=False):
     leftover ``.partial`` is removed first (never one a live run holds the lock of). A leftover ``.partial.new``
     is removed when no run holds the lock (a killed run's: it holds no records); the ``.partial.new`` of a run
     of this same process (which holds the lock already) is created exclusively, so the second fails."""
-    import h5py
     os.makedirs(os.path.dirname(os.path.abspath(path)) or ".", exist_ok=True)
     tmp, new = temporary_path(path), creation_path(path)
     lock = acquire_lock(path)   # first: --force must not remove the .partial of a run still writing it
     try:
         if force and os.path.exists(tmp):
             os.remove(tmp)
+            journal.discard(tmp)
         if os.path.exists(tmp):
             raise FileExistsError(tmp)
         if _HELD.get(lock) == 1:      # the lock was free: no live run is making this file
             with contextlib.suppress(FileNotFoundError):
                 os.remove(new)
-        return h5py.File(new, "w-")
+            journal.discard(new)
+        return open_journaled(new, create=True)
     except (FileExistsError, OSError) as exc:
         release_lock(path)
         for busy in (tmp, new):
@@ -772,11 +776,13 @@ def publish_new(h5, tmp):
     while HDF5 wrote the structure of a new ``.partial`` used to leave a torn file). Not over a ``tmp`` that
     appeared meanwhile: :class:`FileError`. Nothing to do for any other file (a resumed one)."""
     new = f"{tmp}.new"
-    if os.path.abspath(h5.filename) != os.path.abspath(new):
+    if os.path.abspath(file_path(h5)) != os.path.abspath(new):
         return
     h5.flush()
-    with contextlib.suppress(Exception):   # another file driver: HDF5's flush is all there is
-        os.fsync(h5.id.get_vfd_handle())
+    commit(h5)
+    jf = journal_of(h5)
+    if jf is not None:
+        os.fsync(jf.fd)
     try:
         os.link(new, tmp)                  # atomic, and fails if tmp exists
     except FileExistsError:
@@ -788,6 +794,8 @@ def publish_new(h5, tmp):
         os.replace(new, tmp)
     else:
         os.remove(new)
+    if jf is not None:
+        jf.rename(tmp)
     _fsync_folder(tmp)
 
 
@@ -817,26 +825,33 @@ def stream(sim, h5, tmp, path, *, fresh=True, progress=None, should_stop=None, w
     finished one. A rename that fails is passed to ``report``. Errors writing (OSError) propagate."""
     complete = False
     sink = None
-    new = os.path.abspath(h5.filename) == os.path.abspath(f"{tmp}.new")
+    new = os.path.abspath(file_path(h5)) == os.path.abspath(f"{tmp}.new")
     try:
-        with h5:
-            sink = H5Sink(h5, sim.cfg, fresh=fresh, path=path)
-            if not fresh:
-                _store_path(h5, sim.cfg, path)
-            publish_new(h5, tmp)
-            new = False
-            try:
-                complete = sim.run(sink, progress=progress, should_stop=should_stop, write_initial=write_initial)
-            finally:
-                with contextlib.suppress(Exception):   # an error writing must not hide the error itself
-                    sink.settle()
-            h5.attrs["complete"] = bool(complete)
+        try:
+            with h5:
+                sink = H5Sink(h5, sim.cfg, fresh=fresh, path=path)
+                if not fresh:
+                    _store_path(h5, sim.cfg, path)
+                publish_new(h5, tmp)
+                new = False
+                try:
+                    complete = sim.run(sink, progress=progress, should_stop=should_stop, write_initial=write_initial)
+                finally:
+                    with contextlib.suppress(Exception):   # an error writing must not hide the error itself
+                        sink.settle()
+                h5.attrs["complete"] = bool(complete)
+        finally:
+            # the last commit: what HDF5 wrote when it closed the file (or nothing, if that fails: the file then
+            # stays at its last checkpoint, and a run that finished is not marked complete on disk)
+            if not close_journal(h5):
+                complete = False
         return complete
     finally:
         try:
             if new:      # stopped before its structure was written: nothing worth keeping
                 with contextlib.suppress(OSError):
                     os.remove(f"{tmp}.new")
+                journal.discard(f"{tmp}.new")
             else:
                 if sink is not None and sink.reserved:
                     trim(tmp)
@@ -857,6 +872,57 @@ def _store_path(h5, cfg, path):
     except Exception:   # noqa: BLE001 - unreadable: written anew below
         pass
     h5.attrs["config"] = config_yaml(cfg, path)
+
+
+def open_journaled(path, create=False):
+    """Open a run's file for writing through its journal (:mod:`rbx.journal`) -> ``h5py.File`` (``create``: a new
+    file, exclusively; else an existing one, its pending journal applied first). Commit with :func:`commit`;
+    :func:`close_journal` after closing the ``h5py.File``. OSError if it cannot; :class:`FileError` if its journal
+    cannot be applied."""
+    import h5py
+    try:
+        jf = journal.JournaledFile(path, create=create)
+    except journal.JournalError as exc:
+        raise FileError(journal.journal_path(path), None, str(exc)) from None
+    try:
+        h5 = h5py.File(jf, "w" if create else "r+")
+    except BaseException:
+        jf.close(commit=False)
+        raise
+    h5._rbx_journal = jf
+    return h5
+
+
+def journal_of(h5):
+    """The :class:`rbx.journal.JournaledFile` an ``h5py.File`` writes through, or None."""
+    return getattr(h5, "_rbx_journal", None)
+
+
+def file_path(h5):
+    """The path of an open run file (h5py names a file-object file by the object's ``repr``: the path)."""
+    jf = journal_of(h5)
+    return jf.path if jf is not None else h5.filename
+
+
+def commit(h5):
+    """Make what HDF5 wrote so far (flush it first) the file on disk, at once (:meth:`JournaledFile.commit`)."""
+    jf = journal_of(h5)
+    if jf is not None:
+        jf.commit()
+
+
+def close_journal(h5):
+    """After the ``h5py.File`` is closed: the last commit, and the file closed -> False if that commit failed (the
+    file is then left at its last commit, still whole)."""
+    jf = journal_of(h5)
+    if jf is None:
+        return True
+    try:
+        jf.close()
+        return True
+    except OSError:
+        jf.close(commit=False)
+        return False
 
 
 def trim(path):
@@ -927,6 +993,15 @@ def _open_h5(path, mode="r"):
         raise FileError(path, None, "file not found")
     if os.path.isdir(path):
         raise FileError(path, None, "is a directory, not an HDF5 file")
+    if journal.pending(path) and lock_holder(path) is None:
+        # its run was killed inside a commit: finish it (the journal is whole, or it would not be there)
+        try:
+            journal.recover(path)
+        except journal.JournalError as exc:
+            raise FileError(journal.journal_path(path), None, str(exc)) from None
+        except OSError as exc:
+            raise FileError(path, None, "its run was killed while saving a checkpoint, and finishing that needs "
+                                        f"to write the file: {exc.strerror or exc}") from None
     try:
         is_hdf5 = h5py.is_hdf5(path)
     except OSError as exc:

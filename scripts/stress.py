@@ -801,6 +801,8 @@ def kill_survey(kills, seed=1, block_work=3000, src=None, log=print, extra_env=N
             if outcome_done(folder):        # killed while exiting, its file already renamed: nothing to resume
                 outcome = "finished-before-the-kill"
             else:
+                # killed inside a commit, after its commit point: the journal is applied when the file is opened
+                journal = os.path.exists(partial + ".journal")
                 res = subprocess.run(cmd(None, "simulate", "--resume", "run.h5.partial", "--quiet"), cwd=folder,
                                      env=env, capture_output=True, text=True)
                 lines = res.stderr.strip().splitlines()
@@ -812,6 +814,8 @@ def kill_survey(kills, seed=1, block_work=3000, src=None, log=print, extra_env=N
                         outcome = "exact" if same_records else "other:different"
                         if same_records and "failed their checksum" in res.stderr:
                             outcome = "exact, a torn chunk read raw"   # rbx.resume: the chunk the kill tore
+                        if same_records and journal:
+                            outcome += ", a journal applied"
                     except Exception as exc:   # noqa: BLE001 - counted, not raised
                         outcome = f"other:unreadable ({type(exc).__name__})"
                 elif res.returncode == 2 and len([x for x in lines if "warning" not in x]) == 1:

@@ -328,16 +328,16 @@ def test_resume_refuses_a_state_that_does_not_match_its_records(damage, tmp_path
     assert "run.h5" in line and "killed" in line and "cannot be resumed" in line
 
 
-def test_a_killed_run_resumes_exactly_or_is_refused(tmp_path):
-    """SIGKILL gives the process no chance to close the file. Resuming the .partial it leaves must give exactly
-    the uninterrupted records or a one-line refusal, never something else."""
+def test_a_killed_run_resumes_exactly(tmp_path):
+    """SIGKILL gives the process no chance to close the file. Resuming the .partial it leaves gives exactly the
+    uninterrupted records: the file changes only at commits (rbx/journal.py), so no kill tears it (before the
+    journal, a kill while HDF5 wrote its metadata could leave a file that did not open, refused in one line)."""
     cfg = strip_random(400_000, trajectories=3, every=7, record=("time", "position", "wall", "rank"))
     write_config(tmp_path, cfg)
     assert invoke(tmp_path / "exp.yaml", "-o", tmp_path / "ref.h5").exit_code == 0
     reference = read_run(tmp_path / "ref.h5")
     small_blocks = ("import sys, rbx.simulation as s; s.BLOCK_WORK = 3000; from rbx.cli.main import cli; "
                     "cli(sys.argv[1:], prog_name='rbx')")
-    outcomes = []
     for delay in (0.05, 0.2, 0.35):
         for f in tmp_path.glob("run.h5*"):
             f.unlink()
@@ -351,17 +351,10 @@ def test_a_killed_run_resumes_exactly_or_is_refused(tmp_path):
         proc.wait()
         assert not (tmp_path / "run.h5").exists()
         res = invoke("--resume", tmp_path / "run.h5.partial")          # writes run.h5
-        if res.exit_code == 0:
-            assert_same_records(read_run(tmp_path / "run.h5"), reference)
-            outcomes.append("same")
-        else:
-            assert res.exit_code == 2, res.stderr
-            line, = res.stderr.strip().splitlines()
-            # a state or records torn by the kill; or HDF5's own structure torn (docs/reliability.md)
-            assert "run.h5.partial" in line and ("cannot be resumed" in line or "run the config again" in line)
-            outcomes.append("refused")
+        assert res.exit_code == 0, res.stderr
+        assert "failed their checksum" not in res.stderr             # no chunk torn, none read raw
+        assert_same_records(read_run(tmp_path / "run.h5"), reference)
         assert not (tmp_path / "run.h5.lock").exists()          # the stale lock was taken over and removed
-    print(outcomes)
 
 
 def test_resume_into_another_file_leaves_the_original(tmp_path, tiny_blocks):

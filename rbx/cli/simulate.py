@@ -190,16 +190,16 @@ def _continue(sim, source, path, tmp, in_place, force, quiet, stop, write_initia
     """The running part of --resume: a copy (or the .partial itself) made consistent, then streamed."""
     import shutil
 
-    import h5py
-
+    from .. import journal
     from ..resume import make_consistent
-    from ..runfile import stream
+    from ..runfile import journal_of, open_journaled, stream
 
     # work on a copy (unless resuming a .partial): if this attempt dies badly, the file it started from is intact
     try:
         if not in_place:
+            journal.discard(tmp)            # a journal left by a .partial that was removed by hand is not this copy's
             shutil.copyfile(source, tmp)
-        h5 = h5py.File(tmp, "r+")
+        h5 = open_journaled(tmp)
     except OSError as exc:
         if os.path.exists(tmp) and not in_place:
             os.remove(tmp)
@@ -212,6 +212,7 @@ def _continue(sim, source, path, tmp, in_place, force, quiet, stop, write_initia
         make_consistent(h5, sim, write_initial)
     except BaseException:
         h5.close()
+        journal_of(h5).close(commit=False)     # the file as it was: nothing of the attempt reaches it
         if not in_place:
             os.remove(tmp)
         raise

@@ -1,0 +1,287 @@
+"""A write-ahead journal under HDF5: a run's file changes only at its checkpoints, all at once.
+
+HDF5 keeps no journal of its own. A process killed while HDF5 flushed its metadata, or while it rewrote a partly
+filled chunk in place, could leave a file that no longer opened (about 1 kill in 100 at the worst instants,
+docs/reliability.md). :class:`JournaledFile` is the file object h5py's ``fileobj`` driver writes a run's file
+through (:func:`rbx.runfile.open_journaled`). It splits the file at ``committed``, its length at the last commit:
+
+- bytes *below* it (what the last committed state of the file is made of) are never written in place between
+  commits: a write there goes to an overlay of pages in memory, and reads see the overlay;
+- bytes *at or above* it are written to the file at once: no committed structure points there yet.
+
+:meth:`JournaledFile.commit` (at each checkpoint, after HDF5's flush) writes the overlay to ``FILE.journal.tmp``
+with a digest, renames it to ``FILE.journal`` (the commit point: a rename is atomic), copies the pages into the
+file, and removes the journal. A kill at any instant leaves one of two files: the last commit (no journal, or a
+``.journal.tmp`` that is ignored), or the new one (a whole ``.journal`` that :func:`recover` copies in again
+before the file is next opened: copying it twice writes the same bytes). So the file always opens, and its
+saved state is the last checkpoint's.
+
+It guards against a process being killed, not against the machine losing power: nothing is fsynced at a commit
+(the system's page cache keeps the order of writes of a killed process; an fsync per checkpoint would wait for
+the disk).
+"""
+import contextlib
+import hashlib
+import os
+import struct
+
+#: the overlay's page size: a write below ``committed`` copies the pages it touches
+PAGE = 4096
+MAGIC = b"rbx journal 1\n"
+#: after the magic: file inode, file device, the file's length (HDF5's) once the journal is applied, page count
+HEADER = struct.Struct("<QQQQ")
+DIGEST_BYTES = 32
+
+
+class JournalError(Exception):
+    """A journal that cannot be applied (damaged, or made for another file)."""
+
+
+def journal_path(path):
+    return f"{path}.journal"
+
+
+class JournaledFile:
+    """A file h5py's ``fileobj`` driver reads and writes (``h5py.File(JournaledFile(path), mode)``): the methods
+    that driver calls (``seek``, ``tell``, ``readinto``, ``write``, ``truncate``, ``flush``) with the file split as
+    the module says. ``create``: a new file (exclusive: an existing one is an error); else an existing one, whose
+    journal (if any) is applied first. ``repr`` is the path: h5py names the file by it (``h5.filename``)."""
+
+    def __init__(self, path, create=False):
+        self.path = str(path)
+        if create:
+            self.fd = os.open(self.path, os.O_RDWR | os.O_CREAT | os.O_EXCL, 0o666)
+        else:
+            recover(self.path)
+            self.fd = os.open(self.path, os.O_RDWR)
+        self.pos = 0
+        #: HDF5's length of the file (its last truncate or the end of its furthest write)
+        self.size = os.fstat(self.fd).st_size
+        self._commit_at(self.size)
+
+    def __repr__(self):
+        return self.path
+
+    def _commit_at(self, size):
+        self.committed = size
+        #: the first byte not covered by the overlay's pages: bytes below go to the overlay
+        self.cut = -(-size // PAGE) * PAGE
+        self.overlay = {}
+
+    # ---- what h5py's fileobj driver calls -----------------------------------------------------------------------
+    def seekable(self):
+        return True
+
+    def readable(self):
+        return True
+
+    def writable(self):
+        return True
+
+    def seek(self, offset, whence=0):
+        if whence == 0:
+            self.pos = offset
+        elif whence == 1:
+            self.pos += offset
+        else:
+            self.pos = self.size + offset
+        return self.pos
+
+    def tell(self):
+        return self.pos
+
+    def _page(self, k):
+        page = self.overlay.get(k)
+        if page is None:
+            page = bytearray(os.pread(self.fd, PAGE, k * PAGE).ljust(PAGE, b"\0"))
+            self.overlay[k] = page
+        return page
+
+    def read(self, size=-1):
+        size = max(0, self.size - self.pos) if size is None or size < 0 else size
+        buf = bytearray(size)
+        return bytes(buf[:self.readinto(buf)])
+
+    def readinto(self, buf):
+        mv = memoryview(buf).cast("B")
+        n = min(len(mv), max(0, self.size - self.pos))
+        pos, done = self.pos, 0
+        while done < n:
+            at = pos + done
+            if at < self.cut:
+                k, off = divmod(at, PAGE)
+                m = min(PAGE - off, n - done)
+                page = self.overlay.get(k)
+                if page is not None:
+                    mv[done:done + m] = page[off:off + m]
+                else:
+                    got = os.preadv(self.fd, [mv[done:done + m]], at)
+                    if got < m:
+                        mv[done + got:done + m] = bytes(m - got)
+            else:
+                m = n - done
+                got = os.preadv(self.fd, [mv[done:done + m]], at)
+                if got < m:      # within HDF5's length but past the file's (a truncate that grew it): zeros
+                    mv[done + got:done + m] = bytes(m - got)
+            done += m
+        self.pos += n
+        return n
+
+    def _put(self, at, mv):
+        """Write the bytes ``mv`` at ``at``: below ``cut`` into the overlay's pages, the rest into the file."""
+        n, done = len(mv), 0
+        while done < n and at + done < self.cut:
+            k, off = divmod(at + done, PAGE)
+            m = min(PAGE - off, n - done)
+            self._page(k)[off:off + m] = mv[done:done + m]
+            done += m
+        while done < n:
+            done += os.pwrite(self.fd, mv[done:], at + done)
+
+    def _grow(self, end):
+        """HDF5's length grows to ``end``: the bytes between the old length and ``end`` read as zeros, as in any
+        file, though the file may still hold bytes there from before a truncate (kept for the reservation)."""
+        stale_end = min(end, max(os.fstat(self.fd).st_size, self.cut))
+        at = self.size
+        while at < stale_end:
+            m = min(stale_end - at, 1 << 20)
+            self._put(at, memoryview(bytes(m)))
+            at += m
+        self.size = end
+
+    def write(self, data):
+        mv = memoryview(data).cast("B")
+        if self.pos > self.size:
+            self._grow(self.pos)
+        self._put(self.pos, mv)
+        self.pos += len(mv)
+        self.size = max(self.size, self.pos)
+        return len(mv)
+
+    def truncate(self, size=None):
+        """HDF5's new length. The file itself is cut only at :meth:`close` (and never below ``committed`` before
+        a commit): room reserved past HDF5's end (rbx.runfile.H5Sink._reserve) stays reserved meanwhile."""
+        size = self.pos if size is None else size
+        if size > self.size:
+            self._grow(size)
+            if size > os.fstat(self.fd).st_size:
+                os.ftruncate(self.fd, size)
+        self.size = size
+        return size
+
+    def flush(self):
+        pass
+
+    # ---- commits ------------------------------------------------------------------------------------------------
+    def commit(self):
+        """Make the file what HDF5 last wrote, all at once (the module says how) -> bytes journalled."""
+        if not self.overlay:      # nothing below ``committed`` changed: what HDF5 wrote past it is the commit
+            self._commit_at(self.size)
+            return 0
+        st = os.fstat(self.fd)
+        pages = sorted(self.overlay)
+        body = [MAGIC, HEADER.pack(st.st_ino, st.st_dev, self.size, len(pages))]
+        for k in pages:
+            body.append(struct.pack("<Q", k))
+            body.append(bytes(self.overlay[k]))
+        h = hashlib.blake2b(digest_size=DIGEST_BYTES)
+        for part in body:
+            h.update(part)
+        body.append(h.digest())
+        final = journal_path(self.path)
+        tmp = f"{final}.tmp"
+        with open(tmp, "wb") as fh:
+            for part in body:
+                fh.write(part)
+        os.replace(tmp, final)           # the commit point
+        _apply(self.fd, pages, self.overlay)
+        os.remove(final)
+        self._commit_at(self.size)
+        return sum(len(p) for p in body)
+
+    def close(self, commit=True):
+        """Commit (unless ``commit`` is False: the file stays at its last commit) and close the file, cut to
+        HDF5's length."""
+        if self.fd is None:
+            return
+        try:
+            if commit:
+                self.commit()
+                if os.fstat(self.fd).st_size > self.size:
+                    os.ftruncate(self.fd, self.size)
+        finally:
+            os.close(self.fd)
+            self.fd = None
+
+    def rename(self, path):
+        """The file was renamed (or linked) to ``path`` with no journal pending: the next commit journals there."""
+        self.path = str(path)
+
+
+def _apply(fd, pages, overlay):
+    for k in pages:
+        data = overlay[k]
+        done = 0
+        while done < len(data):
+            done += os.pwrite(fd, memoryview(data)[done:], k * PAGE + done)
+
+
+def _read_journal(jpath):
+    """-> (inode, device, size, {page: bytes}); JournalError if it is not a whole journal."""
+    with open(jpath, "rb") as fh:
+        raw = fh.read()
+    if not raw.startswith(MAGIC) or len(raw) < len(MAGIC) + HEADER.size + DIGEST_BYTES:
+        raise JournalError("is not an rbx journal (or is cut short)")
+    body, digest = raw[:-DIGEST_BYTES], raw[-DIGEST_BYTES:]
+    if hashlib.blake2b(body, digest_size=DIGEST_BYTES).digest() != digest:
+        raise JournalError("is damaged (its digest does not match)")
+    ino, dev, size, count = HEADER.unpack_from(body, len(MAGIC))
+    at = len(MAGIC) + HEADER.size
+    if len(body) != at + count * (8 + PAGE):
+        raise JournalError("is damaged (its length does not match its page count)")
+    pages = {}
+    for _ in range(count):
+        (k,) = struct.unpack_from("<Q", body, at)
+        pages[k] = body[at + 8:at + 8 + PAGE]
+        at += 8 + PAGE
+    return ino, dev, size, pages
+
+
+def pending(path):
+    """Whether ``path`` has a journal not yet applied, or a ``.journal.tmp`` to remove (its writer was killed
+    inside a commit): :func:`recover` is due."""
+    return os.path.exists(journal_path(path)) or os.path.exists(f"{journal_path(path)}.tmp")
+
+
+def recover(path):
+    """Finish a commit that a kill interrupted: apply ``FILE.journal`` (if any) to ``path`` and remove it; remove a
+    ``FILE.journal.tmp`` (a commit that never reached its commit point) -> True if a journal was applied.
+    JournalError if the journal is damaged or was made for another file (another inode: a copy). Call it only
+    where no live process writes ``path`` (rbx holds the run's lock)."""
+    jpath = journal_path(path)
+    with contextlib.suppress(FileNotFoundError):
+        os.remove(f"{jpath}.tmp")
+    if not os.path.exists(jpath):
+        return False
+    ino, dev, size, pages = _read_journal(jpath)
+    fd = os.open(path, os.O_RDWR)
+    try:
+        st = os.fstat(fd)
+        if (st.st_ino, st.st_dev) != (ino, dev):
+            raise JournalError(f"was written for another file (inode {ino}, this file's is {st.st_ino}): was the "
+                               "file copied without it being applied first?")
+        _apply(fd, sorted(pages), pages)
+        if st.st_size < size:
+            os.ftruncate(fd, size)
+    finally:
+        os.close(fd)
+    with contextlib.suppress(FileNotFoundError):
+        os.remove(jpath)
+    return True
+
+
+def discard(path):
+    """Remove ``path``'s journal files (the file itself is being removed or replaced)."""
+    for p in (journal_path(path), f"{journal_path(path)}.tmp"):
+        with contextlib.suppress(FileNotFoundError):
+            os.remove(p)
