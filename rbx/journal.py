@@ -10,7 +10,7 @@ through (:func:`rbx.runfile.open_journaled`). It splits the file at ``committed`
 - bytes *at or above* it are written to the file at once: no committed structure points there yet.
 
 :meth:`JournaledFile.commit` (at each checkpoint, after HDF5's flush) writes the overlay to ``FILE.journal.tmp``
-with a digest, renames it to ``FILE.journal`` (the commit point: a rename is atomic), copies the pages into the
+with a CRC-32, renames it to ``FILE.journal`` (the commit point: a rename is atomic), copies the pages into the
 file, and removes the journal. A kill at any instant leaves one of two files: the last commit (no journal, or a
 ``.journal.tmp`` that is ignored), or the new one (a whole ``.journal`` that :func:`recover` copies in again
 before the file is next opened: copying it twice writes the same bytes). So the file always opens, and its
@@ -21,16 +21,19 @@ It guards against a process being killed, not against the machine losing power: 
 the disk).
 """
 import contextlib
-import hashlib
 import os
 import struct
+import zlib
 
 #: the overlay's page size: a write below ``committed`` copies the pages it touches
 PAGE = 4096
 MAGIC = b"rbx journal 1\n"
-#: after the magic: file inode, file device, the file's length (HDF5's) once the journal is applied, page count
+#: after the magic: file inode, file device, the file's length (HDF5's) once the journal is applied, page count;
+#: then the page numbers (u8 each), then the pages, then a CRC-32 of all that. The rename is what makes a journal
+#: whole; the CRC catches a journal changed since (6.6 GB/s here, against 1.3 GB/s for BLAKE2b: it is computed at
+#: every checkpoint)
 HEADER = struct.Struct("<QQQQ")
-DIGEST_BYTES = 32
+CRC = struct.Struct("<I")
 
 
 class JournalError(Exception):
@@ -108,18 +111,22 @@ class JournaledFile:
         pos, done = self.pos, 0
         while done < n:
             at = pos + done
-            if at < self.cut:
-                k, off = divmod(at, PAGE)
+            k, off = divmod(at, PAGE)
+            page = self.overlay.get(k) if at < self.cut else None
+            if page is not None:
                 m = min(PAGE - off, n - done)
-                page = self.overlay.get(k)
-                if page is not None:
-                    mv[done:done + m] = page[off:off + m]
-                else:
-                    got = os.preadv(self.fd, [mv[done:done + m]], at)
-                    if got < m:
-                        mv[done + got:done + m] = bytes(m - got)
+                mv[done:done + m] = page[off:off + m]
             else:
-                m = n - done
+                # from the file, up to the next page the overlay holds (one read, not one per page)
+                end = n
+                if at < self.cut and self.overlay:
+                    q = k + 1
+                    while q * PAGE < min(pos + n, self.cut):
+                        if q in self.overlay:
+                            end = q * PAGE - pos
+                            break
+                        q += 1
+                m = end - done
                 got = os.preadv(self.fd, [mv[done:done + m]], at)
                 if got < m:      # within HDF5's length but past the file's (a truncate that grew it): zeros
                     mv[done + got:done + m] = bytes(m - got)
@@ -133,7 +140,10 @@ class JournaledFile:
         while done < n and at + done < self.cut:
             k, off = divmod(at + done, PAGE)
             m = min(PAGE - off, n - done)
-            self._page(k)[off:off + m] = mv[done:done + m]
+            if m == PAGE:              # the whole page: nothing of the file's to keep
+                self.overlay[k] = bytearray(mv[done:done + PAGE])
+            else:
+                self._page(k)[off:off + m] = mv[done:done + m]
             done += m
         while done < n:
             done += os.pwrite(self.fd, mv[done:], at + done)
@@ -180,24 +190,24 @@ class JournaledFile:
             return 0
         st = os.fstat(self.fd)
         pages = sorted(self.overlay)
-        body = [MAGIC, HEADER.pack(st.st_ino, st.st_dev, self.size, len(pages))]
-        for k in pages:
-            body.append(struct.pack("<Q", k))
-            body.append(bytes(self.overlay[k]))
-        h = hashlib.blake2b(digest_size=DIGEST_BYTES)
-        for part in body:
-            h.update(part)
-        body.append(h.digest())
+        parts = [MAGIC + HEADER.pack(st.st_ino, st.st_dev, self.size, len(pages)) +
+                 struct.pack(f"<{len(pages)}Q", *pages)] + [self.overlay[k] for k in pages]
+        crc = 0
+        for part in parts:
+            crc = zlib.crc32(part, crc)
+        parts.append(CRC.pack(crc))
         final = journal_path(self.path)
         tmp = f"{final}.tmp"
-        with open(tmp, "wb") as fh:
-            for part in body:
-                fh.write(part)
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o666)
+        try:
+            _write_all(fd, parts, 0)
+        finally:
+            os.close(fd)
         os.replace(tmp, final)           # the commit point
         _apply(self.fd, pages, self.overlay)
         os.remove(final)
         self._commit_at(self.size)
-        return sum(len(p) for p in body)
+        return sum(len(p) for p in parts)
 
     def close(self, commit=True):
         """Commit (unless ``commit`` is False: the file stays at its last commit) and close the file, cut to
@@ -218,32 +228,47 @@ class JournaledFile:
         self.path = str(path)
 
 
+def _write_all(fd, parts, offset):
+    """Write the buffers ``parts`` one after another at ``offset`` (pwritev, as many calls as it takes)."""
+    views = [memoryview(p) for p in parts if len(p)]
+    while views:
+        done = os.pwritev(fd, views[:1024], offset)
+        offset += done
+        while views and done >= len(views[0]):
+            done -= len(views[0])
+            views.pop(0)
+        if done:
+            views[0] = views[0][done:]
+
+
 def _apply(fd, pages, overlay):
-    for k in pages:
-        data = overlay[k]
-        done = 0
-        while done < len(data):
-            done += os.pwrite(fd, memoryview(data)[done:], k * PAGE + done)
+    """Write the pages (sorted page numbers, ``overlay[k]`` their bytes) into the file: one write per run of
+    consecutive pages."""
+    i = 0
+    while i < len(pages):
+        j = i + 1
+        while j < len(pages) and pages[j] == pages[j - 1] + 1:
+            j += 1
+        _write_all(fd, [overlay[k] for k in pages[i:j]], pages[i] * PAGE)
+        i = j
 
 
 def _read_journal(jpath):
     """-> (inode, device, size, {page: bytes}); JournalError if it is not a whole journal."""
     with open(jpath, "rb") as fh:
         raw = fh.read()
-    if not raw.startswith(MAGIC) or len(raw) < len(MAGIC) + HEADER.size + DIGEST_BYTES:
-        raise JournalError("is not an rbx journal (or is cut short)")
-    body, digest = raw[:-DIGEST_BYTES], raw[-DIGEST_BYTES:]
-    if hashlib.blake2b(body, digest_size=DIGEST_BYTES).digest() != digest:
-        raise JournalError("is damaged (its digest does not match)")
-    ino, dev, size, count = HEADER.unpack_from(body, len(MAGIC))
     at = len(MAGIC) + HEADER.size
+    if not raw.startswith(MAGIC) or len(raw) < at + CRC.size:
+        raise JournalError("is not an rbx journal (or is cut short)")
+    body, (crc,) = raw[:-CRC.size], CRC.unpack(raw[-CRC.size:])
+    if zlib.crc32(body) != crc:
+        raise JournalError("is damaged (its checksum does not match)")
+    ino, dev, size, count = HEADER.unpack_from(body, len(MAGIC))
     if len(body) != at + count * (8 + PAGE):
         raise JournalError("is damaged (its length does not match its page count)")
-    pages = {}
-    for _ in range(count):
-        (k,) = struct.unpack_from("<Q", body, at)
-        pages[k] = body[at + 8:at + 8 + PAGE]
-        at += 8 + PAGE
+    numbers = struct.unpack_from(f"<{count}Q", body, at)
+    at += 8 * count
+    pages = {k: body[at + i * PAGE:at + (i + 1) * PAGE] for i, k in enumerate(numbers)}
     return ino, dev, size, pages
 
 
