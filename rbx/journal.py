@@ -21,6 +21,7 @@ It guards against a process being killed, not against the machine losing power: 
 the disk).
 """
 import contextlib
+import math
 import os
 import struct
 import zlib
@@ -40,6 +41,49 @@ class JournalError(Exception):
     """A journal that cannot be applied (damaged, or made for another file)."""
 
 
+def _failing(fallback):
+    """An I/O method HDF5 calls through h5py, which must not raise: h5py's callbacks print an exception as
+    unraisable, and the next callback can then crash the process (seen: a segmentation fault after an EIO). An
+    OSError (an I/O error, the disk full) is kept as the file's ``failure``; from then on every write is held in
+    memory (``cut`` = ∞) and none is committed again: the file stays at its last commit, and :meth:`commit` raises
+    the failure at the next checkpoint. The method is tried once more that way; ``fallback(self, *args)`` is its
+    result if that fails too."""
+    def decorate(method):
+        def wrapped(self, *args):
+            try:
+                return method(self, *args)
+            except OSError as exc:
+                if self.failure is None:
+                    self.failure = exc
+                self.cut = math.inf
+            try:
+                return method(self, *args)
+            except OSError:
+                return fallback(self, *args)
+        wrapped.__name__, wrapped.__doc__ = method.__name__, method.__doc__
+        return wrapped
+    return decorate
+
+
+def _zeros(self, buf):
+    n = min(len(buf), max(0, self.size - self.pos))
+    memoryview(buf).cast("B")[:n] = bytes(n)
+    self.pos += n
+    return n
+
+
+def _skip(self, data):
+    n = len(memoryview(data).cast("B"))
+    self.pos += n
+    self.size = max(self.size, self.pos)
+    return n
+
+
+def _resize(self, size=None):
+    self.size = self.pos if size is None else size
+    return self.size
+
+
 def journal_path(path):
     return f"{path}.journal"
 
@@ -57,10 +101,20 @@ class JournaledFile:
         else:
             recover(self.path)
             self.fd = os.open(self.path, os.O_RDWR)
+        try:
+            _lock(self.fd)
+        except BaseException:
+            os.close(self.fd)
+            raise
         self.pos = 0
+        #: the first OSError of a write or read (then nothing more is committed: the file stays at its last commit)
+        self.failure = None
         #: HDF5's length of the file (its last truncate or the end of its furthest write)
         self.size = os.fstat(self.fd).st_size
-        self._commit_at(self.size)
+        # the committed file ends where HDF5's superblock says: past it lies at most the room a killed run had
+        # reserved (rbx.runfile.H5Sink._reserve), which new writes may use without the journal
+        end = _hdf5_end(self.fd)
+        self._commit_at(end if end is not None and end <= self.size else self.size)
 
     def __repr__(self):
         return self.path
@@ -96,7 +150,8 @@ class JournaledFile:
     def _page(self, k):
         page = self.overlay.get(k)
         if page is None:
-            page = bytearray(os.pread(self.fd, PAGE, k * PAGE).ljust(PAGE, b"\0"))
+            page = bytearray(os.pread(self.fd, PAGE, k * PAGE).ljust(PAGE, b"\0") if self.failure is None
+                             else PAGE)      # after a failure: the file is not read again
             self.overlay[k] = page
         return page
 
@@ -105,6 +160,7 @@ class JournaledFile:
         buf = bytearray(size)
         return bytes(buf[:self.readinto(buf)])
 
+    @_failing(_zeros)
     def readinto(self, buf):
         mv = memoryview(buf).cast("B")
         n = min(len(mv), max(0, self.size - self.pos))
@@ -159,6 +215,7 @@ class JournaledFile:
             at += m
         self.size = end
 
+    @_failing(_skip)
     def write(self, data):
         mv = memoryview(data).cast("B")
         if self.pos > self.size:
@@ -168,6 +225,7 @@ class JournaledFile:
         self.size = max(self.size, self.pos)
         return len(mv)
 
+    @_failing(_resize)
     def truncate(self, size=None):
         """HDF5's new length. The file itself is cut only at :meth:`close` (and never below ``committed`` before
         a commit): room reserved past HDF5's end (rbx.runfile.H5Sink._reserve) stays reserved meanwhile."""
@@ -184,7 +242,11 @@ class JournaledFile:
 
     # ---- commits ------------------------------------------------------------------------------------------------
     def commit(self):
-        """Make the file what HDF5 last wrote, all at once (the module says how) -> bytes journalled."""
+        """Make the file what HDF5 last wrote, all at once (the module says how) -> bytes journalled. After a
+        failed write (``failure``) HDF5's picture of the file is not what it wrote: that failure is raised, and the
+        file stays at its last commit."""
+        if self.failure is not None:
+            raise self.failure
         if not self.overlay:      # nothing below ``committed`` changed: what HDF5 wrote past it is the commit
             self._commit_at(self.size)
             return 0
@@ -198,13 +260,23 @@ class JournaledFile:
         parts.append(CRC.pack(crc))
         final = journal_path(self.path)
         tmp = f"{final}.tmp"
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o666)
         try:
-            _write_all(fd, parts, 0)
-        finally:
-            os.close(fd)
-        os.replace(tmp, final)           # the commit point
-        _apply(self.fd, pages, self.overlay)
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o666)
+            try:
+                _write_all(fd, parts, 0)
+            finally:
+                os.close(fd)
+            os.replace(tmp, final)           # the commit point
+        except OSError as exc:               # not committed: the file is as it was
+            self.failure = self.failure or exc
+            with contextlib.suppress(OSError):
+                os.remove(tmp)
+            raise
+        try:
+            _apply(self.fd, pages, self.overlay)
+        except OSError as exc:               # committed, not applied: the journal stays, the next open applies it
+            self.failure = self.failure or exc
+            raise
         os.remove(final)
         self._commit_at(self.size)
         return sum(len(p) for p in parts)
@@ -215,7 +287,7 @@ class JournaledFile:
         if self.fd is None:
             return
         try:
-            if commit:
+            if commit and self.failure is None:
                 self.commit()
                 if os.fstat(self.fd).st_size > self.size:
                     os.ftruncate(self.fd, self.size)
@@ -226,6 +298,44 @@ class JournaledFile:
     def rename(self, path):
         """The file was renamed (or linked) to ``path`` with no journal pending: the next commit journals there."""
         self.path = str(path)
+
+
+def _lock(fd):
+    """Lock the file as HDF5 locks a file it writes (``flock``, exclusive), so that HDF5 refuses to open it for
+    reading meanwhile, as it did before rbx wrote through a file object (h5py's fileobj driver takes no lock):
+    ``rbx.runfile._open_h5`` then says which run writes it. Not where HDF5 would not lock either
+    (``HDF5_USE_FILE_LOCKING=FALSE``), nor where the file system has no locks."""
+    import errno
+    import fcntl
+    if os.environ.get("HDF5_USE_FILE_LOCKING", "").upper() in ("FALSE", "0"):
+        return
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError as exc:
+        if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
+            raise OSError(exc.errno, "the file is open in another program (an HDF5 lock is held on it)") from None
+        # ENOLCK, EOPNOTSUPP, ENOSYS: a file system without locks, as HDF5 itself would find
+
+
+#: HDF5's superblock: its signature, and where versions 0/1 and 2/3 keep the base and end-of-file addresses
+SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
+def _hdf5_end(fd):
+    """HDF5's end-of-file address, read from the superblock at the start of the file -> bytes, or None where it
+    cannot be read (another layout: the caller keeps the file's length)."""
+    head = os.pread(fd, 48, 0)
+    if len(head) < 48 or not head.startswith(SIGNATURE):
+        return None
+    version = head[8]
+    if version in (0, 1) and head[13] == 8:
+        at = 24 if version == 0 else 28
+        base, end = struct.unpack_from("<Q", head, at)[0], struct.unpack_from("<Q", head, at + 16)[0]
+    elif version in (2, 3) and head[9] == 8:
+        base, end = struct.unpack_from("<Q", head, 12)[0], struct.unpack_from("<Q", head, 28)[0]
+    else:
+        return None
+    return base + end
 
 
 def _write_all(fd, parts, offset):
@@ -273,9 +383,10 @@ def _read_journal(jpath):
 
 
 def pending(path):
-    """Whether ``path`` has a journal not yet applied, or a ``.journal.tmp`` to remove (its writer was killed
-    inside a commit): :func:`recover` is due."""
-    return os.path.exists(journal_path(path)) or os.path.exists(f"{journal_path(path)}.tmp")
+    """Whether ``path`` has a journal not yet applied (its writer was killed inside a commit, after the commit
+    point): :func:`recover` is due before the file is read. (A ``.journal.tmp``, a commit that did not reach its
+    commit point, changes nothing: the next writer removes it.)"""
+    return os.path.exists(journal_path(path))
 
 
 def recover(path):
@@ -284,17 +395,19 @@ def recover(path):
     JournalError if the journal is damaged or was made for another file (another inode: a copy). Call it only
     where no live process writes ``path`` (rbx holds the run's lock)."""
     jpath = journal_path(path)
-    with contextlib.suppress(FileNotFoundError):
+    with contextlib.suppress(OSError):       # a read-only folder: it changes nothing anyway
         os.remove(f"{jpath}.tmp")
-    if not os.path.exists(jpath):
+    try:
+        ino, dev, size, pages = _read_journal(jpath)
+    except FileNotFoundError:     # none, or another process applied it a moment ago
         return False
-    ino, dev, size, pages = _read_journal(jpath)
     fd = os.open(path, os.O_RDWR)
     try:
         st = os.fstat(fd)
         if (st.st_ino, st.st_dev) != (ino, dev):
-            raise JournalError(f"was written for another file (inode {ino}, this file's is {st.st_ino}): was the "
-                               "file copied without it being applied first?")
+            raise JournalError(f"was written for another file (inode {ino}, this file's is {st.st_ino}): a copy, or "
+                               "a journal left by an earlier run; remove it to read the file as of its previous "
+                               "checkpoint")
         _apply(fd, sorted(pages), pages)
         if st.st_size < size:
             os.ftruncate(fd, size)

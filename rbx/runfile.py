@@ -544,13 +544,15 @@ def create(path, force=False):
     try:
         if force and os.path.exists(tmp):
             os.remove(tmp)
-            journal.discard(tmp)
         if os.path.exists(tmp):
             raise FileExistsError(tmp)
         if _HELD.get(lock) == 1:      # the lock was free: no live run is making this file
             with contextlib.suppress(FileNotFoundError):
                 os.remove(new)
+            # journals without their file (a killed run's .partial removed by hand): the next file here may get
+            # the same inode number, and must not be mistaken for theirs
             journal.discard(new)
+            journal.discard(tmp)
         return open_journaled(new, create=True)
     except (FileExistsError, OSError) as exc:
         release_lock(path)
@@ -843,8 +845,11 @@ def stream(sim, h5, tmp, path, *, fresh=True, progress=None, should_stop=None, w
         finally:
             # the last commit: what HDF5 wrote when it closed the file (or nothing, if that fails: the file then
             # stays at its last checkpoint, and a run that finished is not marked complete on disk)
-            if not close_journal(h5):
+            failure = close_journal(h5)
+            if failure is not None:
                 complete = False
+        if failure is not None:
+            raise failure
         return complete
     finally:
         try:
@@ -852,6 +857,10 @@ def stream(sim, h5, tmp, path, *, fresh=True, progress=None, should_stop=None, w
                 with contextlib.suppress(OSError):
                     os.remove(f"{tmp}.new")
                 journal.discard(f"{tmp}.new")
+            elif journal.pending(tmp):
+                # a commit failed after its commit point: the file is whole only with its journal, which is
+                # applied when the .partial is next opened (resumed), so the .partial is not renamed
+                pass
             else:
                 if sink is not None and sink.reserved:
                     trim(tmp)
@@ -912,17 +921,24 @@ def commit(h5):
 
 
 def close_journal(h5):
-    """After the ``h5py.File`` is closed: the last commit, and the file closed -> False if that commit failed (the
-    file is then left at its last commit, still whole)."""
+    """After the ``h5py.File`` is closed: the last commit, and the file closed -> None, or the OSError that kept
+    it from committing (a write or read that failed, or the commit itself): the file is then left at its last
+    commit, still whole."""
     jf = journal_of(h5)
     if jf is None:
-        return True
+        return None
     try:
         jf.close()
-        return True
-    except OSError:
+    except OSError as exc:
         jf.close(commit=False)
-        return False
+        failure = exc
+    else:
+        failure = jf.failure          # a failure keeps close from committing
+    if failure is not None and journal.pending(jf.path):
+        # committed but not applied (the error came while copying it in): try once more, else the journal stays
+        with contextlib.suppress(Exception):
+            journal.recover(jf.path)
+    return failure
 
 
 def trim(path):
@@ -1014,6 +1030,9 @@ def _open_h5(path, mode="r"):
         holder = lock_holder(path)
         if holder is not None:      # HDF5's own lock on a file another run writes: say whose
             raise _busy(path, holder) from None
+        if "unable to lock file" in str(exc):
+            raise FileError(path, None, "is open in another program, which holds HDF5's lock on it (a run writing "
+                                        "it?); try again when it has closed the file") from None
         if path.endswith(".partial"):
             raise FileError(path, None, f"cannot open the HDF5 file: its structure is damaged ({_first_line(exc)}), "
                                         "most likely by a kill while HDF5 was writing it; its records cannot be "

@@ -122,15 +122,18 @@ def test_a_kill_at_any_step_of_a_commit_leaves_the_old_or_the_new_file(stage, ve
     res = subprocess.run([sys.executable, "-c", WRITER, str(path), stage], capture_output=True, text=True,
                          timeout=300)
     assert res.returncode == -9, res.stderr
-    assert os.path.exists(journal.journal_path(path)) == (stage in ("half-applied", "applied"))
-    assert journal.pending(path) == (stage != "before-commit")
+    assert journal.pending(path) == (stage in ("half-applied", "applied"))
+    assert os.path.exists(f"{journal.journal_path(path)}.tmp") == (stage == "journal-written")
     with _open_h5(path) as f:                      # what every reader calls: applies a pending journal first
         assert f.attrs["version"] == version
         x = f["x"][...]
         assert x.shape == ((4, 100) if version == 1 else (4, 300))
         assert np.all(x == float(version))         # read through the chunks' checksums
         assert ("g" in f) == (version == 2)
-    assert not journal.pending(path) and not os.path.exists(f"{journal.journal_path(path)}.tmp")
+    assert not journal.pending(path)
+    # a reader leaves a .journal.tmp (it changes nothing: it never reached its commit point); a writer removes it
+    JournaledFile(path).close(commit=False)
+    assert not os.path.exists(f"{journal.journal_path(path)}.tmp")
 
 
 def test_a_journal_copied_with_its_file_is_refused_in_one_line(tmp_path):
@@ -147,6 +150,70 @@ def test_a_journal_copied_with_its_file_is_refused_in_one_line(tmp_path):
         _open_h5(copy)
     with _open_h5(src) as f:                       # the original is recovered as usual
         assert f.attrs["version"] == 2
+
+
+def test_a_new_run_removes_journals_left_without_their_file(tmp_path):
+    """A killed run's journal whose .partial was removed by hand: the next run's file can get the same inode
+    number, and that journal must not be applied to it (seen in review: a new file silently became the old one)."""
+    src = tmp_path / "run.h5.partial"
+    res = subprocess.run([sys.executable, "-c", WRITER, str(src), "half-applied"], capture_output=True, text=True,
+                         timeout=300)
+    assert res.returncode == -9 and journal.pending(src)
+    src.unlink()
+    cfg = strip_random(3000, trajectories=2, every=1, record=("time",))
+    write_config(tmp_path, cfg)
+    res = subprocess.run([sys.executable, "-c", f"import sys; {RBX_MAIN}", "simulate", "exp.yaml", "-o", "run.h5",
+                          "--quiet"], cwd=tmp_path, capture_output=True, text=True, timeout=900)
+    assert res.returncode == 0, res.stderr
+    assert sorted(f.name for f in tmp_path.glob("run.h5*")) == ["run.h5"]
+    assert rbx.open(tmp_path / "run.h5").complete
+
+
+def test_a_file_being_written_is_locked_against_hdf5_readers(tmp_path):
+    """h5py's fileobj driver takes no lock; the journal takes HDF5's (flock), so a reader opening a .partial that a
+    run writes is refused, naming the run, as before the journal (it could otherwise read a commit half copied)."""
+    path = tmp_path / "run.h5.partial"
+    writer = textwrap.dedent(f"""
+        import sys, time
+        from rbx.runfile import acquire_lock, commit, open_journaled
+        acquire_lock({str(tmp_path / "run.h5")!r})
+        h5 = open_journaled({str(path)!r}, create=True)
+        h5.flush()
+        commit(h5)
+        print("ready", flush=True)
+        time.sleep(300)
+    """)
+    proc = subprocess.Popen([sys.executable, "-c", writer], stdout=subprocess.PIPE, text=True)
+    try:
+        assert proc.stdout.readline().strip() == "ready"
+        with pytest.raises(FileError, match="another rbx run is writing it"):
+            _open_h5(str(path))
+        (tmp_path / "run.h5.lock").unlink()      # a lock by another program than rbx
+        with pytest.raises(FileError, match="open in another program"):
+            _open_h5(str(path))
+    finally:
+        proc.kill()
+        proc.wait()
+    with _open_h5(str(path)) as f:                # the writer gone, its lock with it
+        assert isinstance(f, h5py.File)
+
+
+def test_room_reserved_by_a_killed_run_is_not_taken_for_the_committed_file(tmp_path):
+    """After a kill the file can be longer than HDF5's end (rbx.runfile.H5Sink._reserve's room). Reopened, the
+    committed length is HDF5's end of file from its superblock, so new writes there need no journal."""
+    from rbx.runfile import close_journal, open_journaled
+    path = str(tmp_path / "f.h5")
+    h5 = open_journaled(path, create=True)
+    h5.create_dataset("x", data=np.arange(1000.0))
+    h5.close()
+    close_journal(h5)
+    end = os.path.getsize(path)
+    fd = os.open(path, os.O_RDWR)
+    os.posix_fallocate(fd, 0, end + (4 << 20))
+    os.close(fd)
+    jf = JournaledFile(path)
+    assert jf.committed == end and os.path.getsize(path) == end + (4 << 20)
+    jf.close(commit=False)
 
 
 # ---- a real run killed inside a commit ----------------------------------------------------------------------------
@@ -183,3 +250,69 @@ def test_a_run_killed_inside_a_commit_is_read_and_resumed_exactly(tmp_path):
     assert "stale lock" in line, res.stderr
     assert_same_records(read_run(tmp_path / "run.h5"), read_run(tmp_path / "ref.h5"))
     assert 0 < saved.min() and saved.max() < 60_000
+
+
+# ---- an I/O error at any write ------------------------------------------------------------------------------------
+
+EIO_WRITER = textwrap.dedent("""
+    import atexit, errno, os, sys
+    import rbx.simulation as s; s.BLOCK_WORK = 3000
+    calls = [0]
+    at, times = int(sys.argv[1]), int(sys.argv[2])
+    pwrite, pwritev = os.pwrite, os.pwritev
+    def fail():
+        calls[0] += 1
+        if at <= calls[0] < at + times:
+            raise OSError(errno.EIO, "Input/output error")
+    def failing_pwrite(*a):
+        fail()
+        return pwrite(*a)
+    def failing_pwritev(*a):
+        fail()
+        return pwritev(*a)
+    os.pwrite, os.pwritev = failing_pwrite, failing_pwritev
+    atexit.register(lambda: print("writes", calls[0], file=sys.stderr))
+    from rbx.cli.main import main
+    sys.argv[0:3] = ["rbx"]
+    main()
+""")
+
+
+def test_an_io_error_at_any_write_is_one_line_and_the_file_resumes_exactly(tmp_path):
+    """Every write of the run file goes through os.pwrite or os.pwritev (the journal's); each is made to fail
+    with EIO, at instants spread over the run (the file's creation, blocks, the journal, its copy into the file,
+    the last commit), once or from then on. Each time: exit 1 and one line; no journal left beside a renamed
+    file; resumed, the records are the uninterrupted run's, bit for bit. (h5py's file-object callbacks cannot
+    raise: the journal's first version let the error through them, and the run printed ~100 lines of
+    tracebacks, or crashed with exit −11 after its line.)"""
+    cfg = strip_random(60_000, trajectories=3, every=7, record=("time", "position", "wall", "rank"))
+    write_config(tmp_path, cfg)
+
+    def run(*args):
+        return subprocess.run([sys.executable, "-c", EIO_WRITER, *map(str, args)], cwd=tmp_path,
+                              capture_output=True, text=True, timeout=900)
+
+    res = run(10 ** 9, 0, "simulate", "exp.yaml", "-o", "ref.h5", "--quiet")
+    assert res.returncode == 0, res.stderr
+    total = int(res.stderr.split()[-1])
+    assert total > 100                      # the blocks are small: many commits
+    reference = read_run(tmp_path / "ref.h5")
+    for at in (3, total // 3, total // 2, total - 6, total - 3, total - 2, total - 1, total):
+        for times in (1, 10 ** 9):
+            for f in tmp_path.glob("run.h5*"):
+                f.unlink()
+            res = run(at, times, "simulate", "exp.yaml", "-o", "run.h5", "--quiet")
+            lines = [x for x in res.stderr.splitlines() if not x.startswith("writes ")]
+            assert res.returncode == 1 and len(lines) == 1, (at, times, res.stderr)
+            assert lines[0].startswith("rbx: ") and "Input/output error" in lines[0], lines
+            left = sorted(f.name for f in tmp_path.glob("run.h5*"))
+            assert left in ([], ["run.h5"], ["run.h5.partial"], ["run.h5.partial", "run.h5.partial.journal"]), left
+            if not left:
+                assert "nothing was saved" in lines[0]
+                continue
+            assert f"--resume {left[0]}" in lines[0]
+            res = subprocess.run([sys.executable, "-c", f"import sys; {RBX_MAIN}", "simulate", "--resume", left[0],
+                                  "--quiet"], cwd=tmp_path, capture_output=True, text=True, timeout=900)
+            assert res.returncode == 0, (at, times, res.stderr)
+            assert sorted(f.name for f in tmp_path.glob("run.h5*")) == ["run.h5"]
+            assert_same_records(read_run(tmp_path / "run.h5"), reference)

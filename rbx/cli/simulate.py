@@ -256,9 +256,13 @@ def _execute(sim, path, stop, quiet, done, start, began):
             click.echo(f"rbx: {display_path(where)}: {failure}; the run stopped, the file holds every record up to "
                        "its last checkpoint (complete = false). Free some space, then continue with: "
                        f"rbx simulate --resume {display_path(where)}", err=True)
+        elif not os.path.exists(where):
+            click.echo(f"rbx: {display_path(where)}: writing failed: {failure.strerror or failure}; nothing was "
+                       "saved (the run stopped before its file was made)", err=True)
         else:
-            click.echo(f"rbx: {display_path(where)}: writing failed: {failure}; the file holds the records "
-                       "written before (complete = false)", err=True)
+            click.echo(f"rbx: {display_path(where)}: writing failed: {failure.strerror or failure}; the file holds "
+                       "every record up to its last checkpoint (complete = false). Continue with: "
+                       f"rbx simulate --resume {display_path(where)}", err=True)
         return 1
     if not complete:
         made = int(sim.ncoll[sim.alive].min()) if sim.alive.any() else sim.cfg.run.collisions
