@@ -16,6 +16,7 @@ import contextlib
 import dataclasses
 import os
 import signal
+import sys
 import threading
 import warnings
 
@@ -212,8 +213,19 @@ class StopFlag:
             yield
             return
         old = {s: signal.signal(s, self._handler) for s in (signal.SIGINT, signal.SIGTERM)}
+        hook = sys.unraisablehook
+
+        def quiet(unraisable):
+            # the KeyboardInterrupt of a signal that came while Numba's compiler ran a ctypes callback (LLVM's
+            # object cache): Python prints it as "Exception ignored …" with a traceback, then the compile fails and
+            # the command reports the interrupt in its one line
+            if self.signum and isinstance(unraisable.exc_value, KeyboardInterrupt):
+                return
+            hook(unraisable)
+        sys.unraisablehook = quiet
         try:
             yield
         finally:
+            sys.unraisablehook = hook
             for s, h in old.items():
                 signal.signal(s, h)

@@ -12,9 +12,14 @@ through (:func:`rbx.runfile.open_journaled`). It splits the file at ``committed`
 :meth:`JournaledFile.commit` (at each checkpoint, after HDF5's flush) writes the overlay to ``FILE.journal.tmp``
 with a CRC-32, renames it to ``FILE.journal`` (the commit point: a rename is atomic), copies the pages into the
 file, and removes the journal. A kill at any instant leaves one of two files: the last commit (no journal, or a
-``.journal.tmp`` that is ignored), or the new one (a whole ``.journal`` that :func:`recover` copies in again
-before the file is next opened: copying it twice writes the same bytes). So the file always opens, and its
-saved state is the last checkpoint's.
+``.journal.tmp`` that changes nothing and that the next writer removes), or the new one (a whole ``.journal``
+that :func:`recover` copies in again before the file is next opened: copying it twice writes the same bytes).
+The journal names its file by inode; rbx removes journals left without their file before it makes a new one.
+
+A write or read the system refuses (an I/O error, the disk full) is kept as the file's ``failure`` rather than
+raised through h5py's callbacks (:func:`_failing`); from then on nothing is committed, and the next commit raises
+it: the file stays at its last commit (or with its journal, if the copying-in failed). The file is locked
+(``flock``) as HDF5 locks a file it writes, so HDF5 readers are refused meanwhile.
 
 It guards against a process being killed, not against the machine losing power: nothing is fsynced at a commit
 (the system's page cache keeps the order of writes of a killed process; an fsync per checkpoint would wait for
@@ -114,7 +119,9 @@ class JournaledFile:
         # the committed file ends where HDF5's superblock says: past it lies at most the room a killed run had
         # reserved (rbx.runfile.H5Sink._reserve), which new writes may use without the journal
         end = _hdf5_end(self.fd)
-        self._commit_at(end if end is not None and end <= self.size else self.size)
+        if end is not None and end <= self.size:
+            self.size = end
+        self._commit_at(self.size)
 
     def __repr__(self):
         return self.path
