@@ -862,8 +862,8 @@ def stream(sim, h5, tmp, path, *, fresh=True, progress=None, should_stop=None, w
                 # applied when the .partial is next opened (resumed), so the .partial is not renamed
                 pass
             else:
-                if sink is not None and sink.reserved:
-                    trim(tmp)
+                if sink is not None and sink.reserved and journal_of(h5) is None:
+                    trim(tmp)        # a journaled file was cut to HDF5's end when it closed (JournaledFile.close)
                 publish(tmp, path, complete, replace, report)
         finally:
             # the run's lock (taken by create, or by rbx.resume.load for the file resumed), released last
