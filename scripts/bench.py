@@ -819,10 +819,10 @@ def writer_limit(d, N, tmp):
     """What writing the records of an N-collision run costs without the engine -> (seconds through rbx's own HDF5
     writer, seconds of a plain file write of the same bytes, bytes). The blocks are the ones the run hands its
     sink (captured from a one-block run: the same fields, shapes, block length and values), written N/block times
-    over: to a fresh run file by :class:`rbx.runfile.H5Sink` (h5py with rbx's chunks, checksums and bookkeeping:
-    the limit of the recording path), and with ``file.write`` to a plain file (what the disk takes)."""
-    import h5py
-    from rbx.runfile import H5Sink
+    over: to a fresh run file by :class:`rbx.runfile.H5Sink` (h5py with rbx's chunks, checksums and bookkeeping,
+    through the journal with a commit per block as a checkpoint makes: the limit of the recording path), and with
+    ``file.write`` to a plain file (what the disk takes)."""
+    from rbx.runfile import H5Sink, close_journal, commit, open_journaled
     cfg = config.from_dict({**d, "run": {**d["run"], "collisions": N}}, "<bench>")
     sim = Simulation(cfg)
     b = sim.records_per_block()
@@ -834,10 +834,14 @@ def writer_limit(d, N, tmp):
     reps = max(1, -(-(N // cfg.output.every) // int(nrec[0])))
     path = os.path.join(tmp, "limit.h5")
     t0 = time.perf_counter()
-    with h5py.File(path, "w") as h5:
+    h5 = open_journaled(path, create=True)
+    with h5:
         out = H5Sink(h5, cfg, fresh=True, path=path)
         for _ in range(reps):
             out.write(block, nrec)
+            h5.flush()
+            commit(h5)
+    close_journal(h5)
     t_h5 = time.perf_counter() - t0
     raw = b"".join(np.ascontiguousarray(a).tobytes() for a in block.values())
     t0 = time.perf_counter()
