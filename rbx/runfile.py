@@ -4,7 +4,9 @@ Writing: the root attributes (:data:`ROOT_ATTRS`, one list for run files and ret
 ``collisions/`` datasets made from :data:`rbx.model.FIELDS` (each with its ``units`` and ``description`` as dataset
 attributes, compressed as ``output.compression`` says: :func:`compression_options`), the streaming writer
 :class:`H5Sink`, the checkpoint digest (:func:`state_digest`), the ``OUT.h5.partial.new`` → ``OUT.h5.partial`` →
-``OUT.h5`` lifecycle (:func:`check_target`, :func:`create`, :func:`publish_new`, :func:`stream`) and the
+``OUT.h5`` lifecycle (:func:`check_target`, :func:`create`, :func:`publish_new`, :func:`stream`; the file is
+written through a write-ahead journal, :mod:`rbx.journal`, so it changes only at checkpoints: :func:`open_journaled`,
+:func:`commit`, :func:`close_journal`) and the
 ``returns/`` group of ``rbx histogram`` (:func:`write_returns`). Reading: one class, :class:`Run`, for ``rbx plot``,
 ``rbx simulate --resume``, the figure scripts and the Python API (:func:`rbx.open`), and the same class holds a run
 made in memory (:func:`rbx.simulate` without ``output``); :func:`read_returns` reads ``returns/``. A file that is
