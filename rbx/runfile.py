@@ -830,6 +830,7 @@ def stream(sim, h5, tmp, path, *, fresh=True, progress=None, should_stop=None, w
     complete = False
     sink = None
     new = os.path.abspath(file_path(h5)) == os.path.abspath(f"{tmp}.new")
+    raised = True
     try:
         try:
             with h5:
@@ -844,10 +845,11 @@ def stream(sim, h5, tmp, path, *, fresh=True, progress=None, should_stop=None, w
                     with contextlib.suppress(Exception):   # an error writing must not hide the error itself
                         sink.settle()
                 h5.attrs["complete"] = bool(complete)
+                raised = False
         finally:
-            # the last commit: what HDF5 wrote when it closed the file (or nothing, if that fails: the file then
-            # stays at its last checkpoint, and a run that finished is not marked complete on disk)
-            failure = close_journal(h5)
+            # the last commit: what HDF5 wrote when it closed the file; none after an error (the file then stays at
+            # its last checkpoint exactly: its records are those the saved state accounts for), nor if it fails
+            failure = close_journal(h5, commit=not raised)
             if failure is not None:
                 complete = False
         if failure is not None:
@@ -922,15 +924,15 @@ def commit(h5):
         jf.commit()
 
 
-def close_journal(h5):
-    """After the ``h5py.File`` is closed: the last commit, and the file closed -> None, or the OSError that kept
-    it from committing (a write or read that failed, or the commit itself): the file is then left at its last
-    commit, still whole."""
+def close_journal(h5, commit=True):
+    """After the ``h5py.File`` is closed: the last commit (unless ``commit`` is False), and the file closed -> None,
+    or the OSError that kept it from committing (a write or read that failed, or the commit itself): the file is
+    then left at its last commit, still whole."""
     jf = journal_of(h5)
     if jf is None:
         return None
     try:
-        jf.close()
+        jf.close(commit=commit)
     except OSError as exc:
         jf.close(commit=False)
         failure = exc

@@ -748,7 +748,7 @@ def kill_survey(kills, seed=1, block_work=3000, src=None, log=print, extra_env=N
     prelude = (f"import sys; sys.path.insert(0, {root!r}); " if root else "import sys; ")
 
     def cmd(block, *args):
-        code = prelude + (f"import rbx.simulation as s; s.BLOCK_WORK = {block}; " if block else "") + \
+        code = prelude + (f"import rbx.simulation as s; s.BLOCK_WORK = {block}; s.CHECKPOINT_SECONDS = 0; " if block else "") + \
             "from rbx.cli.main import main; sys.argv[0] = 'rbx'; main()"
         return [sys.executable, "-c", code, *args]
 

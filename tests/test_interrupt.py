@@ -160,7 +160,7 @@ def test_real_interrupt_then_real_resume_equals_an_uninterrupted_run(tmp_path):
     size (so the block boundaries differ too), and compare with an uninterrupted run."""
     cfg = strip_random(60_000, trajectories=3, every=7, record=("time", "position", "angular_velocity", "wall", "rank"))
     write_config(tmp_path, cfg)
-    small_blocks = ("import sys, rbx.simulation as s; s.BLOCK_WORK = 600; from rbx.cli.main import cli; "
+    small_blocks = ("import sys, rbx.simulation as s; s.BLOCK_WORK = 600; s.CHECKPOINT_SECONDS = 0; from rbx.cli.main import cli; "
                     "cli(sys.argv[1:], prog_name='rbx')")
     args = [sys.executable, "-c", small_blocks, "simulate", "exp.yaml", "-o", "run.h5"]
     res, _ = start_and_signal(args, tmp_path / "run.h5.partial", signal.SIGINT, tmp_path, delay=0.3)
@@ -186,6 +186,7 @@ def test_real_interrupt_then_real_resume_equals_an_uninterrupted_run(tmp_path):
 def tiny_blocks(monkeypatch):
     """Blocks of a few hundred collisions, and a way to send SIGINT to this process after the k-th block."""
     monkeypatch.setattr(simulate, "BLOCK_WORK", 300)
+    monkeypatch.setattr(simulate, "CHECKPOINT_SECONDS", 0)
     when = {"block": None, "seen": 0}
     original = common.Progress.__call__
 
@@ -336,7 +337,7 @@ def test_a_killed_run_resumes_exactly(tmp_path):
     write_config(tmp_path, cfg)
     assert invoke(tmp_path / "exp.yaml", "-o", tmp_path / "ref.h5").exit_code == 0
     reference = read_run(tmp_path / "ref.h5")
-    small_blocks = ("import sys, rbx.simulation as s; s.BLOCK_WORK = 3000; from rbx.cli.main import cli; "
+    small_blocks = ("import sys, rbx.simulation as s; s.BLOCK_WORK = 3000; s.CHECKPOINT_SECONDS = 0; from rbx.cli.main import cli; "
                     "cli(sys.argv[1:], prog_name='rbx')")
     for delay in (0.05, 0.2, 0.35):
         for f in tmp_path.glob("run.h5*"):
@@ -379,6 +380,7 @@ def test_a_signal_during_the_last_block_still_completes_the_run(tmp_path, monkey
     """Work that was finished is reported finished: a stop requested during the last block is not an interrupt."""
     exp = write_config(tmp_path, scene("strip-random", 3000, 2, 1))
     monkeypatch.setattr(simulate, "BLOCK_WORK", 300)
+    monkeypatch.setattr(simulate, "CHECKPOINT_SECONDS", 0)
     original = common.Progress.__call__
 
     def signal_at_the_end(self, done, total):
@@ -496,6 +498,7 @@ def test_a_full_disk_stops_the_run_cleanly_and_it_resumes_exactly(tmp_path, monk
 
     monkeypatch.setattr(shutil, "disk_usage", filling_up)
     monkeypatch.setattr(simulate, "BLOCK_WORK", 300)
+    monkeypatch.setattr(simulate, "CHECKPOINT_SECONDS", 0)
     with pytest.raises(runfile.DiskFull) as info:
         rbx.simulate(str(exp), output=tmp_path / "run.h5")
     assert "the disk is full" in str(info.value)

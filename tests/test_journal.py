@@ -226,7 +226,7 @@ def test_a_run_killed_inside_a_commit_is_read_and_resumed_exactly(tmp_path):
     ref = subprocess.run([sys.executable, "-c", f"import sys; {RBX_MAIN}", "simulate", "exp.yaml", "-o", "ref.h5",
                           "--quiet"], cwd=tmp_path, capture_output=True, text=True, timeout=900)
     assert ref.returncode == 0, ref.stderr
-    killer = ("import os, signal, sys, rbx.simulation as s, rbx.journal as j; s.BLOCK_WORK = 3000\n"
+    killer = ("import os, signal, sys, rbx.simulation as s, rbx.journal as j; s.BLOCK_WORK = 3000; s.CHECKPOINT_SECONDS = 0\n"
               "n = [0]; apply = j._apply\n"
               "def half(fd, pages, overlay):\n"
               "    n[0] += 1\n"
@@ -256,7 +256,7 @@ def test_a_run_killed_inside_a_commit_is_read_and_resumed_exactly(tmp_path):
 
 EIO_WRITER = textwrap.dedent("""
     import atexit, errno, os, sys
-    import rbx.simulation as s; s.BLOCK_WORK = 3000
+    import rbx.simulation as s; s.BLOCK_WORK = 3000; s.CHECKPOINT_SECONDS = 0
     calls = [0]
     at, times = int(sys.argv[1]), int(sys.argv[2])
     pwrite, pwritev = os.pwrite, os.pwritev

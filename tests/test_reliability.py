@@ -17,7 +17,7 @@ from tests.test_interrupt import (RBX, assert_same_records, check_valid_partial,
                                   strip_random, tiny_blocks, write_config)  # noqa: F401 - tiny_blocks: a fixture
 
 #: ``python -c`` running the CLI with small blocks (BLOCK_WORK), and SIGKILLing itself after checkpoint KILL_AT
-SMALL_BLOCKS = ("import os, sys, rbx.simulation as s, rbx.runfile as f; s.BLOCK_WORK = {work}; "
+SMALL_BLOCKS = ("import os, sys, rbx.simulation as s, rbx.runfile as f; s.BLOCK_WORK = {work}; s.CHECKPOINT_SECONDS = 0; "
                 "c = f.H5Sink.checkpoint; n = [0]\n"
                 "def cp(self, sim):\n"
                 "    c(self, sim); n[0] += 1\n"

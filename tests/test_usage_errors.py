@@ -117,7 +117,7 @@ def test_a_near_miss_is_named(tmp_path):
 
 #: ``python -c`` running the CLI with small blocks and a progress bar that may appear at once (delay 0), so that a
 #: short run calls it many times
-PROGRESS_AT_ONCE = ("import sys, rbx.simulation as s, rbx.cli.common as c; s.BLOCK_WORK = 3000\n"
+PROGRESS_AT_ONCE = ("import sys, rbx.simulation as s, rbx.cli.common as c; s.BLOCK_WORK = 3000; s.CHECKPOINT_SECONDS = 0\n"
                     "init = c.Progress.__init__\n"
                     "def at_once(self, *a, **k):\n"
                     "    init(self, *a, **k); self.delay = 0\n"
