@@ -33,7 +33,8 @@ Layout (T trajectories, N records; trajectory axis first):
 The ``config`` attribute names the file written as ``output.path``. Only the fields in ``output.record`` are
 present. Every ``collisions/`` dataset carries the attributes ``units``
 and ``description`` (from :data:`rbx.model.FIELDS`). Datasets grow along the record axis in chunks, so memory does
-not grow with the run's length; ``count`` and ``final/`` are rewritten after every block and the file is flushed,
+not grow with the run's length; ``count`` is rewritten with every block, and ``final/`` is saved and the file
+flushed and committed once a second (:data:`rbx.simulation.CHECKPOINT_SECONDS`) and when the run stops,
 so an interrupted run leaves a readable file with ``complete = False``.
 """
 import contextlib

@@ -170,7 +170,8 @@ class Simulation:
         """Run to ``run.collisions`` collisions, streaming records to ``sink`` -> True if complete.
 
         ``sink.write(block, nrec)`` gets dicts field -> (M, b, …) with rows past ``nrec[j]`` filled with NaN / −1;
-        ``sink.checkpoint(sim)`` follows each block. ``should_stop()`` is polled before each block.
+        ``sink.checkpoint(sim)`` follows a block once :data:`CHECKPOINT_SECONDS` have passed since the last one, and
+        the last block. ``should_stop()`` is polled before each block.
         ``write_initial``: write record 0 first (default: when no trajectory has collided yet; a resumed run
         whose file holds record 0 already passes False).
 
