@@ -820,8 +820,9 @@ def writer_limit(d, N, tmp):
     writer, seconds of a plain file write of the same bytes, bytes). The blocks are the ones the run hands its
     sink (captured from a one-block run: the same fields, shapes, block length and values), written N/block times
     over: to a fresh run file by :class:`rbx.runfile.H5Sink` (h5py with rbx's chunks, checksums and bookkeeping,
-    through the journal with a commit per block as a checkpoint makes: the limit of the recording path), and with
-    ``file.write`` to a plain file (what the disk takes)."""
+    through the journal, flushed and committed as often as a run checkpoints (``simulation.CHECKPOINT_SECONDS``): the
+    limit of the recording path), and with ``file.write`` to a plain file (what the disk takes)."""
+    from rbx import simulation
     from rbx.runfile import H5Sink, close_journal, commit, open_journaled
     cfg = config.from_dict({**d, "run": {**d["run"], "collisions": N}}, "<bench>")
     sim = Simulation(cfg)
@@ -837,10 +838,15 @@ def writer_limit(d, N, tmp):
     h5 = open_journaled(path, create=True)
     with h5:
         out = H5Sink(h5, cfg, fresh=True, path=path)
+        last = time.monotonic()
         for _ in range(reps):
             out.write(block, nrec)
-            h5.flush()
-            commit(h5)
+            if time.monotonic() - last >= simulation.CHECKPOINT_SECONDS:
+                h5.flush()
+                commit(h5)
+                last = time.monotonic()
+        h5.flush()
+        commit(h5)
     close_journal(h5)
     t_h5 = time.perf_counter() - t0
     raw = b"".join(np.ascontiguousarray(a).tobytes() for a in block.values())
@@ -1214,7 +1220,8 @@ def write_document(args, cmd, results, wall):
           "kernels from the cache, creating the file), and the rates and MB/s come from that work. `relative` is "
           "the time per collision over that of nothing recorded in memory. The limits, without the engine "
           "(`writer_limit`): **writer alone**, the same blocks (fields, length, values) written as often by rbx's "
-          "HDF5 writer (`runfile.H5Sink`: h5py, rbx's chunks and checksums); **plain write**, the same bytes by "
+          "HDF5 writer (`runfile.H5Sink`: h5py, rbx's chunks and checksums, through the journal, committed once a "
+          "second as a run's checkpoints are); **plain write**, the same bytes by "
           "`file.write` to a plain file (page cache, no fsync: what the disk side takes); both as collisions per "
           "second of the same run, to set beside `HDF5 collisions/s`. `HDF5 MB/s` counts the whole file: the "
           "records and, per record, its `step` (8 bytes: a run recording `time` alone writes twice its records' "
