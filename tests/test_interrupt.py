@@ -562,3 +562,50 @@ def test_a_chunk_torn_by_a_kill_is_read_from_its_raw_bytes(tear, tmp_path, tiny_
         ds = f["collisions/time"]
         masks = [ds.id.get_chunk_info(i).filter_mask for i in range(ds.id.get_num_chunks())]
         assert masks and not any(masks)                     # every chunk has its checksum again
+
+
+class _CountingSink(simulate.MemorySink):
+    def __init__(self):
+        super().__init__()
+        self.checkpoints, self.saved_at = 0, []
+
+    def checkpoint(self, sim):
+        self.checkpoints += 1
+        self.saved_at.append(int(sim.ncoll.min()))
+        super().checkpoint(sim)
+
+
+@pytest.mark.parametrize("seconds, stop_after", [(0, None), (1e9, None), (0, 3), (1e9, 3)])
+def test_checkpoints_come_by_time_and_always_where_the_run_stops(seconds, stop_after, monkeypatch):
+    """The state is saved after a block once CHECKPOINT_SECONDS have passed (0: after every block), and always where
+    the run ends: finished, or stopped between blocks (here after 3 blocks). The records do not depend on when the
+    state was saved."""
+    from rbx import config
+    monkeypatch.setattr(simulate, "BLOCK_WORK", 300)
+    monkeypatch.setattr(simulate, "CHECKPOINT_SECONDS", seconds)
+    cfg = config.from_dict(scene("strip-random", 3000, 2, 3), "<test>")
+    sim = simulate.Simulation(cfg)
+    step = sim.records_per_block() * 3                # collisions per block (every = 3)
+    assert 3 * step < 3000                            # a stop after 3 blocks is before the end
+    sink = _CountingSink()
+    polls = {"n": 0}
+
+    def should_stop():
+        polls["n"] += 1
+        return stop_after is not None and polls["n"] > stop_after
+    complete = sim.run(sink, should_stop=should_stop)
+    assert complete == (stop_after is None)
+    blocks = len(sink.blocks) - 1                     # the first write is record 0
+    assert blocks == (-(-3000 // step) if stop_after is None else stop_after)
+    if seconds == 0:
+        assert sink.checkpoints == blocks + (1 if stop_after is None else 0)   # each block, and the end
+    else:
+        assert sink.checkpoints == 1                  # only where the run ended
+    assert sink.saved_at[-1] == (3000 if stop_after is None else 3 * step)
+    assert sink.final["collisions"].min() == sink.saved_at[-1]
+    monkeypatch.setattr(simulate, "CHECKPOINT_SECONDS", 0)
+    reference = _CountingSink()
+    simulate.Simulation(cfg).run(reference)
+    got, ref = sink.records, reference.records
+    for f in ref:
+        np.testing.assert_array_equal(got[f], ref[f][:, :got[f].shape[1]])
