@@ -192,7 +192,7 @@ def _continue(sim, source, path, tmp, in_place, force, quiet, stop, write_initia
 
     from .. import journal
     from ..resume import make_consistent
-    from ..runfile import journal_of, open_journaled, stream
+    from ..runfile import close_journal, open_journaled, stream
 
     # work on a copy (unless resuming a .partial): if this attempt dies badly, the file it started from is intact
     try:
@@ -212,7 +212,7 @@ def _continue(sim, source, path, tmp, in_place, force, quiet, stop, write_initia
         make_consistent(h5, sim, write_initial)
     except BaseException:
         h5.close()
-        journal_of(h5).close(commit=False)     # the file as it was: nothing of the attempt reaches it
+        close_journal(h5, commit=False)        # the file as it was: nothing of the attempt reaches it
         if not in_place:
             os.remove(tmp)
         raise
