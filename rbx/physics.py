@@ -89,28 +89,30 @@ def collide(v, W, nu, R, kappa, rank, basis, node, wall, work, n):
 
 
 @jit_hot
-def collide_slab(v, W, sigma, R, kappa, rank, basis, node, wall, work, n):
-    """:func:`collide` for a wall normal ν = σ·e_{n−1} (σ = ±1: the walls of a strip or between plates), with the
-    products by the zero components of ν left out -> the same (v', W') as :func:`collide`, bit for bit up to the
-    sign of zeros (tests/test_physics.py). Only v_{n−1} (reversed) and the column and row n−1 of W change, and
-    the chain of operations from (v, W) to (v', W') is about half as long."""
-    m = n - 1
+def collide_axis(v, W, m, sigma, R, kappa, rank, basis, node, wall, work, n):
+    """:func:`collide` for a wall normal ν = σ·e_m (σ = ±1: the walls of a strip or between plates, the sides of an
+    axis-aligned box), with the products by the zero components of ν left out -> the same (v', W') as
+    :func:`collide`, bit for bit up to the sign of zeros (tests/test_physics.py). Only v_m (reversed) and the
+    column and row m of W change, and the chain of operations from (v, W) to (v', W') is about half as long.
+    ``m`` is a constant where the kernels call it (each axis its own call), so that every index stays a constant."""
     v[m] = -v[m]
     if rank == 0:
         return
-    # u_t,i = v_i + (W r)_i with r = −Rσ e_m, for i < m; u_t,m = 0
+    # u_t,i = v_i + (W r)_i with r = −Rσ e_m, for i ≠ m; u_t,m = 0
     rs = R * sigma
-    for i in range(m):
-        work[1, i] = v[i] - rs * W[i, m]
+    for i in range(n):
+        if i != m:
+            work[1, i] = v[i] - rs * W[i, m]
     work[1, m] = 0.0
-    if rank < m:
+    if rank < n - 1:
         project_roughness(work, rank, basis, node, wall, n)
     alpha2 = 2.0 * kappa / (1.0 + kappa)
     c = (2.0 / ((1.0 + kappa) * R)) * sigma
-    for i in range(m):
-        v[i] -= alpha2 * work[1, i]
-        W[i, m] += c * work[1, i]
-        W[m, i] -= c * work[1, i]
+    for i in range(n):
+        if i != m:
+            v[i] -= alpha2 * work[1, i]
+            W[i, m] += c * work[1, i]
+            W[m, i] -= c * work[1, i]
 
 
 def collision_map(v, W, nu, R, kappa, rank, basis=None):

@@ -21,7 +21,7 @@ from ._jit import jit, jit_hot
 from .engine import energy_factor, rotate, scale_state
 from .geometry import contact_normal, next_collision, normal_jacobian, periodic_flight, slab_collision
 
-from .physics import collide, collide_slab, project_roughness
+from .physics import collide, collide_axis, project_roughness
 from .rules import EXIT, choose
 
 
@@ -336,7 +336,7 @@ def tangent_advance(j, stop, t_end, ortho, slab, periodic, spin, tree, renorm_ev
             for q in range(n):
                 Wm[i, q] = W[i, q]
         if slab:
-            collide_slab(v, W, nu[n - 1], R, kappa, map_rank, rules.basis, node, w, work, n)
+            collide_axis(v, W, n - 1, nu[n - 1], R, kappa, map_rank, rules.basis, node, w, work, n)
             for i in range(n):
                 for q in range(n):
                     J[i, q] = 0.0

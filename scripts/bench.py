@@ -376,7 +376,7 @@ def strip_random_loop(x, y, vx, vy, w, width, key, N):
 def plates_random_loop(x, y, z, vx, vy, vz, wx, wy, wz, gap, key, p1, p2, dirs, N):
     """Ball between plates under the random rule: draw k (rbx.rng) picks one of three rank-1 directions dirs[i]
     (in the plates' tangent axes x, y) by the cumulative probabilities p1, p2; the slip velocity is projected on
-    it (rbx.physics.collide_slab at rank 1)."""
+    it (rbx.physics.collide_axis at rank 1)."""
     t = 0.0
     k = np.uint64(0)
     for _ in range(N):

@@ -181,23 +181,25 @@ def test_named_mass_distributions():
 
 
 @pytest.mark.parametrize("n", DIMS)
-def test_the_slab_map_is_the_general_map_bit_for_bit(n):
-    # physics.collide_slab (strip and plates walls, ν = ±e_{n−1}) leaves out the products with ν's zeros: the
-    # same numbers must come out, not merely close ones (zeros may differ in sign)
-    from rbx.physics import collide, collide_slab
+def test_the_axis_map_is_the_general_map_bit_for_bit(n):
+    # physics.collide_axis (ν = ±e_m: the walls of a strip or between plates, m = n−1, and the sides of an axis box,
+    # any m) leaves out the products with ν's zeros: the same numbers must come out, not merely close ones (zeros
+    # may differ in sign)
+    from rbx.physics import collide, collide_axis
     rng = np.random.default_rng(7 + n)
-    for trial in range(200):
+    for trial in range(600):
         v, W, _, R, kappa = random_state(rng, n)
         sigma = 1.0 if trial % 2 else -1.0
+        m = (trial // 2) % n
         nu = np.zeros(n)
-        nu[-1] = sigma
+        nu[m] = sigma
         k = int(rng.integers(0, n))
         basis = roughness_basis(rng, nu, k)
-        basis[:, -1] = 0.0                      # tangent to the wall exactly, as the rule compiler gives it
+        basis[:, m] = 0.0                       # tangent to the wall exactly, as the rule compiler gives it
         b = basis[None, None]
         v1, W1, v2, W2 = v.copy(), W.copy(), v.copy(), W.copy()
         collide(v1, W1, nu, R, kappa, k, b, 0, 0, np.empty((3, n)), n)
-        collide_slab(v2, W2, sigma, R, kappa, k, b, 0, 0, np.empty((3, n)), n)
+        collide_axis(v2, W2, m, sigma, R, kappa, k, b, 0, 0, np.empty((3, n)), n)
         np.testing.assert_array_equal(v1, v2)
         np.testing.assert_array_equal(W1, W2)
         assert np.all(W2 == -W2.T)              # still exactly antisymmetric
