@@ -332,11 +332,13 @@ def collision_time(code, params, k, a, v, tol, n):
     b = 0.0
     cc = 0.0
     vv = 0.0
-    for i in range(2 if code == CYLINDER else n):
-        dx = a[i] - params[k, i]
-        b += dx * v[i]
-        cc += dx * dx
-        vv += v[i] * v[i]
+    m = 2 if code == CYLINDER else n
+    for i in range(n):          # i < m: a loop of constant length n, so that every index into a, v is a constant
+        if i < m:               # (a run-time trip count would keep the kernel's state out of registers, in 3D)
+            dx = a[i] - params[k, i]
+            b += dx * v[i]
+            cc += dx * dx
+            vv += v[i] * v[i]
     rho = params[k, 12]
     if b >= 0.0 and (code == CONVEX_ARC or code == SPHERE_OUT):
         return np.inf                            # moving away from a disc kept outside: never reaches it
@@ -419,16 +421,14 @@ def contact_normal(code, params, k, a, nu, n):
         return
     s = 0.0
     m = 2 if code == CYLINDER else n
-    for i in range(m):
-        nu[i] = a[i] - params[k, i]
+    for i in range(n):          # constant indices (see collision_time)
+        nu[i] = a[i] - params[k, i] if i < m else 0.0
         s += nu[i] * nu[i]
-    if code == CYLINDER:
-        nu[2] = 0.0
     s = 1.0 / np.sqrt(s)
     if code == CONCAVE_ARC or code == FOCUS_ARC or code == CYLINDER:
         s = -s
-    for i in range(m):
-        nu[i] *= s
+    for i in range(n):
+        nu[i] = nu[i] * s if i < m else 0.0
 
 
 @jit_hot
@@ -445,15 +445,18 @@ def normal_jacobian(code, params, k, a, J, n):
         return
     m = 2 if code == CYLINDER else n
     s = 0.0
-    for i in range(m):
-        s += (a[i] - params[k, i]) * (a[i] - params[k, i])
+    for i in range(n):          # constant indices (see collision_time)
+        if i < m:
+            s += (a[i] - params[k, i]) * (a[i] - params[k, i])
     r = np.sqrt(s)
     sign = -1.0 if (code == CONCAVE_ARC or code == FOCUS_ARC or code == CYLINDER) else 1.0
-    for i in range(m):
-        ui = (a[i] - params[k, i]) / r
-        for j in range(m):
-            uj = (a[j] - params[k, j]) / r
-            J[i, j] = sign * ((1.0 if i == j else 0.0) - ui * uj) / r
+    for i in range(n):
+        if i < m:
+            ui = (a[i] - params[k, i]) / r
+            for j in range(n):
+                if j < m:
+                    uj = (a[j] - params[k, j]) / r
+                    J[i, j] = sign * ((1.0 if i == j else 0.0) - ui * uj) / r
 
 
 @jit_hot
@@ -545,11 +548,13 @@ def snap(code, params, k, a, nu, n):
         return
     m = 2 if code == CYLINDER else n
     s = 0.0
-    for i in range(m):
-        s += (a[i] - params[k, i]) * (a[i] - params[k, i])
+    for i in range(n):          # constant indices (see collision_time)
+        if i < m:
+            s += (a[i] - params[k, i]) * (a[i] - params[k, i])
     f = params[k, 12] / np.sqrt(s)
-    for i in range(m):
-        a[i] = params[k, i] + f * (a[i] - params[k, i])
+    for i in range(n):
+        if i < m:
+            a[i] = params[k, i] + f * (a[i] - params[k, i])
 
 
 #: in a periodic table, a flight longer than this many times the cell's shortest side is taken to run along a
