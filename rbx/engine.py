@@ -35,7 +35,7 @@ import numba
 import numpy as np
 
 from ._jit import compile_lock, jit_hot, jit_loop, stack_array
-from .geometry import SEGMENT, box_collision, contact_normal, periodic_flight, slab_collision, snap
+from .geometry import HALFSPACE, SEGMENT, box_collision, contact_normal, periodic_flight, slab_collision, snap
 from .model import FIELD, FIELDS
 from .physics import collide, collide_axis
 from .rules import EXIT, choose
@@ -62,6 +62,7 @@ class Table(NamedTuple):
     box: np.ndarray         # (2n,) int64: the sides of an axis-aligned box (Geometry.axis_box), else (0,) …
     others: np.ndarray      # (P′,) int64 … and the other primitives (all of them without a box)
     first_hit: bool         # a convex boundary of pieces (Geometry.convex_boundary): the first hit in ``others``
+    axis: np.ndarray        # (P,) int64: i for a flat primitive of normal ±e_i (physics.collide_axis), else −1
 
 
 def make_table(geom, tol):
@@ -77,7 +78,21 @@ def make_table(geom, tol):
     return Table(codes=geom.codes, prim_wall=geom.walls, params=np.ascontiguousarray(geom.params), tol=float(tol),
                  lattice_lo=np.ascontiguousarray(lo, dtype=np.float64),
                  period=np.ascontiguousarray(period, dtype=np.float64), box=box,
-                 others=np.array(others, dtype=np.int64), first_hit=bool(first))
+                 others=np.array(others, dtype=np.int64), first_hit=bool(first), axis=flat_axes(geom))
+
+
+def flat_axes(geom):
+    """Per primitive, the axis i of a flat one (half-space or segment) whose normal is exactly ±e_i, else −1: the
+    kernels give it the collision map with ν's zeros left out (:func:`rbx.physics.collide_axis`)."""
+    n = geom.dimension
+    out = np.full(len(geom.codes), -1, dtype=np.int64)
+    for k, code in enumerate(geom.codes):
+        if code in (HALFSPACE, SEGMENT):
+            nu = geom.params[k, 4:4 + n]
+            i = int(np.argmax(np.abs(nu)))
+            if abs(nu[i]) == 1.0 and np.count_nonzero(nu) == 1:
+                out[k] = i
+    return out
 
 
 class Rules(NamedTuple):
@@ -456,18 +471,21 @@ def _make_kernel(spec):
                         if until_renorm == 0:
                             until_renorm = renorm_every
                             f = energy_factor(v, Wj, R, kappa, e0, half_inv_e0, n)
-                # a wall of normal ±e_i (a slab's, a box's side) takes the map with ν's zeros left out, one call per
-                # axis so that i is a constant in each; the same numbers as collide (tests/test_physics.py)
+                # a flat wall of normal ±e_i (a slab's, a box's side, an axis-aligned segment) takes the map with ν's
+                # zeros left out, one call per axis so that i is a constant in each; the same numbers as collide
+                # (tests/test_physics.py)
                 if SLAB:
                     collide_axis(v, Wj, n - 1, nu[n - 1], R, kappa, map_rank, rules.basis, node, w, work, n)
-                elif AXES and (p == table.box[0] or p == table.box[1]):
-                    collide_axis(v, Wj, 0, nu[0], R, kappa, map_rank, rules.basis, node, w, work, n)
-                elif AXES and (p == table.box[2] or p == table.box[3]):
-                    collide_axis(v, Wj, 1, nu[1], R, kappa, map_rank, rules.basis, node, w, work, n)
-                elif AXES and N == 3 and (p == table.box[4] or p == table.box[5]):
-                    collide_axis(v, Wj, 2, nu[2], R, kappa, map_rank, rules.basis, node, w, work, n)
                 else:
-                    collide(v, Wj, nu, R, kappa, map_rank, rules.basis, node, w, work, n)
+                    ax = table.axis[p]
+                    if ax == 0:
+                        collide_axis(v, Wj, 0, nu[0], R, kappa, map_rank, rules.basis, node, w, work, n)
+                    elif ax == 1:
+                        collide_axis(v, Wj, 1, nu[1], R, kappa, map_rank, rules.basis, node, w, work, n)
+                    elif N == 3 and ax == 2:
+                        collide_axis(v, Wj, 2, nu[2], R, kappa, map_rank, rules.basis, node, w, work, n)
+                    else:
+                        collide(v, Wj, nu, R, kappa, map_rank, rules.basis, node, w, work, n)
                 if f != 0.0:
                     scale_state(v, Wj, f, n)
                 c += 1

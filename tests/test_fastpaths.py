@@ -215,3 +215,51 @@ def test_the_antisymmetric_spin_update_is_the_full_update(n):
         np.testing.assert_array_equal(v1, want_v)
         np.testing.assert_array_equal(W1, want_W)
         np.testing.assert_array_equal(W1, -W1.T)
+
+
+#: tables with flat walls of normal ±e_i (the axis map) and walls without one (the general map), 2D and 3D
+AXIS_TABLES = {"sinai": BOXED["sinai"], "box-obstacles": BOXED["box-obstacles"], "L-polygon": BOXED["L-polygon"],
+               "stadium": NOT_BOXED["stadium"], "cylinder": NOT_CONVEX_BOUNDARY["cylinder"],
+               "custom-egg": CONVEX_BOUNDARY["custom-egg"]}
+
+
+@pytest.mark.parametrize("name", sorted(AXIS_TABLES))
+def test_flat_walls_of_an_axis_normal_are_found(name):
+    from rbx.geometry import HALFSPACE
+    table, n = AXIS_TABLES[name]
+    geom = geometry(table, n)
+    axis = engine.make_table(geom, 1e-12).axis
+    for k, code in enumerate(geom.codes):
+        nu = geom.params[k, 4:4 + n]
+        if code in (HALFSPACE, SEGMENT) and sorted(np.abs(nu).tolist()) == [0.0] * (n - 1) + [1.0]:
+            assert axis[k] == int(np.argmax(np.abs(nu))), (k, nu)
+        else:
+            assert axis[k] == -1, (k, code, nu)
+    expected = {"sinai": 4, "box-obstacles": 6, "L-polygon": 6, "stadium": 2, "cylinder": 2, "custom-egg": 1}
+    assert np.count_nonzero(axis >= 0) == expected[name]
+
+
+@pytest.mark.parametrize("name", sorted(AXIS_TABLES))
+def test_the_axis_map_in_the_kernel_gives_the_general_maps_records(name, monkeypatch):
+    # every field of 3000 completely rough collisions, with the axis map and with the general map on every wall
+    # (flat_axes says −1 everywhere): the same numbers, bit for bit (the rank-1 basis: tests/test_physics.py)
+    from rbx.simulation import MemorySink, Simulation
+    table, n = AXIS_TABLES[name]
+    rule = {"rule": "constant", "rank": n - 1}
+    d = {"table": table, "ball": {"radius": R}, "boundary": {"default": rule},
+         "initial": {"sample": "billiard"}, "run": {"collisions": 3000, "trajectories": 3, "seed": 5},
+         "output": {"record": ["time", "position", "velocity", "angular_velocity", "wall"]}}
+    cfg = config.from_dict(d, "<test>")
+    runs = []
+    for general in (False, True):
+        if general:
+            monkeypatch.setattr(engine, "flat_axes", lambda geom: np.full(len(geom.codes), -1, dtype=np.int64))
+        sim = Simulation(cfg)
+        if not general:
+            assert np.any(sim.kernel_groups()[0].axis >= 0)
+        sink = MemorySink()
+        sim.run(sink)
+        runs.append(sink.records)
+    assert runs[0]["time"].shape == (3, 3001)       # the initial state and 3000 collisions
+    for f in runs[0]:
+        np.testing.assert_array_equal(runs[0][f], runs[1][f], err_msg=f)
