@@ -35,7 +35,8 @@ import numba
 import numpy as np
 
 from ._jit import compile_lock, jit_hot, jit_loop, stack_array
-from .geometry import HALFSPACE, SEGMENT, box_collision, contact_normal, periodic_flight, slab_collision, snap
+from .geometry import (HALFSPACE, SEGMENT, box_collision, contact_normal, periodic_flight, periodic_images,
+                       slab_collision, snap)
 from .model import FIELD, FIELDS
 from .physics import collide, collide_axis
 from .rules import EXIT, choose
@@ -63,6 +64,8 @@ class Table(NamedTuple):
     others: np.ndarray      # (P′,) int64 … and the other primitives (all of them without a box)
     first_hit: bool         # a convex boundary of pieces (Geometry.convex_boundary): the first hit in ``others``
     axis: np.ndarray        # (P,) int64: i for a flat primitive of normal ±e_i (physics.collide_axis), else −1
+    images: np.ndarray      # (Q,) int64: a periodic table's images tested in each cell: primitive images[q] …
+    image_shift: np.ndarray  # (Q, n) float64 … shifted by this many cells (geometry.periodic_images)
 
 
 def make_table(geom, tol):
@@ -73,12 +76,14 @@ def make_table(geom, tol):
     box = np.zeros(0, dtype=np.int64) if box is None else box
     others = [k for k in range(len(geom.codes)) if k not in set(box.tolist())]
     first = geom.convex_boundary
+    images, image_shift = periodic_images(geom)
     if first:       # the cheaper segments are asked first (box_collision stops at the first hit)
         others.sort(key=lambda k: geom.codes[k] != SEGMENT)
     return Table(codes=geom.codes, prim_wall=geom.walls, params=np.ascontiguousarray(geom.params), tol=float(tol),
                  lattice_lo=np.ascontiguousarray(lo, dtype=np.float64),
                  period=np.ascontiguousarray(period, dtype=np.float64), box=box,
-                 others=np.array(others, dtype=np.int64), first_hit=bool(first), axis=flat_axes(geom))
+                 others=np.array(others, dtype=np.int64), first_hit=bool(first), axis=flat_axes(geom),
+                 images=images, image_shift=image_shift)
 
 
 def flat_axes(geom):
@@ -395,8 +400,8 @@ def _make_kernel(spec):
                 if SLAB:
                     tau, p = slab_collision(params, a, v, n)
                 elif PERIODIC:
-                    tau, p = periodic_flight(codes, params, a, v, tol, n, table.lattice_lo, table.period, base, loc, off,
-                                             ahead)
+                    tau, p = periodic_flight(codes, params, a, v, tol, n, table.lattice_lo, table.period, table.images,
+                                             table.image_shift, base, loc, off, ahead)
                 else:
                     tau, p = box_collision(codes, params, a, v, tol, n, table.box, table.others, AXES,
                                             first_hit)

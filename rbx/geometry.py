@@ -15,7 +15,7 @@ the index of the wall it belongs to and a row of packed float parameters:
 
 A table of the zoo (SPEC §8) is built from its wall pieces (:mod:`rbx.tables`) by :func:`from_pieces`; obstacles
 are added to any table by :func:`add_pieces`. A periodic cell (``Lattice``) is the ``lattice`` (lo, period) of the
-geometry: the kernel tests the images of the primitives in the neighbouring cells (:func:`periodic_collision`).
+geometry: the kernel walks the cells a flight crosses and tests each cell's images (:func:`periodic_flight`).
 
 Adding a table kind = a builder here that lists its primitives (with ``Wall`` entries for names, tangent axes and
 sampling patches), registered with its other facets in :mod:`rbx.tables`. Adding a primitive kind = a code, its
@@ -28,8 +28,6 @@ import numpy as np
 from ._jit import jit, jit_hot
 
 HALFSPACE, SEGMENT, CONCAVE_ARC, CONVEX_ARC, SPHERE_OUT, FOCUS_ARC, CYLINDER = 0, 1, 2, 3, 4, 5, 6
-#: returned by :func:`periodic_collision` instead of a primitive: no wall within reach, fly and look again
-PASS = -2
 NPARAM = 16
 #: relative tolerance (of the table's size) on segment and arc ends, so that a flight through a joint between two
 #: primitives hits at least one of them
@@ -562,79 +560,90 @@ def snap(code, params, k, a, nu, n):
 MAX_PERIODIC_FLIGHT = 10_000
 
 
+def periodic_images(geom):
+    """The images a periodic table's cell walk tests in each cell (:func:`periodic_flight`) -> (primitive (Q,)
+    int64, shift (Q, n) float64 in cells, each −1, 0 or 1): every primitive shifted by each neighbouring cell
+    whose obstacle, grown by R, reaches into the cell [lo, lo + period] or within 1e-9 of a period of it (an
+    obstacle may cross the cell's sides: a dense lattice, a gas of finite horizon). The unshifted ones come first.
+    Obstacles are smaller than half a period once grown (:func:`check_fit`), so no image further away can
+    reach the cell."""
+    n = geom.dimension
+    if geom.lattice is None:
+        return np.zeros(0, dtype=np.int64), np.zeros((0, n))
+    lo, period = (np.asarray(x, float) for x in geom.lattice)
+    slack = 1e-9 * period
+    prims, shifts = [], []
+    cells = sorted(np.ndindex(*(3,) * n), key=lambda s: any(x != 1 for x in s))
+    for s in cells:
+        s = np.array(s, float) - 1.0
+        for k in range(len(geom.codes)):
+            c, rho = geom.params[k, :n] + s * period, geom.params[k, 12]
+            if np.all(c + rho >= lo - slack) and np.all(c - rho <= lo + period + slack):
+                prims.append(k)
+                shifts.append(s)
+    return np.array(prims, dtype=np.int64), np.array(shifts, dtype=np.float64).reshape(-1, n)
+
+
 @jit_hot
-def periodic_flight(codes, params, a, v, tol, n, lo, period, base, loc, off, ahead):
-    """The next collision in a periodic table -> (flight time, primitive), the image hit shifted by ``off``
-    (:func:`periodic_collision`); (inf, −1) for a flight along a corridor that meets nothing within
-    MAX_PERIODIC_FLIGHT cells. A long flight crosses many cells: it is looked at in windows (PASS), from a + acc·v,
-    and the caller flies it once, so that the position and time take one rounding per flight as elsewhere.
-    ``base``, ``loc``, ``off``, ``ahead``: scratch arrays of n values."""
-    acc = 0.0
+def periodic_flight(codes, params, a, v, tol, n, lo, period, images, shift, base, loc, off, ahead):
+    """The next collision in a periodic table (a Lattice of period ``period`` from ``lo``) -> (flight time,
+    primitive), the image hit being shifted by ``off`` (the contact point relative to the cell's primitives is
+    a − off); (inf, −1) for a flight along a corridor that meets nothing within MAX_PERIODIC_FLIGHT cells.
+
+    The flight walks the cells it crosses, in order (the traversal of Amanatides and Woo). In each cell it tests
+    the images that reach into the cell (:func:`periodic_images`: primitive ``images[q]`` shifted by
+    ``shift[q]`` cells from this one), from the point where the flight entered the cell (a quadratic solved from
+    far away would lose digits as the square of the distance); the first hit that lies in the cell is the
+    collision, else the flight crosses the side it reaches first. A hit at a side that rounding puts beyond it
+    is found again in the next cell, which that image reaches too; rounding can only change the order of two
+    cells the flight crosses within rounding of their common corner. ``a`` stays unfolded, and the caller flies
+    the whole flight at once (one rounding per flight, as elsewhere). Scratch arrays of n values: ``base`` (the
+    cell's index along each axis, an integer held as a float), ``loc``, ``off`` (the start of the cell's walk,
+    then the shift of the image hit), ``ahead`` (when the flight crosses the cell's next side along each
+    axis)."""
     vv = 0.0
     short = np.inf
     for i in range(n):
-        ahead[i] = a[i]
         vv += v[i] * v[i]
         short = min(short, period[i])
     far = MAX_PERIODIC_FLIGHT * short / np.sqrt(vv)
-    while True:
-        tau, p = periodic_collision(codes, params, ahead, v, tol, n, lo, period, base, loc, off)
-        if p != PASS:
-            return tau + acc, p
-        acc += tau
-        if acc > far:
-            return np.inf, -1
-        for i in range(n):
-            ahead[i] = a[i] + acc * v[i]
-
-
-@jit_hot
-def periodic_collision(codes, params, a, v, tol, n, lo, period, base, loc, off):
-    """The next collision in a periodic table (a Lattice of period ``period`` from ``lo``) -> (flight time,
-    primitive), the image hit being shifted by ``off`` (the contact point relative to the cell's primitives is
-    a − off); or (τ, PASS): no wall within reach, fly τ and look again.
-
-    The centre is in the cell ``base`` (floor of (a − lo)/period: which of two cells a point on their common side
-    is taken to be in does not matter). Every obstacle lies inside its own cell once grown by R (checked when the
-    table is read), so within the box [base − period/2, base + 3·period/2] only the images in the 3ⁿ cells around
-    ``base`` can be met; the flight is cut where it leaves that box (at least half a cell away), and looked at
-    again from there. ``a`` stays unfolded; ``base``, ``loc``, ``off``: scratch arrays of n values."""
     for i in range(n):
-        base[i] = lo[i] + np.floor((a[i] - lo[i]) / period[i]) * period[i]
-    reach = np.inf
-    for i in range(n):
+        base[i] = np.floor((a[i] - lo[i]) / period[i])
         if v[i] > 0.0:
-            t = (base[i] + 1.5 * period[i] - a[i]) / v[i]
+            ahead[i] = (lo[i] + (base[i] + 1.0) * period[i] - a[i]) / v[i]
         elif v[i] < 0.0:
-            t = (a[i] - (base[i] - 0.5 * period[i])) / -v[i]
+            ahead[i] = (lo[i] + base[i] * period[i] - a[i]) / v[i]
         else:
-            continue
-        if t < reach:
-            reach = t
-    best = np.inf
-    which = -1
-    image = 0
-    images = 3 ** n
-    for m in range(images):
-        q = m
+            ahead[i] = np.inf
+    acc = 0.0                                    # when the flight entered the current cell
+    while True:
+        j = 0                                    # the side the flight leaves the cell by: along axis j
+        for i in range(1, n):
+            if ahead[i] < ahead[j]:
+                j = i
         for i in range(n):
-            loc[i] = a[i] - (base[i] + ((q % 3) - 1) * period[i])
-            q //= 3
-        for k in range(codes.shape[0]):
+            off[i] = a[i] + acc * v[i]
+        best = np.inf
+        which = -1
+        image = 0
+        for q in range(images.shape[0]):
+            k = images[q]
+            for i in range(n):
+                loc[i] = off[i] - (base[i] + shift[q, i]) * period[i]
             t = collision_time(codes[k], params, k, loc, v, tol, n)
             if t < best:
                 best = t
                 which = k
-                image = m
-    if which < 0 or best > reach:
-        if reach == np.inf:
+                image = q
+        if which >= 0 and acc + best <= ahead[j]:
+            for i in range(n):
+                off[i] = (base[i] + shift[image, i]) * period[i]
+            return acc + best, which
+        acc = ahead[j]
+        if acc > far:
             return np.inf, -1
-        return reach, PASS
-    q = image
-    for i in range(n):
-        off[i] = base[i] + ((q % 3) - 1) * period[i]
-        q //= 3
-    return best, which
+        base[j] += 1.0 if v[j] > 0.0 else -1.0
+        ahead[j] += period[j] / abs(v[j])
 
 
 # ---- tables built from wall pieces (SPEC §8): the zoo, obstacles on any table, periodic cells --------------------
@@ -973,8 +982,10 @@ def add_pieces(geom, pieces, R):
 
 def check_fit(geom, R):
     """None, or why the table built from pieces cannot hold a ball of radius R: a focusing arc, sphere or cylinder
-    no larger than R, a wall with no room left once shrunk, obstacles overlapping each other, the boundary or the
-    periodic cell's sides once grown by R, a periodic table without obstacles -> str or None."""
+    no larger than R, a wall with no room left once shrunk, obstacles overlapping each other or the boundary once
+    grown by R; in a periodic table, an obstacle centred outside the cell or reaching its own image, obstacles
+    overlapping each other's images, a table without obstacles -> str or None. Obstacles may cross the cell's
+    sides (the images then reach into the neighbouring cells: :func:`periodic_images`)."""
     from . import tables as T
     size = geom.size
     obstacles = [q for q in geom.pieces if isinstance(q, T.Sphere) and not q.inside]
@@ -993,26 +1004,33 @@ def check_fit(geom, R):
         flat_short = any(p[0] == "flat" and any(length <= 0 for _, length in p[3]) for p in w.patches)
         if flat_short or (not w.patches and not any(isinstance(q, T.Cylinder) for q in geom.pieces)):
             return f"does not fit in the table (no room along wall '{w.name}')"
+    shifts = [np.zeros(geom.dimension)]
     if geom.lattice is not None:
         lo, period = geom.lattice
         if not obstacles:
             return ("periodic", "a periodic table needs obstacles (nothing else is ever hit)")
         for q in obstacles:
             c = np.asarray(q.center, float)
-            margin = float(min(np.min(c - lo), np.min(lo + period - c))) - q.radius
-            if margin <= 0:
-                return (f"obstacles[{obstacles.index(q)}]", f"'{q.name}' reaches the periodic cell's side (keep "
-                        "each obstacle inside its cell)")
-            if margin < R * (1 - 1e-12):
-                return (f"does not fit between obstacle '{q.name}' and the periodic cell's side ({margin:g} apart; "
-                        "each obstacle grown by the ball's radius must stay inside its cell)")
+            if np.any(c < lo) or np.any(c >= lo + period):
+                return (f"obstacles[{obstacles.index(q)}]", f"'{q.name}' has its centre outside the periodic cell "
+                        f"[{', '.join(f'{x:g}' for x in lo)}] – [{', '.join(f'{x:g}' for x in lo + period)}] (put "
+                        "it in the cell: the lattice repeats it)")
+        shifts = [(np.array(s, float) - 1.0) * period for s in np.ndindex(*(3,) * geom.dimension)]
+    # every pair of obstacles, and in a periodic table every obstacle and the images of all of them (its own too:
+    # then each is less than half a cell across once grown, so only the neighbouring cells' images reach a cell)
     for i, a in enumerate(obstacles):
-        for b in obstacles[i + 1:]:
-            gap = np.linalg.norm(np.asarray(a.center, float) - np.asarray(b.center, float)) - a.radius - b.radius
-            if gap <= 0:
-                return (f"obstacles[{obstacles.index(b)}]", f"'{b.name}' overlaps '{a.name}'")
-            if gap < 2 * R * (1 - 1e-12):
-                return f"does not fit between obstacles '{a.name}' and '{b.name}' ({gap:g} apart)"
+        for b in obstacles[i:]:
+            for s in shifts:
+                if b is a and not np.any(s):
+                    continue
+                gap = float(np.linalg.norm(np.asarray(a.center, float) - np.asarray(b.center, float) - s)
+                            - a.radius - b.radius)
+                other = (f"'{b.name}'" if not np.any(s) else "its own periodic image" if b is a else
+                         f"'{b.name}''s periodic image")
+                if gap <= 0:
+                    return (f"obstacles[{obstacles.index(b)}]", f"'{a.name}' overlaps {other}")
+                if gap < 2 * R * (1 - 1e-12):
+                    return f"does not fit between obstacle '{a.name}' and {other} ({gap:g} apart)"
     others = [q for q in geom.pieces if q not in obstacles and not isinstance(q, T.Lattice)]
     if obstacles and others:
         probe = Geometry(geom.kind, geom.dimension, geom.codes, geom.walls, geom.params, geom.wall_list, size,

@@ -256,6 +256,15 @@ def positive(value, c, key):
     return c.number(value, key, positive=True)
 
 
+#: the lattices of the ``lorentz`` preset: one scatterer per cell at its centre, or two (centred: at a quarter
+#: and three quarters of the cell's diagonal — a triangular lattice when the cell is [d, d√3])
+LATTICES = ("simple", "centred")
+
+
+def lattice(value, c, key):
+    return c.choice(value, key, LATTICES, "lattice")
+
+
 def angle_deg(value, c, key):
     return c.number(value, key, lo=0, hi=180, lo_open=True, hi_open=True)
 
@@ -672,15 +681,25 @@ register(TableKind(
     phrase=lambda p: f"in a Sinai {'billiard' if len(p['size']) == 2 else 'box'} "
                      + " × ".join(_g(x) for x in p["size"]) + f" with a scatterer of radius {_g(p['radius'])}",
     draw=_draw_pieces, example={"size": [2.0, 1.5], "radius": 0.4}))
+def _lorentz_walls(p):
+    cell = tuple(float(x) for x in p["cell"])
+    walls = [Lattice(tuple(0.0 for _ in cell), cell)]
+    if p.get("lattice", "simple") == "simple":
+        return walls + [_scatterer(cell, p["radius"])]
+    return walls + [Sphere(name, tuple(f * s for s in cell), float(p["radius"]), False)
+                    for name, f in (("scatterer", 0.25), ("scatterer2", 0.75))]
+
+
 register(TableKind(
-    "lorentz", lambda p: len(p["cell"]), "periodic Lorentz gas: a disc or sphere of radius at the centre of each cell",
+    "lorentz", lambda p: len(p["cell"]), "periodic Lorentz gas: a disc or sphere of radius at the centre of each "
+    "cell (lattice: centred, two: at a quarter and three quarters of the cell's diagonal)",
     {"cell": size23, "radius": positive},
-    walls=lambda p: [Lattice(tuple(0.0 for _ in p["cell"]), tuple(float(x) for x in p["cell"])),
-                     _scatterer(p["cell"], p["radius"])], build=FROM_WALLS, fits=_zoo_fits,
+    walls=_lorentz_walls, build=FROM_WALLS, fits=_zoo_fits,
     scale=lambda p: max(p["cell"]),
-    phrase=lambda p: "in a periodic Lorentz gas, cell " + " × ".join(_g(x) for x in p["cell"])
-                     + f", scatterer radius {_g(p['radius'])}", draw=_draw_pieces,
-    example={"cell": [1.0, 1.0], "radius": 0.3}))
+    phrase=lambda p: ("in a periodic Lorentz gas, " + ("" if p.get("lattice", "simple") == "simple" else
+                                                       "centred lattice, ")
+                      + "cell " + " × ".join(_g(x) for x in p["cell"]) + f", scatterer radius {_g(p['radius'])}"),
+    draw=_draw_pieces, example={"cell": [1.0, 1.0], "radius": 0.3}, optional={"lattice": lattice}))
 register(TableKind(
     "mushroom", 2, "Bunimovich mushroom: a half disc y ≥ 0 on a stem centred on x = 0",
     {"cap_radius": positive, "stem_width": positive, "stem_height": positive},

@@ -275,8 +275,8 @@ def tangent_advance(j, stop, t_end, ortho, slab, periodic, spin, tree, renorm_ev
         if slab:
             tau, p = slab_collision(params, a, v, n)
         elif periodic:
-            tau, p = periodic_flight(codes, params, a, v, tol, n, table.lattice_lo, table.period, base, loc, off,
-                                     ahead)
+            tau, p = periodic_flight(codes, params, a, v, tol, n, table.lattice_lo, table.period, table.images,
+                                     table.image_shift, base, loc, off, ahead)
         else:
             tau, p = next_collision(codes, params, a, v, tol, n)
         if t + tau > t_end:                       # stop in flight at t_end (also when no wall lies ahead)

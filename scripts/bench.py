@@ -399,9 +399,18 @@ def plates_random_loop(x, y, z, vx, vy, vz, wx, wy, wz, gap, key, p1, p2, dirs, 
     return x + y + z + vx + vy + vz + wx + wy + wz + t
 
 
+@numba.njit(cache=True, inline="always")
+def _bounce3(vx, vy, vz, wx, wy, wz, nx, ny, nz, rough):
+    """The 3D collision map at a wall of inward normal ν: completely rough (:func:`_map3`), or specular."""
+    if rough:
+        return _map3(vx, vy, vz, wx, wy, wz, nx, ny, nz)
+    vn = 2.0 * (vx * nx + vy * ny + vz * nz)
+    return vx - vn * nx, vy - vn * ny, vz - vn * nz, wx, wy, wz
+
+
 @numba.njit(cache=True)
-def sphere_loop(x, y, z, vx, vy, vz, wx, wy, wz, rho, N):
-    """Rough ball (rank 2) in a sphere of shrunk radius rho: :func:`circle_loop` in 3D."""
+def sphere_loop(x, y, z, vx, vy, vz, wx, wy, wz, rho, rough, N):
+    """A ball (rough: rank 2) in a sphere of shrunk radius rho: :func:`circle_loop` in 3D."""
     t = 0.0
     for _ in range(N):
         b = x * vx + y * vy + z * vz
@@ -413,14 +422,14 @@ def sphere_loop(x, y, z, vx, vy, vz, wx, wy, wz, rho, N):
         z += tau * vz
         t += tau
         m = -1.0 / np.sqrt(x * x + y * y + z * z)
-        vx, vy, vz, wx, wy, wz = _map3(vx, vy, vz, wx, wy, wz, x * m, y * m, z * m)
-    return x + y + z + vx + vy + vz + wx + wy + wz + t
+        vx, vy, vz, wx, wy, wz = _bounce3(vx, vy, vz, wx, wy, wz, x * m, y * m, z * m, rough)
+    return x + y + z + vx + vy + vz + ((wx + wy + wz) if rough else 0.0) + t
 
 
 @numba.njit(cache=True)
-def cylinder_loop(x, y, z, vx, vy, vz, wx, wy, wz, rho, height, N):
-    """Rough ball (rank 2) in a cylinder of axis z: the side (shrunk radius rho, the larger root across the axis)
-    and the caps z = R, z = height − R (the sign of vz)."""
+def cylinder_loop(x, y, z, vx, vy, vz, wx, wy, wz, rho, height, rough, N):
+    """A ball (rough: rank 2) in a cylinder of axis z: the side (shrunk radius rho, the larger root across the
+    axis) and the caps z = R, z = height − R (the sign of vz)."""
     t = 0.0
     for _ in range(N):
         tz = (height - R - z) / vz if vz > 0 else (R - z) / vz
@@ -438,10 +447,157 @@ def cylinder_loop(x, y, z, vx, vy, vz, wx, wy, wz, rho, height, N):
         t += tau
         if ts < tz:
             m = -1.0 / np.sqrt(x * x + y * y)
-            vx, vy, vz, wx, wy, wz = _map3(vx, vy, vz, wx, wy, wz, x * m, y * m, 0.0)
+            vx, vy, vz, wx, wy, wz = _bounce3(vx, vy, vz, wx, wy, wz, x * m, y * m, 0.0, rough)
         else:
-            vx, vy, vz, wx, wy, wz = _map3(vx, vy, vz, wx, wy, wz, 0.0, 0.0, -1.0 if vz > 0 else 1.0)
-    return x + y + z + vx + vy + vz + wx + wy + wz + t
+            vx, vy, vz, wx, wy, wz = _bounce3(vx, vy, vz, wx, wy, wz, 0.0, 0.0, -1.0 if vz > 0 else 1.0, rough)
+    return x + y + z + vx + vy + vz + ((wx + wy + wz) if rough else 0.0) + t
+
+
+@numba.njit(cache=True)
+def sinai3_loop(x, y, z, vx, vy, vz, wx, wy, wz, lx, ly, lz, cx, cy, cz, rho, rough, N):
+    """A ball in a Sinai box [0, lx] × [0, ly] × [0, lz] with a sphere of grown radius rho about (cx, cy, cz):
+    :func:`sinai_loop` in 3D (the nearest of the three sides ahead, the sphere's smaller root)."""
+    t = 0.0
+    for _ in range(N):
+        tx = (lx - R - x) / vx if vx > 0 else (R - x) / vx
+        ty = (ly - R - y) / vy if vy > 0 else (R - y) / vy
+        tz = (lz - R - z) / vz if vz > 0 else (R - z) / vz
+        tau, kind = (tx, 0) if tx < ty else (ty, 1)
+        if tz < tau:
+            tau, kind = tz, 2
+        dx, dy, dz = x - cx, y - cy, z - cz
+        b = dx * vx + dy * vy + dz * vz
+        if b < 0.0:
+            vv = vx * vx + vy * vy + vz * vz
+            d = np.sqrt(dx * dx + dy * dy + dz * dz)
+            c = (d - rho) * (d + rho)
+            disc = b * b - vv * c
+            if disc > 0.0:
+                ts = c / (np.sqrt(disc) - b)
+                if ts < tau:
+                    tau, kind = max(ts, 0.0), 3
+        x += tau * vx
+        y += tau * vy
+        z += tau * vz
+        t += tau
+        nx = ny = nz = 0.0
+        if kind == 0:
+            nx = -1.0 if vx > 0 else 1.0
+        elif kind == 1:
+            ny = -1.0 if vy > 0 else 1.0
+        elif kind == 2:
+            nz = -1.0 if vz > 0 else 1.0
+        else:
+            m = 1.0 / np.sqrt((x - cx) ** 2 + (y - cy) ** 2 + (z - cz) ** 2)
+            nx, ny, nz = (x - cx) * m, (y - cy) * m, (z - cz) * m
+        vx, vy, vz, wx, wy, wz = _bounce3(vx, vy, vz, wx, wy, wz, nx, ny, nz, rough)
+    return x + y + z + vx + vy + vz + ((wx + wy + wz) if rough else 0.0) + t
+
+
+@numba.njit(cache=True)
+def lorentz_loop(x, y, vx, vy, w, lx, ly, rho, rough, N):
+    """A disc in the periodic Lorentz gas of cell [0, lx] × [0, ly] with a scatterer of grown radius rho at each
+    cell's centre, the position unfolded: from the cell of the start, the cells the flight crosses in turn (the
+    side reached first: one addition per crossing), each cell's scatterer tested by its smaller root until one is
+    hit (it lies inside its cell, so the first hit is the collision)."""
+    t = 0.0
+    vv = vx * vx + vy * vy
+    for _ in range(N):
+        i = np.floor(x / lx)
+        j = np.floor(y / ly)
+        tx = ((i + 1.0) * lx - x) / vx if vx > 0 else (i * lx - x) / vx
+        ty = ((j + 1.0) * ly - y) / vy if vy > 0 else (j * ly - y) / vy
+        si = 1.0 if vx > 0 else -1.0
+        sj = 1.0 if vy > 0 else -1.0
+        while True:
+            dx, dy = x - (i + 0.5) * lx, y - (j + 0.5) * ly
+            b = dx * vx + dy * vy
+            if b < 0.0:
+                d = np.sqrt(dx * dx + dy * dy)
+                c = (d - rho) * (d + rho)
+                disc = b * b - vv * c
+                if disc > 0.0:
+                    tau = max(c / (np.sqrt(disc) - b), 0.0)
+                    break
+            if tx < ty:
+                i += si
+                tx += lx / abs(vx)
+            else:
+                j += sj
+                ty += ly / abs(vy)
+        x += tau * vx
+        y += tau * vy
+        t += tau
+        dx, dy = x - (i + 0.5) * lx, y - (j + 0.5) * ly
+        m = 1.0 / np.sqrt(dx * dx + dy * dy)
+        vx, vy, w = _map2(vx, vy, w, dx * m, dy * m, rough)
+        vv = vx * vx + vy * vy
+    return x + y + vx + vy + (w if rough else 0.0) + t
+
+
+@numba.njit(cache=True)
+def mushroom_loop(x, y, vx, vy, w, rc, half, h, rough, N):
+    """A disc in the mushroom of cap radius rc on a stem [−half, half] × [−h, 0] (rbx.tables), shrunk by R: the
+    cap's arc (radius rc − R about the origin, the larger root, where it lies above the floor), the floor
+    y = R where |x| ≥ half, the stem's sides x = ±(half − R) below y = 0 and its bottom y = R − h, and the two
+    reflex corners (±half, 0) as discs of radius R hit from outside (the smaller root). It is not convex: the
+    nearest of the walls whose test passes."""
+    rho, xs, yb = rc - R, half - R, R - h
+    t = 0.0
+    for _ in range(N):
+        vv = vx * vx + vy * vy
+        b = x * vx + y * vy
+        d = np.sqrt(x * x + y * y)
+        c = (d - rho) * (d + rho)
+        disc = b * b - vv * c
+        tau, kind = np.inf, -1
+        if disc >= 0.0:
+            ta = -c / (b + np.sqrt(disc)) if b > 0.0 else (np.sqrt(disc) - b) / vv
+            if ta >= 0.0 and y + ta * vy >= R:
+                tau, kind = ta, 0                       # the cap
+        if vy < 0.0:
+            if y >= R:                                  # the floor, either side of the stem
+                tf = (R - y) / vy
+                if tf < tau and abs(x + tf * vx) >= half:
+                    tau, kind = tf, 1
+            tb = (yb - y) / vy                          # the stem's bottom
+            if tb < tau and abs(x + tb * vx) <= xs:
+                tau, kind = tb, 1
+        if vx > 0.0 and x <= xs:                        # the stem's right side
+            ts = (xs - x) / vx
+            if ts < tau and y + ts * vy <= 0.0:
+                tau, kind = ts, 2
+        elif vx < 0.0 and x >= -xs:                     # the stem's left side
+            ts = (-xs - x) / vx
+            if ts < tau and y + ts * vy <= 0.0:
+                tau, kind = ts, 2
+        for s in (-1.0, 1.0):                           # the rounded reflex corners
+            dx = x - s * half
+            bc = dx * vx + y * vy
+            if bc < 0.0:
+                dc = np.sqrt(dx * dx + y * y)
+                cc = (dc - R) * (dc + R)
+                dd = bc * bc - vv * cc
+                if dd > 0.0:
+                    tc = max(cc / (np.sqrt(dd) - bc), 0.0)
+                    if tc < tau:
+                        tau, kind = tc, 3 if s < 0 else 4
+        x += tau * vx
+        y += tau * vy
+        t += tau
+        if kind == 0:
+            m = -1.0 / np.sqrt(x * x + y * y)
+            nx, ny = x * m, y * m
+        elif kind == 1:
+            nx, ny = 0.0, (1.0 if vy < 0 else -1.0)
+        elif kind == 2:
+            nx, ny = (-1.0 if vx > 0 else 1.0), 0.0
+        else:
+            cx = -half if kind == 3 else half
+            m = 1.0 / np.sqrt((x - cx) ** 2 + y * y)
+            nx, ny = (x - cx) * m, y * m
+        vx, vy, w = _map2(vx, vy, w, nx, ny, rough)
+    return x + y + vx + vy + (w if rough else 0.0) + t
 
 
 # ---- the scenes, rules and configs ----------------------------------------------------------------------------------
@@ -547,13 +703,27 @@ HAND = {
     ("strip", "random"): lambda N: strip_random_loop(0.0, 0.5, 0.6, 0.8, 1.5, 1.0, rules_key(), N),
     ("plates", "random"): lambda N: plates_random_loop(0, 0, 0.5, 0.2, -0.4, 0.7, 1.0, -2.0, -0.3, 1.0, rules_key(),
                                                        *RANDOM3[0], RANDOM3[1], N),
-    ("sphere", "rough"): lambda N: sphere_loop(0.1, 0.2, 0.3, 0.3, -0.5, 0.7, 1.0, -2.0, -0.3, 1.0 - R, N),
-    ("cylinder", "rough"): lambda N: cylinder_loop(0.1, 0.2, 0.7, 0.3, -0.5, 0.7, 1.0, -2.0, -0.3, 1.0 - R, 1.5, N),
+    ("sphere", "specular"): lambda N: sphere_loop(0.1, 0.2, 0.3, 0.3, -0.5, 0.7, 1.0, -2.0, -0.3, 1.0 - R, False, N),
+    ("sphere", "rough"): lambda N: sphere_loop(0.1, 0.2, 0.3, 0.3, -0.5, 0.7, 1.0, -2.0, -0.3, 1.0 - R, True, N),
+    ("cylinder", "specular"): lambda N: cylinder_loop(0.1, 0.2, 0.7, 0.3, -0.5, 0.7, 1.0, -2.0, -0.3, 1.0 - R, 1.5,
+                                                      False, N),
+    ("cylinder", "rough"): lambda N: cylinder_loop(0.1, 0.2, 0.7, 0.3, -0.5, 0.7, 1.0, -2.0, -0.3, 1.0 - R, 1.5,
+                                                   True, N),
+    ("sinai3", "specular"): lambda N: sinai3_loop(0.2, 0.2, 0.2, 0.3, -0.5, 0.7, 1.0, -2.0, -0.3, 1.0, 1.3, 0.8,
+                                                  0.5, 0.65, 0.4, 0.2 + R, False, N),
+    ("sinai3", "rough"): lambda N: sinai3_loop(0.2, 0.2, 0.2, 0.3, -0.5, 0.7, 1.0, -2.0, -0.3, 1.0, 1.3, 0.8,
+                                               0.5, 0.65, 0.4, 0.2 + R, True, N),
+    ("lorentz", "specular"): lambda N: lorentz_loop(0.1, 0.1, 0.83, 0.31, 0.7, 1.0, 1.0, 0.3 + R, False, N),
+    ("lorentz", "rough"): lambda N: lorentz_loop(0.1, 0.1, 0.83, 0.31, 0.7, 1.0, 1.0, 0.3 + R, True, N),
+    ("mushroom", "specular"): lambda N: mushroom_loop(0.2, 0.5, 0.83, 0.31, 0.7, 1.0, 0.3, 1.0, False, N),
+    ("mushroom", "rough"): lambda N: mushroom_loop(0.2, 0.5, 0.83, 0.31, 0.7, 1.0, 0.3, 1.0, True, N),
 }
 #: collisions over which a hand loop's orbit is checked against rbx's (tests/test_bench_smoke.py): chaotic tables
 #: separate nearby orbits exponentially, so rounding differences grow past 1e-9 after 15-20 collisions (the
-#: L-polygon, dispersed by its rounded reflex corner, after ~300; the rough cylinder after ~500)
-HAND_CHECK_COLLISIONS = {"sinai": 12, "stadium": 12, "L-polygon": 100, "cylinder": 200}
+#: L-polygon, dispersed by its rounded reflex corner, after ~300; the rough cylinder after ~500; the Lorentz gas
+#: after ~15)
+HAND_CHECK_COLLISIONS = {"sinai": 12, "stadium": 12, "L-polygon": 100, "cylinder": 200, "sinai3": 50, "lorentz": 12,
+                         "mushroom": 40}
 
 FIELDS = RECORD_FIELDS
 FIELD_VALUES = {2: {"time": 1, "position": 2, "velocity": 2, "angular_velocity": 1, "orientation": 1, "wall": 0.5,

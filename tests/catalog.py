@@ -116,6 +116,10 @@ ZOO = {
                      [0.0, -0.5], [0.3, 0.9], 1.0),
     "sinai-2d": _cfg({"kind": "sinai", "size": [2.0, 1.5], "radius": 0.4}, ROUGH, [0.2, 0.2], [0.6, 0.8], 1.0),
     "lorentz-2d": _cfg({"kind": "lorentz", "cell": [1.0, 1.0], "radius": 0.3}, ROUGH, [0.05, 0.1], [0.6, 0.8], 1.0),
+    # a triangular lattice (the cell [1, √3], two scatterers) of finite horizon: grown by R each scatterer (0.46)
+    # crosses the cell's sides and blocks every corridor (≥ √3/4)
+    "lorentz-centred": _cfg({"kind": "lorentz", "cell": [1.0, 3 ** 0.5], "radius": 0.36, "lattice": "centred"}, ROUGH,
+                            [0.75, 0.72], [0.6, 0.8], 1.0),
     "custom": _cfg({"kind": "custom", "boundary": CUSTOM_BOUNDARY}, ROUGH, [0.5, 0.5], [0.83, 0.31], 1.0),
     "custom-bulb": _cfg({"kind": "custom", "boundary": BULB_BOUNDARY}, ROUGH, [0.5, 0.5], [0.83, 0.31], 1.0),
     "circle-obstacles": _cfg({"kind": "circle", "radius": 1.0, "obstacles": DISCS}, ROUGH, [0.6, -0.5],

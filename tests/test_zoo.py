@@ -612,9 +612,10 @@ def santalo_value(name, c):
     elif name == "sinai-2d":
         (w, h), g = t["size"], t["radius"] + R
         A, P = (w - 2 * R) * (h - 2 * R) - math.pi * g * g, 2 * (w - 2 * R) + 2 * (h - 2 * R) + 2 * math.pi * g
-    elif name == "lorentz-2d":
+    elif name in ("lorentz-2d", "lorentz-centred"):
         (w, h), g = t["cell"], t["radius"] + R
-        A, P = w * h - math.pi * g * g, 2 * math.pi * g
+        k = 2 if t.get("lattice") == "centred" else 1          # scatterers per cell
+        A, P = w * h - k * math.pi * g * g, k * 2 * math.pi * g
     elif name in ("custom", "mushroom"):
         kind, params = table_of(c)
         A, P = shrunk_area_perimeter(tables.walls(kind, params)[0].pieces, R)
@@ -636,7 +637,7 @@ def santalo_value(name, c):
     return 4 * A / P if tables.dimension(*table_of(c)) == 2 else 15 * math.pi / 8 * V / S
 
 
-SANTALO = ["stadium", "sinai-2d", "lorentz-2d", "custom", "mushroom", "sinai-3d", "lorentz-3d", "sphere",
+SANTALO = ["stadium", "sinai-2d", "lorentz-2d", "lorentz-centred", "custom", "mushroom", "sinai-3d", "lorentz-3d", "sphere",
            "cylinder"]
 
 
@@ -690,6 +691,33 @@ def test_periodic_positions_are_unfolded(name):
     assert np.ptp(pos, axis=0).max() > 5 * cell.max()
 
 
+def test_a_cell_tests_every_image_that_reaches_into_it():
+    """The cell walk (rbx.geometry.periodic_flight) tests in each cell the obstacles' images listed by
+    periodic_images: every image whose grown obstacle meets the cell (by the exact distance from its centre to
+    the cell), and only images whose box meets it. Scatterers inside their cells: only themselves."""
+    from rbx.geometry import periodic_images
+    for name, crossing in (("lorentz-2d", False), ("lorentz-centred", True), ("lorentz-3d", False)):
+        c = zoo(name)
+        geom = tables.build(*table_of(c), float(c["ball"]["radius"]))
+        prims, shifts = periodic_images(geom)
+        n = geom.dimension
+        lo, period = geom.lattice
+        listed = {(int(k), tuple(s)) for k, s in zip(prims, shifts)}
+        if not crossing:
+            assert listed == {(k, (0.0,) * n) for k in range(len(geom.codes))}, name
+            continue
+        for k in range(len(geom.codes)):
+            for s in np.ndindex(*(3,) * n):
+                s = tuple(float(x) - 1.0 for x in s)
+                c, rho = geom.params[k, :n] + np.array(s) * period, geom.params[k, 12]
+                meets = np.linalg.norm(np.clip(c, lo, lo + period) - c) < rho
+                assert not meets or (k, s) in listed, (name, k, s)
+        assert any(any(s) for _, s in listed), name          # the centred lattice's scatterers cross the sides
+        for k, s in listed:
+            c, rho = geom.params[k, :n] + np.array(s) * period, geom.params[k, 12]
+            assert np.all(c + rho >= lo - 1e-9) and np.all(c - rho <= lo + period + 1e-9), (name, k, s)
+
+
 def positions_at(times, t, pos, vel):
     """The centre at the given times, from the records (position and velocity after each collision)."""
     k = np.searchsorted(t, times, side="right") - 1
@@ -697,13 +725,20 @@ def positions_at(times, t, pos, vel):
 
 
 @pytest.mark.slow
-def test_lorentz_gas_diffuses():
-    """An ensemble in the rough 2D Lorentz gas: the mean-square displacement grows linearly in time (the fitted
-    exponent ≈ 1), giving a finite diffusion coefficient with a confidence interval."""
+@pytest.mark.parametrize("seed", [1, 2])
+def test_lorentz_gas_diffuses(seed):
+    """An ensemble in a Lorentz gas of finite horizon (the triangular lattice of "lorentz-centred"), the rule
+    random between smooth and completely rough: the mean-square displacement grows linearly in time (the fitted
+    exponent ≈ 1), giving a finite diffusion coefficient with a confidence interval, the same along x and y.
+    Not the simple square lattice: its cells' sides are corridors that no scatterer reaches, so free flights have
+    a heavy tail and the displacement grows as t log t (the fit's interval failed on 4 of 6 seeds). Not the
+    completely rough rule alone either: in this dense lattice it keeps the ball in the pockets between three
+    scatterers."""
     from rbx.analysis import fit_diffusion, growth_exponent
     M, K = 1000, 6000
-    c = zoo("lorentz-2d", "rough", collisions=K, record=["time", "position", "velocity"], trajectories=M)
+    c = zoo("lorentz-centred", "random", collisions=K, record=["time", "position", "velocity"], trajectories=M)
     c["initial"] = {"sample": "billiard"}
+    c["run"]["seed"] = seed
     run = rbx.simulate(c)
     assert np.all(run.count == K + 1)
     T = 0.9 * float(run.time[:, -1].min())
@@ -717,8 +752,8 @@ def test_lorentz_gas_diffuses():
           f"(95 %), MSD exponent {a:.3f}")
     for f in fits:
         assert 0 < f.low and f.half_width < 0.3 * f.coefficient
-    assert abs(D[0] - D[1]) <= fits[0].half_width + fits[1].half_width     # square lattice: isotropic
-    assert 0.85 < a < 1.15
+    assert abs(D[0] - D[1]) <= fits[0].half_width + fits[1].half_width     # hexagonal symmetry: isotropic
+    assert 0.9 < a < 1.1
 
 
 # ---- exits -------------------------------------------------------------------------------------------------------
@@ -773,10 +808,19 @@ BAD = {
         {"name": "p", "disc": {"center": [1.0, 1.75], "radius": 0.2}}]}}, "ball.radius"),
     "obstacle-crosses-arc": ({"table": {"kind": "stadium", "radius": 0.5, "length": 1.0, "obstacles": [
         {"name": "p", "disc": {"center": [1.3, 0.0], "radius": 0.3}}]}}, "table.obstacles[0]"),
-    "periodic-obstacle-leaves-cell": ({"table": {"kind": "rectangle", "width": 1, "height": 1, "periodic": True,
-                                                 "obstacles": [{"name": "p", "disc": {"center": [0.9, 0.5],
-                                                                                      "radius": 0.2}}]}},
-                                      "table.obstacles[0]"),
+    "periodic-obstacle-outside-cell": ({"table": {"kind": "rectangle", "width": 1, "height": 1, "periodic": True,
+                                                  "obstacles": [{"name": "p", "disc": {"center": [1.2, 0.5],
+                                                                                       "radius": 0.2}}]}},
+                                       "table.obstacles[0]"),
+    "periodic-obstacle-meets-its-image": ({"table": {"kind": "rectangle", "width": 1, "height": 1, "periodic": True,
+                                                     "obstacles": [{"name": "p", "disc": {"center": [0.5, 0.5],
+                                                                                          "radius": 0.5}}]}},
+                                          "table.obstacles[0]"),
+    "periodic-obstacles-meet-across-a-side": (
+        {"table": {"kind": "rectangle", "width": 1, "height": 1, "periodic": True,
+                   "obstacles": [{"name": "p", "disc": {"center": [0.1, 0.5], "radius": 0.2}},
+                                 {"name": "q", "disc": {"center": [0.8, 0.5], "radius": 0.2}}]}},
+        "table.obstacles[1]"),
     "sphere-obstacles-overlap": ({"table": {"kind": "box", "size": [2, 2, 2], "obstacles": [
         {"name": "p", "sphere": {"center": [1.0, 1.0, 1.0], "radius": 0.3}},
         {"name": "q", "sphere": {"center": [1.0, 1.5, 1.0], "radius": 0.3}}]},
