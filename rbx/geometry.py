@@ -594,9 +594,9 @@ def periodic_flight(codes, params, a, v, tol, n, lo, period, images, shift, base
     the images that reach into the cell (:func:`periodic_images`: primitive ``images[q]`` shifted by
     ``shift[q]`` cells from this one), from the point where the flight entered the cell (a quadratic solved from
     far away would lose digits as the square of the distance); the first hit that lies in the cell is the
-    collision, else the flight crosses the side it reaches first. A hit at a side that rounding puts beyond it
-    is found again in the next cell, which that image reaches too; rounding can only change the order of two
-    cells the flight crosses within rounding of their common corner. ``a`` stays unfolded, and the caller flies
+    collision, else the flight crosses the side it reaches first (both at once at a corner). A hit at a side that
+    rounding puts beyond it is found again in the next cell, which that image reaches too; rounding can only
+    change the order of two cells the flight crosses within rounding of their common corner. ``a`` stays unfolded, and the caller flies
     the whole flight at once (one rounding per flight, as elsewhere). Scratch arrays of n values: ``base`` (the
     cell's index along each axis, an integer held as a float), ``loc``, ``off`` (the start of the cell's walk,
     then the shift of the image hit), ``ahead`` (when the flight crosses the cell's next side along each
@@ -617,10 +617,9 @@ def periodic_flight(codes, params, a, v, tol, n, lo, period, images, shift, base
             ahead[i] = np.inf
     acc = 0.0                                    # when the flight entered the current cell
     while True:
-        j = 0                                    # the side the flight leaves the cell by: along axis j
+        leave = ahead[0]                         # when it leaves the cell
         for i in range(1, n):
-            if ahead[i] < ahead[j]:
-                j = i
+            leave = min(leave, ahead[i])
         for i in range(n):
             off[i] = a[i] + acc * v[i]
         best = np.inf
@@ -635,15 +634,20 @@ def periodic_flight(codes, params, a, v, tol, n, lo, period, images, shift, base
                 best = t
                 which = k
                 image = q
-        if which >= 0 and acc + best <= ahead[j]:
+        if which >= 0 and acc + best <= leave:
             for i in range(n):
                 off[i] = (base[i] + shift[image, i]) * period[i]
             return acc + best, which
-        acc = ahead[j]
+        acc = leave
         if acc > far:
             return np.inf, -1
-        base[j] += 1.0 if v[j] > 0.0 else -1.0
-        ahead[j] += period[j] / abs(v[j])
+        # into the next cell across the side reached first (across both at a corner). Only constant indices into
+        # the scratch arrays and v: an index known at run time would keep them in memory, not registers (in the
+        # engine that is its own velocity)
+        for i in range(n):
+            if ahead[i] == leave:
+                base[i] += 1.0 if v[i] > 0.0 else -1.0
+                ahead[i] += period[i] / abs(v[i])
 
 
 # ---- tables built from wall pieces (SPEC §8): the zoo, obstacles on any table, periodic cells --------------------
