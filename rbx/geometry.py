@@ -596,11 +596,11 @@ def periodic_flight(codes, params, a, v, tol, n, lo, period, images, shift, base
     far away would lose digits as the square of the distance); the first hit that lies in the cell is the
     collision, else the flight crosses the side it reaches first (both at once at a corner). A hit at a side that
     rounding puts beyond it is found again in the next cell, which that image reaches too; rounding can only
-    change the order of two cells the flight crosses within rounding of their common corner. ``a`` stays unfolded, and the caller flies
-    the whole flight at once (one rounding per flight, as elsewhere). Scratch arrays of n values: ``base`` (the
-    cell's index along each axis, an integer held as a float), ``loc``, ``off`` (the start of the cell's walk,
-    then the shift of the image hit), ``ahead`` (when the flight crosses the cell's next side along each
-    axis)."""
+    change the order of two cells the flight crosses within rounding of their common corner. ``a`` stays
+    unfolded, and the caller flies the whole flight at once (one rounding per flight, as elsewhere). Scratch
+    arrays of n values: ``base`` (the cell's index along each axis, an integer held as a float), ``loc``, ``off``
+    (the start of the cell's walk, then the shift of the image hit), ``ahead`` (when the flight crosses the
+    cell's next side along each axis)."""
     vv = 0.0
     short = np.inf
     for i in range(n):
