@@ -300,7 +300,9 @@ def plot_scene(name, rows, variants, path):
     import matplotlib.pyplot as plt
     panels = [("energy", "energy drift |ΔE|/E"), ("rev_pos", "reversal error |Δa|/L"),
               ("dev_pos", "deviation |Δa|/L"), ("dev_vel", "deviation |Δv|/|v|")]
-    fig, axes = plt.subplots(1, 4, figsize=(16, 3.8))
+    # one run-time axis for all four panels: the deviations (against the 50-digit orbit) exist at small N only,
+    # and a log axis of their own, less than a decade long, crowded its tick labels into each other
+    fig, axes = plt.subplots(1, 4, figsize=(16, 4.2), sharex=True, layout="constrained")
     for ax, (key, label) in zip(axes, panels):
         for vname in variants:
             pts = [(r["seconds"], r[key], r["N"]) for r in rows if r["variant"] == vname
@@ -312,10 +314,10 @@ def plot_scene(name, rows, variants, path):
         ax.set_xlabel("run time (s)")
         ax.set_title(label, fontsize=10)
         ax.grid(True, which="major", alpha=0.3)
-    axes[0].legend(fontsize=8)
+    handles, labels = axes[0].get_legend_handles_labels()     # below the panels, not over the curves
+    fig.legend(handles, labels, loc="outside lower center", ncol=len(labels), fontsize=9, frameon=False)
     fig.suptitle(f"{name}: error against run time (points: N = " +
                  ", ".join(f"{N:,}" for N in sorted({r['N'] for r in rows})) + " collisions)", fontsize=11)
-    fig.tight_layout()
     fig.savefig(path, dpi=90)
     plt.close(fig)
 
