@@ -44,6 +44,7 @@ def styled(build):
     def wrapper(*args, **kwargs):
         with style():
             fig = build(*args, **kwargs)
+            fit_title(fig)
             for ax in fig.axes:
                 for axis in ax._axis_map.values():
                     axis.get_major_ticks()
@@ -80,7 +81,39 @@ def letter_panels(fig):
 def _figure(width, height, title):
     fig = Figure(figsize=(width, height), layout="constrained")
     fig.suptitle(title)
+    fig._rbx_title = title
     return fig
+
+
+#: the width of an average character of the figure title's font, in ems (DejaVu Sans, mixed text: 0.55–0.6)
+TITLE_EM = 0.6
+
+
+def fit_title(fig):
+    """Break the figure's title (its lines, at their " · " separators first) so that each line fits the figure's
+    width as built (a builder may resize its figure to the table's shape): a long scene phrase ran past both
+    edges of a narrow figure and was cut off."""
+    import textwrap
+    title = getattr(fig, "_rbx_title", None)
+    if not title or fig._suptitle is None:
+        return
+    size = fig._suptitle.get_fontsize()
+    room = max(30, int(0.95 * fig.get_figwidth() * 72 / (TITLE_EM * size)))
+    out = []
+    for line in title.split("\n"):
+        row = ""
+        for part in line.split(" · "):
+            joined = f"{row} · {part}" if row else part
+            if len(joined) <= room:
+                row = joined
+                continue
+            if row:
+                out.append(row + " ·")          # the separator kept, at the end of the line it closes
+            wrapped = textwrap.wrap(part, room, break_long_words=False, break_on_hyphens=False) or [""]
+            out += wrapped[:-1]
+            row = wrapped[-1]
+        out.append(row)
+    fig._suptitle.set_text("\n".join(out))
 
 
 def legend_outside(ax, where="right", **kwargs):

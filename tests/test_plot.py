@@ -354,6 +354,15 @@ def readable(fig):
     fig.canvas.draw()
     renderer = fig.canvas.get_renderer()
     problems = []
+    page = fig.bbox
+    texts = [fig._suptitle] if fig._suptitle is not None else []
+    texts += [t for ax in fig.axes for t in (ax.title, ax.xaxis.label, ax.yaxis.label)]
+    edge = 1.0                      # px at 40 dpi (1.8 pt): a rotated label's box reaches ~0.7 px past the edge
+    for t in texts:                 # titles and axis labels inside the figure, not cut off at its edges
+        if t.get_visible() and t.get_text():
+            b = t.get_window_extent(renderer)
+            if b.x0 < page.x0 - edge or b.x1 > page.x1 + edge or b.y0 < page.y0 - edge or b.y1 > page.y1 + edge:
+                problems.append(f"the text '{t.get_text()[:40]}…' runs past the figure's edge")
     data_axes = [ax for ax in fig.axes if ax.get_label() != "<colorbar>"]
     for ax in data_axes:
         if ax.name != "3d":
@@ -414,8 +423,26 @@ def test_the_readability_check_can_fail():
     ax.legend(loc="center")
     ax.set_xticks(np.linspace(0, 1e6, 30))
     ax.set_xlim(0, 5e5)
+    fig.suptitle("a title far too long for a figure two inches wide, which runs past both of its edges")
     problems = " | ".join(readable(fig))
     assert "legend covers" in problems and "tick labels overlap" in problems and "outside the limits" in problems
+    assert "runs past the figure's edge" in problems
+
+
+def test_a_long_title_is_broken_to_the_figure_width():
+    """rbx's builders break a title that is wider than their figure (at its " · " separators first): a long scene
+    phrase over a narrow, tall table ran past both edges of the picture and was cut off."""
+    from rbx import plotting
+    title = ("disc (R = 0.1, κ = 0.5) in a periodic Lorentz gas, centred lattice, cell 1 × 1.73205, scatterer "
+             "radius 0.36 · random (specular 0.5, rough 0.5)\norbit of the centre · trajectories 0–9 of 16")
+    fig = plotting.series_figure(np.arange(50), [np.sin(np.arange(50))], title, "x [L]")
+    fig.set_size_inches(4.0, fig.get_figheight())
+    plotting.fit_title(fig)
+    lines = fig._suptitle.get_text().split("\n")
+    assert len(lines) > 2
+    assert readable(fig) == []
+    # the words and their order are kept
+    assert " ".join(fig._suptitle.get_text().split()) == " ".join(title.replace("\n", " ").split())
 
 
 def test_long_strip_orbit_is_not_one_pixel_high(scenes):
