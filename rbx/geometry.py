@@ -1085,8 +1085,8 @@ def draw(ax, geom, lo, hi, style_table, style_shrunk):
             elif isinstance(q, T.Plane) and abs(q.normal[2]) != 1.0 and np.all(np.isfinite(q.lo + q.hi)):
                 pass
         boxes = [q for q in geom.pieces if isinstance(q, T.Plane) and abs(q.normal[2]) != 1.0]
-        if boxes:
-            lx, ly = max(q.hi[0] for q in boxes), max(q.hi[1] for q in boxes)
+        if boxes:       # the faces x = lx and y = ly (a face's extent is infinite along its own normal)
+            lx, ly = max(q.point[0] for q in boxes), max(q.point[1] for q in boxes)
             curves += [("table", np.array([[0, 0], [lx, 0], [lx, ly], [0, ly], [0, 0]], float)),
                        ("shrunk", np.array([[R, R], [lx - R, R], [lx - R, ly - R], [R, ly - R], [R, R]], float))]
     if len(shifts) > 25:        # many cells: each obstacle a light grey disc, the shrunk outlines left out

@@ -89,31 +89,47 @@ def _figure(width, height, title):
 TITLE_EM = 0.6
 
 
-def fit_title(fig):
-    """Break the figure's title (its lines, at their " · " separators first) so that each line fits the figure's
-    width as built (a builder may resize its figure to the table's shape): a long scene phrase ran past both
-    edges of a narrow figure and was cut off."""
+def _break_lines(text, room, separators=(" · ", "; ")):
+    """``text`` with each of its lines broken to at most ``room`` characters: at a separator first (kept at the
+    end of the line it closes), else between words."""
+    import re
     import textwrap
-    title = getattr(fig, "_rbx_title", None)
-    if not title or fig._suptitle is None:
-        return
-    size = fig._suptitle.get_fontsize()
-    room = max(30, int(0.95 * fig.get_figwidth() * 72 / (TITLE_EM * size)))
+    pattern = "(" + "|".join(re.escape(sep) for sep in separators) + ")"
     out = []
-    for line in title.split("\n"):
+    for line in text.split("\n"):
+        parts = re.split(pattern, line)           # text, separator, text, …
         row = ""
-        for part in line.split(" · "):
-            joined = f"{row} · {part}" if row else part
-            if len(joined) <= room:
-                row = joined
+        for i in range(0, len(parts), 2):
+            part, sep = parts[i], (parts[i + 1] if i + 1 < len(parts) else "")
+            if len(row + part) <= room:
+                row += part + sep
                 continue
             if row:
-                out.append(row + " ·")          # the separator kept, at the end of the line it closes
+                out.append(row.rstrip())
             wrapped = textwrap.wrap(part, room, break_long_words=False, break_on_hyphens=False) or [""]
             out += wrapped[:-1]
-            row = wrapped[-1]
-        out.append(row)
-    fig._suptitle.set_text("\n".join(out))
+            row = wrapped[-1] + sep
+        out.append(row.rstrip())
+    return "\n".join(out)
+
+
+def fit_title(fig):
+    """Break the figure's title and its panels' titles so that each line fits the figure's width as built (a
+    builder may resize its figure to the table's shape), a panel's title the panel's: a long scene phrase over a
+    narrow, tall table, or a panel's note over a narrow panel, ran past the figure's edges and was cut off."""
+    title = getattr(fig, "_rbx_title", None)
+    width = fig.get_figwidth() * 72                      # points
+    if title and fig._suptitle is not None:
+        room = max(30, int(0.95 * width / (TITLE_EM * fig._suptitle.get_fontsize())))
+        fig._suptitle.set_text(_break_lines(title, room))
+    for ax in fig.axes:
+        text = getattr(ax, "_rbx_title", None) or ax.title.get_text()
+        if not text or ax.get_subplotspec() is None:
+            continue
+        ax._rbx_title = text
+        # the panel's width before the layout makes room for labels and legends: take 85 % of it
+        room = max(20, int(0.85 * ax.get_position().width * width / (TITLE_EM * ax.title.get_fontsize())))
+        ax.title.set_text(_break_lines(text, room))
 
 
 def legend_outside(ax, where="right", **kwargs):

@@ -552,3 +552,20 @@ def test_panels_are_lettered_in_reading_order_and_once():
     single.add_subplot().set_title("alone")
     letter_panels(single)
     assert single.axes[0].get_title() == "alone"
+
+
+def test_a_3d_box_table_built_from_pieces_draws_its_walls():
+    """The horizontal projection of a Sinai box (a box of planes with a sphere) draws the box and the shrunk box:
+    the box's x face extends without end along x, and taking its extent for the box's length drew nothing."""
+    import rbx
+    from matplotlib.figure import Figure
+    from rbx import tables
+    exp = rbx.load(os.path.join(EXAMPLES, "sinai3d.yaml"))
+    geom = exp.geometry()
+    ax = Figure().add_subplot()
+    tables.draw(ax, geom, np.zeros(3), np.array(exp.table["size"], float))
+    ends = [line.get_xydata().max(axis=0) for line in ax.get_lines()]
+    lx, ly = exp.table["size"][:2]
+    R = exp.ball.radius
+    assert any(np.allclose(e, [lx, ly]) for e in ends)                  # the box
+    assert any(np.allclose(e, [lx - R, ly - R]) for e in ends)          # the shrunk box
