@@ -3,6 +3,7 @@ each block of records to a sink (the HDF5 writer, or memory for the API and test
 
 Memory stays flat: a block holds at most a few million values whatever the run's length.
 """
+import copy
 import time
 
 import numpy as np
@@ -22,8 +23,14 @@ BLOCK_WORK = 2_000_000
 #: each rewrote the partly filled chunks and journalled them ~100 times a second (HDF5 recording the strip's time
 #: at 5.8e7 collisions/s, 6.6e7 before the journal). A kill loses at most this much computing
 CHECKPOINT_SECONDS = 1.0
-#: values (float64) held in the record buffers of one block
+#: values (float64) held in the record buffers of one block (two blocks' worth while one is written, AHEAD)
 BLOCK_VALUES = 4_000_000
+#: compute the next block while this one is written (a run that records): a run then takes the sum of the
+#: engine's and the writer's times no longer, but the larger of them
+AHEAD = True
+#: the attributes of a Simulation that the kernels advance (engine.State, but for the keys, which stay)
+STATE_ARRAYS = ("pos", "vel", "W", "theta", "A", "time", "ncoll", "draws", "alive", "last_wall", "last_rank",
+                "energy0", "_comp")
 
 
 def block_work(geom):
@@ -186,16 +193,18 @@ class Simulation:
                   else self.cluster.blocks(self, should_stop, progress))
         last, unsaved = time.monotonic(), False
         try:
-            for block, nrec in blocks:
-                self.check_finite()           # before anything of the block is written: the file stays valid
+            for item in blocks:
+                block, nrec = item[:2]
+                at_end = item[2] if len(item) > 2 else self     # the state at the block's end
+                at_end.check_finite()         # before anything of the block is written: the file stays valid
                 if block is not None:
                     sink.write(block, nrec)
                 unsaved = True
                 if time.monotonic() - last >= CHECKPOINT_SECONDS:
-                    sink.checkpoint(self)
+                    sink.checkpoint(at_end)
                     last, unsaved = time.monotonic(), False
         finally:
-            blocks.close()        # a cluster's tasks still running are cancelled
+            blocks.close()        # a cluster's tasks still running are cancelled; a block computed ahead is undone
         if not self.finished():
             if unsaved:                       # stopped (Ctrl-C, a trajectory escaped…): save where it stopped
                 sink.checkpoint(self)
@@ -216,26 +225,93 @@ class Simulation:
 
     def _blocks(self, should_stop=None, progress=None):
         """The local blocks of a run: advance on this machine's threads -> yields (block or None, nrec) per block,
-        the state advanced to its end; ``progress(done, total)`` once each is checkpointed."""
+        the state advanced to its end; ``progress(done, total)`` once each is checkpointed.
+
+        A run that records computes the next block while the caller writes this one (:data:`AHEAD`; the kernels
+        release the GIL, so the two overlap): the blocks take two record buffers in turn, and each is yielded with
+        a copy of the state at its end, ``(block, nrec, at_end)``, which the caller checks and checkpoints, since
+        the simulation's own state is then already moving on. ``should_stop`` is polled once per block, before the
+        next one starts. When the caller stops taking blocks (an error, a closed generator) while one is computed
+        ahead, that block is waited for and undone: the simulation is put back to the end of the last block
+        handed out."""
         total = self.cfg.run.collisions
         every = self.cfg.output.every
         if self.record:
             per = self.records_per_block()
-            bufs = self.block_buffers(per)
             step = per * every
         else:
-            bufs = self.block_buffers(0)
             step = max(1, block_work(self.geom) // self.M)
         done = int(self.ncoll[self.alive].min()) if self.alive.any() else total
-        while done < total and self.alive.any():
-            if should_stop is not None and should_stop():
+
+        def stop_of(done):
+            return min(total, (done // step + 1) * step) if self.record else min(total, done + step)
+
+        if not (self.record and AHEAD and self._state_bytes() * 4 <= per * self.M * 8 *
+                (1 + sum(FIELD[f].size(self.n) for f in self.record))):
+            # records not written, or a state so large (many trajectories, few records per block) that copying
+            # it for each block would cost more than the overlap saves: one block after the other
+            bufs = self.block_buffers(per if self.record else 0)
+            while done < total and self.alive.any():
+                if should_stop is not None and should_stop():
+                    return
+                stop = stop_of(done)
+                nrec = self.advance(stop, bufs)
+                yield (records_block(bufs, nrec, self.record, self.n) if self.record else None), nrec
+                done = stop
+                if progress is not None:
+                    progress(done, total)
+            return
+
+        from concurrent.futures import ThreadPoolExecutor, wait
+        bufs = [self.block_buffers(per), self.block_buffers(per)]
+        pool = ThreadPoolExecutor(1, thread_name_prefix="rbx-block")
+        previous = self.frozen()          # the state the file accounts for once the last block handed out is written
+        ahead = None                      # the block being computed
+        try:
+            if done >= total or not self.alive.any() or (should_stop is not None and should_stop()):
                 return
-            stop = min(total, (done // step + 1) * step) if self.record else min(total, done + step)
-            nrec = self.advance(stop, bufs)
-            yield (records_block(bufs, nrec, self.record, self.n) if self.record else None), nrec
-            done = stop
-            if progress is not None:
-                progress(done, total)
+            stop, k = stop_of(done), 0
+            ahead = pool.submit(self.advance, stop, bufs[k])
+            while True:
+                nrec = ahead.result()
+                ahead = None
+                at_end = self.frozen()
+                block = records_block(bufs[k], nrec, self.record, self.n)
+                done = stop
+                # polled once per block, as without the overlap: here before the next block starts
+                more = (done < total and bool(self.alive.any())
+                        and not (should_stop is not None and should_stop()))
+                if more:
+                    stop, k = stop_of(done), 1 - k
+                    ahead = pool.submit(self.advance, stop, bufs[k])
+                previous = at_end
+                yield block, nrec, at_end
+                if progress is not None:
+                    progress(done, total)
+                if not more:
+                    return
+        finally:
+            if ahead is not None:         # stopped by an error or a closed generator with a block being computed:
+                wait([ahead])             # a kernel cannot be interrupted; let it end, then undo its block
+                self.restore(previous)
+            pool.shutdown(wait=True)
+
+    def frozen(self):
+        """A copy of this simulation whose state arrays are copies (the rest shared): the state as it is now, for
+        checks and checkpoints while the simulation itself moves on (:meth:`_blocks`)."""
+        twin = copy.copy(self)
+        for name in STATE_ARRAYS:
+            setattr(twin, name, getattr(self, name).copy())
+        return twin
+
+    def _state_bytes(self):
+        return sum(getattr(self, name).nbytes for name in STATE_ARRAYS)
+
+    def restore(self, frozen):
+        """Put this simulation's state back to that of :meth:`frozen`'s copy (in place: the arrays stay the ones the
+        kernels were given)."""
+        for name in STATE_ARRAYS:
+            np.copyto(getattr(self, name), getattr(frozen, name))
 
 
 def record_buffers(record, n, M, records):

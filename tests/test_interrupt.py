@@ -609,3 +609,76 @@ def test_checkpoints_come_by_time_and_always_where_the_run_stops(seconds, stop_a
     got, ref = sink.records, reference.records
     for f in ref:
         np.testing.assert_array_equal(got[f], ref[f][:, :got[f].shape[1]])
+
+
+# ---- the next block computed while this one is written (simulation.AHEAD) ----------------------------------------
+
+
+def _run_in_memory(cfg, ahead, monkeypatch, sink=None):
+    monkeypatch.setattr(simulate, "AHEAD", ahead)
+    sim = simulate.Simulation(cfg)
+    sink = sink or simulate.MemorySink()
+    try:
+        sim.run(sink)
+    except RuntimeError:
+        pass
+    return sim, sink
+
+
+class _SlowSink(_CountingSink):
+    """A slow disk: each write takes 2 ms, long enough for the next block to be computed meanwhile."""
+
+    def write(self, block, nrec):
+        time.sleep(0.002)
+        super().write(block, nrec)
+
+
+@pytest.mark.parametrize("name", ["strip-escape-every4", "box-hemisphere-every5", "rectangle-sampled-every3"])
+def test_computing_the_next_block_while_writing_changes_no_number(name, monkeypatch):
+    """With the overlap the records, their counts and the final state are those of one block after the other
+    (many small blocks; a trajectory that escapes at once; random draws; sampled starts)."""
+    from rbx import config
+    monkeypatch.setattr(simulate, "BLOCK_WORK", 300)
+    monkeypatch.setattr(simulate, "CHECKPOINT_SECONDS", 0)
+    cfg = config.from_dict(RESUME_SCENES[name], "<test>")
+    (_, one), (sim, two) = (_run_in_memory(cfg, ahead, monkeypatch, _SlowSink()) for ahead in (False, True))
+    assert len(two.blocks) > 4
+    assert two.saved_at == one.saved_at          # each checkpoint saves the state at the end of its own block
+    assert set(one.records) == set(two.records) and np.array_equal(one.count, two.count)
+    for f in one.records:
+        np.testing.assert_array_equal(one.records[f], two.records[f], err_msg=f)
+    for f in one.final:
+        np.testing.assert_array_equal(one.final[f], two.final[f], err_msg=f)
+    assert not any(t.name.startswith("rbx-block") for t in __import__("threading").enumerate())
+
+
+class _FailingSink(simulate.MemorySink):
+    """Fails to write its k-th block (a full disk, say)."""
+
+    def __init__(self, k):
+        super().__init__()
+        self.k, self.writes = k, 0
+
+    def write(self, block, nrec):
+        self.writes += 1
+        if self.writes == self.k:
+            raise RuntimeError("cannot write")
+        super().write(block, nrec)
+
+
+def test_an_error_while_writing_undoes_the_block_computed_ahead(monkeypatch):
+    """A write that fails while the next block is being computed: that block is waited for and undone, so the
+    simulation is where it would be without the overlap (at the end of the block that failed to be written),
+    and no thread is left behind."""
+    from rbx import config
+    import threading
+    monkeypatch.setattr(simulate, "BLOCK_WORK", 300)
+    cfg = config.from_dict(RESUME_SCENES["strip-random-every3"], "<test>")
+    states = []
+    for ahead in (False, True):
+        sim, sink = _run_in_memory(cfg, ahead, monkeypatch, _FailingSink(4))
+        assert sink.writes == 4 and len(sink.blocks) == 3          # record 0, two blocks, then the failure
+        states.append({k: np.array(v, copy=True) for k, v in sim.final_state().items()})
+    for f in states[0]:
+        np.testing.assert_array_equal(states[1][f], states[0][f], err_msg=f)
+    assert not any(t.name.startswith("rbx-block") for t in threading.enumerate())

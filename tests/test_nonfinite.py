@@ -39,14 +39,29 @@ def test_a_nan_state_leaves_an_incomplete_readable_file(tmp_path):
         assert np.all(h5["collisions/count"][...] == 0)          # not even record 0 with its infinite position
 
 
-def test_a_nan_reached_mid_run_keeps_the_blocks_before_it():
-    sim = Simulation(config.from_dict({**CFG, "run": {"collisions": 2000000, "trajectories": 3, "seed": 2}}))
+@pytest.mark.parametrize("ahead", [False, True])
+def test_a_nan_reached_mid_run_keeps_the_blocks_before_it(ahead, monkeypatch):
+    """A NaN appears in the state during the second block (put there as that block's kernel returns): the run
+    stops before writing that block, the first one kept, whether blocks are computed one after the other or the
+    next one while this one is written (simulation.AHEAD: the check then reads the copy of the state at the
+    block's end)."""
+    import rbx.simulation as simulation
+    monkeypatch.setattr(simulation, "AHEAD", ahead)
+    monkeypatch.setattr(simulation, "BLOCK_WORK", 3000)
+    sim = Simulation(config.from_dict({**CFG, "run": {"collisions": 200000, "trajectories": 3, "seed": 2}}))
+    calls = {"n": 0}
+    original = Simulation.advance
+
+    def advance(self, stop, bufs):
+        nrec = original(self, stop, bufs)
+        calls["n"] += 1
+        if calls["n"] == 2:
+            self.W[0] = np.nan
+        return nrec
+    monkeypatch.setattr(Simulation, "advance", advance)
     sink = MemorySink()
-    blocks = sim._blocks()
-    block, nrec = next(blocks)          # one real block, then a NaN appears in the state
-    sink.write(block, nrec)
-    sim.W[0] = np.nan
     with pytest.raises(NonFiniteState) as info:
-        sim.check_finite()
-    assert "trajectory 0" in str(info.value) and sink.count.min() > 1
+        sim.run(sink)
+    assert "trajectory 0" in str(info.value)
+    assert len(sink.blocks) == 2 and sink.count.min() > 1          # record 0 and the first block, not the second
     assert np.all(np.isfinite(sink.records["time"][:, :sink.count.min()]))
