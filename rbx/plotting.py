@@ -189,8 +189,14 @@ def _density(ax, paths, points_only, lo, hi, bins=200):
                   alpha=0.55, zorder=0, rasterized=True)
 
 
+#: one colour per trajectory: matplotlib's tab10 with its grey (the 8th) replaced by a dark teal, since grey is
+#: the colour of the whole run's density and of the tables' outlines
+TRAJECTORY_COLOURS = [colormaps["tab10"](i) for i in range(7)] + [(0.0, 0.35, 0.35, 1.0)] + \
+    [colormaps["tab10"](i) for i in (8, 9)]
+
+
 def _colour(i):
-    return colormaps["tab10"](i % 10)
+    return TRAJECTORY_COLOURS[i % len(TRAJECTORY_COLOURS)]
 
 
 # ---- drawing the table -----------------------------------------------------------------------------------------
@@ -395,7 +401,10 @@ def phase_figure(panels, colour, title, colour_label, categorical=True, labels=N
     if categorical and labels and len(keys) <= MAX_LEGEND:
         for i, k in enumerate(keys):
             axes[-1].plot([], [], "o", color=_colour(i), ms=min(4.0, np.sqrt(ms)), label=labels[i])
-    if any(spec.get("lines") for spec in panels) or (categorical and labels and len(keys) <= MAX_LEGEND):
+    elif categorical and len(keys) > 1:       # too many to list: say what the colours are
+        axes[-1].plot([], [], "o", color=_colour(0), ms=min(4.0, np.sqrt(ms)),
+                      label=f"colour: trajectory\n({len(keys)}, not listed)")
+    if any(spec.get("lines") for spec in panels) or (categorical and len(keys) > 1):
         legend_outside(axes[-1], markerscale=1.0)
     if not categorical:
         from matplotlib.cm import ScalarMappable

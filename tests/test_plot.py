@@ -569,3 +569,22 @@ def test_a_3d_box_table_built_from_pieces_draws_its_walls():
     R = exp.ball.radius
     assert any(np.allclose(e, [lx, ly]) for e in ends)                  # the box
     assert any(np.allclose(e, [lx - R, ly - R]) for e in ends)          # the shrunk box
+
+
+def test_trajectory_colours_are_not_grey_and_are_explained_when_not_listed():
+    """Grey is the whole run's density and the table's outline, so no trajectory is drawn grey; a phase portrait
+    of more trajectories than its legend lists says what its colours are."""
+    from rbx import plotting
+    for i in range(plotting.MAX_LEGEND):
+        r, g, b, _ = plotting._colour(i)
+        assert max(r, g, b) - min(r, g, b) > 0.2, i
+    rng = np.random.default_rng(0)
+    n = 16
+    colour = np.repeat(np.arange(n), 20)
+    x, y = rng.uniform(-1, 1, (2, len(colour)))
+    fig = plotting.phase_figure([{"x": x, "y": y, "xlabel": "s [L]", "ylabel": "sin ψ [-]"}], colour, "title",
+                                "trajectory", labels=[f"trajectory {j}" for j in range(n)])
+    texts = [t.get_text() for lg in [a.get_legend() for a in fig.axes if a.get_legend()] + list(fig.legends)
+             for t in lg.get_texts()]
+    assert any("colour: trajectory" in t and "16" in t for t in texts), texts
+    assert readable(fig) == []
