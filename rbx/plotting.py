@@ -461,8 +461,12 @@ def diffusion_figure(steps, msd, fit, displacement, title, coordinate="x"):
     ax.loglog(t[model > 0], model[model > 0], "-", color="k", lw=1,
               label=f"fit 2Dt + c: D = {fit.coefficient:.4g} ± {fit.half_width:.2g} L²/step ({pct}% CI)")
     band_lo, band_hi = 2 * fit.low * t + fit.intercept, 2 * fit.high * t + fit.intercept
-    good = (band_lo > 0) & (band_hi > 0)
-    ax.fill_between(t[good], band_lo[good], band_hi[good], color="0.6", alpha=0.4, lw=0)
+    # where the interval reaches 0 or below (few trajectories), a log axis cannot show its lower edge: the band
+    # then runs to the bottom of the axis, rather than stop where the edge turns negative
+    ylim = ax.get_ylim()
+    good = band_hi > 0
+    ax.fill_between(t[good], np.maximum(band_lo[good], ylim[0] / 10), band_hi[good], color="0.6", alpha=0.4, lw=0)
+    ax.set_ylim(ylim[0], max(ylim[1], float(np.max(band_hi[good], initial=ylim[1]))))
     ax.axvspan(fit.start, fit.stop, color=_colour(2), alpha=0.07, label="fit window")
     ax.set_xlabel("collision step [–]")
     ax.set_ylabel(f"MSD ⟨Δ{coordinate}²⟩ [L²]")
