@@ -993,6 +993,13 @@ def check_fit(geom, R):
     from . import tables as T
     size = geom.size
     obstacles = [q for q in geom.pieces if isinstance(q, T.Sphere) and not q.inside]
+    users = len(geom.table.get(T.OBSTACLES) or ()) if geom.table else 0     # the user's obstacles come last
+
+    def key_of(q):
+        """The config key that made obstacle q: ``obstacles[j]``, or a preset's scatterer (Sinai, Lorentz):
+        its ``radius``."""
+        j = obstacles.index(q) - (len(obstacles) - users)
+        return f"obstacles[{j}]" if j >= 0 else "radius"
     for q in geom.pieces:
         if isinstance(q, T.Boundary):
             for p in q.pieces:
@@ -1016,7 +1023,7 @@ def check_fit(geom, R):
         for q in obstacles:
             c = np.asarray(q.center, float)
             if np.any(c < lo) or np.any(c >= lo + period):
-                return (f"obstacles[{obstacles.index(q)}]", f"'{q.name}' has its centre outside the periodic cell "
+                return (key_of(q), f"'{q.name}' has its centre outside the periodic cell "
                         f"[{', '.join(f'{x:g}' for x in lo)}] – [{', '.join(f'{x:g}' for x in lo + period)}] (put "
                         "it in the cell: the lattice repeats it)")
         shifts = [(np.array(s, float) - 1.0) * period for s in np.ndindex(*(3,) * geom.dimension)]
@@ -1032,7 +1039,7 @@ def check_fit(geom, R):
                 other = (f"'{b.name}'" if not np.any(s) else "its own periodic image" if b is a else
                          f"'{b.name}''s periodic image")
                 if gap <= 0:
-                    return (f"obstacles[{obstacles.index(b)}]", f"'{a.name}' overlaps {other}")
+                    return (key_of(b) if key_of(b) != "radius" else key_of(a), f"'{a.name}' overlaps {other}")
                 if gap < 2 * R * (1 - 1e-12):
                     return f"does not fit between obstacle '{a.name}' and {other} ({gap:g} apart)"
     others = [q for q in geom.pieces if q not in obstacles and not isinstance(q, T.Lattice)]
@@ -1044,7 +1051,7 @@ def check_fit(geom, R):
             c = np.asarray(q.center, float)
             dist = float((own or probe).clearance(c[None])[0]) + R      # to the walls themselves
             if not dist > q.radius:
-                return (f"obstacles[{obstacles.index(q)}]", f"'{q.name}' overlaps the table's walls"
+                return (key_of(q), f"'{q.name}' overlaps the table's walls"
                         if dist > 0 else f"'{q.name}' is not inside the table")
             if dist - q.radius < 2 * R * (1 - 1e-12):
                 return f"does not fit between obstacle '{q.name}' and the walls ({dist - q.radius:g} apart)"

@@ -110,6 +110,26 @@ def test_the_entry_point_is_found_by_the_fingerprint_of_the_types(monkeypatch):
         np.testing.assert_array_equal(final[k], final2[k])
 
 
+def test_a_value_numba_cannot_fingerprint_falls_back_to_typing(monkeypatch):
+    """Numba's fingerprint raises NotImplementedError (or TypeError, ValueError) for a value whose type it cannot
+    fingerprint: the entry point is then found by typing the arguments, with the same results, and nothing is
+    remembered under a key."""
+    cfg = config.load(STRIP, {"collisions": 300})
+    records, count, final = run_in_memory(cfg)
+
+    def cannot(args):
+        raise NotImplementedError("no fingerprint for this type")
+    monkeypatch.setattr(engine, "compute_fingerprint", cannot)
+    monkeypatch.setattr(engine, "_ENTRY", {})
+    records2, count2, final2 = run_in_memory(cfg)
+    assert engine._ENTRY == {}
+    np.testing.assert_array_equal(count, count2)
+    for f in records:
+        np.testing.assert_array_equal(records[f], records2[f])
+    for k in final:
+        np.testing.assert_array_equal(final[k], final2[k])
+
+
 def test_the_blas_question_is_asked_later_with_the_same_answer():
     """Numba asks whether SciPy's BLAS is there when it loads its array implementations, by importing
     scipy.linalg (0.13 s of a warm 0.57 s `rbx simulate`); rbx/_jit.py defers the question. A run must not import
