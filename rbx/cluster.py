@@ -344,8 +344,9 @@ class Cluster:
         return cuts, length
 
     def blocks(self, sim, should_stop=None, progress=None):
-        """Run ``sim`` round by round on the cluster -> yields (block or None, nrec) per round, as
-        :meth:`Simulation._blocks` does for a local run, ``sim``'s state advanced to the round's end.
+        """Run ``sim`` round by round on the cluster -> yields (block or None, nrec, sim) per round, as
+        :meth:`Simulation._blocks` does for a local run, ``sim``'s state advanced to the round's end (the state
+        that the round's check and checkpoint read).
 
         Stops early (yielding nothing more) when ``should_stop()``; cancels the tasks still running however it
         ends. Raises :class:`ClusterError` if a task fails."""
@@ -419,7 +420,7 @@ class Cluster:
                                for s, (a, b) in enumerate(slices))
                     progress(min(total, made // sim.M), total)
                 while frontier < len(ends) and all(reached[s] >= frontier for s in range(S)):
-                    yield self._gather(sim, slices, results, frontier, full)
+                    yield self._gather(sim, slices, results, frontier, full) + (sim,)
                     frontier += 1
                     if not sim.alive.any():      # every trajectory has ended: the run is over, as a local one
                         return

@@ -193,9 +193,7 @@ class Simulation:
                   else self.cluster.blocks(self, should_stop, progress))
         last, unsaved = time.monotonic(), False
         try:
-            for item in blocks:
-                block, nrec = item[:2]
-                at_end = item[2] if len(item) > 2 else self     # the state at the block's end
+            for block, nrec, at_end in blocks:          # at_end: the state at the block's end
                 at_end.check_finite()         # before anything of the block is written: the file stays valid
                 if block is not None:
                     sink.write(block, nrec)
@@ -224,13 +222,14 @@ class Simulation:
                                  f"{self.vel[j].tolist()}")
 
     def _blocks(self, should_stop=None, progress=None):
-        """The local blocks of a run: advance on this machine's threads -> yields (block or None, nrec) per block,
-        the state advanced to its end; ``progress(done, total)`` once each is checkpointed.
+        """The local blocks of a run: advance on this machine's threads -> yields (block or None, nrec, at_end) per
+        block, ``at_end`` the state at its end (the simulation itself when one block follows the other);
+        ``progress(done, total)`` once each is checkpointed.
 
         A run that records computes the next block while the caller writes this one (:data:`AHEAD`; the kernels
-        release the GIL, so the two overlap): the blocks take two record buffers in turn, and each is yielded with
-        a copy of the state at its end, ``(block, nrec, at_end)``, which the caller checks and checkpoints, since
-        the simulation's own state is then already moving on. ``should_stop`` is polled once per block, before the
+        release the GIL, so the two overlap): the blocks take two record buffers in turn, and ``at_end`` is a copy
+        of the state at the block's end, which the caller checks and checkpoints, since the simulation's own state
+        is then already moving on. ``should_stop`` is polled once per block, before the
         next one starts. When the caller stops taking blocks (an error, a closed generator) while one is computed
         ahead, that block is waited for and undone: the simulation is put back to the end of the last block
         handed out."""
@@ -256,7 +255,7 @@ class Simulation:
                     return
                 stop = stop_of(done)
                 nrec = self.advance(stop, bufs)
-                yield (records_block(bufs, nrec, self.record, self.n) if self.record else None), nrec
+                yield (records_block(bufs, nrec, self.record, self.n) if self.record else None), nrec, self
                 done = stop
                 if progress is not None:
                     progress(done, total)
