@@ -22,8 +22,10 @@ from .tables import SHRUNK_STYLE, TABLE_STYLE
 MAX_LEGEND = 10
 #: the one style sheet of rbx's figures (font sizes, line widths, colours): every builder here runs inside it
 STYLE = os.path.join(os.path.dirname(os.path.abspath(__file__)), "rbx.mplstyle")
-#: at most this many free flights drawn as lines in a 2D orbit (3D: ORBIT3D_SEGMENTS), shared by the trajectories;
-#: beyond it the eye sees a solid block, so the rest of the run is shown as a density of the time spent
+#: at most this many free flights drawn as lines in a 2D orbit of one trajectory (3D: ORBIT3D_SEGMENTS); m
+#: trajectories share ORBIT_SEGMENTS/√m (ten in a rectangle: 253, not 800: ten colours over 800 flights were a
+#: knot in which no path could be followed); beyond it the eye sees a solid block, so the rest of the run is shown
+#: as a density of the time spent
 ORBIT_SEGMENTS = 800
 ORBIT3D_SEGMENTS = 400
 #: and at most this many of one trajectory: more flights than that fill a small table with ink
@@ -45,6 +47,7 @@ def styled(build):
         with style():
             fig = build(*args, **kwargs)
             fit_title(fig)
+            grow_to_fit(fig)
             for ax in fig.axes:
                 for axis in ax._axis_map.values():
                     axis.get_major_ticks()
@@ -132,6 +135,28 @@ def fit_title(fig):
         ax.title.set_text(_break_lines(text, room))
 
 
+def grow_to_fit(fig, rounds=3):
+    """Make the figure taller until its titles, labels and legends lie inside it. A builder sizes a figure for
+    the table's shape before the titles are wrapped (:func:`fit_title`); a wide table under a title of five lines
+    (a 2 × 1 rectangle of ten trajectories: the scene, the rule, the selection and the panel's note) left the
+    layout no room, and the x label was cut off at the bottom edge."""
+    for _ in range(rounds):
+        fig.draw_without_rendering()
+        renderer = fig._get_renderer()
+        boxes = [ax.get_tightbbox(renderer) for ax in fig.axes] + [
+            t.get_window_extent(renderer) for t in [fig._suptitle, *fig.legends] if t is not None]
+        boxes = [b for b in boxes if b is not None and np.all(np.isfinite(b.extents))]
+        if not boxes:
+            return
+        low = min(b.y0 for b in boxes) / fig.dpi           # inches above the bottom edge
+        high = max(b.y1 for b in boxes) / fig.dpi
+        height = fig.get_figheight()
+        over = max(0.0, -low) + max(0.0, high - height)
+        if over < 0.01:
+            return
+        fig.set_figheight(height + over + 0.05)
+
+
 def legend_outside(ax, where="right", **kwargs):
     """A legend beside the axes (right) or under them (below), never over the data."""
     if where == "below":     # the figure's own legend, laid out under the axes by constrained layout
@@ -153,8 +178,9 @@ def _few_ticks(ax, n=4):
 
 
 def _thin(paths, budget):
-    """The first K records of each path, K such that the drawn flights total about ``budget`` -> (paths, K or
-    None if nothing was cut)."""
+    """The first K records of each path, K such that the drawn flights total about ``budget``/√m for m paths ->
+    (paths, K or None if nothing was cut)."""
+    budget = int(budget / np.sqrt(max(len(paths), 1)))
     total = sum(max(len(p) - 1, 0) for p in paths)
     if total <= budget:
         return paths, None
@@ -189,10 +215,11 @@ def _density(ax, paths, points_only, lo, hi, bins=200):
                   alpha=0.55, zorder=0, rasterized=True)
 
 
-#: one colour per trajectory: matplotlib's tab10 with its grey (the 8th) replaced by a dark teal, since grey is
-#: the colour of the whole run's density and of the tables' outlines
-TRAJECTORY_COLOURS = [colormaps["tab10"](i) for i in range(7)] + [(0.0, 0.35, 0.35, 1.0)] + \
-    [colormaps["tab10"](i) for i in (8, 9)]
+#: one colour per trajectory: matplotlib's tab10 with its brown (the 6th) replaced by a navy, since thin brown and
+#: red lines could not be told apart, and its grey (the 8th) by a dark teal, since grey is the colour of the whole
+#: run's density and of the tables' outlines
+TRAJECTORY_COLOURS = [colormaps["tab10"](i) for i in range(5)] + [(0.1, 0.1, 0.45, 1.0)] + \
+    [colormaps["tab10"](6), (0.0, 0.35, 0.35, 1.0)] + [colormaps["tab10"](i) for i in (8, 9)]
 
 
 def _colour(i):
@@ -222,7 +249,9 @@ def draw_table_3d(ax, geom, lo, hi):
     drawn as its outline (the table solid, the shrunk table dashed); an unbounded one (plates) as a translucent
     plane over the data range [lo, hi]."""
     R = geom.shrunk_radius
-    pad = 0.05 * max(float(np.max(hi - lo)), geom.size)
+    # a margin per axis: one margin of the longest range for all drew the plates of an orbit 0.45 wide across and
+    # 600 long as planes 60 wide, and the path was a sliver in the middle of them
+    pad = 0.05 * np.maximum(np.asarray(hi, float) - np.asarray(lo, float), geom.size)
     span_lo, span_hi = np.array(lo, float) - pad, np.array(hi, float) + pad
     out_lo, out_hi = np.array(lo, float), np.array(hi, float)
     if geom.pieces is not None:      # round walls and obstacles of a table built from pieces (rbx.geometry)

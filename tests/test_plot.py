@@ -414,6 +414,20 @@ def test_every_kind_on_every_scene_is_readable(scenes, scene):
     assert "orbit" in drawn or scene == "escape-sinai"   # that example records no positions
 
 
+def test_a_wide_table_under_a_long_title_keeps_its_labels(tmp_path):
+    """Ten trajectories in the 2 × 1 rectangle: five lines of title (scene, rule, selection, the panel's note) over
+    a figure sized for the table's shape cut the x label off at the bottom (plotting.grow_to_fit)."""
+    import dataclasses
+    import rbx
+    path = str(tmp_path / "rectangle.h5")
+    exp = rbx.load(os.path.join(EXAMPLES, "rectangle.yaml"), {"collisions": 1000, "trajectories": 16})
+    exp = exp.replace(output=dataclasses.replace(exp.output, record=("position",), every=1))
+    rbx.simulate(exp, output=path)
+    fig = make_figure(path, "orbit")
+    assert len(fig._suptitle.get_text().split("\n")) + len(fig.axes[0].get_title().split("\n")) >= 5
+    assert readable(fig) == []
+
+
 def test_the_readability_check_can_fail():
     """A legend over the data, tick labels run together and data beyond the limits are all caught."""
     from matplotlib.figure import Figure
@@ -455,9 +469,25 @@ def test_long_strip_orbit_is_not_one_pixel_high(scenes):
 def test_long_orbits_are_thinned(scenes):
     from rbx import plotting
     fig = make_figure(scenes["box"], "orbit3d")
-    flights = sum(len(line.get_data_3d()[0]) - 1 for line in fig.axes[0].get_lines()
-                  if line.get_color() not in ("0.15", "0.45") and len(line.get_data_3d()[0]) > 1)
-    assert 0 < flights <= plotting.ORBIT3D_SEGMENTS + 10
+    paths = [line for line in fig.axes[0].get_lines()
+             if line.get_color() not in ("0.15", "0.45") and len(line.get_data_3d()[0]) > 1]
+    flights = sum(len(line.get_data_3d()[0]) - 1 for line in paths)
+    # m trajectories share ORBIT3D_SEGMENTS/√m flights (each cut at the same record)
+    assert 0 < flights <= plotting.ORBIT3D_SEGMENTS / np.sqrt(len(paths)) + len(paths)
+
+
+def test_many_trajectories_share_fewer_flights():
+    """m trajectories are drawn with ORBIT_SEGMENTS/√m flights in all (ten: 250, not 800, which was a knot), each
+    cut at the same record; one is cut at PER_TRAJECTORY; a short run is not cut."""
+    from rbx import plotting
+    ten = [np.zeros((1000, 2)) for _ in range(10)]
+    shown, k = plotting._thin(ten, plotting.ORBIT_SEGMENTS)
+    assert k == int(plotting.ORBIT_SEGMENTS / np.sqrt(10)) // 10 == 25
+    assert [len(p) for p in shown] == [k + 1] * 10
+    shown, k = plotting._thin(ten[:1], plotting.ORBIT_SEGMENTS)
+    assert k == plotting.PER_TRAJECTORY and len(shown[0]) == k + 1
+    shown, k = plotting._thin([np.zeros((20, 2))] * 4, plotting.ORBIT_SEGMENTS)
+    assert k is None and [len(p) for p in shown] == [20] * 4
 
 
 def test_few_points_in_phase_are_as_large_as_the_legend_markers(runs):
