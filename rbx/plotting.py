@@ -30,6 +30,9 @@ ORBIT_SEGMENTS = 800
 ORBIT3D_SEGMENTS = 400
 #: and at most this many of one trajectory: more flights than that fill a small table with ink
 PER_TRAJECTORY = 250
+#: a periodic table's orbits wander off across the lattice, and their walks are the picture: up to this many flights
+#: of each are drawn (250 drew a dot at the origin of a walk 60 cells long)
+PER_TRAJECTORY_PERIODIC = 20_000
 #: a to-scale 2D picture whose sides differ by more than this factor is drawn stretched (and says so)
 MAX_ASPECT = 6.0
 
@@ -177,14 +180,20 @@ def _few_ticks(ax, n=4):
         axis.set_major_locator(MaxNLocator(n))
 
 
-def _thin(paths, budget):
-    """The first K records of each path, K such that the drawn flights total about ``budget``/√m for m paths ->
-    (paths, K or None if nothing was cut)."""
-    budget = int(budget / np.sqrt(max(len(paths), 1)))
+def _thin(paths, budget, geom=None):
+    """The first K records of each path, K such that the drawn flights total about ``budget``/√m for m paths (at
+    most PER_TRAJECTORY each); in a periodic table, up to PER_TRAJECTORY_PERIODIC each -> (paths, K or None if
+    nothing was cut)."""
+    per = PER_TRAJECTORY
+    if geom is not None and getattr(geom, "lattice", None) is not None:
+        per = PER_TRAJECTORY_PERIODIC
+        budget = per * len(paths)
+    else:
+        budget = int(budget / np.sqrt(max(len(paths), 1)))
     total = sum(max(len(p) - 1, 0) for p in paths)
     if total <= budget:
         return paths, None
-    k = max(2, min(budget // max(len(paths), 1), PER_TRAJECTORY) + 1)
+    k = max(2, min(budget // max(len(paths), 1), per) + 1)
     return [p[:k] for p in paths], k - 1
 
 
@@ -300,7 +309,7 @@ def orbit_figure(paths, geom, title, labels=None, points_only=False):
     lo, hi = _extent(paths)
     draw_table_2d(ax, geom, lo, hi)
     _round_caps(ax)
-    shown, k = _thin(paths, ORBIT_SEGMENTS)
+    shown, k = _thin(paths, ORBIT_SEGMENTS, geom)
     if k is not None:
         _density(ax, paths, points_only, *_extent(paths))
     alpha = 1.0 if len(paths) == 1 else 0.8
@@ -354,7 +363,7 @@ def orbit3d_figure(paths, geom, title, labels=None, points_only=False):
     ax = fig.add_subplot(gs[0, 0], projection="3d")
     lo, hi = _extent(paths, 3)
     style = dict(ls="none", marker=".", ms=2) if points_only else dict(lw=0.6)
-    shown, k = _thin(paths, ORBIT3D_SEGMENTS)
+    shown, k = _thin(paths, ORBIT3D_SEGMENTS, geom)
     alpha = 1.0 if len(paths) == 1 else 0.8
     for i, p in enumerate(shown):
         ax.plot(p[:, 0], p[:, 1], p[:, 2], color=_colour(i), alpha=alpha, label=labels[i] if labels else None,
@@ -375,7 +384,7 @@ def orbit3d_figure(paths, geom, title, labels=None, points_only=False):
     lo2, hi2 = _extent(paths)
     draw_table_2d(ax2, geom, lo2, hi2)
     _round_caps(ax2)
-    shown2, k2 = _thin(paths, ORBIT_SEGMENTS)
+    shown2, k2 = _thin(paths, ORBIT_SEGMENTS, geom)
     if k2 is not None:
         _density(ax2, paths, points_only, lo2, hi2)
     for i, p in enumerate(shown2):

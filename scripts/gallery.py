@@ -37,8 +37,9 @@ SHOWS = {
 }
 #: examples of another command on a scene the gallery already has
 SAME_SCENE = {"lyapunov-sinai.yaml"}
-#: at most this many trajectories per scene (sampled starts only: explicit starts keep their number)
-MAX_TRAJECTORIES = 16
+#: at most this many trajectories per scene (sampled starts only: explicit starts keep their number); 16 left the
+#: diffusion coefficient of the Lorentz gases with a confidence interval as wide as D itself
+MAX_TRAJECTORIES = 64
 
 
 def small_run(config, folder, collisions):

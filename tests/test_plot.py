@@ -488,6 +488,13 @@ def test_many_trajectories_share_fewer_flights():
     assert k == plotting.PER_TRAJECTORY and len(shown[0]) == k + 1
     shown, k = plotting._thin([np.zeros((20, 2))] * 4, plotting.ORBIT_SEGMENTS)
     assert k is None and [len(p) for p in shown] == [20] * 4
+    # a periodic table's walks are drawn whole, up to PER_TRAJECTORY_PERIODIC flights each
+    import types
+    lattice = types.SimpleNamespace(lattice=(np.zeros(2), np.ones(2)))
+    shown, k = plotting._thin(ten, plotting.ORBIT_SEGMENTS, lattice)
+    assert k is None and [len(p) for p in shown] == [1000] * 10
+    shown, k = plotting._thin([np.zeros((30_000, 2))] * 2, plotting.ORBIT_SEGMENTS, lattice)
+    assert k == plotting.PER_TRAJECTORY_PERIODIC and [len(p) for p in shown] == [k + 1] * 2
 
 
 def test_few_points_in_phase_are_as_large_as_the_legend_markers(runs):
