@@ -11,6 +11,7 @@
 
 Units: lengths in the table's unit L, times in the unit T of the config's velocities; a "step" is one collision.
 """
+import itertools
 import math
 from dataclasses import dataclass
 
@@ -163,7 +164,9 @@ def locate(geom, walls, positions):
     collision. ``normal`` (M, n) is the inward unit normal there (exact on arcs too). ``s`` (M,) is the Birkhoff
     arc length along the shrunk boundary, counter-clockwise, starting at the start of wall 0 (2D; on unbounded
     tables each wall's s is measured from its own origin along the counter-clockwise tangent — for the strip's
-    top wall s = −x); NaN in 3D and where ``walls`` < 0."""
+    top wall s = −x); NaN in 3D and where ``walls`` < 0. In a periodic table the positions are unfolded: each is
+    taken back into the cell, and then to whichever neighbouring image of the wall it lies on (an obstacle may
+    cross the cell's sides)."""
     walls = np.asarray(walls, np.int64).reshape(-1)
     p = np.asarray(positions, float)
     n = p.shape[-1]
@@ -171,36 +174,48 @@ def locate(geom, walls, positions):
     s = np.full(len(walls), np.nan)
     normal = np.full((len(walls), n), np.nan)
     best = np.full(len(walls), np.inf)
+    shifts = [np.zeros(n)]
+    if geom.lattice is not None:
+        lo, period = (np.asarray(x, float) for x in geom.lattice)
+        p = p - np.floor((p - lo) / period) * period
+        shifts = [np.array(o, float) * period for o in itertools.product((-1, 0, 1), repeat=n)]
     for w, patch, s0 in _patch_offsets(geom):
         sel = np.nonzero(walls == w)[0]
         if len(sel) == 0:
             continue
-        q = p[sel]
-        if patch[0] == "flat":
-            _, origin, nu, axes = patch
-            d = q - origin
-            residual = np.abs(d @ nu)
-            for axis, length in axes:
-                c = d @ np.asarray(axis, float)
-                if np.isfinite(length):
-                    residual = residual + np.maximum(0.0, np.maximum(-c, c - length))
-            nus = np.broadcast_to(nu, q.shape)
-            local = d @ _ccw_tangent(nu) if n == 2 else np.full(len(sel), np.nan)
-        else:
-            _, centre, rho, a0, a1, sign = patch
-            d = q - centre
-            r = np.linalg.norm(d, axis=1)
-            ang = a0 + np.mod(np.arctan2(d[:, 1], d[:, 0]) - a0, 2 * np.pi)
-            over = np.where(ang > a1, np.minimum(ang - a1, a0 + 2 * np.pi - ang), 0.0)
-            residual = np.abs(r - rho) + rho * over
-            nus = sign * d / np.where(r > 0, r, 1.0)[:, None]
-            local = rho * (ang - a0) if sign < 0 else rho * (a1 - ang)
-        take = residual < best[sel]
-        idx = sel[take]
-        best[idx] = residual[take]
-        normal[idx] = nus[take]
-        s[idx] = s0 + local[take]
+        for shift in shifts:
+            residual, nus, local = _on_patch(patch, p[sel] + shift, n)
+            take = residual < best[sel]
+            idx = sel[take]
+            best[idx] = residual[take]
+            normal[idx] = nus[take]
+            s[idx] = s0 + local[take]
     return s, normal
+
+
+def _on_patch(patch, q, n):
+    """How far the points ``q`` (k, n) lie from a wall's patch (:func:`_patch_offsets`) -> (distance (k,), inward
+    normal (k, n), arc length from the patch's start (k,))."""
+    if patch[0] == "flat":
+        _, origin, nu, axes = patch
+        d = q - origin
+        residual = np.abs(d @ nu)
+        for axis, length in axes:
+            c = d @ np.asarray(axis, float)
+            if np.isfinite(length):
+                residual = residual + np.maximum(0.0, np.maximum(-c, c - length))
+        nus = np.broadcast_to(nu, q.shape)
+        local = d @ _ccw_tangent(nu) if n == 2 else np.full(len(q), np.nan)
+        return residual, nus, local
+    _, centre, rho, a0, a1, sign = patch
+    d = q - centre
+    r = np.linalg.norm(d, axis=1)
+    ang = a0 + np.mod(np.arctan2(d[:, 1], d[:, 0]) - a0, 2 * np.pi)
+    over = np.where(ang > a1, np.minimum(ang - a1, a0 + 2 * np.pi - ang), 0.0)
+    residual = np.abs(r - rho) + rho * over
+    nus = sign * d / np.where(r > 0, r, 1.0)[:, None]
+    local = rho * (ang - a0) if sign < 0 else rho * (a1 - ang)
+    return residual, nus, local
 
 
 def birkhoff_coordinates(geom, walls, positions, velocities):
