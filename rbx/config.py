@@ -430,7 +430,25 @@ def _table(value, base, c):
     if tables.OBSTACLES in table:
         out[tables.OBSTACLES] = tables.obstacles(table[tables.OBSTACLES], tc, _join(prefix, tables.OBSTACLES),
                                                  tables.dimension(kind, out))
+    _check_magnitudes(out, prefix, tc)
     return kind, out
+
+
+#: the largest length or coordinate of a table: squares of lengths (distances, quadratics) must stay finite, with
+#: room to spare. A Lorentz cell of 1e307 overflowed (inf, then NaN) and its run never ended
+MAX_TABLE_NUMBER = 1e100
+
+
+def _check_magnitudes(value, key, c):
+    """Every number of a validated table (nested lists and mappings) is at most MAX_TABLE_NUMBER in size."""
+    if isinstance(value, dict):
+        for k, v in value.items():
+            _check_magnitudes(v, _join(key, str(k)), c)
+    elif isinstance(value, (list, tuple)):
+        for i, v in enumerate(value):
+            _check_magnitudes(v, f"{key}[{i}]", c)
+    elif isinstance(value, float) and abs(value) > MAX_TABLE_NUMBER:
+        c.fail(key, f"{value:g} is too large: a table's lengths and coordinates are at most {MAX_TABLE_NUMBER:g}")
 
 
 def _ball(ball, n, c):

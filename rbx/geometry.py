@@ -555,9 +555,14 @@ def snap(code, params, k, a, nu, n):
             a[i] = params[k, i] + f * (a[i] - params[k, i])
 
 
-#: in a periodic table, a flight longer than this many times the cell's shortest side is taken to run along a
-#: corridor that meets no obstacle, ever: it ends like an escape (tests/reference.py's LATTICE_MAX_WINDOWS)
-MAX_PERIODIC_FLIGHT = 10_000
+#: in a periodic table, a flight that crosses more than this many cells is taken to run along a corridor that
+#: meets no obstacle, ever: it ends like an escape (reported: rbx.cli.simulate). A count of cells, not a length:
+#: it ends the walk even where the numbers have overflowed. 10⁴ cut real
+#: flights short: with scatterers of radius 0.001 (R = 0.001) in the unit cell, 3 of 4 trajectories met one after
+#: more than 10⁴ cells within 2·10⁴ collisions. Walking 10⁷ cells takes ~50 ms; a flight exactly along a corridor
+#: (v along an axis between rows of scatterers) is the case this bound is for. (tests/reference.py stops after
+#: LATTICE_MAX_WINDOWS windows, which its test scenes never reach)
+MAX_PERIODIC_FLIGHT = 10_000_000
 
 
 def periodic_images(geom):
@@ -601,12 +606,7 @@ def periodic_flight(codes, params, a, v, tol, n, lo, period, images, shift, base
     arrays of n values: ``base`` (the cell's index along each axis, an integer held as a float), ``loc``, ``off``
     (the start of the cell's walk, then the shift of the image hit), ``ahead`` (when the flight crosses the
     cell's next side along each axis)."""
-    vv = 0.0
-    short = np.inf
-    for i in range(n):
-        vv += v[i] * v[i]
-        short = min(short, period[i])
-    far = MAX_PERIODIC_FLIGHT * short / np.sqrt(vv)
+    cells = 0                                    # cells walked: at most MAX_PERIODIC_FLIGHT (NaN or inf-proof)
     for i in range(n):
         base[i] = np.floor((a[i] - lo[i]) / period[i])
         if v[i] > 0.0:
@@ -639,7 +639,8 @@ def periodic_flight(codes, params, a, v, tol, n, lo, period, images, shift, base
                 off[i] = (base[i] + shift[image, i]) * period[i]
             return acc + best, which
         acc = leave
-        if acc > far:
+        cells += 1
+        if cells > MAX_PERIODIC_FLIGHT:
             return np.inf, -1
         # into the next cell across the side reached first (across both at a corner). Only constant indices into
         # the scratch arrays and v: an index known at run time would keep them in memory, not registers (in the

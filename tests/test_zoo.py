@@ -479,6 +479,47 @@ def test_corridor_flight_ends(tmp_path):
     assert res.returncode == 0, res.stderr
     run = rbx.open(tmp_path / "out.h5")
     assert list(run.count) == [1, 1, 1]
+    # not silently: the one warning line says what happened (also with --quiet)
+    lines = res.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("rbx: warning: ") and "3 trajectories" in lines[0] \
+        and "corridor" in lines[0], res.stderr
+
+
+def test_long_flights_in_a_sparse_gas_are_followed_to_their_scatterer():
+    """Scatterers of radius 0.001 (R = 0.001) in the unit cell: free flights of more than 10⁴ cells are common.
+    The walk used to give up after 10⁴ cells and end the trajectory as an escape (3 of 4 trajectories cut short,
+    the run reported complete); now each flight is followed to the scatterer it meets: every trajectory makes all
+    its collisions, and the end of the longest flight lies on a grown scatterer (|x − c| = ρ)."""
+    c = zoo("lorentz-2d", "smooth", collisions=20_000, record=["time", "position", "velocity", "wall"])
+    c["table"]["radius"] = 0.001
+    c["ball"]["radius"] = 0.001
+    c["initial"] = {"sample": "billiard"}
+    c["run"].update(trajectories=4, seed=3)
+    run = rbx.simulate(c)
+    assert list(run.count) == [20_001] * 4
+    flights = np.linalg.norm(np.diff(run.position, axis=1), axis=2)
+    j, k = np.unravel_index(np.argmax(flights), flights.shape)
+    assert flights[j, k] > 1e4
+    end = run.position[j, k + 1]
+    folded = end - np.floor(end)                              # unit cell, scatterer at its centre
+    assert abs(np.linalg.norm(folded - 0.5) - 0.002) < 1e-9
+    np.testing.assert_array_equal(run.velocity[j, k + 1] != run.velocity[j, k], [True, True])
+
+
+def test_the_cell_walk_ends_on_numbers_that_overflowed():
+    """A flight of NaN or inf, or along a corridor of cells of 1e307 (its length overflows to inf), ends after
+    MAX_PERIODIC_FLIGHT cells as an escape: the walk counts cells, not length (a length compared with inf never
+    ended)."""
+    from rbx import engine
+    from rbx.geometry import periodic_flight
+    geom = rbx.simulation.Simulation(rbx.load(zoo("lorentz-2d"))).geom
+    t = engine.make_table(geom, 1e-12)
+    scratch = [np.zeros(2) for _ in range(4)]
+    for a, v, period in (([0.1, 0.1], [np.nan, 1.0], t.period), ([0.1, 0.1], [np.inf, 1.0], t.period),
+                         ([0.1, 0.1], [1.0, 0.0], np.array([1e307, 1e307]))):   # a corridor whose length overflows
+        tau, k = periodic_flight(t.codes, t.params, np.array(a), np.array(v), 1e-12, 2, t.lattice_lo,
+                                 np.asarray(period, float), t.images, t.image_shift, *scratch)
+        assert k == -1 and tau == np.inf, (a, v, period, tau, k)
 
 
 # ---- Santaló: the mean free path of the billiard measure -----------------------------------------------------------
@@ -869,6 +910,11 @@ BAD = {
                            "initial": {"position": [1.1, 0.8], "velocity": [0.6, 0.8]}}, "initial.position"),
     "sphere-too-small": ({"table": {"kind": "sphere", "radius": 0.1},
                           "initial": {"position": [0, 0, 0], "velocity": [0.6, 0.8, 0]}}, "ball.radius"),
+    # numbers whose squares overflow: the 1e307 cell used to run for ever, deaf to Ctrl-C
+    "lorentz-cell-overflows": ({"table": {"kind": "lorentz", "cell": [1.0e307, 1.0e307], "radius": 0.3}},
+                               "table.cell[0]"),
+    "obstacle-centre-overflows": ({"table": {"kind": "rectangle", "width": 2, "height": 2, "obstacles": [
+        {"name": "p", "disc": {"center": [1.0, 3e200], "radius": 0.3}}]}}, "table.obstacles[0].disc.center[1]"),
 }
 
 

@@ -273,9 +273,18 @@ def _execute(sim, path, stop, quiet, done, start, began):
         return 128 + stop.signum
     ran = time.perf_counter() - progress.start
     N = sim.cfg.run.collisions
+    ended = int((~sim.alive & (sim.ncoll < N)).sum())
     summary(quiet, f"wrote {display_path(path)}: {sim.M} trajector{'y' if sim.M == 1 else 'ies'} × {N} collisions"
-                   + (f" (resumed at {done})" if done else "") + f" in {duration(ran)} "
-                   f"({duration(progress.start - began)} setting up)")
+                   + (f" (resumed at {done})" if done else "")
+                   + (f", {ended} of them ended earlier ({'an exit or ' if sim.rules.uses_exit else ''}no wall "
+                      "ahead)" if ended else "")
+                   + f" in {duration(ran)} ({duration(progress.start - began)} setting up)")
+    if ended and sim.geom.lattice is not None and not sim.rules.uses_exit:
+        # a closed gas has no escape: a flight that met no scatterer within MAX_PERIODIC_FLIGHT cells was ended
+        from ..geometry import MAX_PERIODIC_FLIGHT
+        click.echo(f"rbx: warning: {display_path(path)}: {ended} trajector{'y' if ended == 1 else 'ies'} of the "
+                   f"periodic table flew {MAX_PERIODIC_FLIGHT:.0e} cells without meeting an obstacle (along a "
+                   "corridor of the lattice) and ended there", err=True)
     return 0
 
 
