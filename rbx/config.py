@@ -322,7 +322,7 @@ def _from_dict(data, source, overrides):
     c.mapping(data, "", SECTIONS, required=("table", "boundary", "ball", "initial"))
     resolved = {}
 
-    kind, tparams = _table(data["table"], base, c)
+    kind, tparams, tc, tkey = _table(data["table"], base, c)
     n = tables.dimension(kind, tparams)
     resolved["table"] = {"kind": kind, **tparams}
     frozen_table = types.MappingProxyType({k: _frozen(v) for k, v in tparams.items()})
@@ -333,8 +333,8 @@ def _from_dict(data, source, overrides):
     try:
         geom = tables.build(kind, tparams, radius)
     except Exception as exc:   # a degenerate table the checks above let through: still the user's input
-        c.fail("table", f"cannot build the table: {exc}")
-    _check_fits(kind, tparams, radius, geom, c)
+        tc.fail(tkey or None, f"cannot build the table: {exc}")
+    _check_fits(kind, tparams, radius, geom, c, tc, tkey)
     names = geom.wall_names
 
     per_wall, resolved["boundary"] = _boundary(data["boundary"], base, c, n, geom, kind)
@@ -413,7 +413,8 @@ def _include(value, key, base, c):
 
 
 def _table(value, base, c):
-    """-> (kind, validated parameters as plain data)."""
+    """-> (kind, validated parameters as plain data, the checker of the file the table is written in, the key of
+    the table in it: ``table`` inline, '' in a table file of its own)."""
     table, table_file = _include(value, "table", base, c)
     tc = _Checker(table_file or c.file)
     prefix = "table" if table_file is None else ""
@@ -431,7 +432,7 @@ def _table(value, base, c):
         out[tables.OBSTACLES] = tables.obstacles(table[tables.OBSTACLES], tc, _join(prefix, tables.OBSTACLES),
                                                  tables.dimension(kind, out))
     _check_magnitudes(out, prefix, tc)
-    return kind, out
+    return kind, out, tc, prefix
 
 
 #: the largest length or coordinate of a table: squares of lengths (distances, quadratics) must stay finite, with
@@ -561,10 +562,17 @@ def parse_size(value, c, key):
     return c.number(value, key, positive=True)
 
 
-def _check_fits(kind, p, R, geom, c):
+def _check_fits(kind, p, R, geom, c, tc, tkey):
+    """The built table against the ball: a problem of the table's own keys is reported in the file the table is
+    written in (``tc``, the table at key ``tkey`` there), one of the ball in the config's."""
+    names = list(geom.wall_names)
+    for i, ob in enumerate(p.get(tables.OBSTACLES) or ()):
+        if names.count(ob["name"]) > 1:
+            tc.fail(_join(tkey, f"{tables.OBSTACLES}[{i}].name"), f"'{ob['name']}' names two walls (walls: "
+                                                                  f"{', '.join(names)})")
     problem = tables.fits(kind, p, R, geom)
     if isinstance(problem, tuple):     # (the table's key, problem): obstacles, periodic cells
-        c.fail(_join("table", problem[0]), problem[1])
+        tc.fail(_join(tkey, problem[0]), problem[1])
     if problem:
         c.fail("ball.radius", f"a ball of radius {R:g} {problem}")
 
@@ -664,6 +672,9 @@ def _initial(init, n, c, geom, kind, R, kappa, names):
         if not geom.can_sample:
             c.fail("initial.wall" if wall else "initial.sample", f"the {kind}'s walls are infinite: the billiard "
                                                                  "measure on them cannot be normalised")
+        if idx is not None and not any(p for p in geom.wall_list[idx].patches):
+            c.fail("initial.wall", f"a ball of radius {R:g} never touches wall '{wall}': there is no room for its "
+                                   "centre along it (the wall is shorter than the ball, or behind a narrower part)")
         # sampled states have unit speed in (v, R√κ·ω): |v| ≤ 1, |ω| ≤ 1/(R√κ)
         _check_spin_range(1.0, 1.0 / (R * math.sqrt(kappa)), R, c, "ball.inertia")
         return ("sample", idx), 1

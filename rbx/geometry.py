@@ -21,6 +21,7 @@ Adding a table kind = a builder here that lists its primitives (with ``Wall`` en
 sampling patches), registered with its other facets in :mod:`rbx.tables`. Adding a primitive kind = a code, its
 branch in :func:`collision_time`, :func:`contact_normal` and :func:`snap`, and its :func:`clearance`.
 """
+import functools
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -267,6 +268,21 @@ def polygon(p, R, kind="polygon", names=None):
         wall_idx.append(i)
         rows.append(_row(2, starts[i], N[i], T[i], lengths[i]))
         shrunk.extend([starts[i], ends[i]])
+    # a polygon with a reflex vertex may narrow below 2R (a neck): the parts of its walls that the centre cannot
+    # reach (behind another wall's offset) are no part of the wall's measure, and no start is drawn there
+    clearance = functools.partial(_polygon_clearance, verts=V, R=R)
+    for wall in walls:
+        kept = []
+        for patch in wall.patches:
+            if patch[0] == "flat":
+                _, origin, normal, [(axis, length)] = patch
+                kept += [("flat", origin + s0 * axis, normal, [(axis, s1 - s0)]) for s0, s1 in
+                         _trim(None, lambda s: origin + s * axis, 0.0, length, size, clearance)]
+            else:
+                _, c, rho, a0, a1, sign = patch
+                kept += [("arc", c, rho, t0, t1, sign) for t0, t1 in
+                         _trim(None, lambda t: c + rho * np.array([np.cos(t), np.sin(t)]), a0, a1, size, clearance)]
+        wall.patches = kept
     g = Geometry(kind, 2, np.array(codes, np.int64), np.array(wall_idx, np.int64), np.array(rows), walls, size,
                  outline=V, shrunk_outline=np.array(shrunk), shrunk_radius=R)
     g.lengths = lengths
@@ -711,14 +727,17 @@ def boundary_polyline(pieces, m=64):
 
 def boundary_area(pieces):
     """Signed area enclosed by a closed boundary of segments and arcs (positive: counter-clockwise), exact for
-    arcs: ½∮(x dy − y dx)."""
+    arcs: ½∮(x dy − y dx), with x measured from the first piece's start (from the origin, the products of a table
+    at 1e8 cancelled to nothing and a unit square came out clockwise)."""
     area = 0.0
+    o = np.asarray(_piece_frame(pieces[0])["a"], float)
     for q in pieces:
         f = _piece_frame(q)
         if f["seg"]:
-            area += 0.5 * (f["a"][0] * f["b"][1] - f["b"][0] * f["a"][1])
+            a, b = f["a"] - o, f["b"] - o
+            area += 0.5 * (a[0] * b[1] - b[0] * a[1])
         else:
-            c, rho = f["c"], f["rho"]
+            c, rho = f["c"] - o, f["rho"]
             th0 = _angle(f["u0"])
             dth = f["span"] if f["ccw"] else -f["span"]
             th1 = th0 + dth
@@ -810,26 +829,44 @@ def _caps_z(pieces):
     return (zs[0], zs[-1]) if len(zs) >= 2 else (-np.inf, np.inf)
 
 
-def _trim(geom, point_at, lo, hi, size):
-    """The sub-range [s0, s1] of [lo, hi] where the offset piece point_at(s) lies in the shrunk table (its two
-    ends may poke out past a convex joint, behind the neighbouring piece) -> (s0, s1), s0 > s1 if none."""
+def _trim(geom, point_at, lo, hi, size, clearance=None):
+    """The sub-ranges of [lo, hi] where the offset piece point_at(s) lies in the shrunk table -> list of (s0, s1),
+    in order, empty if none. Its ends may poke out past a convex joint, behind the neighbouring piece, and its
+    middle where the table narrows below 2R (a neck, a dent): the ball's centre never gets there, so no start is
+    drawn there and the wall's measure leaves it out. The tolerance is a fraction of the table's size plus the
+    rounding of the points' coordinates (a table at 1e8 otherwise had no room along any wall). ``clearance``:
+    the table's signed clearance of points (default: :func:`pieces_clearance` of ``geom``)."""
+    if clearance is None:
+        def clearance(pts):
+            return pieces_clearance(geom, pts)
     s = np.linspace(lo, hi, 2049)
-    ok = pieces_clearance(geom, np.array([point_at(x) for x in s])) >= -1e-9 * size
-    if not ok.any():
-        return hi, lo
-    i0, i1 = int(np.argmax(ok)), len(ok) - 1 - int(np.argmax(ok[::-1]))
+    pts = np.array([point_at(x) for x in s])
+    slack = 64 * np.finfo(float).eps * float(np.max(np.abs(pts)))
+    ok = clearance(pts) >= -(1e-9 * size + slack)
 
     def edge(good, bad):
         for _ in range(60):
             mid = 0.5 * (good + bad)
-            if pieces_clearance(geom, point_at(mid)[None])[0] >= -1e-13 * size:
+            if clearance(point_at(mid)[None])[0] >= -(1e-13 * size + slack):
                 good = mid
             else:
                 bad = mid
         return good
-    s0 = s[i0] if i0 == 0 else edge(s[i0], s[i0 - 1])
-    s1 = s[i1] if i1 == len(s) - 1 else edge(s[i1], s[i1 + 1])
-    return s0, s1
+    out = []
+    i = 0
+    while i < len(ok):
+        if not ok[i]:
+            i += 1
+            continue
+        j = i
+        while j + 1 < len(ok) and ok[j + 1]:
+            j += 1
+        s0 = s[i] if i == 0 else edge(s[i], s[i - 1])
+        s1 = s[j] if j == len(s) - 1 else edge(s[j], s[j + 1])
+        if s1 > s0:
+            out.append((s0, s1))
+        i = j + 1
+    return out
 
 
 def _boundary(geom, piece, R, first_wall, codes, walls, rows, wall_list):
@@ -853,15 +890,17 @@ def _boundary(geom, piece, R, first_wall, codes, walls, rows, wall_list):
             r = _row(2, f["a"], n_out, n_in, R)
             r[13] = 1.0 if span > np.pi else 0.0
             rows.append(r)
-            wall.patches.append(("arc", f["a"], R, _angle(n_out), _angle(n_out) + span, 1.0))
-            shrunk.append(_arc_points(f["a"], R, _angle(n_out) + span, -span, 12))
+            joint = f["a"]
+            for t0, t1 in _trim(geom, lambda th: joint + R * np.array([np.cos(th), np.sin(th)]), _angle(n_out),
+                                _angle(n_out) + span, size):
+                wall.patches.append(("arc", joint, R, t0, t1, 1.0))
+                shrunk.append(_arc_points(joint, R, t1, t0 - t1, 12))
         if f["seg"]:
             codes.append(SEGMENT)
             walls.append(w)
             start = f["a"] + R * f["n0"]
             rows.append(_row(2, start, f["n0"], f["t0"], f["length"]))
-            s0, s1 = _trim(geom, lambda s: start + s * f["t0"], 0.0, f["length"], size)
-            if s1 > s0:
+            for s0, s1 in _trim(geom, lambda s: start + s * f["t0"], 0.0, f["length"], size):
                 wall.patches.append(("flat", start + s0 * f["t0"], f["n0"], [(f["t0"], s1 - s0)]))
                 shrunk.append(np.array([start + s0 * f["t0"], start + s1 * f["t0"]]))
         else:
@@ -874,8 +913,8 @@ def _boundary(geom, piece, R, first_wall, codes, walls, rows, wall_list):
             rows.append(r)
             a0 = _angle(first)
             c = f["c"]
-            s0, s1 = _trim(geom, lambda th: c + rho * np.array([np.cos(th), np.sin(th)]), a0, a0 + f["span"], size)
-            if s1 > s0:
+            for s0, s1 in _trim(geom, lambda th: c + rho * np.array([np.cos(th), np.sin(th)]), a0, a0 + f["span"],
+                                size):
                 wall.patches.append(("arc", c, rho, s0, s1, -1.0 if f["ccw"] else 1.0))
                 shrunk.append(_arc_points(c, rho, s0, s1 - s0, 64))
         wall_list.append(wall)
@@ -1012,10 +1051,14 @@ def check_fit(geom, R):
     z0, z1 = _caps_z(geom.pieces)
     if np.isfinite(z1 - z0) and z1 - z0 <= 2 * R:
         return f"does not fit between the caps {z1 - z0:g} apart"
-    for w in geom.wall_list[:len(geom.wall_list) - len(obstacles)]:
-        flat_short = any(p[0] == "flat" and any(length <= 0 for _, length in p[3]) for p in w.patches)
-        if flat_short or (not w.patches and not any(isinstance(q, T.Cylinder) for q in geom.pieces)):
-            return f"does not fit in the table (no room along wall '{w.name}')"
+    # a wall with no room for the centre along it (shorter than the ball, or behind a part narrower than 2R) is
+    # one the ball never touches: that is no reason to refuse the table (a mushroom's cap floor of 0.05 beside a
+    # wide stem was), only to refuse drawing starts on it (rbx.config). A table with no room along any wall has
+    # none for the ball
+    bounded = geom.wall_list[:len(geom.wall_list) - len(obstacles)]
+    if bounded and not any(isinstance(q, T.Cylinder) for q in geom.pieces) and not any(
+            any(p[0] != "flat" or all(length > 0 for _, length in p[3]) for p in w.patches) for w in bounded):
+        return "does not fit in the table (no room along any wall)"
     shifts = [np.zeros(geom.dimension)]
     if geom.lattice is not None:
         lo, period = geom.lattice

@@ -284,7 +284,8 @@ def vertices(value, c, key):
                + (f" of {len(value)}" if isinstance(value, list) else ""))
     V = np.array([c.vector(p, f"{key}[{i}]", 2) for i, p in enumerate(value)])
     with np.errstate(over="ignore", invalid="ignore"):
-        area = 0.5 * np.sum(V[:, 0] * np.roll(V[:, 1], -1) - np.roll(V[:, 0], -1) * V[:, 1])
+        D = V - V[0]               # from the first vertex: from the origin, a square at 1e8 cancelled to nothing
+        area = 0.5 * np.sum(D[:, 0] * np.roll(D[:, 1], -1) - np.roll(D[:, 0], -1) * D[:, 1])
     if not np.isfinite(area):
         c.fail(key, "coordinates too large (the area overflows)")
     if np.any(np.all(np.roll(V, -1, axis=0) == V, axis=1)):
@@ -528,8 +529,11 @@ def boundary(value, c, key):
             q["turn"] = c.choice(piece["turn"], f"{k}.turn", ("ccw", "cw"), "turn")
         out.append(q)
     pieces = boundary_pieces(out)
-    size = max(max(abs(x) for x in p["from"] + p["to"]) for p in out) or 1.0
-    tol = JOIN_TOLERANCE * size
+    # a fraction of the boundary's extent, plus the rounding of its coordinates: a fraction of the largest
+    # coordinate let a gap of 0.05 through in a table 10 wide at x = 1e8, and the ball fell out through it
+    pts = np.array([p["from"] + p["to"] for p in out], float).reshape(-1, 2)
+    extent = float(np.max(np.ptp(pts, axis=0))) or 1.0
+    tol = JOIN_TOLERANCE * extent + 64 * np.finfo(float).eps * float(np.max(np.abs(pts)))
     for i, (p, q) in enumerate(zip(out, pieces)):
         if isinstance(q, Arc):
             r0 = math.dist(q.start, q.center)

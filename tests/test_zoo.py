@@ -910,6 +910,25 @@ BAD = {
                            "initial": {"position": [1.1, 0.8], "velocity": [0.6, 0.8]}}, "initial.position"),
     "sphere-too-small": ({"table": {"kind": "sphere", "radius": 0.1},
                           "initial": {"position": [0, 0, 0], "velocity": [0.6, 0.8, 0]}}, "ball.radius"),
+    # a gap of 0.05 in a table 10 wide at x = 1e8 (the join tolerance was a fraction of the largest coordinate)
+    "gap-far-from-the-origin": ({"table": _custom([_seg("a", [1e8, 0], [1e8 + 9.95, 0]),
+                                                   _seg("b", [1e8 + 10, 0], [1e8 + 10, 10]),
+                                                   _seg("c", [1e8 + 10, 10], [1e8, 10]), _seg("d", [1e8, 10], [1e8, 0])]),
+                                 "initial": {"position": [1e8 + 5, 5], "velocity": [1, -1]}},
+                                "table.boundary[1].from"),
+    "obstacle-named-as-a-wall": ({"table": {"kind": "rectangle", "width": 2, "height": 1, "obstacles": [
+        {"name": "left", "disc": {"center": [1.0, 0.5], "radius": 0.2}}]}, "initial": {"position": [0.3, 0.5],
+                                                                                     "velocity": [0.6, 0.8]}},
+                                 "table.obstacles[0].name"),
+    "two-obstacles-one-name": ({"table": {"kind": "rectangle", "width": 2, "height": 1, "obstacles": [
+        {"name": "o", "disc": {"center": [0.6, 0.5], "radius": 0.1}},
+        {"name": "o", "disc": {"center": [1.4, 0.5], "radius": 0.1}}]}, "initial": {"position": [1.0, 0.5],
+                                                                                  "velocity": [0.6, 0.8]}},
+                               "table.obstacles[0].name"),
+    "sample-on-a-wall-the-ball-never-touches": ({"table": {"kind": "mushroom", "cap_radius": 1, "stem_width": 1.9,
+                                                           "stem_height": 1},
+                                                 "initial": {"sample": "billiard", "wall": "cap_floor_left"}},
+                                                "initial.wall"),
     # numbers whose squares overflow: the 1e307 cell used to run for ever, deaf to Ctrl-C
     "lorentz-cell-overflows": ({"table": {"kind": "lorentz", "cell": [1.0e307, 1.0e307], "radius": 0.3}},
                                "table.cell[0]"),
@@ -955,3 +974,79 @@ def test_every_zoo_kind_has_an_example_that_runs():
         assert np.all(run.count == 201), f
     assert set(ZOO_EXAMPLES.values()) == {"custom", "stadium", "sinai-2d", "sinai-3d", "lorentz-2d", "lorentz-3d",
                                           "mushroom", "sphere", "cylinder"}
+
+
+# ---- tables that narrow below the ball, far from the origin, in files of their own -----------------------------
+
+NECK = [_seg("floor", [0, 0], [3, 0]), _seg("right", [3, 0], [3, 1]), _seg("roofr", [3, 1], [1.6, 1]),
+        _seg("vr", [1.6, 1], [1.5, 0.15]), _seg("vl", [1.5, 0.15], [1.4, 1]), _seg("roofl", [1.4, 1], [0, 1]),
+        _seg("left", [0, 1], [0, 0])]
+DENT = [_seg("floor", [0, 0], [4, 0]), _seg("right", [4, 0], [4, 3]), _seg("roof1", [4, 3], [3, 3]),
+        {"name": "dent", "from": [3, 3], "to": [1, 3], "center": [2, 1.750438596491228], "turn": "cw"},
+        _seg("roof2", [1, 3], [0, 3]), _seg("left", [0, 3], [0, 0])]
+
+
+@pytest.mark.parametrize("table,wall", [
+    (_custom(NECK), "vl"), (_custom(NECK), None), (_custom(DENT), "floor"), (_custom(DENT), None),
+    ({"kind": "polygon", "vertices": [s["from"] for s in NECK]}, "edge4"),
+    ({"kind": "mushroom", "cap_radius": 1, "stem_width": 1.9, "stem_height": 1}, None)])
+def test_starts_lie_in_the_free_region_where_the_table_narrows_below_the_ball(table, wall):
+    """A neck 0.15 high (a V hanging from the roof) and a dent 0.15 above the floor, for a ball of radius 0.1: the
+    offsets of the walls cross there, and the parts of them behind another wall are out of the ball's reach. Starts
+    were drawn on them (12 of 50 below the shrunk floor; one went through the dent) and those trajectories ended
+    after one record. Now every start lies in the free region, every trajectory makes all its collisions and never
+    leaves the region. The mushroom's cap floors (0.05 each beside a stem 1.9 wide) were refused as 'does not fit'."""
+    from rbx.geometry import _polygon_clearance, pieces_clearance
+    c = {**copy.deepcopy(BASE), "table": table, "run": {"collisions": 2000, "trajectories": 60, "seed": 1},
+         "initial": {"sample": "billiard", **({"wall": wall} if wall else {})},
+         "output": {"record": ["time", "position", "velocity", "wall"]}}
+    run = rbx.simulate(c)
+    geom = run.geometry()
+    assert list(run.count) == [2001] * 60
+    pos = run.position.reshape(-1, 2)
+    clear = (_polygon_clearance(pos, np.array(table["vertices"], float), 0.1) if table["kind"] == "polygon"
+             else pieces_clearance(geom, pos))
+    assert clear.min() > -1e-12, clear.min()
+    assert np.isfinite(run.velocity).all()
+
+
+def test_a_table_far_from_the_origin_is_the_same_table():
+    """A unit square at (1e8, 1e8): its area cancelled to nothing (refused as clockwise) and no wall had room for
+    the ball (the trim's tolerance ignored the rounding of coordinates of 1e8). Now the custom table and the polygon
+    both run, and the orbit is the square at the origin's, shifted, to the rounding of numbers of 1e8."""
+    far = 1e8
+    square = [[0, 0], [1, 0], [1, 1], [0, 1]]
+    runs = []
+    for shift in (0.0, far):
+        V = [[x + shift, y + shift] for x, y in square]
+        for table in (_custom([_seg(n, V[i], V[(i + 1) % 4]) for i, n in enumerate("abcd")]),
+                      {"kind": "polygon", "vertices": V}):
+            c = {**copy.deepcopy(BASE), "table": table, "run": {"collisions": 50},
+                 "initial": {"position": [shift + 0.5, shift + 0.5], "velocity": [0.6, 0.8]},
+                 "output": {"record": ["position", "wall"]}}
+            runs.append(rbx.simulate(c))
+    for near, away in ((runs[0], runs[2]), (runs[1], runs[3])):
+        assert away.count[0] == 51
+        np.testing.assert_allclose(away.position[0] - far, near.position[0], atol=1e-6)
+        np.testing.assert_array_equal(away.wall, near.wall)
+
+
+def test_a_table_file_s_own_problems_are_reported_in_that_file(tmp_path):
+    """A table in a file of its own: a problem of its keys found once the table is built (an obstacle that does
+    not fit, a preset's size) names that file and the key in it, not the experiment's file and table.<key>."""
+    cases = [({"kind": "mushroom", "cap_radius": 0.5, "stem_width": 1.2, "stem_height": 1.0}, "stem_width"),
+             ({"kind": "rectangle", "width": 2, "height": 2, "obstacles": [
+                 {"name": "p", "disc": {"center": [1.0, 1.9], "radius": 0.2}}]}, "obstacles[0]"),
+             ({"kind": "lorentz", "cell": [1, 1], "radius": 0.6}, "radius"),
+             ({"kind": "rectangle", "width": 2, "height": 1, "obstacles": [
+                 {"name": "top", "disc": {"center": [1.0, 0.5], "radius": 0.2}}]}, "obstacles[0].name")]
+    for table, key in cases:
+        (tmp_path / "t.yaml").write_text(yaml.safe_dump(table))
+        cfg = {**copy.deepcopy(BASE), "table": "t.yaml", "initial": {"sample": "billiard"}}
+        path = tmp_path / "e.yaml"
+        path.write_text(yaml.safe_dump(cfg))
+        res = subprocess.run([RBX_EXE, "simulate", str(path), "-o", str(tmp_path / "o.h5")], capture_output=True,
+                             text=True, timeout=300)
+        lines = res.stderr.strip().splitlines()
+        assert res.returncode == 2 and len(lines) == 1, res.stderr
+        assert lines[0].startswith(f"rbx: {tmp_path / 't.yaml'}: {key}: "), lines[0]
