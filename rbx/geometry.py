@@ -725,6 +725,65 @@ def boundary_polyline(pieces, m=64):
     return np.concatenate(out)
 
 
+def _meets(f, g, tol):
+    """The points (within ``tol``) where two boundary pieces meet, at least one of them an arc (their frames,
+    :func:`_piece_frame`) -> list of points: a line or circle against a circle, kept where the point lies on both
+    pieces (a segment between its ends, an arc within its angular span)."""
+    def on(h, p):
+        if h["seg"]:
+            t = h["b"] - h["a"]
+            u = (p - h["a"]) @ t / (t @ t)
+            return -tol / h["length"] <= u <= 1.0 + tol / h["length"]
+        first = h["u0"] if h["ccw"] else h["u1"]
+        ang = np.mod(_angle(p - h["c"]) - _angle(first), 2 * np.pi)
+        slack = tol / h["rho"]
+        return ang <= h["span"] + slack or ang >= 2 * np.pi - slack
+    if f["seg"]:
+        f, g = g, f
+    c, rho = f["c"], f["rho"]
+    if g["seg"]:
+        t = (g["b"] - g["a"]) / g["length"]
+        foot = g["a"] + ((c - g["a"]) @ t) * t
+        d = float(np.linalg.norm(c - foot))
+        if d > rho + tol:
+            return []
+        h = np.sqrt(max(rho * rho - d * d, 0.0))
+        cands = [foot - h * t, foot + h * t]
+    else:
+        c2, rho2 = g["c"], g["rho"]
+        D = float(np.linalg.norm(c2 - c))
+        if D == 0.0 or D > rho + rho2 + tol or D < abs(rho - rho2) - tol:
+            return []
+        e = (c2 - c) / D
+        x = (D * D + rho * rho - rho2 * rho2) / (2 * D)
+        h = np.sqrt(max(rho * rho - x * x, 0.0))
+        cands = [c + x * e + h * _left(e), c + x * e - h * _left(e)]
+    return [p for p in cands if on(f, p) and on(g, p)]
+
+
+def arcs_cross(pieces, tol):
+    """Whether a closed boundary of segments and arcs crosses or touches itself at a point of an arc (segments
+    among themselves: rbx.tables' polygon test): two pieces meeting anywhere but at a joint they share. Exact (a
+    line or circle against a circle): a polyline of 64 points per arc let an arc dipping 1e-4 below the floor
+    through."""
+    frames = [_piece_frame(q) for q in pieces]
+    m = len(frames)
+    for i in range(m):
+        for j in range(i + 1, m):
+            f, g = frames[i], frames[j]
+            if f["seg"] and g["seg"]:
+                continue
+            joints = []
+            if j == i + 1:
+                joints.append(f["b"])
+            if i == 0 and j == m - 1:
+                joints.append(f["a"])
+            for p in _meets(f, g, tol):
+                if all(np.linalg.norm(p - J) > 1e3 * tol for J in joints):
+                    return True
+    return False
+
+
 def boundary_area(pieces):
     """Signed area enclosed by a closed boundary of segments and arcs (positive: counter-clockwise), exact for
     arcs: ½∮(x dy − y dx), with x measured from the first piece's start (from the origin, the products of a table

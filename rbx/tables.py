@@ -546,7 +546,7 @@ def boundary(value, c, key):
             c.fail(f"{key}[{(i + 1) % len(out)}].from", f"{nxt['from']} is not where the previous piece "
                                                         f"'{p['name']}' ends ({p['to']}): the boundary must be closed")
     poly = geometry.boundary_polyline(pieces, 64)
-    if _self_intersecting(poly):
+    if _self_intersecting(poly) or geometry.arcs_cross(pieces, tol):
         c.fail(key, "the boundary crosses or touches itself")
     area = geometry.boundary_area(pieces)
     if not area > 0:

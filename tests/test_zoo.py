@@ -848,6 +848,14 @@ def _seg(name, a, b):
     return {"name": name, "from": a, "to": b}
 
 
+NECK = [_seg("floor", [0, 0], [3, 0]), _seg("right", [3, 0], [3, 1]), _seg("roofr", [3, 1], [1.6, 1]),
+        _seg("vr", [1.6, 1], [1.5, 0.15]), _seg("vl", [1.5, 0.15], [1.4, 1]), _seg("roofl", [1.4, 1], [0, 1]),
+        _seg("left", [0, 1], [0, 0])]
+DENT = [_seg("floor", [0, 0], [4, 0]), _seg("right", [4, 0], [4, 3]), _seg("roof1", [4, 3], [3, 3]),
+        {"name": "dent", "from": [3, 3], "to": [1, 3], "center": [2, 1.750438596491228], "turn": "cw"},
+        _seg("roof2", [1, 3], [0, 3]), _seg("left", [0, 3], [0, 0])]
+
+
 SQUARE = [_seg("a", [0, 0], [2, 0]), _seg("b", [2, 0], [2, 2]), _seg("c", [2, 2], [0, 2]), _seg("d", [0, 2], [0, 0])]
 BAD = {
     "open": ({"table": _custom(SQUARE[:3] + [_seg("d", [0, 2], [0, 0.5])])}, "table.boundary[0].from"),
@@ -929,6 +937,11 @@ BAD = {
                                                            "stem_height": 1},
                                                  "initial": {"sample": "billiard", "wall": "cap_floor_left"}},
                                                 "initial.wall"),
+    # a dispersing arc whose lowest point is 1e-4 below the floor: 64 points per arc missed the crossing
+    "arc-dips-below-the-floor": ({"table": _custom(DENT[:3] + [{**DENT[3], "center": [2, 1.6666111112962898]}]
+                                                   + DENT[4:])}, "table.boundary"),
+    "arc-touches-the-floor": ({"table": _custom(DENT[:3] + [{**DENT[3], "center": [2, 5 / 3]}] + DENT[4:])},
+                              "table.boundary"),
     # numbers whose squares overflow: the 1e307 cell used to run for ever, deaf to Ctrl-C
     "lorentz-cell-overflows": ({"table": {"kind": "lorentz", "cell": [1.0e307, 1.0e307], "radius": 0.3}},
                                "table.cell[0]"),
@@ -977,14 +990,6 @@ def test_every_zoo_kind_has_an_example_that_runs():
 
 
 # ---- tables that narrow below the ball, far from the origin, in files of their own -----------------------------
-
-NECK = [_seg("floor", [0, 0], [3, 0]), _seg("right", [3, 0], [3, 1]), _seg("roofr", [3, 1], [1.6, 1]),
-        _seg("vr", [1.6, 1], [1.5, 0.15]), _seg("vl", [1.5, 0.15], [1.4, 1]), _seg("roofl", [1.4, 1], [0, 1]),
-        _seg("left", [0, 1], [0, 0])]
-DENT = [_seg("floor", [0, 0], [4, 0]), _seg("right", [4, 0], [4, 3]), _seg("roof1", [4, 3], [3, 3]),
-        {"name": "dent", "from": [3, 3], "to": [1, 3], "center": [2, 1.750438596491228], "turn": "cw"},
-        _seg("roof2", [1, 3], [0, 3]), _seg("left", [0, 3], [0, 0])]
-
 
 @pytest.mark.parametrize("table,wall", [
     (_custom(NECK), "vl"), (_custom(NECK), None), (_custom(DENT), "floor"), (_custom(DENT), None),
