@@ -80,6 +80,10 @@ def compile_rules(wall_rules, geom):
     for i, (kind, rank, _, _, _, direction) in enumerate(nodes):
         if kind == CONSTANT and direction is not None:
             for w in range(nw):
+                # a curved wall has no tangent axes, and the config refuses a direction on one (rbx.config._rule):
+                # the node is never reached there. (Unpacking None crashed any 3D table with a curved wall.)
+                if geom.wall_list[w].tangents is None:
+                    continue
                 t1, t2 = geom.wall_list[w].tangents
                 basis[i, w, 0] = roughness_direction(direction, t1, t2)
     kinds = np.array([x[0] for x in nodes], np.int64)

@@ -283,7 +283,7 @@ def _execute(sim, path, stop, quiet, done, start, began):
         # a closed gas has no escape: a flight that met no scatterer within MAX_PERIODIC_FLIGHT cells was ended
         from ..geometry import MAX_PERIODIC_FLIGHT
         click.echo(f"rbx: warning: {display_path(path)}: {ended} trajector{'y' if ended == 1 else 'ies'} of the "
-                   f"periodic table flew {MAX_PERIODIC_FLIGHT:.0e} cells without meeting an obstacle (along a "
+                   f"periodic table flew {MAX_PERIODIC_FLIGHT:.0e} cell lengths without meeting an obstacle (along a "
                    "corridor of the lattice) and ended there", err=True)
     return 0
 
