@@ -476,6 +476,17 @@ def test_long_orbits_are_thinned(scenes):
     assert 0 < flights <= plotting.ORBIT3D_SEGMENTS / np.sqrt(len(paths)) + len(paths)
 
 
+def test_strided_records_are_drawn_as_points(scenes):
+    """Every 2nd record: the collisions between them are missing, so no straight flight joins two of them; the
+    orbit is drawn as points, as for a run that records every 2nd collision."""
+    fig = make_figure(scenes["circle"], "orbit", records=slice(None, None, 2))
+    drawn = [line for line in fig.axes[0].get_lines() if line.get_label().startswith("trajectory")]
+    assert drawn and all(line.get_linestyle() == "None" and line.get_marker() == "." for line in drawn)
+    fig = make_figure(scenes["circle"], "orbit")
+    drawn = [line for line in fig.axes[0].get_lines() if line.get_label().startswith("trajectory")]
+    assert drawn and all(line.get_linestyle() == "-" for line in drawn)
+
+
 def test_many_trajectories_share_fewer_flights():
     """m trajectories are drawn with ORBIT_SEGMENTS/√m flights in all (ten: 250, not 800, which was a knot), each
     cut at the same record; one is cut at PER_TRAJECTORY; a short run is not cut."""
@@ -526,6 +537,9 @@ def rbx_fails(*args):
 def test_meaningless_selections_and_analyses_are_refused(runs, scenes):
     line = rbx_fails("plot", runs["lshape"], "--kind", "orbit", "--records", "100:50")
     assert ": --records: 100:50 selects no records" in line
+    # a Poincaré section over every 3rd record joined collisions three apart: 79 of 161 points outside a cylinder
+    line = rbx_fails("plot", scenes["cylinder"], "--kind", "poincare", "--plane", "z=0.75", "--records", "::3")
+    assert ": --records: a Poincaré section needs consecutive collisions" in line
     line = rbx_fails("plot", scenes["box"], "--kind", "diffusion")
     assert "--kind diffusion: the box table is bounded along x" in line
     line = rbx_fails("plot", scenes["lorentz"], "--kind", "diffusion", "--coordinate", "time")

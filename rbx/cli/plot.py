@@ -185,6 +185,13 @@ def _title(run, what, traj, rec):
     return f"{run.scene()}\n{what} · {trange} of {run.trajectories} · {srange}{every}{extra}"
 
 
+def _stride(run, rec):
+    """Collisions between two consecutive selected records: ``output.every`` times the stride of ``--records``.
+    Above 1 the records are not consecutive collisions: no straight flight joins them (orbits are drawn as points)
+    and no plane crossing can be found between them."""
+    return run.every * (rec.step or 1)
+
+
 def _paths(run, rec, traj):
     run.require(["position"], "this picture")
     pos = run.read("position", traj, rec)
@@ -196,7 +203,7 @@ def _orbit(run, rec, traj, **_):
     paths = _paths(run, rec, traj)
     what = "orbit of the centre" if run.dimension == 2 else "horizontal projection of the orbit"
     return plotting.orbit_figure(paths, run.geometry(), _title(run, what, traj, rec),
-                                 labels=[f"trajectory {j}" for j in traj], points_only=run.every > 1)
+                                 labels=[f"trajectory {j}" for j in traj], points_only=_stride(run, rec) > 1)
 
 
 def _orbit3d(run, rec, traj, **_):
@@ -204,7 +211,7 @@ def _orbit3d(run, rec, traj, **_):
     if run.dimension != 3:
         raise UserError(run.path, None, "orbit3d needs a 3D run (plates or box); this one is 2D: use --kind orbit")
     return plotting.orbit3d_figure(_paths(run, rec, traj), run.geometry(), _title(run, "orbit", traj, rec),
-                                   labels=[f"trajectory {j}" for j in traj], points_only=run.every > 1)
+                                   labels=[f"trajectory {j}" for j in traj], points_only=_stride(run, rec) > 1)
 
 
 def _phase(run, rec, traj, colour="trajectory", **_):
@@ -295,7 +302,7 @@ def _series(run, rec, traj, coordinate="x", scales=(0.01, 0.1, 1.0), **_):
     values, label = _coordinate(run, coordinate, traj, rec)
     return plotting.series_figure(run.step[rec], list(values), _title(run, f"{coordinate} against step", traj, rec),
                                   label, labels=[f"trajectory {j}" for j in traj], scales=scales,
-                                  points_only=run.every > 1)
+                                  points_only=_stride(run, rec) > 1)
 
 
 def _diffusion(run, rec, traj, coordinate="x", fit_from=0.1, **_):
@@ -422,6 +429,11 @@ def _poincare(run, rec, traj, plane="z=0.5", **_):
     if run.every != 1:
         raise ValueError(f"a Poincaré section needs every collision recorded (output.every: 1, this run has "
                          f"{run.every})")
+    if _stride(run, rec) != 1:
+        # the crossing is found on the flight between two consecutive records: a stride made chords of several
+        # flights, and 79 of 161 points fell outside the cylinder
+        raise UserError(run.path, "--records", f"a Poincaré section needs consecutive collisions: no stride "
+                                           f"(this selection takes every {rec.step}th record)")
     run.require(["time", "position", "velocity", "angular_velocity"], "the Poincaré section")
     cut = analysis.plane_crossings(run.read("position", traj, rec), run.read("velocity", traj, rec),
                                    run.read("angular_velocity", traj, rec), run.read("time", traj, rec), normal,
