@@ -214,6 +214,11 @@ def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segme
         raise ValueError(f"{N} collisions leave {measured} after the warm-up: fewer than {segments} segments")
     cuts = warmup + np.round(np.linspace(0, measured, segments + 1)).astype(np.int64)
     tan = _Tangent(exp)
+    if segments * tan.M < 2:
+        # the error comes from the spread of the segments' estimates: one gives none (it was NaN, and --json wrote
+        # NaN, which is not JSON)
+        raise ValueError(f"one trajectory in one segment gives no error estimate: use segments ≥ 2 or more "
+                         f"trajectories")
     d = tan.d
     with _cluster(scheduler, slices) as cluster:
         if cluster is None:
@@ -225,10 +230,15 @@ def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segme
         per_traj = total_sums / total_time[:, None]
         seg_exp = m["seg_sums"] / seg_time[..., None]
     T = float(np.sum(total_time))
-    if not T > 0:
-        raise ValueError("no trajectory moved after the warm-up (all left the table)")
+    if not T > 0 or int(np.sum(m["collisions"])) == 0:
+        # with no collision measured, the exponents were reported as 0 ± 0 (free flight alone stretches nothing)
+        raise ValueError("no trajectory moved after the warm-up (all left the table)" if not T > 0 else
+                         "no collision after the warm-up: every trajectory left the table at its first contact")
     exponents = np.sum(total_sums, axis=0) / T
     stderr = _batch_stderr(seg_time.reshape(-1), seg_exp.reshape(-1, d), exponents)
+    if not np.all(np.isfinite(stderr)):
+        raise ValueError("fewer than two segments were measured (the others' trajectories left the table): no "
+                         "error estimate; run more collisions or trajectories")
     if tan.M > 1:
         # trajectories of a table that is not ergodic (rough tables trap: docs/dynamics.md) can have different
         # exponents; their spread is then larger than the segments' and is the honest error

@@ -9,6 +9,7 @@
   0; the exponents sum to 0 (the flow preserves the Liouville measure) on every table.
 """
 import json
+import os
 
 import numpy as np
 import pytest
@@ -301,3 +302,25 @@ def test_lyapunov_command_prints_json(tmp_path):
     assert len(data["stderr"]) == 6 and data["exponents"][0] > 0.5
     bad = CliRunner().invoke(cli, ["lyapunov", str(path), "--collisions", "-3"])
     assert bad.exit_code == 2 and bad.output.count("\n") == 1
+
+
+def test_no_measurement_is_refused_not_reported_as_zero_or_nan(tmp_path):
+    """Nothing to measure is said in one line, exit 2: every trajectory leaving at its first contact (the spectrum
+    was 0 ± 0 with exit 0), and one trajectory in one segment (the error was NaN, and --json wrote NaN, not JSON)."""
+    import subprocess
+    import sys
+    exe = os.path.join(os.path.dirname(sys.executable), "rbx")
+    gone = _scene(SINAI, SPECULAR, 100)
+    gone["boundary"] = {"default": {"rule": "exit"}}
+    gone["initial"] = {"sample": "billiard"}
+    gone["run"] = {"collisions": 200, "trajectories": 3, "seed": 1}
+    path = tmp_path / "gone.yaml"
+    path.write_text(json.dumps(gone))
+    one = tmp_path / "one.yaml"
+    one.write_text(json.dumps(_scene(SINAI, SPECULAR, 100)))
+    for args, words in (([str(path), "--warmup", "0", "--json"], "no collision after the warm-up"),
+                        ([str(one), "--collisions", "300", "--segments", "1", "--json"], "no error estimate")):
+        r = subprocess.run([exe, "lyapunov", *args], capture_output=True, text=True, timeout=300)
+        lines = r.stderr.strip().splitlines()
+        assert r.returncode == 2 and len(lines) == 1 and words in lines[0], (r.returncode, r.stderr)
+        assert "NaN" not in r.stdout and r.stdout.strip() == ""
