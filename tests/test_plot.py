@@ -476,6 +476,17 @@ def test_long_orbits_are_thinned(scenes):
     assert 0 < flights <= plotting.ORBIT3D_SEGMENTS / np.sqrt(len(paths)) + len(paths)
 
 
+def test_poincare_axes_are_named_with_their_sign(scenes):
+    """The in-plane axes of a section by y = c are x and e₂ = e_y × e_x = −e_z: the vertical axis shows −z and is
+    named so (it was named z, and the cylinder's z from 0.1 to 1.4 ran from −1.4 to −0.1); by z = c: x and y."""
+    fig = make_figure(scenes["cylinder"], "poincare", plane="y=0.1")
+    assert fig.axes[0].get_xlabel().startswith("x ") and fig.axes[0].get_ylabel().startswith("−z ")
+    ys = np.concatenate([np.asarray(c.get_offsets())[:, 1] for c in fig.axes[0].collections])
+    assert ys.max() <= -0.1 + 1e-9                   # −z of the free region 0.1 ≤ z ≤ 1.4
+    fig = make_figure(scenes["cylinder"], "poincare", plane="z=0.75")
+    assert fig.axes[0].get_xlabel().startswith("x ") and fig.axes[0].get_ylabel().startswith("y ")
+
+
 def test_strided_records_are_drawn_as_points(scenes):
     """Every 2nd record: the collisions between them are missing, so no straight flight joins two of them; the
     orbit is drawn as points, as for a run that records every 2nd collision."""

@@ -444,9 +444,12 @@ def _poincare(run, rec, traj, plane="z=0.5", **_):
     p, v = cut["position"], cut["velocity"]
     spin = analysis.spin_fraction(v, cut["angular_velocity"], run.radius, run.kappa) @ normal
     speed = np.linalg.norm(v, axis=1)
-    names = "xyz"
-    ax1 = names[int(np.argmax(np.abs(e1)))] if np.max(np.abs(e1)) > 0.999 else "e₁"
-    ax2 = names[int(np.argmax(np.abs(e2)))] if np.max(np.abs(e2)) > 0.999 else "e₂"
+    def axis_name(e, other):
+        """x, y, z for an in-plane axis along one of them, −x … against it (e₂ = n × e₁ may point down: the y = c
+        plane's vertical axis is −z), else e₁ or e₂"""
+        i = int(np.argmax(np.abs(e)))
+        return ("" if e[i] > 0 else "−") + "xyz"[i] if abs(e[i]) > 0.999 else other
+    ax1, ax2 = axis_name(e1, "e₁"), axis_name(e2, "e₂")
     panels = [dict(x=p @ e1, y=p @ e2, xlabel=f"{ax1} on the plane [L]", ylabel=f"{ax2} on the plane [L]",
                    equal=True, title=f"crossing points of {plane} (upward)"),
               dict(x=(v @ e1) / speed, y=(v @ e2) / speed, xlabel=f"v·{ax1}/|v| [–]", ylabel=f"v·{ax2}/|v| [–]",
