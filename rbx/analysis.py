@@ -593,18 +593,30 @@ def parse_plane(text):
     """A plane for a Poincaré section: 'z=0.5' (also x=, y=) or 'n=1,0,1;c=0.3' (the plane n·x = c, n normalised)
     -> (unit normal (3,), offset c). Raises ValueError."""
     t = text.replace(" ", "")
+
+    def number(x, what):
+        try:
+            value = float(x)
+        except ValueError:
+            raise ValueError(f"{what} must be a number, got '{x}'") from None
+        if not math.isfinite(value):
+            raise ValueError(f"{what} must be finite, got '{x}'")
+        return value
     if len(t) > 2 and t[0] in "xyz" and t[1] == "=":
         n = np.zeros(3)
         n["xyz".index(t[0])] = 1.0
-        return n, float(t[2:])
-    parts = dict(p.split("=", 1) for p in t.split(";") if "=" in p)
-    if set(parts) != {"n", "c"}:
-        raise ValueError(f"expected a plane such as z=0.5 or n=1,0,1;c=0.3, got '{text}'")
-    n = np.array([float(x) for x in parts["n"].split(",")])
-    norm = np.linalg.norm(n)
-    if n.shape != (3,) or not np.isfinite(norm) or norm == 0:
+        return n, number(t[2:], f"the offset of {t[0]}=")
+    pairs = [p.split("=", 1) for p in t.split(";")]
+    parts = dict(p for p in pairs if len(p) == 2)
+    if len(pairs) != 2 or set(parts) != {"n", "c"}:
+        raise ValueError(f"expected a plane such as z=0.5 or n=1,0,1;c=0.3 (n and c once each), got '{text}'")
+    n = np.array([number(x, "the normal's components") for x in parts["n"].split(",")])
+    if n.shape != (3,) or not np.any(n):
         raise ValueError(f"the plane's normal must be 3 numbers, not all 0: '{parts['n']}'")
-    return n / norm, float(parts["c"]) / norm
+    big = float(np.max(np.abs(n)))           # scaled first: |n| of components of 1e300 overflowed, of 1e-300 was 0
+    n = n / big
+    norm = float(np.linalg.norm(n))
+    return n / norm, number(parts["c"], "the offset c") / big / norm
 
 
 def plane_crossings(position, velocity, angular_velocity, time, normal, offset):

@@ -91,9 +91,25 @@ def test_poincare_crossings(runs):
     back = cut["position"] - (cut["time"] - run.time[j, k])[:, None] * run.velocity[j, k]
     np.testing.assert_allclose(back, run.position[j, k], atol=1e-12)
     n2, c2 = analysis.parse_plane("n=0,0,2;c=0.8")
-    np.testing.assert_allclose(n2, normal) and pytest.approx(c2) == offset
+    np.testing.assert_allclose(n2, normal)
+    assert c2 == pytest.approx(offset)
     fig = make_figure(runs["box"], "poincare", plane="z=0.4")
     assert len(_labelled(fig)) == 2
+
+
+def test_planes_of_any_scale_and_bad_planes():
+    """A normal is scaled before its length is taken (components of 1e300 overflowed with a NumPy warning and were
+    called 'all 0', of 1e-300 were 0); a NaN offset, a key given twice or a word are refused."""
+    n, c = analysis.parse_plane("n=1e300,1e300,0;c=0")
+    np.testing.assert_allclose(n, [2 ** -0.5, 2 ** -0.5, 0.0])
+    assert c == 0.0
+    n, c = analysis.parse_plane("n=1e-300,0,0;c=3e-300")
+    np.testing.assert_allclose(n, [1.0, 0.0, 0.0])
+    assert c == pytest.approx(3.0)
+    for bad in ("n=1,0,0;c=nan", "z=nan", "z=inf", "n=1,0,0;c=0.2;c=3", "n=0,0,0;c=1", "n=1,2;c=1", "n=a,0,0;c=1",
+                "q=1"):
+        with pytest.raises(ValueError):
+            analysis.parse_plane(bad)
 
 
 def test_escape_figure(runs):
