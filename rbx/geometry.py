@@ -272,17 +272,7 @@ def polygon(p, R, kind="polygon", names=None):
     # reach (behind another wall's offset) are no part of the wall's measure, and no start is drawn there
     clearance = functools.partial(_polygon_clearance, verts=V, R=R)
     for wall in walls:
-        kept = []
-        for patch in wall.patches:
-            if patch[0] == "flat":
-                _, origin, normal, [(axis, length)] = patch
-                kept += [("flat", origin + s0 * axis, normal, [(axis, s1 - s0)]) for s0, s1 in
-                         _trim(None, lambda s: origin + s * axis, 0.0, length, size, clearance)]
-            else:
-                _, c, rho, a0, a1, sign = patch
-                kept += [("arc", c, rho, t0, t1, sign) for t0, t1 in
-                         _trim(None, lambda t: c + rho * np.array([np.cos(t), np.sin(t)]), a0, a1, size, clearance)]
-        wall.patches = kept
+        wall.patches = [q for patch in wall.patches for q in _trim_patch(patch, size, clearance)]
     g = Geometry(kind, 2, np.array(codes, np.int64), np.array(wall_idx, np.int64), np.array(rows), walls, size,
                  outline=V, shrunk_outline=np.array(shrunk), shrunk_radius=R)
     g.lengths = lengths
@@ -894,16 +884,13 @@ def _caps_z(pieces):
     return (zs[0], zs[-1]) if len(zs) >= 2 else (-np.inf, np.inf)
 
 
-def _trim(geom, point_at, lo, hi, size, clearance=None):
+def _trim(point_at, lo, hi, size, clearance):
     """The sub-ranges of [lo, hi] where the offset piece point_at(s) lies in the shrunk table -> list of (s0, s1),
     in order, empty if none. Its ends may poke out past a convex joint, behind the neighbouring piece, and its
     middle where the table narrows below 2R (a neck, a dent): the ball's centre never gets there, so no start is
     drawn there and the wall's measure leaves it out. The tolerance is a fraction of the table's size plus the
     rounding of the points' coordinates (a table at 1e8 otherwise had no room along any wall). ``clearance``:
-    the table's signed clearance of points (default: :func:`pieces_clearance` of ``geom``)."""
-    if clearance is None:
-        def clearance(pts):
-            return pieces_clearance(geom, pts)
+    the table's signed clearance of points (:func:`pieces_clearance`, a polygon's :func:`_polygon_clearance`)."""
     s = np.linspace(lo, hi, 2049)
     pts = np.array([point_at(x) for x in s])
     slack = 64 * np.finfo(float).eps * float(np.max(np.abs(pts)))
@@ -934,11 +921,24 @@ def _trim(geom, point_at, lo, hi, size, clearance=None):
     return out
 
 
+def _trim_patch(patch, size, clearance):
+    """A wall's sampling patch (a flat one along one axis, or an arc) cut to the parts the centre can reach
+    (:func:`_trim`) -> list of patches of the same kind, empty if none."""
+    if patch[0] == "flat":
+        _, origin, normal, [(axis, length)] = patch
+        return [("flat", origin + s0 * axis, normal, [(axis, s1 - s0)])
+                for s0, s1 in _trim(lambda s: origin + s * axis, 0.0, length, size, clearance)]
+    _, c, rho, a0, a1, sign = patch
+    return [("arc", c, rho, t0, t1, sign)
+            for t0, t1 in _trim(lambda t: c + rho * np.array([np.cos(t), np.sin(t)]), a0, a1, size, clearance)]
+
+
 def _boundary(geom, piece, R, first_wall, codes, walls, rows, wall_list):
     """The primitives of a closed boundary of segments and arcs (and of its rounded reflex joints)."""
     frames = [_piece_frame(q) for q in piece.pieces]
     m = len(frames)
     size = geom.size
+    clearance = functools.partial(pieces_clearance, geom)
     shrunk = []
     for i, (q, f) in enumerate(zip(piece.pieces, frames)):
         w = first_wall + i
@@ -955,19 +955,17 @@ def _boundary(geom, piece, R, first_wall, codes, walls, rows, wall_list):
             r = _row(2, f["a"], n_out, n_in, R)
             r[13] = 1.0 if span > np.pi else 0.0
             rows.append(r)
-            joint = f["a"]
-            for t0, t1 in _trim(geom, lambda th: joint + R * np.array([np.cos(th), np.sin(th)]), _angle(n_out),
-                                _angle(n_out) + span, size):
-                wall.patches.append(("arc", joint, R, t0, t1, 1.0))
-                shrunk.append(_arc_points(joint, R, t1, t0 - t1, 12))
+            for q in _trim_patch(("arc", f["a"], R, _angle(n_out), _angle(n_out) + span, 1.0), size, clearance):
+                wall.patches.append(q)
+                shrunk.append(_arc_points(f["a"], R, q[4], q[3] - q[4], 12))
         if f["seg"]:
             codes.append(SEGMENT)
             walls.append(w)
             start = f["a"] + R * f["n0"]
             rows.append(_row(2, start, f["n0"], f["t0"], f["length"]))
-            for s0, s1 in _trim(geom, lambda s: start + s * f["t0"], 0.0, f["length"], size):
-                wall.patches.append(("flat", start + s0 * f["t0"], f["n0"], [(f["t0"], s1 - s0)]))
-                shrunk.append(np.array([start + s0 * f["t0"], start + s1 * f["t0"]]))
+            for q in _trim_patch(("flat", start, f["n0"], [(f["t0"], f["length"])]), size, clearance):
+                wall.patches.append(q)
+                shrunk.append(np.array([q[1], q[1] + q[3][0][1] * f["t0"]]))
         else:
             rho = f["rho"] - R if f["ccw"] else f["rho"] + R
             first, last = (f["u0"], f["u1"]) if f["ccw"] else (f["u1"], f["u0"])
@@ -977,11 +975,10 @@ def _boundary(geom, piece, R, first_wall, codes, walls, rows, wall_list):
             r[13] = 1.0 if f["span"] > np.pi else 0.0
             rows.append(r)
             a0 = _angle(first)
-            c = f["c"]
-            for s0, s1 in _trim(geom, lambda th: c + rho * np.array([np.cos(th), np.sin(th)]), a0, a0 + f["span"],
-                                size):
-                wall.patches.append(("arc", c, rho, s0, s1, -1.0 if f["ccw"] else 1.0))
-                shrunk.append(_arc_points(c, rho, s0, s1 - s0, 64))
+            for q in _trim_patch(("arc", f["c"], rho, a0, a0 + f["span"], -1.0 if f["ccw"] else 1.0), size,
+                                 clearance):
+                wall.patches.append(q)
+                shrunk.append(_arc_points(f["c"], rho, q[3], q[4] - q[3], 64))
         wall_list.append(wall)
     return boundary_polyline(piece.pieces), shrunk
 
