@@ -331,10 +331,18 @@ def _from_dict(data, source, overrides):
     resolved["ball"] = {"radius": radius, "inertia": inertia}
 
     try:
-        geom = tables.build(kind, tparams, radius)
+        # a degenerate table (edges nearly parallel, numbers near the limit) may overflow while it is built: that
+        # is refused below in one line, not shown as NumPy warnings on stderr
+        with np.errstate(all="ignore"):
+            geom = tables.build(kind, tparams, radius)
+            if not np.all(np.isfinite(geom.params)):
+                tc.fail(tkey or None, "the table's numbers overflow once it is built (coordinates too large, or "
+                                      "walls too nearly parallel)")
+            _check_fits(kind, tparams, radius, geom, c, tc, tkey)
+    except ConfigError:
+        raise
     except Exception as exc:   # a degenerate table the checks above let through: still the user's input
         tc.fail(tkey or None, f"cannot build the table: {exc}")
-    _check_fits(kind, tparams, radius, geom, c, tc, tkey)
     names = geom.wall_names
 
     per_wall, resolved["boundary"] = _boundary(data["boundary"], base, c, n, geom, kind)
