@@ -184,9 +184,16 @@ def test_at_a_corner_the_first_hit_would_be_wrong():
 
 
 def full_update(v, W, nu, R, kappa):
-    """The completely rough map with every entry of W updated (the form before the antisymmetric update)."""
+    """The completely rough map with every entry of W updated (the form before the antisymmetric update).
+
+    Every sum is written out in the order :func:`rbx.physics.collide` takes it, so that the two agree bit for bit
+    on any CPU: the same operations in the same order, and Numba contracts no multiply-add without fastmath.
+    (``v @ nu`` here went to the BLAS, whose dot-product kernel OpenBLAS chooses per CPU: on an AVX-512 Xeon its
+    SkylakeX kernel gave a result one ulp away; ``OPENBLAS_CORETYPE=SkylakeX`` shows it on any x86-64 machine.)"""
     n = len(v)
-    vn = float(v @ nu)
+    vn = 0.0
+    for i in range(n):
+        vn += v[i] * nu[i]
     u = np.array([(v[i] - vn * nu[i]) - R * sum(W[i, j] * nu[j] for j in range(n)) for i in range(n)])
     a2 = 2.0 * kappa / (1.0 + kappa)
     sc = 2.0 / ((1.0 + kappa) * R)
