@@ -1,13 +1,17 @@
-"""The one place that decides how rbx compiles its kernels (STYLE: one module owns the jit policy; tests/test_jit.py
-fails if any other module under rbx/ calls Numba's jit decorators or sets ``fastmath`` or ``parallel``).
+"""The one place that decides how rbx compiles its kernels (tests/test_jit.py fails if any other module under rbx/
+calls Numba's jit decorators or sets ``fastmath`` or ``parallel``). The private parts of Numba it uses are in
+:mod:`rbx._numba_hooks`, each with a fallback.
 
-- ``cache=True``: compiled kernels are stored on disk so a second run starts in well under a second. Numba checks
-  only the timestamp of a kernel's *own* file, not of the helpers inlined into it from other modules, so an edited
-  helper could run stale. The cache therefore lives in a folder named by a hash of every kernel module's source
-  and the Numba version (``$NUMBA_CACHE_DIR`` or ``~/.cache/rbx``, then ``numba-<hash>``): any change compiles
-  afresh.
+- a disk cache: compiled kernels are stored so that a second run starts in well under a second. Numba checks only
+  a kernel's *own* file, not the helpers inlined into it from other modules, so an edited helper could run stale.
+  The cache therefore lives in a folder named by a hash of every kernel module's source, the Numba version and the
+  hooks in use (``$NUMBA_CACHE_DIR`` or ``~/.cache/rbx``, then ``numba-<hash>``): any change compiles afresh. Only
+  rbx's kernels go there: Numba's global cache setting is left alone, so a user's own cached functions stay where
+  Numba puts them.
 - ``error_model='numpy'``: a division by zero gives inf/nan instead of raising; ``inf`` means "no collision".
-- no ``fastmath``: the engine relies on ``inf`` and exact comparisons (fast-math would assume no infs).
+- no ``fastmath``: the engine relies on ``inf`` and exact comparisons (fast-math would assume no infs), and without
+  it LLVM neither reorders nor contracts (into fused multiply-adds) floating-point operations, so a kernel's
+  arithmetic is the same on every CPU it is compiled for.
 """
 import contextlib
 import hashlib
@@ -17,14 +21,12 @@ import tempfile
 import time
 
 import numba
-from numba import types
-from numba.core import cgutils
-from numba.extending import intrinsic
-from numba.np.arrayobj import make_array, populate_array
+
+from . import _numba_hooks as hooks
 
 #: every module that defines kernels (tests/test_jit.py checks that each module under rbx/ importing this one is
 #: listed)
-KERNEL_MODULES = ("_jit", "engine", "geometry", "physics", "rng", "rules", "tangent", "trig")
+KERNEL_MODULES = ("_jit", "_numba_hooks", "engine", "geometry", "physics", "rng", "rules", "tangent", "trig")
 #: modules whose values the kernels compile in as constants (the record bits of rbx.model.FIELDS): the cache key
 #: covers those values (:func:`_compiled_constants`), not the modules' whole text, so that an edit elsewhere in
 #: rbx/model.py (a config key, a docstring) does not compile every kernel again
@@ -45,6 +47,7 @@ def kernel_source_hash():
         with open(os.path.join(here, name + ".py"), "rb") as f:
             h.update(f.read())
     h.update(_compiled_constants().encode())
+    h.update(repr(sorted(hooks.NO_RUNTIME.items())).encode())   # the code compiled differs without the hooks
     return h.hexdigest()[:16]
 
 
@@ -78,8 +81,8 @@ def _cache_dir():
     return private
 
 
-# read by Numba when a kernel is decorated below (its cache locator), so it must be set before any of them
-numba.config.CACHE_DIR = _cache_dir()
+#: the folder of rbx's compiled kernels (only rbx's: see :func:`rbx._numba_hooks.enable_cache`)
+CACHE_DIR = _cache_dir()
 
 @contextlib.contextmanager
 def compile_lock(name):
@@ -91,7 +94,7 @@ def compile_lock(name):
     fd = None
     try:
         import fcntl
-        fd = os.open(os.path.join(numba.config.CACHE_DIR, f".{name}.lock"), os.O_RDWR | os.O_CREAT, 0o600)
+        fd = os.open(os.path.join(CACHE_DIR, f".{name}.lock"), os.O_RDWR | os.O_CREAT, 0o600)
         # asked again every 20 ms rather than waited for in one blocking call: Ctrl-C while another process
         # compiles must end this one now, and a blocking flock sees the signal only if the kernel delivers it to
         # this very thread (else Python runs its handler when the other compile is done, up to a minute later)
@@ -112,126 +115,31 @@ def compile_lock(name):
             os.close(fd)          # releases the lock
 
 
-def _reuse_inlined_callees():
-    """Numba inlines a helper marked ``inline="always"`` by running its front end (bytecode to IR, and the inlining
-    of its own helpers) afresh at every call site of every kernel it compiles; the rbx loop inlines the same dozen
-    helpers into each combination of compiled bits, and the front end of ``box_collision`` alone took a third of a
-    kernel's compile. Numba deep-copies the helper's IR before it changes it (``InlineWorker.inline_ir``: "Always
-    copy the callee IR, it gets mutated"), so the IR made once for a helper of rbx is kept and handed out again.
-    Only rbx's own helpers, for the same typing context and SSA setting, and no local type declarations (the front
-    end reads no target: its context is made anew for each kernel, so it is not part of the key)."""
-    try:
-        from numba.core.inline_closurecall import InlineWorker
-        original = InlineWorker.run_untyped_passes
-    except (ImportError, AttributeError):       # another Numba: compile as it does
-        return
-    if getattr(original, "rbx_reuse", False):
-        return
-    made = {}
+hooks.reuse_inlined_callees(__package__)
+hooks.defer_blas_check()
 
-    def run_untyped_passes(self, func, enable_ssa=False):
-        if not getattr(func, "__module__", "").startswith(__package__ + ".") or self.locals:
-            return original(self, func, enable_ssa)
-        key = (func, enable_ssa, id(self.typingctx))      # the target context is made anew for each kernel
-        if key not in made:
-            made[key] = original(self, func, enable_ssa)
-        else:
-            self.flags.enable_ssa = enable_ssa          # what the original does to the caller's flags
-        return made[key]
-
-    run_untyped_passes.rbx_reuse = True
-    InlineWorker.run_untyped_passes = run_untyped_passes
+_POLICY = dict(cache=False, error_model="numpy", fastmath=False, nogil=True)
 
 
-_reuse_inlined_callees()
+def _cached(decorator):
+    """``decorator`` (a ``numba.njit(...)``) with the compiled code cached in :data:`CACHE_DIR`."""
+    def decorate(function):
+        return hooks.enable_cache(decorator(function), CACHE_DIR)
+    return decorate
 
 
-class _BlasAvailable:
-    """Whether SciPy's BLAS is there, asked when Numba first needs to know (its truth value), not when
-    ``numba.np.arraymath`` is imported."""
-    def __init__(self, check):
-        self.check, self.known = check, None
-
-    def __bool__(self):
-        if self.known is None:
-            try:
-                self.check()
-                self.known = True
-            except ImportError:
-                self.known = False
-        return self.known
-
-
-def _defer_blas_check():
-    """Numba loads its array implementations (``numba.np.arraymath``) when a process first compiles or loads a
-    kernel, and that module asks at import whether a BLAS is there by importing ``scipy.linalg``: 0.38 s of the
-    1.5 s a warm ``rbx simulate`` took to start, for ``np.correlate`` and ``np.convolve`` alone (its one reader,
-    ``_HAVE_BLAS``), which no rbx kernel calls. The module is imported here with that question deferred: its answer
-    is the same, found the first time something compiles one of those two (:class:`_BlasAvailable`). Any other
-    Numba: left as it is."""
-    if "numba.np.arraymath" in sys.modules:
-        return
-    try:
-        from numba.np import linalg
-        ensure_blas = linalg.ensure_blas
-    except (ImportError, AttributeError):
-        return
-
-    def later():
-        raise ImportError("asked later")
-
-    linalg.ensure_blas = later
-    try:
-        from numba.np import arraymath
-    finally:
-        linalg.ensure_blas = ensure_blas
-    if getattr(arraymath, "ensure_blas", None) is later and arraymath._HAVE_BLAS is False:
-        arraymath.ensure_blas = ensure_blas
-        arraymath._HAVE_BLAS = _BlasAvailable(ensure_blas)
-
-
-_defer_blas_check()
-
-_POLICY = dict(cache=True, error_model="numpy", fastmath=False, nogil=True)
-
-jit = numba.njit(**_POLICY)
+jit = _cached(numba.njit(**_POLICY))
 
 #: for the small functions called once per collision (collision time, normal, rule choice, collision map):
-#: compiled without the Numba runtime (``_nrt=False``: they allocate nothing), so that passing arrays to them
-#: costs no atomic reference counting. Measured on the strip: 80 ns per call with it, 18 ns without
+#: compiled without the Numba runtime (no reference counting: they allocate nothing), so that passing arrays to
+#: them costs no atomic reference counting. Measured on the strip: 80 ns per call with it, 18 ns without
 #: (Numba 0.68; ``inline="always"`` does not help, the inlined arguments are reference-counted too).
-jit_hot = numba.njit(_nrt=False, inline="always", **_POLICY)
+jit_hot = _cached(numba.njit(inline="always", **hooks.NO_RUNTIME, **_POLICY))
 
 #: the serial loop of one trajectory: no runtime either (its scratch space is on its stack: ``stack_array``), so the
 #: helpers inlined into it are free of reference counting
-jit_loop = numba.njit(_nrt=False, **_POLICY)
+jit_loop = _cached(numba.njit(**hooks.NO_RUNTIME, **_POLICY))
 
-
-@intrinsic
-def stack_array(typingctx, capacity, shape):
-    """A float64 C-contiguous array of ``shape`` (a tuple) in the calling kernel's stack frame, with room for
-    ``capacity`` (a literal int) values; uninitialised, never freed, never to be returned.
-
-    Why: the state of a trajectory held in arrays of the caller (``pos[j]``…) lives in memory, and every collision
-    then goes through store-to-load round trips (the compiler cannot prove the arrays do not alias). A stack array
-    whose every index is a constant once the dimension is (``spec``) is promoted to registers by LLVM: the rough
-    strip went from 15–21 to 11–16 ns per collision (same loaded machine, interleaved runs)."""
-    if not isinstance(capacity, types.IntegerLiteral) or not isinstance(shape, types.BaseTuple) or \
-            not all(isinstance(t, types.Integer) for t in shape):
-        return None
-    ndim = len(shape)
-    arrty = types.Array(types.float64, ndim, "C")
-
-    def codegen(context, builder, signature, args):
-        data = cgutils.alloca_once(builder, context.get_value_type(types.float64), size=capacity.literal_value)
-        shapes = [context.cast(builder, x, t, types.intp)
-                  for x, t in zip(cgutils.unpack_tuple(builder, args[1], ndim), shape)]
-        itemsize = context.get_constant(types.intp, 8)
-        strides = [itemsize] * ndim
-        for k in range(ndim - 2, -1, -1):
-            strides[k] = builder.mul(strides[k + 1], shapes[k + 1])
-        ary = make_array(arrty)(context, builder)
-        populate_array(ary, data=data, shape=shapes, strides=strides, itemsize=itemsize, meminfo=None)
-        return ary._getvalue()
-
-    return arrty(capacity, shape), codegen
+#: a float64 array in the calling kernel's stack frame: ``stack_array(capacity, shape)`` (see
+#: :func:`rbx._numba_hooks.make_stack_array`)
+stack_array = hooks.make_stack_array(numba.njit(inline="always", **_POLICY))

@@ -30,6 +30,7 @@ every checkpointed round).
 import os
 import queue
 import socket
+import sys
 import time
 
 import numpy as np
@@ -71,16 +72,30 @@ class SchedulerUnreachable(ClusterError):
 
 
 def _worker_identity():
-    """Runs on each worker: what must match the client for the results to be the client's, bit for bit: rbx's
-    version and the hash of the kernel sources *as imported* (it names the kernel cache folder, see
-    :mod:`rbx._jit`; the files on disk may have changed since)."""
-    import re
+    """Runs on each worker: what must match the client for the results to be the client's, bit for bit.
 
+    ``rbx`` and ``kernels`` (rbx's version and the hash of the kernel sources *as imported*, which covers Numba's
+    version, see :mod:`rbx._jit`; the files on disk may have changed since) must match: the client refuses workers
+    that differ. ``platform`` (the processor architecture, the CPU Numba compiles for, the C library, NumPy and
+    llvmlite) should: the kernels' arithmetic is the same on any CPU (no fast-math, no contraction), but the maths
+    library's ``sin``/``cos`` and NumPy's vectorised functions may differ in the last bit between builds and
+    processors, so the client warns on a mismatch."""
+    import platform
+
+    import llvmlite
     import numba
+    import numpy
 
-    from . import _jit   # noqa: F401 - sets numba.config.CACHE_DIR
-    found = re.search(r"numba-([0-9a-f]+)", os.path.basename(str(numba.config.CACHE_DIR)))
-    return {"rbx": __version__, "kernels": found.group(1) if found else str(numba.config.CACHE_DIR)}
+    from . import _jit
+    try:
+        from llvmlite import binding
+        cpu = os.environ.get("NUMBA_CPU_NAME") or binding.get_host_cpu_name()
+    except Exception:   # noqa: BLE001 - only a description
+        cpu = "?"
+    return {"rbx": __version__, "kernels": os.path.basename(_jit.CACHE_DIR).removeprefix("numba-"),
+            "platform": {"machine": platform.machine(), "cpu": cpu, "libc": " ".join(platform.libc_ver()),
+                         "numba": numba.__version__, "llvmlite": llvmlite.__version__,
+                         "numpy": numpy.__version__}}
 
 
 def _address(address):
@@ -262,11 +277,21 @@ class Cluster:
             raise SchedulerUnreachable(self.key, f"the workers cannot run rbx ({_first_line(exc)}); install this "
                                                  f"rbx ({__version__}) where they run") from None
         for worker, ident in sorted(theirs.items()):
-            if ident != mine:
-                what = (f"rbx {ident['rbx']}, this client rbx {mine['rbx']}" if ident["rbx"] != mine["rbx"] else
-                        "other kernel sources (or another Numba)")
+            if (ident.get("rbx"), ident.get("kernels")) != (mine["rbx"], mine["kernels"]):
+                what = (f"rbx {ident.get('rbx')}, this client rbx {mine['rbx']}" if ident.get("rbx") != mine["rbx"]
+                        else "other kernel sources (or another Numba)")
                 raise SchedulerUnreachable(self.key, f"worker {worker} runs {what}: its numbers could differ; "
                                                      "install the same rbx on the workers and the client")
+        differ = {}
+        for worker, ident in sorted(theirs.items()):
+            for name, value in (ident.get("platform") or {}).items():
+                if value != mine["platform"].get(name):
+                    differ.setdefault(name, (value, worker))
+        if differ:
+            said = "; ".join(f"{name} {value} on {worker}, {mine['platform'][name]} here"
+                             for name, (value, worker) in sorted(differ.items()))
+            sys.stderr.write(f"rbx: warning: {self.key}: the workers' platform differs from this client's ({said}):"
+                             " the results are expected to be the local run's but are not guaranteed bit for bit\n")
 
     # -- running -------------------------------------------------------------------------------------------------
     def slice_cuts(self, M, state_bytes):

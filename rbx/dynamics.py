@@ -56,7 +56,7 @@ def _advance(kernel, state, Y, sums, stop, t_end=np.inf, ortho=True, threads=Non
     import numba
 
     from . import engine
-    from ._jit import compile_lock
+    from ._jit import compile_lock, hooks
     from .tangent import tangent_advance_all
     flags, R, kappa, table, rules = kernel
     M = len(Y)
@@ -64,7 +64,7 @@ def _advance(kernel, state, Y, sums, stop, t_end=np.inf, ortho=True, threads=Non
     t_end = np.broadcast_to(np.asarray(t_end, float), (M,)).copy()
     args = (stop, t_end, bool(ortho)) + flags + (R, kappa, table, rules, state, Y, sums)
     threads = max(1, min(threads or numba.get_num_threads(), M))
-    if not tangent_advance_all.overloads:
+    if not hooks.is_compiled(tangent_advance_all):
         with compile_lock("tangent"):          # another process compiling it meanwhile: wait, then load it
             tangent_advance_all(0, 0, *args)   # compiles (or loads) the kernel; runs nothing
     if threads == 1:

@@ -34,18 +34,13 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from ._jit import compile_lock, jit_hot, jit_loop, stack_array
+from ._jit import compile_lock, hooks, jit_hot, jit_loop, stack_array
 from .geometry import (HALFSPACE, SEGMENT, box_collision, contact_normal, periodic_flight, periodic_images,
                        slab_collision, snap)
 from .model import FIELD, FIELDS
 from .physics import collide, collide_axis
 from .rules import EXIT, choose
 from .trig import sincos
-
-try:                # Numba's fingerprint of a value's type (private: see _entry_point)
-    from numba._dispatcher import compute_fingerprint
-except ImportError:  # pragma: no cover
-    compute_fingerprint = None
 
 # bits of the record mask (rbx.model.FIELDS), as module constants so that Numba compiles them in
 F_TIME, F_POSITION, F_VELOCITY, F_SPIN, F_ORIENTATION, F_WALL, F_RANK = (
@@ -544,29 +539,18 @@ _ENTRY = {}
 def _entry_point(stop, spec, groups, nrec):
     """The compiled entry point of :func:`kernel` ``(spec)`` for these arguments (compiled or loaded on first use).
 
-    Its key in the kernel's ``overloads`` is the tuple of Numba types of the arguments; ``numba.typeof`` of the
-    groups' 34 arrays takes ~0.2 ms, 2–3 % of a block of the rough strip, so the entry point is looked up first by
-    Numba's own fingerprint of the arguments' types (the key of its dispatcher's type cache: class and field names,
-    dtypes, dimensions, layouts, writability; ~3 µs)."""
-    key = None
-    if compute_fingerprint is not None:            # absent from a Numba without it: the typeof path alone
-        try:
-            key = (spec, compute_fingerprint((stop, groups, nrec)))
-        except (TypeError, ValueError, NotImplementedError):
-            # Numba raises NotImplementedError for a value whose type it cannot fingerprint: the entry point is then
-            # found by typeof below, and not remembered under a key
-            key = None
+    ``numba.typeof`` of the groups' 34 arrays takes ~0.2 ms, 2–3 % of a block of the rough strip, so the entry
+    point is remembered under Numba's own fingerprint of the arguments' types (the key of its dispatcher's type
+    cache: class and field names, dtypes, dimensions, layouts, writability; ~3 µs). Both are private parts of
+    Numba (:mod:`rbx._numba_hooks`); without them, the dispatcher is called (the same numbers)."""
+    found = hooks.fingerprint((stop, groups, nrec))
+    key = None if found is None else (spec, found)
     entry = _ENTRY.get(key)
     if entry is None:
         loop = kernel(spec)
-        sig = ((numba.types.int64, numba.types.int64, numba.typeof(stop))
-               + tuple(numba.typeof(g) for g in groups) + (numba.typeof(nrec),))
-        cres = loop.overloads.get(sig)
-        if cres is None:
-            with compile_lock(f"advance-{spec}"):
-                loop(0, 0, stop, *groups, nrec)     # compiles (or loads) the specialisation; runs nothing
-            cres = loop.overloads[sig]
-        entry = cres.entry_point
+        args = (0, 0, stop) + tuple(groups) + (nrec,)     # j0 = j1 = 0: a call that runs nothing
+        with compile_lock(f"advance-{spec}"):
+            entry = hooks.entry_point(loop, args)
         if key is not None:
             _ENTRY[key] = entry
     return entry

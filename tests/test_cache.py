@@ -27,7 +27,7 @@ def _run(tmp_path, out, env_changes):
 def test_the_cache_key_covers_the_kernels_and_their_constants():
     assert set(_jit.KERNEL_MODULES) >= {"engine", "geometry", "physics", "rng", "rules", "_jit"}
     assert "model" in _jit.KERNEL_CONSTANTS       # engine compiles the record bits of rbx.model.FIELDS in
-    assert _jit.kernel_source_hash() in _jit.numba.config.CACHE_DIR
+    assert _jit.kernel_source_hash() in _jit.CACHE_DIR
 
 
 def test_the_cache_key_follows_the_record_bits_not_the_rest_of_the_model(monkeypatch):
@@ -98,7 +98,7 @@ def test_ctrl_c_while_waiting_for_another_compile_ends_the_wait():
 
 
 def test_the_front_end_of_an_inlined_helper_is_made_once():
-    """_jit._reuse_inlined_callees: the IR Numba makes for an inlined rbx helper is kept and handed out again (it is
+    """_numba_hooks.reuse_inlined_callees: the IR Numba makes for an inlined rbx helper is kept and handed out again (it is
     copied before Numba changes it), so the second kernel of a process does not run the helpers' front end again."""
     from numba.core.inline_closurecall import InlineWorker
     assert getattr(InlineWorker.run_untyped_passes, "rbx_reuse", False)

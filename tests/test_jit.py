@@ -101,8 +101,10 @@ def test_the_entry_point_is_found_by_the_fingerprint_of_the_types(monkeypatch):
     spec = Simulation(cfg).spec() & engine.COMPILED_BITS
     records, count, final = run_in_memory(cfg)
     assert any(key is not None and key[0] == spec for key in engine._ENTRY)
-    monkeypatch.setattr(engine, "compute_fingerprint", None)
+    monkeypatch.setattr(engine.hooks, "_compute_fingerprint", None)
+    monkeypatch.setattr(engine, "_ENTRY", {})
     records2, count2, final2 = run_in_memory(cfg)
+    assert engine._ENTRY == {}                    # nothing remembered without a fingerprint
     np.testing.assert_array_equal(count, count2)
     for f in records:
         np.testing.assert_array_equal(records[f], records2[f])
@@ -119,7 +121,7 @@ def test_a_value_numba_cannot_fingerprint_falls_back_to_typing(monkeypatch):
 
     def cannot(args):
         raise NotImplementedError("no fingerprint for this type")
-    monkeypatch.setattr(engine, "compute_fingerprint", cannot)
+    monkeypatch.setattr(engine.hooks, "_compute_fingerprint", cannot)
     monkeypatch.setattr(engine, "_ENTRY", {})
     records2, count2, final2 = run_in_memory(cfg)
     assert engine._ENTRY == {}
@@ -132,7 +134,7 @@ def test_a_value_numba_cannot_fingerprint_falls_back_to_typing(monkeypatch):
 
 def test_the_blas_question_is_asked_later_with_the_same_answer():
     """Numba asks whether SciPy's BLAS is there when it loads its array implementations, by importing
-    scipy.linalg (0.13 s of a warm 0.57 s `rbx simulate`); rbx/_jit.py defers the question. A run must not import
+    scipy.linalg (0.13 s of a warm 0.57 s `rbx simulate`); rbx/_numba_hooks.py defers the question. A run must not import
     scipy.linalg, and the deferred answer must be Numba's own (true here: SciPy is installed, so np.convolve
     compiles)."""
     import subprocess
@@ -148,6 +150,7 @@ def test_the_blas_question_is_asked_later_with_the_same_answer():
              "print(numba.njit(lambda a, b: np.convolve(a, b))(np.ones(3), np.ones(2)).tolist())\n"
              "print(bool(arraymath._HAVE_BLAS), 'scipy.linalg' in sys.modules)\n")
     out = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, check=True).stdout.split("\n")
-    assert out[:4] == ["False", "_BlasAvailable", "[1.0, 2.0, 2.0, 1.0]", "True True"], out
+    assert out[:4] == ["False", "BlasAvailable", "[1.0, 2.0, 2.0, 1.0]", "True True"], out
     from scipy.linalg import cython_blas  # noqa: F401  (what Numba's own check imports)
-    assert _jit._BlasAvailable(lambda: None) and not _jit._BlasAvailable(lambda: (_ for _ in ()).throw(ImportError()))
+    assert _jit.hooks.BlasAvailable(lambda: None)
+    assert not _jit.hooks.BlasAvailable(lambda: (_ for _ in ()).throw(ImportError()))
