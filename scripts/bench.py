@@ -1,8 +1,8 @@
 """How fast rbx is, measured: collisions per second per scene and rule, against minimal hand-written njit loops,
 the whole `rbx simulate` command against a minimal standalone njit program (scripts/minimal_loop.py), the cost of
 each recorded field (in memory and to HDF5 through the CLI), ensembles on 1 and 2 threads, compile
-time against the on-disk cache, the numerical variants, a public peer, and what each skip of SPEC §7 saves. Writes
-docs/benchmarks.md and its plots docs/benchmarks-*.png (`make bench`).
+time against the on-disk cache, the numerical variants, a public peer, and what each skip of docs/reference.md §7
+saves. Writes docs/benchmarks.md and its plots docs/benchmarks-*.png (`make bench`).
 
     python scripts/bench.py [--quick] [--out docs/benchmarks.md] [--repeats K] [--seconds S] [--collisions N]
                             [--process-collisions N]
@@ -612,7 +612,7 @@ SCENES = {
     # 3D: the horizontal spin is not perpendicular to the horizontal velocity (else the plates orbit stays in a plane)
     "plates": ({"kind": "plates", "gap": 1.0}, [0, 0, 0.5], [0.2, -0.4, 0.7], [1.0, -2.0, -0.3]),
     "box": ({"kind": "box", "size": [1.0, 1.3, 0.8]}, [0.5, 0.6, 0.4], [0.3, -0.5, 0.7], [1.0, -2.0, -0.3]),
-    # the zoo (SPEC §8)
+    # the zoo (docs/reference.md §8)
     "stadium": ({"kind": "stadium", "radius": 0.5, "length": 1.0}, [0.5, 0.1], [0.83, 0.31], 0.7),
     "sinai": ({"kind": "sinai", "size": [2.0, 1.5], "radius": 0.4}, [0.3, 0.3], [0.83, 0.31], 0.7),
     "lorentz": ({"kind": "lorentz", "cell": [1.0, 1.0], "radius": 0.3}, [0.1, 0.1], [0.83, 0.31], 0.7),
@@ -745,8 +745,9 @@ VARIANTS = [("default (renormalize 16)", {}), ("renormalize 0 (off)", {"renormal
 PEER_SCENES = ("rectangle", "strip")         # specular: what the peer simulates
 PROCESS_SCENES = ("strip", "plates")         # rough: rbx simulate against scripts/minimal_loop.py, whole processes
 MINIMAL_PROGRAM = os.path.join(os.path.dirname(os.path.abspath(__file__)), "minimal_loop.py")
-#: what each skip saves (SPEC §7): (scene, rule, what the kernel skips, Simulation attribute, engine bit). The
-#: kernel is made to do the work anyway (force_bits) or to leave out a fast path (drop_bits); same orbit either way
+#: what each skip saves (docs/reference.md §7): (scene, rule, what the kernel skips, Simulation attribute, engine
+#: bit). The kernel is made to do the work anyway (force_bits) or to leave out a fast path (drop_bits); same orbit
+#: either way
 SKIPS = [("strip", "rough", "orientation update (θ += τω)", "force_bits", "S_ORIENT"),
          ("plates", "rough", "orientation update (A ← exp(τW)A)", "force_bits", "S_ORIENT"),
          ("rectangle", "specular", "spin arithmetic (the rough map at rank 0)", "force_bits", "S_SPIN"),
@@ -923,7 +924,7 @@ def minimal_run(scene, N, env=None):
 def section_process(args, tmp):
     """scene -> (work Timing of rbx, of the minimal program; start-up Timing of rbx, of the minimal program).
 
-    Issue 17 asks what a user gets from the command, not from the kernel alone: `rbx simulate CONFIG --force
+    What a user gets from the command, not from the kernel alone: `rbx simulate CONFIG --force
     --quiet -o OUT.h5 --collisions N` (nothing recorded, one trajectory, rough) against
     `python scripts/minimal_loop.py SCENE N`, a plain @njit loop of the same scene and orbit that imports numpy and
     numba only — both whole processes, wall time from the start of the subprocess to its exit, so Python's start-up,
@@ -1356,8 +1357,7 @@ def write_document(args, cmd, results, wall):
                      f"{dflt.rate / h.rate:.2f}", f"{off.rate / h.rate:.2f}" if off else "—"])
     L += table(["scene", "rule", "rbx collisions/s", "rbx, renormalize 0", "hand-written collisions/s",
                 "rbx / hand", "rbx renormalize 0 / hand"], rows)
-    L += ["", "Target of issue 6: rbx / hand ≥ 0.9 for the rough strip, plates and circle with nothing recorded.",
-          ""]
+    L += ["", "Target: rbx / hand ≥ 0.9 for the rough strip, plates and circle with nothing recorded.", ""]
 
     # 3
     L += heading(args, "## 3. Whole processes: `rbx simulate` against a minimal njit program", "process") + [
@@ -1376,7 +1376,7 @@ def write_document(args, cmd, results, wall):
                      f"{rs.seconds:.2f}", f"{ms.seconds:.2f}"])
     L += table(["scene", "collisions", "rbx simulate (s)", "minimal program (s)", "minimal / rbx",
                 "rbx start-up, 1 collision (s)", "minimal start-up, 1 collision (s)"], rows)
-    L += ["", "Targets of issue 17: minimal / rbx ≥ 0.9 for 10⁹ collisions of the rough strip and plates; "
+    L += ["", "Targets: minimal / rbx ≥ 0.9 for 10⁹ collisions of the rough strip and plates; "
           "`rbx simulate`'s warm start-up ≤ 0.5 s.", ""]
 
     # 4
@@ -1486,8 +1486,9 @@ def write_document(args, cmd, results, wall):
 
     # 9
     L += heading(args, "## 9. What each skip saves", "skips") + [
-          "SPEC §7: the kernel leaves out what a scene does not need, by compiling it out (`engine.COMPILED_BITS`) "
-          "or behind a predictable run-time branch (per-collision records, the variants). "
+          "The kernel leaves out what a scene does not need ([reference.md §7](reference.md#7-speed-and-accuracy)), "
+          "by compiling it out (`engine.COMPILED_BITS`) or behind a predictable run-time branch (per-collision "
+          "records, the variants). "
           "Here each skip is undone on one scene — the work forced in (`Simulation.force_bits`) or the fast path "
           "left out (`Simulation.drop_bits`), the orbit the same — one trajectory, nothing recorded, one thread.",
           ""]
