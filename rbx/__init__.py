@@ -1,9 +1,10 @@
 """rbx: simulate non-standard (rough) billiards with the strict collision maps of Cox, Feres and Ward.
 
-The Python API (SPEC §9; :mod:`rbx.api`): ``rbx.load(path_or_dict)`` -> Experiment, ``rbx.simulate(experiment,
-…)`` -> Run, ``rbx.open(path)`` -> Run, ``rbx.Run``, ``rbx.ConfigError``, ``rbx.FileError``; and (SPEC §10,
-:mod:`rbx.dynamics`) ``rbx.lyapunov(experiment, …)`` -> the Lyapunov spectrum, ``rbx.escape_times(run)`` -> escape
-or return times. ``python -m rbx`` is the command line. Importing rbx is light: the engine (numba) loads when first used.
+The Python API (docs/reference.md §9; :mod:`rbx.api`): ``rbx.load(path_or_dict)`` -> Experiment,
+``rbx.simulate(experiment, …)`` -> Run, ``rbx.open(path)`` -> Run, ``rbx.Run``, ``rbx.ConfigError``,
+``rbx.FileError``; and (docs/reference.md §10, :mod:`rbx.dynamics`) ``rbx.lyapunov(experiment, …)`` -> the
+Lyapunov spectrum, ``rbx.escape_times(run)`` -> escape or return times. ``python -m rbx`` is the command line.
+Importing rbx is light: the engine (numba) loads when first used.
 """
 import importlib
 

@@ -396,9 +396,9 @@ def strip_random_rank_msd(steps, position, velocity, angular_velocity, width, R,
     probability p and specular otherwise, for trajectories that all start from one state -> (msd at ``steps``,
     D, c) with MSD(k) = 2·D·k + c + (terms that decay geometrically in k).
 
-    In the metric-orthonormal coordinates u = (R√κ·ω, v_x) the rough map of a wall is a reflection S_w (SPEC
-    §1; bottom: v·Jν = −v_x, top: v·Jν = v_x), v_y only changes sign, so every flight after the first takes
-    τ = (width − 2R)/|v_y|. Exactly, with X_k = x_k − x_0 and B_k = S_w with probability p, else I:
+    In the metric-orthonormal coordinates u = (R√κ·ω, v_x) the rough map of a wall is a reflection S_w
+    (docs/reference.md §1; bottom: v·Jν = −v_x, top: v·Jν = v_x), v_y only changes sign, so every flight after the
+    first takes τ = (width − 2R)/|v_y|. Exactly, with X_k = x_k − x_0 and B_k = S_w with probability p, else I:
     X_{k+1} = X_k + τ_k·u_x,  u_{k+1} = B_{k+1}·u_k, so the moments q = E[X²], g = E[X·u], m = E[u uᵀ] obey
     q' = q + 2τ g_x + τ² m_xx,  g' = Ā(g + τ m e_x),  m' = (1 − p)·m + p·S m S  with Ā = (1 − p)I + pS.
     For p = ½ the limit is D = τ²|u|²(1 + 1/κ)/4 (the velocity correlation decays by (1 − κ)/(1 + κ) per
@@ -458,9 +458,9 @@ def conserved_drift(velocity, angular_velocity, rough, R, kappa):
 
     Every rough collision acts on z = (v, R√κ·ω) (normal velocity left out: it only changes sign) as an
     orthogonal reflection whose fixed space is the states that do not slip in that wall's rough directions
-    (SPEC §1: the map is an energy-preserving involution, the identity on non-slipping states). The part of z in
-    the intersection F of the fixed spaces of every map that can occur — ``rough`` lists each (ν, d) pair that
-    any rule can use — is therefore never changed, and the rest averages to zero unless more is conserved. A
+    (docs/reference.md §1: the map is an energy-preserving involution, the identity on non-slipping states). The
+    part of z in the intersection F of the fixed spaces of every map that can occur — ``rough`` lists each (ν, d)
+    pair that any rule can use — is therefore never changed, and the rest averages to zero unless more is conserved. A
     non-zero velocity part of P_F z makes the orbit drift ballistically; none (F ∩ velocities = 0) leaves it
     bounded or diffusive."""
     v = np.asarray(velocity, float).copy()
@@ -566,7 +566,7 @@ def scene_title(experiment):
             f"{describe_boundary(experiment.wall_rules, experiment.wall_names, n)}")
 
 
-# ---- sections (SPEC §10) ---------------------------------------------------------------------------------------
+# ---- sections (docs/reference.md §10) -------------------------------------------------------------------------
 
 
 def wall_span(geom, wall):

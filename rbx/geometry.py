@@ -1,6 +1,6 @@
 """Tables as data: the boundary of the *shrunk* table (seen by the centre) as a list of primitives.
 
-One general mechanism for every scene (STYLE: tables are data, not classes). A primitive is an integer code,
+One general mechanism for every scene: tables are data, not classes. A primitive is an integer code,
 the index of the wall it belongs to and a row of packed float parameters:
 
 | code | primitive | parameters (row of ``params``) |
@@ -13,9 +13,9 @@ the index of the wall it belongs to and a row of packed float parameters:
 | ``FOCUS_ARC`` | 2D arc of radius ρ, centre kept inside (a focusing ``ccw`` arc shrunk by R) | c = [0:2], first and last radial directions [4:6], [8:10] (CCW), ρ = [12], span > 180° = [13] |
 | ``CYLINDER`` | 3D cylinder with axis ∥ z, centre kept inside | axis point c = [0:2], ρ = [12] |
 
-A table of the zoo (SPEC §8) is built from its wall pieces (:mod:`rbx.tables`) by :func:`from_pieces`; obstacles
-are added to any table by :func:`add_pieces`. A periodic cell (``Lattice``) is the ``lattice`` (lo, period) of the
-geometry: the kernel walks the cells a flight crosses and tests each cell's images (:func:`periodic_flight`).
+A table of the zoo (docs/reference.md §8) is built from its wall pieces (:mod:`rbx.tables`) by :func:`from_pieces`;
+obstacles are added to any table by :func:`add_pieces`. A periodic cell (``Lattice``) is the ``lattice`` (lo, period) of
+the geometry: the kernel walks the cells a flight crosses and tests each cell's images (:func:`periodic_flight`).
 
 Adding a table kind = a builder here that lists its primitives (with ``Wall`` entries for names, tangent axes and
 sampling patches), registered with its other facets in :mod:`rbx.tables`. Adding a primitive kind = a code, its
@@ -51,7 +51,7 @@ class Geometry:
     codes: np.ndarray          # (m,) int64 primitive codes
     walls: np.ndarray          # (m,) int64 wall index of each primitive
     params: np.ndarray         # (m, NPARAM) float64
-    wall_list: list            # [Wall], in SPEC §2 order
+    wall_list: list            # [Wall], in wall order (docs/conventions.md)
     size: float                # a length scale of the table (for tolerances)
     outline: np.ndarray | None = None          # 2D: the table's boundary polygon (for drawing), or None
     shrunk_outline: np.ndarray | None = None   # 2D: the shrunk table's boundary (for drawing), or None
@@ -663,7 +663,7 @@ def periodic_flight(codes, params, a, v, tol, n, lo, period, images, shift, base
                 ahead[i] += period[i] / abs(v[i])
 
 
-# ---- tables built from wall pieces (SPEC §8): the zoo, obstacles on any table, periodic cells --------------------
+# ---- tables built from wall pieces (docs/reference.md §8): the zoo, obstacles on any table, periodic cells ------
 
 def _unit2(x):
     x = np.asarray(x, float)
@@ -984,7 +984,8 @@ def _boundary(geom, piece, R, first_wall, codes, walls, rows, wall_list):
 
 
 def from_pieces(kind, n, pieces, R, scale):
-    """The shrunk table of a table made of wall pieces (:mod:`rbx.tables`: the zoo of SPEC §8) -> Geometry."""
+    """The shrunk table of a table made of wall pieces (:mod:`rbx.tables`: the zoo, docs/reference.md §8)
+    -> Geometry."""
     g = Geometry(kind, n, np.zeros(0, np.int64), np.zeros(0, np.int64), np.zeros((0, NPARAM)), [], float(scale),
                  shrunk_radius=R)
     g.pieces = []

@@ -1,4 +1,5 @@
-"""The invariant-measure experiment (paper §2.7, SPEC §4 ``rbx histogram``) and Santaló's mean free path.
+"""The invariant-measure experiment (paper §2.7; ``rbx histogram``, docs/reference.md §4) and Santaló's mean free
+path.
 
 Sample M states from the billiard measure on one wall (:func:`rbx.sampling.sample_billiard`), follow each until
 it returns to that wall — keeping only the return state, no trajectory is stored — and compare the return angles

@@ -14,11 +14,11 @@ the recorded collision points and states:
   from the initial state in :func:`wedge_prediction`;
 - the **period** of a sequence of states (:func:`detect_period`), with the mismatch at that period reported.
 
-Conventions (docs/conventions.md, SPEC §1): positions are the centre of the disc (it moves in the table shrunk by
-the radius R); ``v₀ = R√κ·ω`` is the scaled spin of the angle–position coordinates, so that a completely rough
+Conventions (docs/conventions.md, docs/reference.md §1): positions are the centre of the disc (it moves in the table
+shrunk by the radius R); ``v₀ = R√κ·ω`` is the scaled spin of the angle–position coordinates, so that a completely rough
 collision at a wall with inward normal ν is the half-turn ``V ↦ 2(a·V)a − V`` of ``V = (v₀, v)`` about
-``a = (√κ, Jν)/√(1+κ)``, J the rotation by +90° (the matrix of SPEC §1 on (v₀, v·Jν), with the normal velocity
-reversed). Collision points are the records 1, 2, … of a run (record 0 is the initial state, not on a wall).
+``a = (√κ, Jν)/√(1+κ)``, J the rotation by +90° (the matrix of docs/reference.md §1 on (v₀, v·Jν), with the normal
+velocity reversed). Collision points are the records 1, 2, … of a run (record 0 is the initial state, not on a wall).
 """
 import math
 from dataclasses import dataclass
@@ -114,7 +114,8 @@ def rough_axis(normal, kappa):
 
 
 def rough_collision(V, normal, kappa):
-    """The completely rough collision map on V = (v₀, v) -> V' = 2(a·V)a − V (SPEC §1 in angle–position form)."""
+    """The completely rough collision map on V = (v₀, v) -> V' = 2(a·V)a − V (docs/reference.md §1, in
+    angle–position form)."""
     a = rough_axis(normal, kappa)
     V = np.asarray(V, float)
     return 2.0 * (V @ a) * a - V
@@ -124,11 +125,11 @@ def predicted_caustic_radii(position, velocity, angular_velocity, rho, R, kappa,
     """The two caustic radii and the vertex angle of a completely rough orbit in a circle, in closed form from its
     initial state -> (r_in, r_out, vertex angle).
 
-    The centre moves in the circle of radius ``rho`` (the table's radius minus R). r_in is the distance from the
-    centre of the initial flight's line; at the first collision the rough map (SPEC §1) turns (v₀, v) into the
-    outgoing state, whose line is at r_out; the vertex angle is the angle there between the two segments. Along a
-    chord the tangential velocity and v₀ are unchanged and the map is an involution, so every later collision
-    repeats this one: the segments between collisions 1–2, 3–4, … lie at r_out, those between 2–3, 4–5, … at r_in.
+    The centre moves in the circle of radius ``rho`` (the table's radius minus R). r_in is the distance from the centre
+    of the initial flight's line; at the first collision the rough map (docs/reference.md §1) turns (v₀, v) into the
+    outgoing state, whose line is at r_out; the vertex angle is the angle there between the two segments. Along a chord
+    the tangential velocity and v₀ are unchanged and the map is an involution, so every later collision repeats this
+    one: the segments between collisions 1–2, 3–4, … lie at r_out, those between 2–3, 4–5, … at r_in.
     """
     c = np.asarray(centre, float)
     p = np.asarray(position, float) - c

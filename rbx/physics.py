@@ -1,4 +1,5 @@
-"""The strict collision map in the space frame (SPEC §1; paper eq. (update)), written once for any dimension n.
+"""The strict collision map in the space frame (docs/reference.md §1; paper eq. (update)), written once for any
+dimension n.
 
 State at contact: centre velocity ``v`` (n), angular velocity ``W`` (n×n antisymmetric, space frame; 2D ``W = ωJ``,
 3D ``Wx = ω×x``), unit wall normal ``nu`` pointing into the free region, ball radius ``R``, ``kappa = 2λ/R²``.
@@ -49,7 +50,8 @@ def project_roughness(work, rank, basis, node, wall, n):
 
 @jit_hot
 def collide(v, W, nu, R, kappa, rank, basis, node, wall, work, n):
-    """Apply the strict collision map in place: (v, W) <- (v', W'); returns nothing.  SPEC §1, paper eq. (update).
+    """Apply the strict collision map in place: (v, W) <- (v', W'); returns nothing.  docs/reference.md §1, paper
+    eq. (update).
 
     The normal velocity is reversed exactly (``v·ν`` changes sign), so the next flight leaves the wall.
     ``basis[node, wall]`` holds the roughness basis (rows) and ``work`` is scratch space of shape (3, n): the

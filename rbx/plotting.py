@@ -561,7 +561,7 @@ def histogram_figure(angle, d, ks_statistic, ks_pvalue, title, bins=50):
     return fig
 
 
-# ---- escape and return times (SPEC §10) ------------------------------------------------------------------------
+# ---- escape and return times (docs/reference.md §10) ----------------------------------------------------------
 
 
 @styled
@@ -590,7 +590,7 @@ def escape_figure(s, S, rate, rate_err, start, exits, total, title, unit="path l
     return fig
 
 
-# ---- sections (SPEC §10) ---------------------------------------------------------------------------------------
+# ---- sections (docs/reference.md §10) -------------------------------------------------------------------------
 
 
 def _dress(ax, spec):

@@ -1,10 +1,10 @@
 """A high-precision event loop (mpmath, any number of digits) for every scene and rule: the yardstick of the
 accuracy benchmark (``scripts/accuracy.py``) and of the stress tests.
 
-It is the slow pure-Python reference loop of ``tests/reference.py`` written again over mpmath numbers, for
-exactly the same formulation (SPEC §1–3, docs/conventions.md), so that its only difference from float64 is the
-working precision: ``digits=50`` follows an orbit to ~1e-50 per step, ``digits=15`` (53 bits) behaves like a
-float64 loop. Nothing is clever:
+It is the slow pure-Python reference loop of ``tests/reference.py`` written again over mpmath numbers, for exactly the
+same formulation (docs/reference.md §1–3, docs/conventions.md), so that its only difference from float64 is the working
+precision: ``digits=50`` follows an orbit to ~1e-50 per step, ``digits=15`` (53 bits) behaves like a float64 loop.
+Nothing is clever:
 
 * the state is the centre ``a``, velocity ``v`` (lists of mpf), the angular velocity as an n×n antisymmetric
   matrix ``W`` and the orientation (2D angle θ, 3D matrix A), all held at the working precision; the time is
@@ -421,7 +421,7 @@ class PreciseBilliard:
         return _dot(self.v, self.v) / 2 + self.kappa * self.R ** 2 * rot / 4
 
     def record(self):
-        """The present state as float64 values, fields as in the engine's records (SPEC §5)."""
+        """The present state as float64 values, fields as in the engine's records (docs/reference.md §5)."""
         w = self.omega()
         return {"time": float(self.time), "position": [float(x) for x in self.a],
                 "velocity": [float(x) for x in self.v],
@@ -669,7 +669,7 @@ class PreciseBilliard:
         return True
 
     def _collide(self, nu, leaf, wall):
-        """SPEC §1, literally (see the module docstring)."""
+        """docs/reference.md §1, literally (see the module docstring)."""
         n, R, kappa = self.n, self.R, self.kappa
         v, W = self.v, self.W
         vn = _dot(v, nu)

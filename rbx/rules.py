@@ -1,4 +1,4 @@
-"""Boundary rules as data: a rule tree per wall, flattened into arrays for the kernels (SPEC §3).
+"""Boundary rules as data: a rule tree per wall, flattened into arrays for the kernels (docs/reference.md §3).
 
 Node kinds: ``CONSTANT`` (a roughness rank and, for 3D rank 1, a direction), ``HEMISPHERE`` (children: rough,
 smooth; picked by the contact point in the ball's body frame), ``RANDOM`` (children with cumulative

@@ -1,4 +1,4 @@
-"""The run file (SPEC §5): everything rbx writes to or reads from HDF5, in one module.
+"""The run file (docs/reference.md §5): everything rbx writes to or reads from HDF5, in one module.
 
 Writing: the root attributes (:data:`ROOT_ATTRS`, one list for run files and return-angle files), the
 ``collisions/`` datasets made from :data:`rbx.model.FIELDS` (each with its ``units`` and ``description`` as dataset
@@ -51,8 +51,9 @@ from .model import FIELD, FIELDS, RECORD_FIELDS, ConfigError
 SCHEMA_VERSION = 1
 CHUNK_BYTES = 1 << 18
 
-#: the root attributes of every rbx file (run or return angles) -> meaning. The first four are SPEC §5's; a file
-#: without them is not an rbx file. ``schema_version`` is read as 1 when absent.
+#: the root attributes of every rbx file (run or return angles) -> meaning. The first four are the ones
+#: docs/reference.md §5 lists first; a file without them is not an rbx file. ``schema_version`` is read as 1 when
+#: absent.
 ROOT_ATTRS = {
     "rbx_version": "version of rbx that wrote the file",
     "dimension": "n: 2 (disc in a planar table) or 3 (ball)",
@@ -822,8 +823,8 @@ def stream(sim, h5, tmp, path, *, fresh=True, progress=None, should_stop=None, w
     ``path`` as its ``output.path``.
 
     The rename happens however the run ends (complete, interrupted, an error), so the records computed so far
-    are in ``path`` and ``complete`` says whether that is all of them (SPEC §4), with two exceptions that keep
-    what is already there: a run that did not finish never replaces a *complete* ``path`` (``--force`` then
+    are in ``path`` and ``complete`` says whether that is all of them (docs/reference.md §4), with two exceptions
+    that keep what is already there: a run that did not finish never replaces a *complete* ``path`` (``--force`` then
     Ctrl-C used to leave a fragment in place of a finished result), and without ``replace`` (``--force``) a
     ``path`` that appeared while this run was writing (another run) is not replaced either. Either way the
     records stay in ``tmp``: said through ``report(message)`` for an unfinished run, a :class:`FileError` for a
@@ -1108,7 +1109,7 @@ def read_experiment(config_text, source):
 # ---- the one reader ---------------------------------------------------------------------------------------------
 
 class Run:
-    """A run: its records (the ``collisions/`` datasets of SPEC §5 by name), final state and experiment.
+    """A run: its records (the ``collisions/`` datasets of docs/reference.md §5 by name), final state and experiment.
 
     File-backed (:meth:`open`, :func:`rbx.open`) or in memory (:meth:`from_memory`, :func:`rbx.simulate` without
     ``output``); both behave the same. ``run.position``, ``run.time``, … are read-only numpy arrays shaped as in

@@ -1,4 +1,4 @@
-"""Initial states drawn from the billiard measure (paper §2.7; SPEC §4).
+"""Initial states drawn from the billiard measure (paper §2.7; docs/reference.md §4).
 
 On a wall: position uniform on the wall as seen by the centre (the shrunk wall), orientation uniform, and the
 velocity in the metric-orthonormal coordinates ``(v, R√κ·ω)`` (dimension ``d = n + n(n−1)/2``) with density

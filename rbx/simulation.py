@@ -61,7 +61,7 @@ class Simulation:
         M = self.M = cfg.run.trajectories
         self.record = cfg.output.record
         self.mask = sum(FIELD[f].bit for f in self.record)
-        # the orientation is followed only when a hemisphere rule or the recorded field needs it (SPEC §7)
+        # the orientation is followed only when a hemisphere rule or the recorded field needs it (docs/reference.md §7)
         self.follow_orientation = self.rules.uses_orientation or "orientation" in self.record
         self.keys = np.array([stream_key(cfg.run.seed, j, PURPOSE_RULES) for j in range(M)], dtype=np.uint64)
         if state is None:

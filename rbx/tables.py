@@ -383,7 +383,7 @@ def _draw_box(ax, geom, lo, hi):
         ax.plot([x0, x1, x1, x0, x0], [y0, y0, y1, y1, y0], **style)
 
 
-# ---- the kinds (SPEC §2) ----------------------------------------------------------------------------------------
+# ---- the kinds (docs/reference.md §2) --------------------------------------------------------------------------
 
 def _strip_walls(p):
     w = p["width"]
@@ -483,7 +483,7 @@ register(TableKind(
     example={"size": [2.0, 1.5, 1.0]}, optional={"periodic": flag}))
 
 
-# ---- the zoo (SPEC §8): walls as data, built by rbx.geometry.from_pieces --------------------------------------
+# ---- the zoo (docs/reference.md §8): walls as data, built by rbx.geometry.from_pieces ------------------------
 
 
 def size23(value, c, key):

@@ -1,4 +1,5 @@
-"""The linearised dynamics of the rough billiard flow and Benettin's method (SPEC §10; docs/tangent-map.md).
+"""The linearised dynamics of the rough billiard flow and Benettin's method (docs/reference.md §10;
+docs/tangent-map.md).
 
 The orbit is the engine's: the same :func:`rbx.geometry.next_collision`, :func:`~rbx.geometry.contact_normal`,
 :func:`rbx.rules.choose`, :func:`rbx.physics.collide` and energy projection (:func:`rbx.engine.energy_factor`) in

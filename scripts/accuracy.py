@@ -1,5 +1,5 @@
-"""Run time against error (SPEC §7): energy drift, time-reversal error and deviation from a high-precision orbit
-after N collisions, for each scene worth it and each numerical variant of the engine. Writes docs/accuracy.md and
+"""Run time against error (docs/reference.md §7): energy drift, time-reversal error and deviation from a high-precision
+orbit after N collisions, for each scene worth it and each numerical variant of the engine. Writes docs/accuracy.md and
 docs/accuracy-<scene>.png.
 
     python scripts/accuracy.py [--quick] [--out docs/accuracy.md] [--repeats K] [--digits D]

@@ -1,6 +1,6 @@
-"""Stress cases (SPEC §2, §7): grazing flights, exact corner hits, wedge escapes and bounces near the vertex, tiny
-and huge scales, a ball that barely fits, κ → 0 and κ = 1, far positions in the strip, extreme speeds and a 10⁹-
-collision run. Writes docs/stress.md: for each case what it does to the error metrics, and what breaks.
+"""Stress cases (docs/reference.md §2, §7): grazing flights, exact corner hits, wedge escapes and bounces near the
+vertex, tiny and huge scales, a ball that barely fits, κ → 0 and κ = 1, far positions in the strip, extreme speeds and a
+10⁹-collision run. Writes docs/stress.md: for each case what it does to the error metrics, and what breaks.
 
     python scripts/stress.py [--quick] [--out docs/stress.md] [--long N]
 
