@@ -73,9 +73,9 @@ def _settings(c, collisions, record, trajectories, every):
     return c
 
 
-# ---- the table zoo (SPEC §8): tests/test_zoo.py runs these (the tests above compare whole orbits, and most of the
-# zoo is chaotic: rounding differences grow e-fold every few collisions, so the zoo is compared one collision at a
-# time from the engine's own states) ----------------------------------------------------------------------------
+# ---- the table zoo (docs/reference.md §8): tests/test_zoo.py runs these (the tests above compare whole orbits,
+# and most of the zoo is chaotic: rounding differences grow e-fold every few collisions, so the zoo is compared one
+# collision at a time from the engine's own states) -------------------------------------------------------------
 
 RANDOM3 = {"default": {"rule": "random", "choices": [{"rule": "constant", "rank": 0}, {"rule": "constant", "rank": 2}],
                        "probabilities": [0.5, 0.5]}}

@@ -3,8 +3,8 @@
 Pure Python + numpy, independent of the ``rbx`` engine: it reads a config mapping shaped like the cases of
 ``tests/data/trajectories.json``, takes from rbx only the table's walls as data (the registry of table kinds,
 ``rbx.tables.walls``: lines, planes, circles, polygons, boundaries of segments and arcs, spheres, cylinders and a
-periodic lattice, in the table's own coordinates; ``rbx.tables.dimension``) and follows SPEC.md §1–3, §8 and
-docs/conventions.md as literally as possible, for any dimension n with the angular velocity held as an n×n
+periodic lattice, in the table's own coordinates; ``rbx.tables.dimension``) and follows docs/reference.md §1–3,
+§8 and docs/conventions.md as literally as possible, for any dimension n with the angular velocity held as an n×n
 antisymmetric matrix ``W``. Free flight: a ← a + τv, 2D θ ← θ + τω, 3D A ← exp(τW)·A with exp summed as a Taylor
 series (the engine uses Rodrigues).
 
@@ -16,8 +16,8 @@ floats (ω, continuous angle θ), 3D ones a length-3 list (ω) and a 3×3 nested
 The run stops early (fewer records) when no wall lies ahead (escape), and at a wall whose rule is ``exit``: that
 contact is recorded with no map applied (wall = that wall, rank = −1) and the trajectory ends there.
 
-Collision map (SPEC §1, the paper's eq. (update) in the space frame), at a wall with unit normal ν pointing into
-the free region:
+Collision map (docs/reference.md §1, the paper's eq. (update) in the space frame), at a wall with unit normal ν
+pointing into the free region:
     r = −Rν,  u = v + W r,  u_t = u − (u·ν)ν,  Δv_t = −2α P u_t,
     v' = v − 2(v·ν)ν + Δv_t,  W' = W + (Δv_t rᵀ − r Δv_tᵀ)/(2λ),  2λ = κR²,  α = κ/(1+κ),
 with P the orthogonal projector onto the roughness subspace (rank 0: 0; rank n−1: I − ννᵀ; 3D rank 1: ddᵀ).
@@ -293,7 +293,8 @@ def boundary_primitives(pieces, R, first_wall=0):
 
 
 class Table:
-    """The table seen by the ball's centre: dimension, wall names (SPEC §2 order), primitives, tangent axes."""
+    """The table seen by the ball's centre: dimension, wall names (in wall order, docs/conventions.md), primitives,
+    tangent axes."""
 
     def __init__(self, spec, R):
         # the walls as data from the registry of table kinds (rbx.tables): lines, planes, circles, polygons,
@@ -619,7 +620,7 @@ def rough_projector(leaf, nu, n, tangent_axes):
 
 
 def collide(v, W, nu, P, R, kappa):
-    """SPEC §1 collision map (paper eq. (update), space frame). Returns (v', W')."""
+    """docs/reference.md §1 collision map (paper eq. (update), space frame). Returns (v', W')."""
     two_lambda = kappa * R * R
     alpha = kappa / (1.0 + kappa)
     r = -R * nu

@@ -1,5 +1,5 @@
 """Invariants over every scene of the catalog: the centre never leaves the shrunk table, never misses a wall,
-every collision happens on the wall it names, and the energy is kept (SPEC §2, §7)."""
+every collision happens on the wall it names, and the energy is kept (docs/reference.md §2, §7)."""
 import numpy as np
 import pytest
 

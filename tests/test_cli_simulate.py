@@ -1,4 +1,4 @@
-"""End to end: the real `rbx simulate` in a subprocess, the real HDF5 file read back (SPEC §4–5)."""
+"""End to end: the real `rbx simulate` in a subprocess, the real HDF5 file read back (docs/reference.md §4–5)."""
 import os
 import subprocess
 import sys
@@ -128,7 +128,7 @@ def test_a_short_wide_run_makes_a_file_the_size_of_its_records(tmp_path):
     assert os.path.getsize(out) < 2 * stored, (os.path.getsize(out), stored)
 
 
-# ---- what is already on disk is kept (issue 13: races, --force then Ctrl-C) ---------------------------------------
+# ---- what is already on disk is kept (races, --force then Ctrl-C; docs/reliability.md) ---------------------------
 
 def _tiny_run(tmp_path, name, complete=True):
     import rbx

@@ -1,4 +1,4 @@
-"""Ensembles on a Dask cluster (SPEC §11): a real ``dask scheduler`` and real ``dask worker`` processes on
+"""Ensembles on a Dask cluster (docs/reference.md §11): a real ``dask scheduler`` and real ``dask worker`` processes on
 127.0.0.1, the real ``rbx`` command in subprocesses, real HDF5 files.
 
 A run on the cluster must write the local run's file — every dataset, bit for bit — whatever the number of

@@ -1,4 +1,5 @@
-"""The exit rule (SPEC §3) and escape / return times (SPEC §10; rbx.dynamics.escape_times, docs/dynamics.md).
+"""The exit rule (docs/reference.md §3) and escape / return times (docs/reference.md §10;
+rbx.dynamics.escape_times, docs/dynamics.md).
 
 - A wall with ``{rule: exit}`` is a hole: the trajectory records the contact (rank −1, that wall, the state as it
   arrived) and ends; up to there it is the closed table's trajectory.
@@ -13,7 +14,7 @@ import rbx
 from rbx.dynamics import escape_times, exponential_rate, survival
 
 R = 0.1
-SPECULAR = {"rule": "constant", "rank": 0}
+SMOOTH = {"rule": "constant", "rank": 0}
 ROUGH = {"rule": "constant", "rank": 1}
 EXIT = {"rule": "exit"}
 RECTANGLE = {"kind": "rectangle", "width": 2.0, "height": 1.0}
@@ -41,8 +42,8 @@ def test_exit_rule_is_validated():
     assert "exit" in str(err.value)
 
 
-@pytest.mark.parametrize("rule", [ROUGH, {"rule": "random", "choices": [SPECULAR, ROUGH], "probabilities": [0.5, 0.5]},
-                                  {"rule": "hemisphere", "axis": [0, 1], "rough": ROUGH, "smooth": SPECULAR}])
+@pytest.mark.parametrize("rule", [ROUGH, {"rule": "random", "choices": [SMOOTH, ROUGH], "probabilities": [0.5, 0.5]},
+                                  {"rule": "hemisphere", "axis": [0, 1], "rough": ROUGH, "smooth": SMOOTH}])
 def test_a_trajectory_ends_at_the_exit_contact(rule):
     closed = rbx.simulate(_config(RECTANGLE, rule))
     opened = rbx.simulate(_config(RECTANGLE, rule, {"left": EXIT}))
@@ -105,7 +106,7 @@ def test_kac_mean_return_path():
     (P/ℓ)·(4A/P) = 4A/ℓ whenever almost every state returns. The specular Sinai table is ergodic in (a, v) on each
     level of the spin, which it conserves (Sinai), so almost every state returns. (The rough Sinai table is not
     ergodic: it traps a fifth of the billiard measure in orbits that never reach a gate; docs/dynamics.md.)"""
-    cfg = _config(SINAI, SPECULAR, {"left": EXIT}, initial={"sample": "billiard", "wall": "left"}, collisions=5000,
+    cfg = _config(SINAI, SMOOTH, {"left": EXIT}, initial={"sample": "billiard", "wall": "left"}, collisions=5000,
                   trajectories=6000, seed=11, record=[])
     out = escape_times(rbx.simulate(cfg))
     assert out.exited.all()
@@ -130,7 +131,7 @@ def test_escape_rate_from_a_small_hole(gate):
                 {"name": "lower", "from": [0, 0.75 - gate / 2], "to": [0, 0]}]
     table = {"kind": "custom", "boundary": boundary,
              "obstacles": [{"name": "scatterer", "disc": {"center": [1.0, 0.75], "radius": 0.4}}]}
-    cfg = _config(table, SPECULAR, {"gate": EXIT}, initial={"sample": "billiard"}, collisions=300,
+    cfg = _config(table, SMOOTH, {"gate": EXIT}, initial={"sample": "billiard"}, collisions=300,
                   trajectories=6000, seed=2, record=[])
     out = escape_times(rbx.simulate(cfg))
     expected = gate / (4 * SINAI_AREA)

@@ -1,6 +1,6 @@
-"""Figures `caustics`, `circle` and `periodic` (SPEC §6): the measurements of rbx/orbits.py on constructed data,
-the paper's properties on shortened runs of the actual configs in configs/experiments/, a case where the property
-must fail, and one end-to-end run of `rbx simulate` plus a figure script."""
+"""Figures `caustics`, `circle` and `periodic` (docs/reference.md §6): the measurements of rbx/orbits.py on
+constructed data, the paper's properties on shortened runs of the actual configs in configs/experiments/, a case
+where the property must fail, and one end-to-end run of `rbx simulate` plus a figure script."""
 import json
 import math
 import os

@@ -1,5 +1,5 @@
-"""What the figure scripts commit (figures/<label>.png and .json, SPEC §6): re-plotting the same data writes the same
-bytes, and the periodic figure draws a negative gap instead of clipping it (issue 18)."""
+"""What the figure scripts commit (figures/<label>.png and .json, docs/reference.md §6): re-plotting the same data
+writes the same bytes, and the periodic figure draws a negative gap instead of clipping it."""
 import json
 import os
 import sys

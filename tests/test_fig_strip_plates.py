@@ -1,6 +1,6 @@
-"""The paper's figures graph, graphRandom, plate, roughrank and histogram (SPEC §6): the properties their figure
-scripts check, asserted on shortened in-memory runs of the actual configs in configs/experiments/, the closed forms
-the scripts compare with, and one end-to-end run of `rbx simulate` and a figure script.
+"""The paper's figures graph, graphRandom, plate, roughrank and histogram (docs/reference.md §6): the properties
+their figure scripts check, asserted on shortened in-memory runs of the actual configs in configs/experiments/, the
+closed forms the scripts compare with, and one end-to-end run of `rbx simulate` and a figure script.
 
 Bounds are set from the measured values at these lengths and fixed seeds, with margins of several times the noise;
 a wrong engine (a bounded or ballistic strip, a lost memory, a drift at the wrong velocity, a measure that is not

@@ -1,4 +1,5 @@
-"""The invariant-measure experiment (paper §2.7, SPEC §4 ``rbx histogram``) and Santaló's mean free path.
+"""The invariant-measure experiment (paper §2.7; ``rbx histogram``, docs/reference.md §4) and Santaló's mean free
+path.
 
 Real runs at fixed seeds: billiard-measure samples on a wall are followed by the engine until they return to it,
 and the return angles must follow the law of the billiard measure (KS against sin^(d−1) φ) — and must *not* when

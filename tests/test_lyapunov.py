@@ -1,4 +1,5 @@
-"""The tangent map and the Lyapunov spectrum (SPEC §10; rbx/tangent.py, rbx/dynamics.py, docs/tangent-map.md).
+"""The tangent map and the Lyapunov spectrum (docs/reference.md §10; rbx/tangent.py, rbx/dynamics.py,
+docs/tangent-map.md).
 
 - The tangent map is the derivative of the engine's flow: central finite differences of ``rbx``'s own event loop
   (several steps) agree with :func:`rbx.dynamics.flow_jacobian` on every primitive the tables use (each registered
@@ -192,13 +193,13 @@ def _scene(table, rule, collisions, trajectories=1, seed=3,
             "output": {"record": list(record)}}
 
 
-SPECULAR = {"rule": "constant", "rank": 0}
+SMOOTH = {"rule": "constant", "rank": 0}
 ROUGH2 = {"rule": "constant", "rank": 1}
 SINAI = {"kind": "sinai", "size": [2.0, 1.5], "radius": 0.4}
 
 
 @pytest.mark.parametrize("table,rule", [
-    (SINAI, {"rule": "random", "choices": [SPECULAR, ROUGH2], "probabilities": [0.5, 0.5]}),
+    (SINAI, {"rule": "random", "choices": [SMOOTH, ROUGH2], "probabilities": [0.5, 0.5]}),
     ({"kind": "sinai", "size": [2.0, 1.5, 1.5], "radius": 0.3}, {"rule": "constant", "rank": 2}),
     ({"kind": "plates", "gap": 1.0}, {"rule": "constant", "rank": 1, "direction_deg": 30}),
     ({"kind": "lorentz", "cell": [1.0, 1.0], "radius": 0.3}, ROUGH2),      # periodic: the same windowed flights
@@ -239,7 +240,7 @@ def _wavefront_exponent(run, centre, rho, first):
     ({"kind": "polygon", "vertices": [[0, 0], [2, 0], [2, 1], [1, 1], [1, 2], [0, 2]]}, (1.0, 1.0), R, 20000),
 ])
 def test_specular_dispersing_table_gives_the_classic_exponent(table, centre, rho, collisions):
-    cfg = _scene(table, SPECULAR, collisions)
+    cfg = _scene(table, SMOOTH, collisions)
     result = lyapunov(cfg)
     expected = _wavefront_exponent(rbx.simulate(cfg), np.array(centre), rho, result.warmup)
     assert expected > 0.01
@@ -276,7 +277,7 @@ def test_rough_sinai_spectrum_is_symmetric():
 @pytest.mark.parametrize("table,rule", [
     ({"kind": "circle", "radius": 1.0}, ROUGH2),              # integrable: caustics (paper, figures circle)
     ({"kind": "rectangle", "width": 2.0, "height": 1.0}, ROUGH2),
-    ({"kind": "rectangle", "width": 2.0, "height": 1.0}, SPECULAR),
+    ({"kind": "rectangle", "width": 2.0, "height": 1.0}, SMOOTH),
     ({"kind": "polygon", "vertices": [[0, 0], [3, 0], [1, 2]]}, ROUGH2),
 ])
 def test_integrable_and_flat_tables_have_zero_exponents(table, rule):
@@ -293,7 +294,7 @@ def test_lyapunov_command_prints_json(tmp_path):
 
     from rbx.cli.main import cli
     path = tmp_path / "sinai.yaml"
-    path.write_text(json.dumps(_scene(SINAI, SPECULAR, 100)))
+    path.write_text(json.dumps(_scene(SINAI, SMOOTH, 100)))
     result = CliRunner().invoke(cli, ["lyapunov", str(path), "--collisions", "600", "--json"])
     assert result.exit_code == 0, result.output
     data = json.loads(result.output)
@@ -310,14 +311,14 @@ def test_no_measurement_is_refused_not_reported_as_zero_or_nan(tmp_path):
     import subprocess
     import sys
     exe = os.path.join(os.path.dirname(sys.executable), "rbx")
-    gone = _scene(SINAI, SPECULAR, 100)
+    gone = _scene(SINAI, SMOOTH, 100)
     gone["boundary"] = {"default": {"rule": "exit"}}
     gone["initial"] = {"sample": "billiard"}
     gone["run"] = {"collisions": 200, "trajectories": 3, "seed": 1}
     path = tmp_path / "gone.yaml"
     path.write_text(json.dumps(gone))
     one = tmp_path / "one.yaml"
-    one.write_text(json.dumps(_scene(SINAI, SPECULAR, 100)))
+    one.write_text(json.dumps(_scene(SINAI, SMOOTH, 100)))
     for args, words in (([str(path), "--warmup", "0", "--json"], "no collision after the warm-up"),
                         ([str(one), "--collisions", "300", "--segments", "1", "--json"], "no error estimate")):
         r = subprocess.run([exe, "lyapunov", *args], capture_output=True, text=True, timeout=300)

@@ -1,6 +1,7 @@
-"""The figure pipeline of the Makefile (SPEC §6, showyourwork): data depends on its config, a picture on its script
-and its data, so re-plotting never re-simulates and nothing stale is left. Checked with `make -n` (what make would
-run) on a copy of the real Makefile over a tree of empty files with chosen ages: no simulation or plot runs."""
+"""The figure pipeline of the Makefile (docs/reference.md §6, as showyourwork does it): data depends on its config,
+a picture on its script and its data, so re-plotting never re-simulates and nothing stale is left. Checked with
+`make -n` (what make would run) on a copy of the real Makefile over a tree of empty files with chosen ages: no
+simulation or plot runs."""
 import os
 import re
 import shutil

@@ -1,4 +1,4 @@
-"""A trajectory whose state stops being finite is an error, not an early end (issue 13, item 7): in the kernel a
+"""A trajectory whose state stops being finite is an error, not an early end (docs/reliability.md): in the kernel a
 NaN position finds no wall ahead, which would end the trajectory like an escape, marked complete. The run stops
 before the block holding the NaN is written; a run file keeps every record up to its last checkpoint, marked
 incomplete. Config validation refuses the inputs known to produce NaN (tests/test_errors.py); this is the net

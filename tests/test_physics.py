@@ -1,4 +1,4 @@
-"""The strict collision map (SPEC §1, paper eq. (update)) in n = 2, 3, 4: invariants and closed forms."""
+"""The strict collision map (docs/reference.md §1, paper eq. (update)) in n = 2, 3, 4: invariants and closed forms."""
 import numpy as np
 import pytest
 
@@ -38,7 +38,8 @@ def cases(n, count=40, seed=0):
 
 
 def literal_map(v, W, nu, R, kappa, k, basis):
-    """SPEC §1 written with matrices, as the paper states it: P = Σ dᵢdᵢᵀ (or the tangent projector if k = n−1)."""
+    """docs/reference.md §1 written with matrices, as the paper states it: P = Σ dᵢdᵢᵀ (or the tangent projector if
+    k = n−1)."""
     n = len(v)
     r = -R * nu
     u = v + W @ r
@@ -78,7 +79,7 @@ def test_the_map_is_an_involution(n):
 
 @pytest.mark.parametrize("n", DIMS)
 def test_angular_momentum_about_the_contact_point_is_kept(n):
-    # 3D: −r×v + 2λω; in any n the matrix 2λW + r vᵀ − v rᵀ (r ∧ v as in SPEC §1)
+    # 3D: −r×v + 2λω; in any n the matrix 2λW + r vᵀ − v rᵀ (r ∧ v as in docs/reference.md §1)
     for v, W, nu, R, kappa, k, basis in cases(n):
         v1, W1 = collision_map(v, W, nu, R, kappa, k, basis)
         r = -R * nu
@@ -122,7 +123,8 @@ def test_identity_on_states_whose_contact_point_does_not_slip(n):
 
 @pytest.mark.parametrize("kappa", [0.5, 0.1, 0.4, 2 / 3, 1.0])
 def test_2d_completely_rough_matrix_in_angle_position_coordinates(kappa):
-    # SPEC §1: on (v0, v·Jν), v0 = R√κ·ω, the map is [[(κ−1)/(1+κ), 2√κ/(1+κ)], [2√κ/(1+κ), (1−κ)/(1+κ)]]
+    # docs/reference.md §1: on (v0, v·Jν), v0 = R√κ·ω, the map is
+    # [[(κ−1)/(1+κ), 2√κ/(1+κ)], [2√κ/(1+κ), (1−κ)/(1+κ)]]
     M = np.array([[kappa - 1, 2 * np.sqrt(kappa)], [2 * np.sqrt(kappa), 1 - kappa]]) / (1 + kappa)
     rng = np.random.default_rng(7)
     for _ in range(30):

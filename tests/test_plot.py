@@ -164,8 +164,9 @@ def test_plates_rank2_spin_planes_are_circles(runs):
 
 
 def test_spin_plane_follows_the_closed_form_rough_map(runs):
-    """At each collision, (v₀, v·Jν) after = [[(κ−1)/(1+κ), 2√κ/(1+κ)], [2√κ/(1+κ), (1−κ)/(1+κ)]]·before (SPEC §1),
-    with the plane's axis v·t = −v·Jν; 'before' is the previous record (a free flight changes neither)."""
+    """At each collision, (v₀, v·Jν) after = [[(κ−1)/(1+κ), 2√κ/(1+κ)], [2√κ/(1+κ), (1−κ)/(1+κ)]]·before
+    (docs/reference.md §1), with the plane's axis v·t = −v·Jν; 'before' is the previous record (a free flight changes
+    neither)."""
     run, geom, (wall, pos, vel, spin) = read(runs["lshape"], "wall", "position", "velocity", "angular_velocity")
     k = run.kappa
     T = np.array([[(k - 1) / (1 + k), 2 * math.sqrt(k) / (1 + k)], [2 * math.sqrt(k) / (1 + k), (1 - k) / (1 + k)]])
@@ -312,7 +313,7 @@ def test_displacement_panel_draws_a_gaussian_density(runs):
     assert x[np.argmax(y)] == pytest.approx(0.0, abs=(x[1] - x[0]))
 
 
-# ---- readable pictures on every example scene (issue 18) ---------------------------------------------------------
+# ---- readable pictures on every example scene --------------------------------------------------------------------
 
 EXAMPLES = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "configs", "examples")
 SCENES = sorted(f[:-5] for f in os.listdir(EXAMPLES) if f.endswith(".yaml") and f != "lyapunov-sinai.yaml")

@@ -127,9 +127,9 @@ ZOO_STEPS = 25
 @pytest.mark.parametrize("name", ["stadium", "mushroom", "custom", "custom-bulb", "circle-obstacles", "lorentz-2d",
                                   "sinai-3d", "lorentz-3d", "sphere", "cylinder"])
 def test_precise_loop_follows_the_zoo_one_collision_at_a_time(name):
-    """The zoo's tables (SPEC §8) in the precise loop: from each of the engine's first states, one collision at 30
-    digits lands where the engine's next record is (the orbits themselves are chaotic: compared whole, they part
-    at rounding level within ~10–30 collisions)."""
+    """The zoo's tables (docs/reference.md §8) in the precise loop: from each of the engine's first states, one
+    collision at 30 digits lands where the engine's next record is (the orbits themselves are chaotic: compared whole,
+    they part at rounding level within ~10–30 collisions)."""
     from catalog import zoo
     c = zoo(name, "rough", collisions=ZOO_STEPS, record=FIELDS)
     rec, count, _ = run_in_memory(config.from_dict(c))

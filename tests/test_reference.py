@@ -1,5 +1,6 @@
-"""Checks of the slow pure-Python reference (tests/reference.py) against the shared vectors, the invariants of
-SPEC §1 over whole trajectories on every scene kind, and closed forms from the literature.
+"""Checks of the slow pure-Python reference (tests/reference.py) against the reference trajectories of
+tests/data/trajectories.json (from an independent implementation), the invariants of
+docs/reference.md §1 over whole trajectories on every scene kind, and closed forms from the literature.
 
 The containment checks here are written independently of the reference's own collision geometry."""
 
@@ -40,7 +41,7 @@ def config(table, position, velocity, omega, *, boundary, radius=0.1, inertia="u
 
 
 # ---------------------------------------------------------------------------------------------------------------
-# (a) the shared vectors
+# (a) the reference trajectories (tests/data/trajectories.json)
 
 
 @pytest.mark.parametrize("case", VECTORS, ids=[c["name"] for c in VECTORS])
@@ -309,7 +310,8 @@ def test_random_rule_consumes_one_draw_per_random_node():
 
 
 def test_collision_map_invariants():
-    """SPEC §1: involution, angular momentum about the contact point, no-slip states fixed, closed-form 2D map."""
+    """docs/reference.md §1: involution, angular momentum about the contact point, no-slip states fixed, closed-form
+    2D map."""
     rng = np.random.default_rng(7)
     R, kappa = 0.3, 0.5
     for n in (2, 3):

@@ -1,4 +1,4 @@
-"""Faults around the run file (issue 13, docs/reliability.md): the run lock, a disk that fills up after rbx's room
+"""Faults around the run file (docs/reliability.md): the run lock, a disk that fills up after rbx's room
 check, Ctrl-C while Python starts, resuming a compensated run. Real ``rbx`` processes on real files."""
 import os
 import resource

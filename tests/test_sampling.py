@@ -1,4 +1,4 @@
-"""The billiard-measure sampler on its own, before any dynamics (paper §2.7, SPEC §4).
+"""The billiard-measure sampler on its own, before any dynamics (paper §2.7, docs/reference.md §4).
 
 The billiard measure on a wall of Q = shrunk table × SO(n): position uniform on the shrunk wall, orientation
 uniform (Haar), and the unit velocity in the metric-orthonormal coordinates (v, R√κ·ω) (d = n + n(n−1)/2 of them)

@@ -1,4 +1,5 @@
-"""Sections of phase space and the escape picture (SPEC §10): ``rbx plot --kind birkhoff | poincare | escape``.
+"""Sections of phase space and the escape picture (docs/reference.md §10): ``rbx plot --kind birkhoff | poincare |
+escape``.
 
 - The Birkhoff map on a curved wall: arc length along the shrunk wall and sin ψ, checked against the arc's own
   geometry (a stadium's cap); the spin colour is the spin's share of the metric speed.

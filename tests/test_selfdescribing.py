@@ -1,4 +1,4 @@
-"""A run file describes itself (issue 18): netCDF readers see named dimensions and units, the root attributes say
+"""A run file describes itself (docs/runfile.md): netCDF readers see named dimensions and units, the root attributes say
 where the file comes from, the stored config names the file written, compression changes no number, and a new
 run's ``.partial`` is never a torn HDF5 file.
 

@@ -1,5 +1,5 @@
-"""The table zoo (SPEC §8, issue 14): every new kind and preset, 2D and 3D, custom boundaries, obstacles on an
-existing kind, periodic cells.
+"""The table zoo (docs/reference.md §8): every kind and preset built from wall pieces, 2D and 3D, custom
+boundaries, obstacles on an existing kind, periodic cells.
 
 * the engine equals the pure-Python reference (tests/reference.py) collision by collision;
 * the invariant catalog over 10⁵ collisions: never outside the free region, every collision on the wall it names,
