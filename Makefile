@@ -4,7 +4,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: test reproduce-figures bench stress gallery clean
+.PHONY: test test-numba reproduce-figures bench stress gallery clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -16,7 +16,12 @@ $(STAMP): pyproject.toml
 test: $(STAMP)
 	$(PY) -m pytest -q -n 2 -m "not heavy" tests
 
-# ---- the paper's figures (SPEC §6) ----------------------------------------------------------------------------
+# the suite with the oldest and the newest Numba that pyproject.toml declares (a venv each), and with kernels
+# compiled for a generic CPU (NUMBA_CPU_NAME=generic): scripts/test_numba.sh
+test-numba:
+	PYTHON=$(PYTHON) scripts/test_numba.sh
+
+# ---- the paper's figures (docs/reference.md §6) ----------------------------------------------------------------------------
 # data/<x>.h5 is one `rbx simulate` run of configs/experiments/<x>.yaml; a figure with several scenes has a folder
 # configs/experiments/<label>/ of configs.  figures/<label>.png depends on its script and its data only, so
 # re-plotting never re-simulates.  A figure script exits 1 when the paper's property does not hold.

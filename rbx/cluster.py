@@ -1,4 +1,4 @@
-"""Ensembles on a Dask cluster (SPEC §11): ``rbx simulate CONFIG --scheduler ADDRESS`` (and ``rbx histogram``,
+"""Ensembles on a Dask cluster (docs/reference.md §11): ``rbx simulate CONFIG --scheduler ADDRESS`` (and ``rbx histogram``,
 through the same blocks; ``rbx lyapunov`` sends one task per slice of trajectories through :meth:`Cluster.map`).
 
 The client keeps the run: its :class:`rbx.simulation.Simulation` (the state of every trajectory), its sink (the

@@ -1,4 +1,4 @@
-"""Dynamics of rough billiards (SPEC §10): the Lyapunov spectrum (:func:`lyapunov`), escape and return times
+"""Dynamics of rough billiards (docs/reference.md §10): the Lyapunov spectrum (:func:`lyapunov`), escape and return times
 (:func:`escape_times`), and the flow's Jacobian (:func:`flow_jacobian`, for checking the tangent map).
 
 The linearised dynamics and Benettin's method run in compiled code (:mod:`rbx.tangent`) along the engine's own
@@ -182,7 +182,7 @@ class Lyapunov:
 
 def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segments=10, warmup=None,
              scheduler=None, slices=None):
-    """The Lyapunov spectrum of the flow, per unit time, largest first -> :class:`Lyapunov` (SPEC §10).
+    """The Lyapunov spectrum of the flow, per unit time, largest first -> :class:`Lyapunov` (docs/reference.md §10).
 
     Benettin's method: d = 2(n + n(n−1)/2) tangent vectors (6 in 2D, 12 in 3D: position, orientation and their
     velocities) follow each trajectory of the experiment (its initial states, ``run.trajectories`` of them, its
@@ -194,7 +194,7 @@ def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segme
     ``experiment``: an :class:`~rbx.model.Experiment`, a config path or a dict; ``collisions``, ``trajectories``,
     ``seed`` override ``run.*``.
 
-    ``scheduler``: follow the trajectories on the workers of a Dask cluster (SPEC §11, docs/cluster.md): its
+    ``scheduler``: follow the trajectories on the workers of a Dask cluster (docs/reference.md §11, docs/cluster.md): its
     scheduler's address (``tcp://host:8786``), the file it wrote (``--scheduler-file``) or a
     ``distributed.Client``; ``slices``: tasks (slices of trajectories; default 4 per worker thread). The result
     is the local one, bit for bit. An unreachable scheduler raises :class:`rbx.cluster.SchedulerUnreachable`, a

@@ -1,6 +1,6 @@
 """The event loop (njit): free flight to the next wall, choose the rule, apply the collision map, record.
 
-Three tiers (STYLE, after stumpy): :mod:`rbx.simulation` validates and allocates → :func:`run_advance_all` runs
+Three tiers (after stumpy): :mod:`rbx.simulation` validates and allocates → :func:`run_advance_all` runs
 slices of the trajectories on a thread pool → :func:`kernel` ``(spec)``, the serial loop over a slice (``nogil``; each
 trajectory writes only its own slots), one compiled closure per combination of compiled bits. Kernels take arrays and scalars only, in five
 named groups (module-level named tuples, so that Numba types them and its disk cache finds them again):
@@ -246,7 +246,7 @@ def write_record(j, r, mask, t, a, v, W, theta, A, wall, rank, out, n):
         out.rank[j, r] = rank
 
 
-#: bits of ``spec``, the compile-time description of what a run needs (SPEC §7: skip what a scene does not need).
+#: bits of ``spec``, the compile-time description of what a run needs (docs/reference.md §7: skip what a scene does not need).
 #: The compiled ones are constants of the loop (:func:`kernel`): Numba compiles one specialised loop per combination
 #: in use and the branches a scene does not need are not in it (and the dimension becomes a constant).
 S_DIM3 = 1          # 3D (else 2D)
@@ -265,7 +265,7 @@ S_ROUND_HEMI = 8192  # 2D: a hemisphere rule on a wall without one normal: cos �
 #: the bits compiled into the kernel; the others are tested at run time (a predictable branch). Each compiled
 #: combination in use costs a compile of 5–15 s the first time (then it is on disk), so the bits compiled are the
 #: ones that pay: the dimension (loops of constant length, state in registers), spin arithmetic, the slab's closed
-#: form, and what SPEC §7 asks to skip (the orientation, rule trees and random draws). Compiling these took the
+#: form, and what docs/reference.md §7 says is skipped (the orientation, rule trees and random draws). Compiling these took the
 #: rough strip from 6.7 to 5.0 ns per collision and the rough plates from 8.5 to 6.2 (the run-time tests keep
 #: registers busy); as a run-time bit the orientation costs the rough plates 0.99 -> 0.86 of their hand loop. An
 #: axis-aligned box (S_AXES) is compiled too: rbx/hand of the rectangle 0.53 -> 0.80, box 0.39 -> 0.72, Sinai

@@ -66,7 +66,7 @@ ROOT_ATTRS = {
     "kappa": "κ = 2λ/R² of the ball's mass distribution",
     "collisions_requested": "run.collisions: the length the run was asked for",
 }
-SPEC_ATTRS = ("rbx_version", "dimension", "config", "complete")
+REQUIRED_ATTRS = ("rbx_version", "dimension", "config", "complete")
 #: where a file comes from: root attributes written with :data:`ROOT_ATTRS` -> meaning (:func:`provenance`). Not
 #: required when reading (files written before them lack them); a resumed run keeps those of its first start and
 #: adds a line to ``resumed`` (:func:`note_resume`).
@@ -1052,7 +1052,7 @@ def _check_rbx_file(f, path, group):
     if group == "collisions" and "collisions" not in f and "returns" in f:
         raise FileError(path, None, "not an rbx run: it holds return angles from rbx histogram (returns/), no "
                                     "collisions/")
-    missing = [a for a in SPEC_ATTRS if a not in f.attrs]
+    missing = [a for a in REQUIRED_ATTRS if a not in f.attrs]
     if missing and not len(f.attrs) and not len(f) and path.endswith(".partial"):
         raise FileError(path, None, "holds nothing yet: its run was stopped before writing anything; remove it and "
                                     "run the config again")

@@ -1,4 +1,4 @@
-"""Interrupted runs lose nothing (SPEC §4): SIGINT/SIGTERM stop a real ``rbx simulate`` within a second or two and
+"""Interrupted runs lose nothing (docs/reference.md §4): SIGINT/SIGTERM stop a real ``rbx simulate`` within a second or two and
 leave a valid HDF5 file marked ``complete = false``; ``rbx simulate --resume`` then writes exactly the records an
 uninterrupted run writes, record by record, bit for bit.
 
