@@ -84,17 +84,23 @@ def _cache_dir():
 #: the folder of rbx's compiled kernels (only rbx's: see :func:`rbx._numba_hooks.enable_cache`)
 CACHE_DIR = _cache_dir()
 
-@contextlib.contextmanager
+
 def compile_lock(name):
     """Hold an exclusive lock named ``name`` in the kernel cache folder while compiling a kernel: another process
     (a second test worker, a CLI run started meanwhile) that needs the same kernel waits, then loads it from the
     disk cache instead of compiling it a second time (each combination takes 10–60 s). The lock (``flock``) goes
     with the process that holds it, so a killed compile blocks nobody; where no lock can be taken (no ``fcntl``, a
     folder that refuses it), the kernel is compiled without one."""
+    return compile_lock_at(os.path.join(CACHE_DIR, f".{name}.lock"))
+
+
+@contextlib.contextmanager
+def compile_lock_at(path):
+    """:func:`compile_lock` on the lock file ``path``."""
     fd = None
     try:
         import fcntl
-        fd = os.open(os.path.join(CACHE_DIR, f".{name}.lock"), os.O_RDWR | os.O_CREAT, 0o600)
+        fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o600)
         # asked again every 20 ms rather than waited for in one blocking call: Ctrl-C while another process
         # compiles must end this one now, and a blocking flock sees the signal only if the kernel delivers it to
         # this very thread (else Python runs its handler when the other compile is done, up to a minute later)
