@@ -1,9 +1,10 @@
-"""The Python API (SPEC §9): :func:`load`, :func:`simulate`, :func:`open` — the same engine as the CLI, and the
-same code: ``rbx simulate`` runs an experiment into a file with :func:`run_to_file` too, so the API and the CLI
-write the same file bit for bit.
+"""The Python API (docs/reference.md §9): :func:`load`, :func:`simulate`, :func:`open` — the same engine as the
+CLI, and the same code: ``rbx simulate`` runs an experiment into a file with :func:`run_to_file` too, so the API
+and the CLI write the same file bit for bit.
 
     >>> import rbx
     >>> exp = rbx.load("configs/examples/strip.yaml")
+    >>> exp2 = rbx.load(exp, {"ball.inertia": 0.2})       # a changed copy, validated as the YAML is
     >>> run = rbx.simulate(exp, collisions=1000)          # in memory: a rbx.Run
     >>> run.position.shape                                # (trajectories, records, 2)
     >>> run = rbx.simulate(exp, output="strip.h5")        # streamed to HDF5 (OUT.h5.partial, renamed at the end)
@@ -19,6 +20,7 @@ import signal
 import sys
 import threading
 import warnings
+from collections.abc import Mapping
 
 # nothing heavy at import: the CLI takes StopFlag from here before it installs its signal handlers
 __all__ = ["load", "simulate", "open"]
@@ -26,20 +28,67 @@ __all__ = ["load", "simulate", "open"]
 _OVERRIDES = ("collisions", "trajectories", "seed", "max_size")
 
 
-def load(path_or_dict, overrides=None):
-    """A validated, immutable experiment from a config file (YAML) or a mapping -> :class:`rbx.model.Experiment`.
+def load(config, overrides=None, *, base=None):
+    """A validated, immutable experiment -> :class:`rbx.model.Experiment`. Raises :class:`ConfigError` whose
+    message names the file and the key (the CLI prints the same message).
 
-    Relative paths in a mapping are resolved from the working directory. Raises :class:`ConfigError` whose message
-    names the file and the key (the CLI prints the same message). ``overrides``: ``{'collisions': N, …}``."""
-    from . import config
-    from .model import Experiment
-    if isinstance(path_or_dict, Experiment):
-        return path_or_dict if not overrides else _override(path_or_dict, overrides)
-    if isinstance(path_or_dict, dict):
-        return _api_keys(lambda: config.from_dict(path_or_dict, overrides=overrides))
-    if isinstance(path_or_dict, (str, os.PathLike)):
-        return _api_keys(lambda: config.load(os.fspath(path_or_dict), overrides))
-    raise TypeError(f"rbx.load takes a config path or a dict, not {type(path_or_dict).__name__}")
+    ``config``: a config file (YAML), a mapping of the same sections, or an experiment to change.
+
+    ``overrides``: ``{key: value}``, each a dotted config key, made to the config before it is validated, so
+    checked exactly as the YAML is (the same as ``rbx simulate --set KEY=VALUE``)::
+
+        rbx.load("strip.yaml", {"ball.inertia": 0.2, "initial.position": [0, 0.5], "run.trajectories": 10})
+        rbx.load(exp, overrides={"boundary.walls.top": {"rule": "exit"}})
+
+    A mapping value is merged into the mapping already there (``{"ball": {"inertia": 0.2}}`` is
+    ``{"ball.inertia": 0.2}``), except one that names its kind (a rule with ``rule:``, a table with ``kind:``,
+    ``{sample: billiard}``), which replaces it. An unknown key is refused with a hint ("did you mean
+    'run.collisions'?"). ``collisions``, ``trajectories``, ``seed`` and ``max_size`` stand for ``run.…`` and
+    ``output.max_size`` (as :func:`simulate`'s keywords; their errors name them).
+
+    ``base``: for a mapping, the file or folder its relative paths (``table: ../tables/strip.yaml``, the output
+    path) are resolved from; default: the working folder. A mapping read from a config file (``yaml.safe_load``)
+    needs ``base=`` that file; ``experiment.to_dict()`` gives one with its includes inlined and its paths absolute,
+    which loads from any folder."""
+    from . import config as cfgmod
+    from .model import ConfigError, Experiment
+    if overrides is not None and not isinstance(overrides, Mapping):
+        raise TypeError(f"rbx.load: overrides is a mapping {{'ball.inertia': 0.2, …}}, not "
+                        f"{type(overrides).__name__}")
+    changes = dict(overrides or {})
+    short = {k: changes.pop(k) for k in list(changes) if k in _OVERRIDES}
+    if base is not None and not isinstance(config, Mapping):
+        raise TypeError("rbx.load: base= is for a mapping (a file's paths are relative to its folder, an "
+                        "experiment's are resolved already)")
+    if isinstance(config, Experiment):
+        if not changes and not short:
+            return config
+        if config.resolved is None:       # made by hand, not from a config
+            if changes:
+                raise ConfigError(None, next(iter(changes)), "this experiment was not made from a config: only "
+                                                            f"{', '.join(_OVERRIDES)} can be changed")
+            return _override_by_hand(config, short)
+        return _api_keys(lambda: cfgmod.from_dict(config.resolved, config.source, short, changes=changes,
+                                                  includes=config.includes))
+    if isinstance(config, Mapping):
+        folder = _folder(base)
+        return _api_keys(lambda: cfgmod.from_dict(dict(config), overrides=short, changes=changes, base=folder))
+    if isinstance(config, (str, os.PathLike)):
+        return _api_keys(lambda: cfgmod.load(os.fspath(config), short, changes=changes))
+    raise TypeError(f"rbx.load takes a config path, a mapping or an Experiment, not {type(config).__name__}")
+
+
+def _folder(base):
+    """``base=``: a file (its folder) or a folder -> the folder, or None."""
+    from .model import ConfigError
+    if base is None:
+        return None
+    path = os.path.abspath(os.path.expanduser(os.fspath(base)))
+    if os.path.isfile(path):
+        return os.path.dirname(path)
+    if os.path.isdir(path):
+        return path
+    raise ConfigError(None, "base", f"no such file or folder: {path}")
 
 
 def _api_keys(make):
@@ -54,15 +103,10 @@ def _api_keys(make):
         raise
 
 
-def _override(experiment, overrides):
-    """``experiment`` with run settings replaced, validated as the config validates them."""
-    from . import config
-    if experiment.resolved is not None:   # validate the new values exactly as a config would be
-        checked = _api_keys(lambda: config.from_dict(experiment.resolved, experiment.source, overrides))
-        run, output = checked.run, checked.output
-    else:
-        run = dataclasses.replace(experiment.run, **{k: v for k, v in overrides.items() if k != "max_size"})
-        output = dataclasses.replace(experiment.output, **{k: v for k, v in overrides.items() if k == "max_size"})
+def _override_by_hand(experiment, overrides):
+    """An experiment made without a config (no ``resolved``) with its run settings replaced."""
+    run = dataclasses.replace(experiment.run, **{k: v for k, v in overrides.items() if k != "max_size"})
+    output = dataclasses.replace(experiment.output, **{k: v for k, v in overrides.items() if k == "max_size"})
     return experiment.replace(run=run, output=output)
 
 
@@ -71,7 +115,9 @@ def simulate(experiment, *, collisions=None, trajectories=None, seed=None, outpu
     """Run an experiment (an :class:`~rbx.model.Experiment`, a config path or a dict) -> :class:`Run`.
 
     ``collisions``, ``trajectories``, ``seed`` override ``run.*``, ``max_size`` ``output.max_size`` (bytes or a
-    text such as '50 GB'). With ``output=None`` the run is kept in memory;
+    text such as '50 GB'); any other key is changed with :func:`load` first (``rbx.load(exp, {'ball.inertia':
+    0.2})``). An ensemble whose trajectories would all repeat one orbit (one fixed start, several trajectories,
+    no random numbers drawn) gives a RuntimeWarning. With ``output=None`` the run is kept in memory;
     else it is streamed to that HDF5 file as ``rbx simulate -o`` does (written as ``output.partial``, renamed at
     the end; an existing file is replaced only with ``force=True``) and read back. ``progress``: True for a
     progress bar on stderr, or a callable ``progress(done, total)``.
@@ -79,9 +125,9 @@ def simulate(experiment, *, collisions=None, trajectories=None, seed=None, outpu
     Ctrl-C (SIGINT) while a file is written stops the run between blocks: the file is closed and renamed, marked
     ``complete = False`` (``rbx simulate --resume`` continues it), then KeyboardInterrupt is raised.
 
-    ``scheduler``: run the trajectories on the workers of a Dask cluster (SPEC §11; needs ``rbx[cluster]``): its
-    scheduler's address (``tcp://host:8786``), the JSON file it wrote (``--scheduler-file``) or a
-    ``distributed.Client``. The result is the local run's, bit for bit. ``slices`` (tasks per round) and
+    ``scheduler``: run the trajectories on the workers of a Dask cluster (docs/reference.md §11; needs
+    ``rbx[cluster]``): its scheduler's address (``tcp://host:8786``), the JSON file it wrote (``--scheduler-file``)
+    or a ``distributed.Client``. The result is the local run's, bit for bit. ``slices`` (tasks per round) and
     ``task_collisions`` (collisions per task) tune how the run is cut (docs/cluster.md). An unreachable scheduler
     raises :class:`rbx.cluster.SchedulerUnreachable`, a task that fails mid-run :class:`rbx.cluster.ClusterError`
     (a file then holds every round finished before, ``complete = False``)."""
@@ -90,6 +136,10 @@ def simulate(experiment, *, collisions=None, trajectories=None, seed=None, outpu
     overrides = {k: v for k, v in (("collisions", collisions), ("trajectories", trajectories), ("seed", seed),
                                    ("max_size", max_size)) if v is not None}
     exp = load(experiment, overrides or None)
+    from .config import repeated_orbits     # here: importing rbx.api stays light
+    repeated = repeated_orbits(exp)
+    if repeated:
+        warnings.warn(f"{exp.source}: {repeated}", RuntimeWarning, stacklevel=2)
     if scheduler is None and (slices is not None or task_collisions is not None):
         raise TypeError("slices and task_collisions cut a run for a cluster: give scheduler too")
     bar = _progress(progress)
@@ -118,7 +168,7 @@ def simulate(experiment, *, collisions=None, trajectories=None, seed=None, outpu
             bar.close()
 
 
-def open(path):   # noqa: A001 - the SPEC's name
+def open(path):   # noqa: A001 - the name docs/reference.md §9 gives it
     """A run file read back -> :class:`Run`. Raises :class:`FileError` if ``path`` is not an rbx run file."""
     from .runfile import Run
     return Run.open(os.fspath(path))

@@ -1,4 +1,4 @@
-"""Experiment configs: YAML in, validated once into frozen dataclasses (SPEC §3–4).
+"""Experiment configs: YAML in, validated once into frozen dataclasses (docs/reference.md §3–4).
 
 Every user mistake becomes a :class:`ConfigError` naming the file, the key (a dotted path such as
 ``boundary.walls.top.rank``) and the problem; the CLI prints it as one line and exits with code 2. A table or
@@ -10,25 +10,40 @@ not a mapping); unknown keys (with a did-you-mean hint) and missing required one
 and finiteness of every value; that the ball fits the table and starts inside the table shrunk by its radius with
 a finite, non-zero velocity; wall names; ranks 0 … n−1 and a direction for 3D rank 1; probabilities that are
 non-negative and sum to 1; positive integer counts. Relative paths are resolved from the config file's folder.
+
+Changes to a config (``--set KEY=VALUE``, ``rbx.load(path, {KEY: VALUE})``, a changed part of an experiment) are
+made to the config mapping before it is validated (:func:`apply_changes`), so they meet the same checks and the
+same messages as the YAML. A key is dotted (``ball.inertia``, ``boundary.walls.top``, ``initial[0].position``); an
+unknown one is refused with a did-you-mean hint (``colisions``: did you mean 'run.collisions'?).
 """
+import copy
 import difflib
 import math
 import os
 import re
 import types
+from collections.abc import Mapping
 
 import numpy as np
 import yaml
 
 from . import tables
-from .model import (COMPRESSIONS, DEFAULT_MAX_SIZE, RECORD_FIELDS, Ball, ConfigError, Constant, Exit, Experiment,
-                    Hemisphere, Numerics, Output, Random, RunSettings)
+from .model import (COMPRESSIONS, DEFAULT_MAX_SIZE, RECORD_FIELDS, VALIDATED, Ball, ConfigError, Constant, Exit,
+                    Experiment, Hemisphere, Numerics, Output, Random, RunSettings)
 from .physics import kappa_of
 
 SECTIONS = ("table", "boundary", "ball", "initial", "run", "output", "numerics")
 #: command-line options that override config keys, and the option each one's errors name
 OVERRIDE_OPTIONS = {"collisions": "--collisions", "trajectories": "--trajectories", "seed": "--seed",
                     "max_size": "--max-size"}
+#: the config key each of those options overrides
+OVERRIDE_KEYS = {"collisions": "run.collisions", "trajectories": "run.trajectories", "seed": "run.seed",
+                 "max_size": "output.max_size"}
+#: the keys of the sections whose keys are fixed (those of table, boundary and initial depend on the table kind,
+#: its walls and the kind of start)
+SECTION_KEYS = {"ball": ("radius", "inertia"), "run": ("collisions", "trajectories", "seed"),
+                "output": ("path", "record", "every", "max_size", "compression"),
+                "numerics": ("renormalize", "compensated", "snap")}
 #: units of a size (output.max_size, --max-size)
 SIZE_UNITS = {"": 1, "b": 1, "kb": 1e3, "mb": 1e6, "gb": 1e9, "tb": 1e12, "pb": 1e15,
               "kib": 2**10, "mib": 2**20, "gib": 2**30, "tib": 2**40, "pib": 2**50}
@@ -188,6 +203,9 @@ _SCIENTIFIC = re.compile(r"^\s*[-+]?(\d+\.?\d*|\.\d+)[eE][-+]?\d+\s*$")
 class _Checker:
     """Type and range checks that name the file and the dotted key."""
 
+    #: added to 'file not found' of a table or boundary file (a mapping's paths are relative to the working folder)
+    not_found_hint = ""
+
     def __init__(self, file):
         self.file = file
         self.included = []     # files the config names (table, boundary), in the order met
@@ -287,12 +305,14 @@ def _join(key, k):
 
 # ---- loading --------------------------------------------------------------------------------------------------
 
-def load(path, overrides=None):
+def load(path, overrides=None, changes=None, label="override"):
     """Read and validate an experiment config file -> :class:`rbx.model.Experiment`. Raises :class:`ConfigError`.
 
-    ``overrides``: ``{'collisions': N, 'trajectories': M, 'seed': S}`` from the command line (None: not given)."""
+    ``overrides``: ``{'collisions': N, 'trajectories': M, 'seed': S, 'max_size': X}`` from the command line's
+    options (None: not given; their errors name the option); ``changes``: ``{dotted key: value}`` made to the
+    config before it is validated (:func:`apply_changes`; ``label`` names where they came from in messages)."""
     path = os.path.abspath(path)
-    return from_dict(_read_yaml(path), path, overrides)
+    return from_dict(_read_yaml(path), path, overrides, changes=changes, label=label, copy_data=False)
 
 
 def loads(text, source, overrides=None):
@@ -300,23 +320,65 @@ def loads(text, source, overrides=None):
     data = parse_yaml(text, source)
     if data is None:
         raise ConfigError(source, None, "the config is empty")
-    return from_dict(data, source, overrides)
+    return from_dict(data, source, overrides, copy_data=False)
 
 
-def from_dict(data, source="<config>", overrides=None):
-    """Validate a config mapping (paths relative to ``source``'s folder) -> :class:`rbx.model.Experiment`."""
+def from_dict(data, source="<config>", overrides=None, changes=None, base=None, label="override", includes=(),
+              copy_data=True):
+    """Validate a config mapping -> :class:`rbx.model.Experiment` (the mapping itself is left as it is).
+
+    Relative paths are resolved from ``base`` (a folder), else from ``source``'s folder (a ``source`` such as
+    ``<config>``, not a file: the working folder). ``overrides`` and ``changes`` as for :func:`load`;
+    ``includes``: files named by the config this mapping was made from (kept in the experiment's ``includes``)."""
     try:
         _check_size(data, source)
-        return _from_dict(data, str(source), overrides or {})
+        if copy_data:          # the experiment must not share the caller's lists and mappings (its stored config)
+            data = copy.deepcopy(data)
+        inlined = ()
+        folder = _base(source, base)
+        if changes:
+            data, inlined = apply_changes(data, changes, str(source), folder, label)
+        overrides = overrides or {}
+        for name, option in OVERRIDE_OPTIONS.items():
+            clash = [k for k in changes or () if overrides.get(name) is not None
+                     and (OVERRIDE_KEYS[name] + ".").startswith(k + ".")]
+            if clash:
+                raise ConfigError(None, option, f"and {label} {clash[0]} both set {OVERRIDE_KEYS[name]}: give one")
+        try:
+            exp = _from_dict(data, str(source), overrides, folder, base is None and str(source).startswith("<"),
+                             tuple(includes) + tuple(inlined))
+        except ConfigError as exc:
+            raise _blame(exc, changes, label) from None
+        return exp
     except RecursionError:
         # a YAML alias that contains itself (`&a [*a]`) would otherwise recurse without end
         raise ConfigError(source, None, "the config is nested too deeply (an alias that refers to itself?)") \
             from None
 
 
-def _from_dict(data, source, overrides):
+def _base(source, base):
+    """The folder relative paths are resolved from."""
+    if base is not None:
+        return os.path.abspath(os.fspath(base))
+    source = str(source)
+    return os.path.dirname(os.path.abspath(source)) if not source.startswith("<") else os.getcwd()
+
+
+def _blame(exc, changes, label):
+    """A validation error of a key that a change set: the message says so (the file does not hold that value)."""
+    for key in changes or ():
+        k = str(key)
+        if exc.key and (exc.key == k or exc.key.startswith((k + ".", k + "["))):
+            return ConfigError(exc.file, exc.key, f"{exc.problem} ({label} {k})")
+    return exc
+
+
+def _from_dict(data, source, overrides, base, cwd_hint=False, includes=()):
     c = _Checker(source)
-    base = os.path.dirname(os.path.abspath(source)) if not source.startswith("<") else os.getcwd()
+    if cwd_hint:
+        c.not_found_hint = (" (a mapping's relative paths are resolved from the working folder: give base=, the file "
+                            "or folder the config came from, or load exp.to_dict() of a loaded experiment)")
+    c.included.extend(includes)
     if not isinstance(data, dict):
         c.fail(None, f"expected a mapping with the sections {', '.join(SECTIONS)}; got {_kind(data)}")
     c.mapping(data, "", SECTIONS, required=("table", "boundary", "ball", "initial"))
@@ -347,7 +409,7 @@ def _from_dict(data, source, overrides):
 
     per_wall, resolved["boundary"] = _boundary(data["boundary"], base, c, n, geom, kind)
 
-    run = c.mapping(_section(data, "run"), "run", ("collisions", "trajectories", "seed"))
+    run = c.mapping(_section(data, "run"), "run", SECTION_KEYS["run"])
     collisions = _count(run, overrides, "collisions", 1000, c, lo=1, hi=MAX_COUNT)
     seed = _count(run, overrides, "seed", 0, c, lo=0, hi=MAX_SEED)
 
@@ -368,14 +430,14 @@ def _from_dict(data, source, overrides):
                                 "snap": numerics.snap}
 
     return Experiment(source=source, dimension=n, table_kind=kind, table=frozen_table,
-                      wall_rules=tuple(per_wall), wall_names=tuple(names), ball=Ball(radius, inertia, kappa),
+                      wall_rules=tuple(per_wall), wall_names=tuple(names), ball=Ball(radius, inertia, n),
                       initial=initial, run=RunSettings(collisions, trajectories, seed), output=output,
-                      numerics=numerics, resolved=resolved, includes=tuple(c.included))
+                      numerics=numerics, resolved=resolved, includes=tuple(c.included), checked=VALIDATED)
 
 
 def _numerics(section, c):
     """The optional section ``numerics: {renormalize: N, compensated: bool, snap: bool}`` -> :class:`Numerics`."""
-    c.mapping(section, "numerics", ("renormalize", "compensated", "snap"))
+    c.mapping(section, "numerics", SECTION_KEYS["numerics"])
     default = Numerics()
     flags = {}
     for name in ("compensated", "snap"):
@@ -412,7 +474,7 @@ def _include(value, key, base, c):
             c.fail(key, "expected a file name or a mapping, got an empty text")
         path = os.path.normpath(os.path.join(base, os.path.expanduser(value)))
         if not os.path.exists(path):
-            c.fail(key, f"file not found: {path}")
+            c.fail(key, f"file not found: {path}{c.not_found_hint}")
         c.included.append(path)
         return _read_yaml(path), path
     if not isinstance(value, dict):
@@ -462,7 +524,7 @@ def _check_magnitudes(value, key, c):
 
 def _ball(ball, n, c):
     """-> (radius, inertia as given, kappa)."""
-    c.mapping(ball, "ball", ("radius", "inertia"), ("radius",))
+    c.mapping(ball, "ball", SECTION_KEYS["ball"], ("radius",))
     radius = c.number(ball["radius"], "ball.radius", positive=True)
     inertia = ball.get("inertia", "uniform")
     if isinstance(inertia, str):
@@ -506,7 +568,7 @@ def _boundary(value, base, c, n, geom, kind):
 
 
 def _output(out, base, c, overrides):
-    c.mapping(out, "output", ("path", "record", "every", "max_size", "compression"))
+    c.mapping(out, "output", SECTION_KEYS["output"])
     opath = out.get("path")
     if opath is not None:
         if not isinstance(opath, str) or not opath.strip():
@@ -723,3 +785,263 @@ def _initial(init, n, c, geom, kind, R, kappa, names):
             a.setflags(write=False)
         out.append({"position": pos, "velocity": vel, "angular_velocity": spin, "orientation": orient})
     return tuple(out), len(out)
+
+
+# ---- changes: --set KEY=VALUE, rbx.load(path, {KEY: VALUE}), a changed part of an experiment ----------------------
+
+#: keys whose presence says what kind of mapping it is (a rule, a table, a sampled start): such a mapping replaces
+#: the one it is given for instead of being merged into it (the keys of one kind of rule mean nothing to another)
+KIND_KEYS = ("rule", "kind", "sample")
+_KEY = re.compile(r"[^.\[\]\s]+(?:\[[0-9]+\])*(?:\.[^.\[\]\s]+(?:\[[0-9]+\])*)*")
+
+
+def known_keys():
+    """The dotted keys a change may name, for did-you-mean hints (the walls and the rule keys depend on the
+    table, so a wall is named by the validator) -> list."""
+    keys = [f"{section}.{k}" for section, ks in SECTION_KEYS.items() for k in ks]
+    keys += [f"initial.{k}" for k in STATE_KEYS + ("sample", "wall")]
+    params = sorted({p for k in tables.KINDS.values() for p in list(k.params) + list(k.optional or ())}
+                    | {tables.OBSTACLES, "kind"})
+    keys += [f"table.{p}" for p in params] + ["boundary.default", "boundary.walls"]
+    return list(SECTIONS) + keys
+
+
+def key_path(key, file=None):
+    """A dotted key (``ball.inertia``, ``initial[0].position``) -> its parts (names, and list indices as int)."""
+    if not isinstance(key, str) or not _KEY.fullmatch(key):
+        raise ConfigError(file, str(key), "not a config key: give a dotted name such as ball.inertia or "
+                                          "initial[0].position")
+    return [int(i) if i else name for name, i in re.findall(r"([^.\[\]]+)|\[([0-9]+)\]", key)]
+
+
+def _unknown(file, key, wrong):
+    """An unknown key: did you mean …? among the dotted keys that exist."""
+    close = difflib.get_close_matches(wrong, known_keys(), n=1)
+    if not close and "." in wrong:     # 'colisions' in a wrong section: by its last part
+        tail = wrong.rsplit(".", 1)[1]
+        close = [k for k in known_keys() if k.endswith("." + tail)][:1]
+    hint = f"did you mean '{close[0]}'?" if close else f"the sections are {', '.join(SECTIONS)}"
+    raise ConfigError(file, key, f"unknown key ({hint})")
+
+
+def apply_changes(data, changes, file, base, label="override"):
+    """``data`` (a config mapping, changed in place) with ``changes`` ``{dotted key: value}`` made, in order ->
+    (data, the table or boundary files read to make them).
+
+    A value replaces what the key holds, except a mapping given for a mapping, which is merged into it key by key
+    (``{'ball': {'inertia': 0.2}}`` is ``{'ball.inertia': 0.2}``), unless it names its kind (``rule:``,
+    ``kind:``, ``sample:``): then it replaces. A table or boundary kept in its own file is read (from ``base``)
+    when a change reaches into it. Unknown keys (did you mean …?), keys given twice and keys through a value that
+    is not a mapping or a list raise :class:`ConfigError` (``file`` names the config, ``label`` the changes)."""
+    if not isinstance(changes, Mapping):
+        raise ConfigError(None, label, "expected a mapping from config key to value (such as {'ball.inertia': 0.2}), "
+                                       f"got {type(changes).__name__}")
+    if not isinstance(data, dict):
+        return data, ()       # validation says what is wrong with it
+    paths = {key: key_path(key, file) for key in changes}
+    seen = {}
+    for key, path in paths.items():
+        for other, before in seen.items():
+            n = min(len(path), len(before))
+            if path[:n] == before[:n]:
+                raise ConfigError(file, key, f"set twice, as {other} and {key}" if other != key else "set twice")
+        seen[key] = path
+    inlined = []
+    for key, value in changes.items():
+        path = paths[key]
+        head = path[0]
+        if head not in SECTIONS:
+            _unknown(file, key, key)
+        if head in SECTION_KEYS and len(path) > 1 and path[1] not in SECTION_KEYS[head]:
+            _unknown(file, key, f"{head}.{path[1]}")
+        parent, name = data, head
+        for depth, part in enumerate(path[1:], 1):
+            where = _path_text(path[:depth])
+            child = parent[name] if isinstance(name, int) else parent.get(name)
+            if child is None:
+                child = {}
+                parent[name] = child
+            elif depth == 1 and name in ("table", "boundary") and isinstance(child, str):
+                child = _inline(parent, name, base, file, inlined)
+            if isinstance(part, int):
+                if not isinstance(child, list):
+                    raise ConfigError(file, key, f"{where} is {_kind(child)}, not a list: [{part}] names nothing")
+                if part >= len(child):
+                    raise ConfigError(file, key, f"{where} has {len(child)} items (0–{len(child) - 1})")
+            elif not isinstance(child, dict):
+                raise ConfigError(file, key, f"{where} is {_kind(child)}, not a mapping: it has no key '{part}'")
+            parent, name = child, part
+        old = parent[name] if isinstance(name, int) else parent.get(name)
+        if len(path) == 1 and head in ("table", "boundary") and isinstance(old, str) and isinstance(value, Mapping) \
+                and not any(k in value for k in KIND_KEYS):
+            old = _inline(parent, name, base, file, inlined)
+        parent[name] = _merged(old, value)
+    return data, tuple(inlined)
+
+
+def _path_text(parts):
+    return "".join(f"[{p}]" if isinstance(p, int) else (f".{p}" if i else p) for i, p in enumerate(parts))
+
+
+def _inline(parent, name, base, file, inlined):
+    """The table or boundary file that ``parent[name]`` names, read into the config in its place."""
+    c = _Checker(file)
+    value, path = _include(parent[name], name, base, c)
+    inlined.append(path)
+    parent[name] = value
+    return value
+
+
+def _merged(old, new):
+    """``new`` given for ``old``: a mapping is merged into a mapping key by key (unless it names its kind)."""
+    if isinstance(new, Mapping) and isinstance(old, dict) and not any(k in new for k in KIND_KEYS):
+        out = dict(old)
+        for k, v in new.items():
+            out[k] = _merged(old.get(k), v)
+        return out
+    return _plain(new)
+
+
+def _plain(x):
+    """Plain data (dicts, lists, numbers, text) from mappings, tuples and NumPy values, copied."""
+    if isinstance(x, Mapping):
+        return {k: _plain(v) for k, v in x.items()}
+    if isinstance(x, (list, tuple)):
+        return [_plain(v) for v in x]
+    if isinstance(x, np.ndarray):
+        return _plain(x.tolist())
+    if isinstance(x, np.generic):
+        return x.item()
+    return copy.deepcopy(x)
+
+
+def check_ball(ball):
+    """A :class:`rbx.model.Ball` as made (by the config or by hand): a positive radius, a mass distribution that
+    exists in its dimension (2 or 3). Raises :class:`ConfigError` naming ``ball.…``."""
+    c = _Checker(None)
+    if isinstance(ball.dimension, bool) or ball.dimension not in (2, 3):
+        c.fail("ball.dimension", f"must be 2 (a disc) or 3 (a ball), got {ball.dimension!r}")
+    _ball({"radius": ball.radius, "inertia": ball.inertia}, ball.dimension, c)
+
+
+def revalidate(exp, changed):
+    """``exp`` whose parts ``changed`` were changed by hand (:meth:`rbx.model.Experiment.replace`,
+    ``dataclasses.replace``), validated again as a config: the changed parts in the plain form of a config, the
+    rest as stored in ``exp.resolved`` -> a new validated :class:`rbx.model.Experiment`. Raises
+    :class:`ConfigError`."""
+    data = _plain(exp.resolved)
+    merges, wholes = {}, []
+    for name in changed:
+        value = getattr(exp, name)
+        section = "boundary" if name == "wall_rules" else name
+        if isinstance(value, Mapping):
+            merges[section] = value
+        else:
+            data[section] = _plain_part(name, value, exp)
+            wholes.append(section)
+    try:
+        return from_dict(data, exp.source, changes=merges, label="changed", includes=exp.includes,
+                         copy_data=False)
+    except ConfigError as exc:
+        raise _blame(exc, wholes, "changed") from None
+
+
+_PART_TYPES = {"ball": Ball, "run": RunSettings, "output": Output, "numerics": Numerics}
+
+
+def _plain_part(name, value, exp):
+    """A part of an experiment (a dataclass or a tuple) as its config section."""
+    import dataclasses
+    if name in _PART_TYPES:
+        if not isinstance(value, _PART_TYPES[name]):
+            raise ConfigError(None, name, f"expected an rbx.model.{_PART_TYPES[name].__name__} or a mapping of its "
+                                          f"config keys, got {type(value).__name__}")
+        if name == "ball":
+            if value.dimension != exp.dimension:
+                raise ConfigError(None, "ball.dimension", f"is {value.dimension}, but the table is {exp.dimension}D")
+            return {"radius": value.radius, "inertia": value.inertia}
+        if name == "output":
+            return value.resolved()
+        return dataclasses.asdict(value)
+    if name == "initial":
+        if isinstance(value, tuple) and len(value) == 2 and value[0] == "sample":
+            wall = value[1]
+            if wall is not None and not (isinstance(wall, int) and 0 <= wall < len(exp.wall_names)):
+                raise ConfigError(None, "initial", "('sample', wall): the wall is an index "
+                                                   f"0–{len(exp.wall_names) - 1} or None, got {wall!r}")
+            return {"sample": "billiard", **({} if wall is None else {"wall": exp.wall_names[wall]})}
+        if isinstance(value, (tuple, list)) and value and all(isinstance(s, Mapping) for s in value):
+            return [_plain(s) for s in value]
+        raise ConfigError(None, "initial", "expected a tuple of states (mappings of position, velocity, …), "
+                                           f"('sample', wall) or a mapping of config keys, got {type(value).__name__}")
+    if name == "wall_rules":
+        if not isinstance(value, (tuple, list)) or len(value) != len(exp.wall_names):
+            raise ConfigError(None, "wall_rules", f"expected one rule per wall ({', '.join(exp.wall_names)})")
+        return {"walls": {w: rule_config(r, f"wall_rules[{i}]") for i, (w, r) in enumerate(zip(exp.wall_names,
+                                                                                                  value))}}
+    raise ConfigError(None, name, f"expected a mapping of the {name}'s parameters, got {type(value).__name__}")
+
+
+def rule_config(rule, key="rule"):
+    """A rule (:class:`rbx.model.Constant`, …) as its config mapping."""
+    if isinstance(rule, Exit):
+        return {"rule": "exit"}
+    if isinstance(rule, Constant):
+        out = {"rule": "constant", "rank": rule.rank}
+        if rule.direction is not None:
+            kind, v = rule.direction
+            out.update({"direction_deg": v} if kind == "deg" else {"direction": _plain(v)})
+        return out
+    if isinstance(rule, Hemisphere):
+        return {"rule": "hemisphere", "axis": _plain(rule.axis), "rough": rule_config(rule.rough, f"{key}.rough"),
+                "smooth": rule_config(rule.smooth, f"{key}.smooth")}
+    if isinstance(rule, Random):
+        return {"rule": "random",
+                "choices": [rule_config(r, f"{key}.choices[{i}]") for i, r in enumerate(rule.choices)],
+                "probabilities": _plain(rule.probabilities)}
+    raise ConfigError(None, key, f"expected a rule (rbx.model.Constant, Hemisphere, Random or Exit), got "
+                                 f"{type(rule).__name__}")
+
+
+# ---- ensembles of one orbit ---------------------------------------------------------------------------------------
+
+def draws_random_numbers(experiment):
+    """True if a trajectory draws from its random stream: a start sampled from the billiard measure, or a random
+    rule on some wall."""
+    def random(rule):
+        if isinstance(rule, Random):
+            return True
+        return isinstance(rule, Hemisphere) and (random(rule.rough) or random(rule.smooth))
+    return experiment.initial[0] == "sample" or any(random(r) for r in experiment.wall_rules)
+
+
+def start_groups(experiment):
+    """Which trajectories follow the same orbit -> an int array, one entry per trajectory, equal for trajectories
+    that start from the same state (and so, with no random numbers drawn, are the same orbit); None when every
+    trajectory draws its own random numbers (a sampled start, a random rule)."""
+    if draws_random_numbers(experiment):
+        return None
+    M = experiment.run.trajectories
+    states = experiment.initial
+    rows = np.array([np.concatenate([np.ravel(np.asarray(s[k], float)) for k in STATE_KEYS]) for s in states])
+    _, group = np.unique(rows, axis=0, return_inverse=True)
+    group = np.ravel(group)
+    return np.resize(group, M) if len(states) == 1 else group[:M]
+
+
+def repeated_orbits(experiment):
+    """A warning for an ensemble whose trajectories repeat each other (a fixed start, trajectories > 1, and no
+    random numbers drawn: each copy follows the same orbit) -> text, or None."""
+    group = start_groups(experiment)
+    M = experiment.run.trajectories
+    if group is None or M < 2:
+        return None
+    distinct = len(np.unique(group))
+    if distinct == M:
+        return None
+    fix = "for an ensemble: initial: {sample: billiard}, a list of different states, or a random rule"
+    if distinct == 1:
+        return (f"the {M} trajectories all start from the same state and no rule draws random numbers: they are {M} "
+                f"copies of one orbit ({fix})")
+    return (f"only {distinct} of the {M} trajectories start from different states and no rule draws random numbers: "
+            f"the others repeat their orbits ({fix})")

@@ -1,9 +1,14 @@
 """The nouns of rbx, each defined once: an experiment and its parts (ball, rules, run settings, output, numerical
-options) as frozen dataclasses, and the table of record fields (SPEC §5).
+options) as frozen dataclasses, and the table of record fields (docs/reference.md §5).
 
 Everything else reads these: :mod:`rbx.config` validates YAML into them, the engine takes its record bits from
 :data:`FIELDS`, the run file takes each field's dtype, shape, units and description from it, the precise loop
-and the tests walk it. Nothing here imports a loader, h5py or numba.
+and the tests walk it. Nothing here imports a loader, h5py or numba at import time (a changed experiment is
+validated by :mod:`rbx.config`, imported when that happens).
+
+No value is stored beside the values it is derived from: κ is computed from the ball's ``inertia`` (a property),
+and an experiment changed by hand (``dataclasses.replace``, :meth:`Experiment.replace`) is validated again as a
+config, so that its table, rules, ball, start and stored config (``resolved``) always agree.
 
 How to add a record field: one :class:`Field` row in :data:`FIELDS` (its bit is its position), its write in
 ``engine.write_record`` and its value in ``simulation.Simulation.current_record``; config, HDF5 layout, API and
@@ -25,7 +30,7 @@ class ConfigError(Exception):
         super().__init__(": ".join(x for x in (self.file, key, problem) if x))
 
 
-# ---- boundary rules (SPEC §3) ----------------------------------------------------------------------------------
+# ---- boundary rules (docs/reference.md §3) --------------------------------------------------------------------------
 
 @dataclass(frozen=True)
 class Constant:
@@ -52,8 +57,9 @@ class Random:
 
 @dataclass(frozen=True)
 class Exit:
-    """The wall is a hole (SPEC §3): a trajectory that reaches it records that contact (no collision map; its
-    rank is recorded as −1) and ends there. Open billiards: escape and return times (SPEC §10)."""
+    """The wall is a hole (docs/reference.md §3): a trajectory that reaches it records that contact (no collision
+    map; its rank is recorded as −1) and ends there. Open billiards: escape and return times (docs/reference.md
+    §10)."""
     rank = -1           # a class attribute, not a field: every exit is the same rule
 
 
@@ -89,10 +95,22 @@ def rule_leaves(rule):
 
 @dataclass(frozen=True)
 class Ball:
-    """Radius R, the mass distribution as given (a name or κ) and κ = 2λ/R²."""
+    """Radius R, the mass distribution as given (``uniform``, ``shell``, ``ring`` or κ itself) and the dimension of
+    the ball (2: a disc, 3: a ball). κ = 2λ/R² is computed from them (:attr:`kappa`), so that
+    ``dataclasses.replace(ball, inertia=0.1)`` is a ball of κ = 0.1. Checked when made (:class:`ConfigError`)."""
     radius: float
     inertia: object
-    kappa: float
+    dimension: int
+
+    def __post_init__(self):
+        from .config import check_ball
+        check_ball(self)
+
+    @property
+    def kappa(self):
+        """κ = 2λ/R² of the mass distribution in this dimension (a number ``inertia`` is κ itself)."""
+        from .physics import kappa_of
+        return kappa_of(self.inertia, self.dimension)
 
 
 @dataclass(frozen=True)
@@ -147,13 +165,28 @@ class Numerics:
     snap: bool = False
 
 
+#: the parts of an experiment that its config gives (``wall_rules``: the ``boundary`` section): a part changed by
+#: hand is validated again, with the rest of the experiment, as a config
+PARTS = ("table", "wall_rules", "ball", "initial", "run", "output", "numerics")
+#: the parts derived from the others (the table's dimension, kind and walls; the stored config): never set by hand
+DERIVED = ("dimension", "table_kind", "wall_names", "resolved")
+#: what :func:`rbx.config.from_dict` passes as ``checked``: the experiment it makes is validated
+VALIDATED = "validated"
+
+
 @dataclass(frozen=True)
 class Experiment:
     """A validated experiment. ``initial`` is a tuple of explicit states (read-only arrays) or ``('sample', wall)``.
 
     ``table`` is a read-only mapping of the table's parameters; ``resolved`` is the plain-data form of the whole
     experiment (tables and boundaries inlined, paths absolute) that is stored in the HDF5 file and read back by
-    ``--resume`` and :func:`rbx.open`."""
+    ``--resume`` and :func:`rbx.open` (:meth:`to_dict` gives a copy to edit and load again).
+
+    Every copy is checked: a part changed by :meth:`replace` or ``dataclasses.replace`` (``ball``, ``run``,
+    ``initial``, …, given as its dataclass or as a mapping of its config keys) is validated again with the rest
+    of the experiment exactly as a config is, and ``resolved`` follows it; a mistake raises :class:`ConfigError`
+    naming the key. The derived parts (``dimension``, ``table_kind``, ``wall_names``, ``resolved``) cannot be set.
+    (An experiment made by calling ``Experiment(...)`` directly, without ``resolved``, is only type-checked.)"""
     source: str
     dimension: int
     table_kind: str
@@ -168,6 +201,43 @@ class Experiment:
     resolved: dict = field(default=None, hash=False, compare=False)
     #: the files the config names (its table and boundary files): a run's output must never overwrite them
     includes: tuple = field(default=(), compare=False)
+    #: the parts as validated (:data:`PARTS` + :data:`DERIVED`, compared by identity): tells a copy whose parts
+    #: were changed by hand, which is validated again, from one that was not
+    checked: tuple = field(default=None, repr=False, compare=False, hash=False)
+
+    def __post_init__(self):
+        if isinstance(self.checked, str) and self.checked == VALIDATED:    # made by rbx.config
+            object.__setattr__(self, "checked", self._parts())
+            return
+        if self.checked is None:
+            self._check_types()
+            return
+        old = dict(zip(PARTS + DERIVED, self.checked))
+        changed = [name for name in PARTS if getattr(self, name) is not old[name]]
+        for name in DERIVED:
+            now = getattr(self, name)
+            if now is not old[name] and (name == "resolved" or now != old[name]):
+                raise ConfigError(None, name, _derived(name))
+        if not changed:
+            return
+        from .config import revalidate
+        new = revalidate(self, changed)
+        for f in dataclasses.fields(self):
+            if f.name not in ("source", "includes"):
+                object.__setattr__(self, f.name, getattr(new, f.name))
+
+    def _parts(self):
+        return tuple(getattr(self, name) for name in PARTS + DERIVED)
+
+    def _check_types(self):
+        """An experiment made by hand: each part of its type, the ball of the table's dimension."""
+        for name, kind in (("ball", Ball), ("run", RunSettings), ("output", Output), ("numerics", Numerics)):
+            value = getattr(self, name)
+            if value is not None and not isinstance(value, kind):
+                raise ConfigError(None, name, f"expected an rbx.model.{kind.__name__}, got {type(value).__name__}")
+        if self.ball is not None and self.ball.dimension != self.dimension:
+            raise ConfigError(None, "ball.dimension", f"is {self.ball.dimension}, but the table is "
+                                                      f"{self.dimension}D")
 
     def geometry(self):
         """The shrunk table the centre moves in (:class:`rbx.geometry.Geometry`)."""
@@ -175,22 +245,36 @@ class Experiment:
         return build(self.table_kind, self.table, self.ball.radius)
 
     def replace(self, **changes):
-        """A copy with some fields changed (``run=…``, ``numerics=…``); ``resolved`` follows ``run``, ``output``
-        and ``numerics`` so that the file written records what was run."""
-        new = dataclasses.replace(self, **changes)
-        if self.resolved is not None:
-            resolved = dict(self.resolved)
-            if "run" in changes:
-                resolved["run"] = dataclasses.asdict(new.run)
-            if "output" in changes:
-                resolved["output"] = new.output.resolved()
-            if "numerics" in changes:
-                resolved["numerics"] = dataclasses.asdict(new.numerics)
-            object.__setattr__(new, "resolved", resolved)
-        return new
+        """A copy with some parts changed, validated with the rest as a config is (raises :class:`ConfigError`).
+
+        A part is given as its dataclass (``run=RunSettings(…)``, ``ball=dataclasses.replace(exp.ball,
+        inertia=0.2)``), as a tuple (``initial``, ``wall_rules``), or as a mapping of its config keys, merged into
+        the section as an override is (``ball={'inertia': 0.2}`` is ``rbx.load(exp, {'ball.inertia': 0.2})``).
+        ``resolved`` follows, so that the file written records what was run."""
+        unknown = [k for k in changes if k not in PARTS + ("source", "includes")]
+        if unknown:
+            key = unknown[0]
+            raise ConfigError(None, key, _derived(key) if key in DERIVED + ("checked",) else
+                              f"not a part of an experiment (parts: {', '.join(PARTS)})")
+        return dataclasses.replace(self, **changes)
+
+    def to_dict(self):
+        """The experiment as a config mapping (a deep copy of ``resolved``: tables and boundaries inlined, paths
+        absolute), to edit and load again from any folder: ``rbx.load(d)``."""
+        import copy
+        return copy.deepcopy(self.resolved)
 
 
-# ---- record fields (SPEC §5) ---------------------------------------------------------------------------------------
+def _derived(name):
+    """Why a derived part of an experiment cannot be set."""
+    if name in ("dimension", "table_kind", "wall_names"):
+        return ("is derived from the table, it cannot be set: change the table (experiment.replace(table={...}) or "
+                "rbx.load(experiment, {'table.KEY': VALUE}))")
+    return ("is derived from the experiment's parts, it cannot be set: change a part (experiment.replace(ball=…)) "
+            "or load an edited experiment.to_dict()")
+
+
+# ---- record fields (docs/reference.md §5) ---------------------------------------------------------------------------
 
 _SHAPES = {"scalar": lambda n: (), "vector": lambda n: (n,), "spin": lambda n: () if n == 2 else (3,),
            "orientation": lambda n: () if n == 2 else (3, 3)}

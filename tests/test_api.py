@@ -1,4 +1,4 @@
-"""The Python API (SPEC §9): ``rbx.load``, ``rbx.simulate``, ``rbx.open``, ``rbx.Run``.
+"""The Python API (docs/reference.md §9): ``rbx.load``, ``rbx.simulate``, ``rbx.open``, ``rbx.Run``.
 
 The acceptance test: the API and the real CLI (``rbx simulate`` in a subprocess) write the same records, bit for
 bit, on scenes and rules of every kind (rough, hemisphere and random rules; strip, rectangle, circle, wedge,

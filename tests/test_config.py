@@ -254,3 +254,56 @@ def test_paths_expand_the_home_folder_and_refuse_folders(experiment, monkeypatch
     experiment.write_text(text.replace("path: runs/strip.h5", "path: runs/"))
     err = error_of(experiment)
     assert err.key == "output.path" and "names a folder" in err.problem
+
+
+def test_changes_are_made_to_the_config_before_it_is_validated(experiment):
+    """Dotted changes (--set, rbx.load overrides) reach into included files, index lists, merge mappings, and
+    replace a rule, a table or a start given with its kind."""
+    cfg = config.load(experiment, changes={"table.width": 2, "boundary.walls.top": {"rule": "exit"}})
+    assert cfg.table["width"] == 2.0 and cfg.resolved["table"] == {"kind": "strip", "width": 2.0}
+    assert isinstance(cfg.wall_rules[1], model.Exit) and cfg.wall_rules[0] == config.Constant(1)
+    # the table file a change reached into is still one the output must never overwrite
+    assert str(experiment.parent / "tables" / "strip.yaml") in cfg.includes
+    # a rule given with its kind replaces the rule there (a hemisphere's axis is no key of a constant rule)
+    cfg = config.load(experiment, changes={"boundary": {"default": {"rule": "hemisphere", "axis": [0, 1],
+                                                                     "rough": {"rule": "constant", "rank": 1},
+                                                                     "smooth": {"rule": "constant", "rank": 0}}}})
+    assert isinstance(cfg.wall_rules[0], config.Hemisphere)
+    cfg = config.load(experiment, changes={"boundary.default": {"rule": "constant", "rank": 0}})
+    assert cfg.wall_rules == (config.Constant(0), config.Constant(0))
+    # a list item by its index; a section that was not there
+    two = {"initial": [{"position": [0, 0.5], "velocity": [1, 0]}, {"position": [0, 0.5], "velocity": [0, 1]}]}
+    cfg = config.load(experiment, changes=two)
+    cfg = config.from_dict(cfg.resolved, cfg.source, changes={"initial[1].position": [0, 0.3], "numerics.snap": True})
+    assert cfg.initial[1]["position"].tolist() == [0, 0.3] and cfg.initial[0]["position"].tolist() == [0, 0.5]
+    assert cfg.numerics.snap and cfg.resolved["numerics"]["snap"]
+    assert config.load(experiment).numerics == model.Numerics()      # the file itself is untouched
+
+
+@pytest.mark.parametrize("changes, key, problem", [
+    ({"colisions": 7}, "colisions", "unknown key (did you mean 'run.collisions'?)"),
+    ({"ball.inertai": 0.2}, "ball.inertai", "unknown key (did you mean 'ball.inertia'?)"),
+    ({"ball.radius": -1}, "ball.radius", "must be positive, got -1 (override ball.radius)"),
+    ({"table.width.x": 1}, "table.width.x", "table.width is an integer, not a mapping: it has no key 'x'"),
+    ({"initial[0]": {}}, "initial[0]", "initial is a mapping, not a list: [0] names nothing"),
+    ({"ball..radius": 1}, "ball..radius", "not a config key"),
+    ({"ball": {"radius": 0.1}, "ball.inertia": 1}, "ball.inertia", "set twice, as ball and ball.inertia"),
+    ({"boundary.walls.middle": {"rule": "exit"}}, "boundary.walls.middle", "no wall named 'middle'"),
+])
+def test_a_bad_change_names_its_key(experiment, changes, key, problem):
+    with pytest.raises(ConfigError) as info:
+        config.load(experiment, changes=changes)
+    exc = info.value
+    assert exc.file == str(experiment) and exc.key == key and exc.problem.startswith(problem), str(exc)
+
+
+def test_a_ball_computes_kappa_from_its_inertia():
+    """κ is never stored beside the inertia it comes from; a ball that cannot exist is refused when made."""
+    ball = model.Ball(0.1, "uniform", 3)
+    assert ball.kappa == 0.4 and dataclasses.replace(ball, inertia="shell").kappa == pytest.approx(2 / 3)
+    assert dataclasses.replace(ball, dimension=2).kappa == 0.5 and dataclasses.replace(ball, inertia=0.1).kappa == 0.1
+    for bad, key in (({"inertia": "ring"}, "ball.inertia"), ({"inertia": 0}, "ball.inertia"),
+                     ({"radius": -0.1}, "ball.radius"), ({"dimension": 4}, "ball.dimension")):
+        with pytest.raises(ConfigError) as info:
+            dataclasses.replace(ball, **bad)
+        assert info.value.key == key and info.value.file is None
