@@ -1,4 +1,4 @@
-"""One voice on the command line (issue 18): every usage mistake of every command is exactly one line
+"""One voice on the command line: every usage mistake of every command is exactly one line
 ``rbx: <file, option, argument or command>: <problem>`` on stderr, exit 2, nothing on stdout, never click's
 usage block nor a traceback. Real ``rbx`` processes (the console script), a table of command × mistake. And what a
 command says when it works: a progress bar on a terminal only, then one summary line."""
@@ -35,6 +35,11 @@ MISTAKES = {
         (["simulate", "--resume", "x.h5"], "x.h5"),
         (["simulate", "--resume", "folder"], "folder"),
         (["simulate", "x.yaml", "--resume", "x.h5"], "--resume"),   # both
+        (["simulate", "x.yaml", "--set"], "--set"),             # --set without its KEY=VALUE
+        (["simulate", "x.yaml", "--set", "ball.inertia"], "--set"),  # no '='
+        (["simulate", "x.yaml", "--set", "ball.inertia=[0.2"], "--set ball.inertia"),   # not YAML
+        (["simulate", "x.yaml", "--set", "a=1", "--set", "a=2"], "--set"),   # a key set twice
+        (["simulate", "--resume", "x.h5", "--set", "run.seed=1"], "--set"),  # the run's settings are its file's
     ],
     "plot": [
         (["plot"], "OUT.h5"),
@@ -57,6 +62,8 @@ MISTAKES = {
         (["histogram", "x.yaml", "--task-collisions", "0"], "--task-collisions"),
         (["histogram", "x.yaml"], "x.yaml"),
         (["histogram", "folder"], "CONFIG"),
+        (["histogram", "x.yaml", "--set", "=0.2"], "--set"),
+        (["histogram", "x.yaml", "--data"], "--data"),
     ],
     "lyapunov": [
         (["lyapunov"], "CONFIG"),
@@ -68,6 +75,7 @@ MISTAKES = {
         (["lyapunov", "x.yaml", "--json", "yes"], "lyapunov"),
         (["lyapunov", "x.yaml"], "x.yaml"),
         (["lyapunov", "folder"], "CONFIG"),
+        (["lyapunov", "x.yaml", "--set", "ball.inertia"], "--set"),
     ],
     "animate": [
         (["animate"], "RUN.h5"),

@@ -59,6 +59,41 @@ def user_errors():
         raise from_config_error(exc) from None
 
 
+#: ``--set KEY=VALUE``, the same for every command that reads a config
+set_option = click.option(
+    "--set", "sets", multiple=True, metavar="KEY=VALUE",
+    help="Change a config key before the config is validated (VALUE in YAML; repeatable): --set ball.inertia=0.2 "
+         "--set 'initial.position=[0, 0.5]' --set 'boundary.walls.top={rule: exit}'.")
+
+
+def parse_sets(sets):
+    """The ``--set KEY=VALUE`` options -> ``{key: value}`` in order, each VALUE read as YAML (as in a config file:
+    ``0.2`` a number, ``[0, 0.5]`` a list, ``{rule: exit}`` a mapping, nothing after ``=`` null). A KEY given twice
+    is refused."""
+    from ..config import parse_yaml
+    out = {}
+    for item in sets:
+        key, eq, text = item.partition("=")
+        key = key.strip()
+        if not eq or not key:
+            raise UserError(None, "--set", f"expected KEY=VALUE (such as ball.inertia=0.2), got '{item}'")
+        if key in out:
+            raise UserError(None, "--set", f"{key} is set twice")
+        with user_errors():
+            out[key] = parse_yaml(text, None, f"--set {key}")
+    return out
+
+
+def warn_repeated(cfg, overrides):
+    """The warning for an ensemble of copies of one orbit (:func:`rbx.config.repeated_orbits`), on stderr."""
+    from ..config import repeated_orbits
+    message = repeated_orbits(cfg)
+    if message:
+        where = "--trajectories" if overrides.get("trajectories") is not None else \
+            f"{display_path(cfg.source)}: run.trajectories"
+        click.echo(f"rbx: warning: {where}: {message}", err=True)
+
+
 #: bytes per trajectory, generously: the state (position, velocity, spin and orientation matrices, counters, key)
 #: for a run; for the return-angle experiment also its draws and results
 BYTES_PER_TRAJECTORY = {"simulate": 400, "histogram": 1200}

@@ -1,19 +1,29 @@
-"""``rbx histogram CONFIG``: the invariant-measure experiment (paper §2.7, SPEC §4)."""
+"""``rbx histogram CONFIG``: the invariant-measure experiment (paper §2.7, docs/reference.md §4).
+
+It writes two files: the figure (``-o FIG.png``) and the return angles in HDF5 (``--data OUT.h5``; by default
+``output.path``, as before, or FIG.h5 beside the figure when the config has none). ``output.path`` is also where
+``rbx simulate`` writes the same config's run: a file holding such a run is never replaced by the default path,
+not even with ``--force`` (``--data`` names another file, or that one on purpose)."""
 import os
 import time
 
 import click
 
 from .common import (Command, Progress, UserError, check_cluster_options, check_memory, connect, display_path,
-                     duration, ending_on_signals, quiet_option, report_and_exit, summary)
+                     duration, ending_on_signals, parse_sets, quiet_option, report_and_exit, set_option, summary,
+                     user_errors)
 
 
 @click.command(cls=Command)
 @click.argument("config", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", "out", type=click.Path(dir_okay=False),
-              help="Figure to write (default: output.path with .png).")
+              help="Figure to write (default: the HDF5 file's name with .png).")
+@click.option("--data", "data", metavar="OUT.h5", type=click.Path(dir_okay=False),
+              help="HDF5 file of the return angles (default: output.path, else FIG.h5 beside -o FIG.png). The "
+                   "default never replaces a run of rbx simulate, even with --force.")
 @click.option("--trajectories", type=int, help="Override run.trajectories (the number of samples).")
 @click.option("--seed", type=int, help="Override run.seed.")
+@set_option
 @click.option("--force", is_flag=True, help="Overwrite existing output files.")
 @click.option("--scheduler", metavar="ADDRESS",
               help="Follow the samples on the workers of a Dask cluster: its scheduler's address (tcp://HOST:PORT) "
@@ -24,13 +34,13 @@ from .common import (Command, Progress, UserError, check_cluster_options, check_
               help="With --scheduler: collisions one task makes.")
 @quiet_option
 @click.option("--debug", is_flag=True, help="Show a traceback with user errors.")
-def histogram(config, out, trajectories, seed, force, scheduler, slices, task_collisions, quiet, debug):
+def histogram(config, out, data, trajectories, seed, sets, force, scheduler, slices, task_collisions, quiet, debug):
     """Test the invariance of the billiard measure (paper §2.7): return angles against cos φ·sin^(d−2) φ.
 
     Samples run.trajectories states from the billiard measure on the wall of initial: {sample: billiard, wall:
     NAME}, follows each until it returns to that wall (at most run.collisions collisions), writes the return
-    angles to returns/angle in output.path, prints the Kolmogorov–Smirnov statistic and p-value and draws the
-    histogram against the predicted density."""
+    angles to returns/angle in --data (default: output.path), prints the Kolmogorov–Smirnov statistic and p-value
+    and draws the histogram against the predicted density."""
     from ..api import StopFlag
     cluster = {"scheduler": scheduler, "slices": slices, "task_collisions": task_collisions}
     began = time.perf_counter()
@@ -40,12 +50,52 @@ def histogram(config, out, trajectories, seed, force, scheduler, slices, task_co
     stop = StopFlag()
     try:
         with ending_on_signals(stop):
-            _histogram(config, out, trajectories, seed, force, quiet, cluster, began, stop)
+            _histogram(config, out, data, trajectories, seed, sets, force, quiet, cluster, began, stop)
     except UserError as exc:
         report_and_exit(exc, debug)
 
 
-def _histogram(config, out, trajectories, seed, force, quiet, cluster, began, stop):
+def _data_path(data, out, cfg, config):
+    """Where the return angles go -> (path, the key it came from: --data, output.path or -o)."""
+    if data is not None:
+        if not data.strip():
+            raise UserError(None, "--data", "an empty file name (give OUT.h5)")
+        return os.path.abspath(os.path.expanduser(data)), "--data"
+    if cfg.output.path is not None:
+        return cfg.output.path, "output.path"
+    if out:
+        return os.path.splitext(os.path.abspath(out))[0] + ".h5", "-o"
+    raise UserError(config, "output.path", "no output file: give output.path in the config, --data OUT.h5 or "
+                                           "-o FIG.png")
+
+
+def _check_data_target(path, key, force, cfg, config):
+    """The return angles may replace an existing file only with --force (as the figure), never the config or a
+    file it includes, and, by default (output.path), never a run of ``rbx simulate``: the two commands share
+    output.path, and --force once replaced a simulation this way."""
+    from ..runfile import check_target
+    file = config if key == "output.path" else None
+    if key != "--data" and _holds_run(path):
+        raise UserError(file, key, f"{display_path(path)} holds a run of rbx simulate, which rbx histogram does not "
+                                   "replace, even with --force: write the return angles elsewhere with --data OUT.h5")
+    with user_errors():
+        check_target(path, force, key, file=file, config_source=(cfg.source,) + tuple(cfg.includes),
+                     force_hint="--force")
+
+
+def _holds_run(path):
+    """True if ``path`` is an HDF5 file with the collisions of a run (written by rbx simulate)."""
+    if not os.path.isfile(path):
+        return False
+    import h5py
+    try:
+        with h5py.File(path, "r") as f:
+            return "collisions" in f
+    except Exception:       # not HDF5, unreadable: not a run; --force decides as for any file
+        return False
+
+
+def _histogram(config, out, data, trajectories, seed, sets, force, quiet, cluster, began, stop):
     from .. import config as cfgmod
     from .. import plotting
     from ..analysis import scene_title
@@ -56,21 +106,20 @@ def _histogram(config, out, trajectories, seed, force, quiet, cluster, began, st
     check_cluster_options(cluster)
 
     overrides = {k: v for k, v in (("trajectories", trajectories), ("seed", seed)) if v is not None}
-    try:
-        cfg = cfgmod.load(config, overrides)
-    except cfgmod.ConfigError as exc:
-        raise UserError(exc.file, exc.key, exc.problem) from None
+    changes = parse_sets(sets)
+    with user_errors():
+        cfg = cfgmod.load(config, overrides, changes=changes, label="--set")
     check_memory(cfg, overrides, "histogram")
     if cfg.initial[0] != "sample":
         raise UserError(config, "initial", "rbx histogram samples its states: use initial: {sample: billiard, "
                                            "wall: NAME}")
-    h5_path = cfg.output.path or (os.path.splitext(os.path.abspath(out))[0] + ".h5" if out else None)
-    if h5_path is None:
-        raise UserError(config, "output.path", "no output file: give output.path in the config or -o FIG.png")
+    h5_path, key = _data_path(data, out, cfg, config)
     fig_path = os.path.abspath(out) if out else os.path.splitext(h5_path)[0] + ".png"
-    for p in (h5_path, fig_path):
-        if os.path.exists(p) and not force:
-            raise UserError(p, None, "exists; use --force to overwrite it")
+    if fig_path == h5_path:
+        raise UserError(None, "--data", f"{display_path(h5_path)} is the figure too: give the figure -o another name")
+    _check_data_target(h5_path, key, force, cfg, config)
+    if os.path.exists(fig_path) and not force:
+        raise UserError(fig_path, None, "exists; use --force to overwrite it")
 
     with connect(cluster) as on:
         progress = Progress("histogram", quiet=quiet, trajectories=cfg.run.trajectories)

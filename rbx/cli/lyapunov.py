@@ -1,11 +1,11 @@
-"""``rbx lyapunov CONFIG``: the Lyapunov spectrum of the flow (SPEC §10; docs/tangent-map.md)."""
+"""``rbx lyapunov CONFIG``: the Lyapunov spectrum of the flow (docs/reference.md §10; docs/tangent-map.md)."""
 import json
 import time
 
 import click
 
-from .common import (Command, UserError, check_cluster_options, connect, duration, ending_on_signals, quiet_option,
-                     report_and_exit, summary, user_errors)
+from .common import (Command, UserError, check_cluster_options, connect, duration, ending_on_signals, parse_sets,
+                     quiet_option, report_and_exit, set_option, summary, user_errors, warn_repeated)
 
 
 @click.command(cls=Command)
@@ -13,6 +13,7 @@ from .common import (Command, UserError, check_cluster_options, connect, duratio
 @click.option("--collisions", type=int, help="Override run.collisions (per trajectory, the warm-up included).")
 @click.option("--trajectories", type=int, help="Override run.trajectories.")
 @click.option("--seed", type=int, help="Override run.seed.")
+@set_option
 @click.option("--segments", type=click.IntRange(1, 10000), default=10, show_default=True,
               help="Segments per trajectory for the error estimate.")
 @click.option("--warmup", type=click.IntRange(0, None), help="Collisions not counted while the vectors align "
@@ -25,7 +26,8 @@ from .common import (Command, UserError, check_cluster_options, connect, duratio
               help="With --scheduler: tasks, each a slice of the trajectories (default: 4 per worker thread).")
 @quiet_option
 @click.option("--debug", is_flag=True, help="Show a traceback with user errors.")
-def lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json, scheduler, slices, quiet, debug):
+def lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as_json, scheduler, slices, quiet,
+             debug):
     """The Lyapunov spectrum of the flow, per unit time, largest first, with standard errors.
 
     Benettin's method on the linearised dynamics (free flight, collision time, collision map with the wall's
@@ -37,25 +39,26 @@ def lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json, 
     stop = StopFlag()      # never running: every signal raises KeyboardInterrupt, and stop.signum says it came
     try:
         with ending_on_signals(stop):
-            _lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json, cluster, quiet or as_json,
-                      began)
+            _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as_json, cluster,
+                      quiet or as_json, began)
     except UserError as exc:
         report_and_exit(exc, debug)
 
 
-def _lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json, cluster, quiet, began):
+def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as_json, cluster, quiet, began):
     """``quiet``: no summary line (nor with --json: its output is the JSON object alone, for programs that read
     both streams)."""
-    from .. import api
     from ..cluster import ClusterError
+    from ..config import load as config_load
     from ..dynamics import lyapunov as spectrum
 
     check_cluster_options(cluster)
 
     overrides = {k: v for k, v in (("collisions", collisions), ("trajectories", trajectories), ("seed", seed))
                  if v is not None}
+    changes = parse_sets(sets)
     with user_errors():
-        exp = api.load(config, overrides or None)
+        exp = config_load(config, overrides, changes=changes, label="--set")
     N = exp.run.collisions
     if warmup is not None and warmup >= N:
         raise UserError(None, "--warmup", f"{warmup} leaves no collisions of the {N} to measure")
@@ -69,6 +72,7 @@ def _lyapunov(config, collisions, trajectories, seed, segments, warmup, as_json,
         except ClusterError as exc:     # the cluster failed mid-run: not the user's input, exit 1
             click.echo(f"rbx: {exc}; nothing computed", err=True)
             raise SystemExit(1) from None
+    warn_repeated(exp, overrides)        # after every refusal: a user error stays one line
     said = (f"lyapunov: {len(result.time)} trajectories × {exp.run.collisions} collisions in "
             f"{duration(time.perf_counter() - began)}")
     if as_json:

@@ -1,5 +1,5 @@
-"""``rbx plot OUT.h5 --kind K``: pictures from a run (SPEC §4). Reads the file, picks records and trajectories,
-computes with :mod:`rbx.analysis` and draws with :mod:`rbx.plotting`; never simulates."""
+"""``rbx plot OUT.h5 --kind K``: pictures from a run (docs/reference.md §4). Reads the file, picks records and
+trajectories, computes with :mod:`rbx.analysis` and draws with :mod:`rbx.plotting`; never simulates."""
 import os
 import time
 
@@ -314,6 +314,8 @@ def _diffusion(run, rec, traj, coordinate="x", fit_from=0.1, **_):
     if len(traj) < 2:
         raise ValueError("the diffusion plot needs an ensemble: at least 2 trajectories")
     x, _ = _coordinate(run, coordinate, traj, rec)
+    _refuse_one_orbit(run, traj, x, "diffusion", "a diffusion coefficient", "its error would be 0 and the "
+                                                                          "histogram of displacements one bar")
     steps = run.step[rec].astype(float)
     if len(steps) < 3:
         raise ValueError("the diffusion plot needs at least 3 records")
@@ -323,6 +325,25 @@ def _diffusion(run, rec, traj, coordinate="x", fit_from=0.1, **_):
     full = np.all(np.isfinite(x), axis=1)
     return plotting.diffusion_figure(t, msd, fit, (x[full, -1] - x[full, 0]),
                                      _title(run, f"diffusion along {coordinate}", traj, rec), coordinate=coordinate)
+
+
+def _refuse_one_orbit(run, traj, values, kind, what, why):
+    """An ensemble statistic of trajectories that are all the same orbit means nothing: refused in one line
+    (``values``: the selected trajectories' data, one row each, compared bit for bit)."""
+    if len(traj) < 2 or not all(np.array_equal(values[0], v, equal_nan=True) for v in values[1:]):
+        return
+    from ..config import start_groups
+    cause = ""
+    try:
+        group = start_groups(run.experiment)
+    except Exception:       # a stored config this rbx no longer validates: the data say enough
+        group = None
+    if group is not None and len(set(group[traj].tolist())) == 1:
+        cause = " (they start from the same state and no rule draws random numbers)"
+    raise UserError(run.path, f"--kind {kind}",
+                    f"the {len(traj)} trajectories are copies of one orbit{cause}: {what} needs independent "
+                    f"trajectories ({why}); run an ensemble: initial: {{sample: billiard}}, a list of different "
+                    "states, or a random rule")
 
 
 def _escape(run, rec, traj, fit_from=0.1, **_):
@@ -336,6 +357,8 @@ def _escape(run, rec, traj, fit_from=0.1, **_):
     out = escape_times(run)
     sel = np.asarray(traj)
     path, exited = out.path[sel], out.exited[sel]
+    _refuse_one_orbit(run, traj, np.column_stack([path, exited, out.wall[sel]]), "escape", "an escape rate",
+                      "every one leaves at the same moment")
     if not exited.any():
         raise ValueError(f"none of the {len(sel)} trajectories reached an exit wall in {exp.run.collisions} "
                          "collisions")

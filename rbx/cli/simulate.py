@@ -1,4 +1,5 @@
-"""``rbx simulate CONFIG`` and ``rbx simulate --resume RUN.h5``: run an experiment into HDF5 (SPEC §4–5).
+"""``rbx simulate CONFIG`` and ``rbx simulate --resume RUN.h5``: run an experiment into HDF5 (docs/reference.md
+§4–5).
 
 Two phases. *Setting up* (validate, allocate, compile the kernels: no file written yet): SIGINT/SIGTERM abort at
 once, with nothing to save. *Running*: the run writes ``OUT.h5.partial`` and SIGINT/SIGTERM only set a flag that
@@ -17,7 +18,8 @@ import weakref
 import click
 
 from .common import (Command, Progress, UserError, check_cluster_options, check_memory, connect, display_path,
-                     duration, hard_exit, quiet_option, report_and_exit, summary, user_errors)
+                     duration, hard_exit, parse_sets, quiet_option, report_and_exit, set_option, summary, user_errors,
+                     warn_repeated)
 
 OVERRIDES = ("collisions", "trajectories", "seed")
 
@@ -28,6 +30,7 @@ OVERRIDES = ("collisions", "trajectories", "seed")
 @click.option("--collisions", type=int, help="Override run.collisions.")
 @click.option("--trajectories", type=int, help="Override run.trajectories.")
 @click.option("--seed", type=int, help="Override run.seed.")
+@set_option
 @click.option("--max-size", "max_size", metavar="SIZE",
               help="Largest file the run may write (e.g. 50GB; default: output.max_size, 10 GiB).")
 @click.option("--resume", metavar="RUN.h5",
@@ -42,8 +45,8 @@ OVERRIDES = ("collisions", "trajectories", "seed")
               help="With --scheduler: collisions one task makes (default: 2e8, fewer for tables of many walls).")
 @quiet_option
 @click.option("--debug", is_flag=True, help="Show a traceback with user errors.")
-def simulate(config, out, collisions, trajectories, seed, max_size, resume, force, scheduler, slices, task_collisions,
-             quiet, debug):
+def simulate(config, out, collisions, trajectories, seed, sets, max_size, resume, force, scheduler, slices,
+             task_collisions, quiet, debug):
     """Run the experiment CONFIG (YAML) and write its trajectories to HDF5."""
     from ..api import StopFlag
 
@@ -57,9 +60,12 @@ def simulate(config, out, collisions, trajectories, seed, max_size, resume, forc
             with user_errors():
                 check_cluster_options(cluster)
                 if resume is not None:
+                    if sets:
+                        raise UserError(None, "--set", "cannot be changed when resuming: the run continues with the "
+                                                       "settings stored in its file")
                     code = _resume(config, resume, out, overrides, force, quiet, stop, cluster, began)
                 else:
-                    code = _simulate(config, out, overrides, force, quiet, stop, cluster, began)
+                    code = _simulate(config, out, overrides, parse_sets(sets), force, quiet, stop, cluster, began)
         except UserError as exc:
             report_and_exit(exc, debug)
         except (KeyboardInterrupt, Exception) as exc:
@@ -80,7 +86,7 @@ def simulate(config, out, collisions, trajectories, seed, max_size, resume, forc
         raise SystemExit(code)
 
 
-def _simulate(config, out, overrides, force, quiet, stop, cluster, began):
+def _simulate(config, out, overrides, changes, force, quiet, stop, cluster, began):
     from .. import config as cfgmod
     from ..api import check_target, compile_kernels, run_to_file
     from ..simulation import Simulation
@@ -91,7 +97,7 @@ def _simulate(config, out, overrides, force, quiet, stop, cluster, began):
         raise UserError(None, "-o", "an empty file name (give OUT.h5, or leave -o out to use output.path)")
     if out is not None and out.endswith(("/", os.sep)):
         raise UserError(None, "-o", f"'{out}' names a folder; give a file name such as {out.rstrip('/')}/run.h5")
-    cfg = cfgmod.load(config, overrides)
+    cfg = cfgmod.load(config, overrides, changes=changes, label="--set")
     path = os.path.abspath(os.path.expanduser(out)) if out else cfg.output.path
     if path is None:
         raise UserError(config, "output.path", "no output file: give output.path in the config or -o OUT.h5")
@@ -107,6 +113,7 @@ def _simulate(config, out, overrides, force, quiet, stop, cluster, began):
             raise UserError(file, key, f"{cfg.run.trajectories} trajectories do not fit in the free memory") \
                 from None
         sim.cluster = on
+        warn_repeated(cfg, overrides)       # after every refusal: a user error stays one line
         compile_kernels(sim)
         if stop.start_running():
             raise KeyboardInterrupt
@@ -229,7 +236,7 @@ def _execute(sim, path, stop, quiet, done, start, began):
 
     The file is renamed from ``.partial`` to ``path`` however the run ends (complete, interrupted, or an
     unexpected error), so ``path`` always holds every record computed so far, and ``complete`` says whether that
-    is all of them (SPEC §4)."""
+    is all of them (docs/reference.md §4)."""
     from ..cluster import ClusterError
     from ..runfile import DiskFull, temporary_path
     from ..simulation import NonFiniteState
