@@ -1,5 +1,5 @@
 """Bad input gets exit code 2 and one line ``rbx: <file>: <key>: <problem>``, never a traceback, and never touches
-an existing output file (SPEC §4).
+an existing output file (docs/reference.md §4).
 
 Each case of the table mutates a valid experiment (a config with its table and boundary in their own files) and
 states which file and key the message must name. The whole table runs in-process through click's CliRunner; a

@@ -1,4 +1,4 @@
-"""``rbx animate RUN.h5 -o orbit.gif``: the ball moving in its table (issue 18). Reads the run, never simulates.
+"""``rbx animate RUN.h5 -o orbit.gif``: the ball moving in its table. Reads the run, never simulates.
 
 The ball is drawn at its radius R with a radius marking its orientation θ, in the table drawn as ``rbx plot
 --kind orbit`` draws it, with the path flown so far behind it. Frames are evenly spaced in time; between two

@@ -1,4 +1,4 @@
-"""``rbx``: the command-line entry point (SPEC §4)."""
+"""``rbx``: the command-line entry point (docs/reference.md §4)."""
 import os
 import signal
 import sys
