@@ -11,7 +11,7 @@ also computed in closed form from the initial state (the collision map of SPEC �
 import numpy as np
 from matplotlib.figure import Figure as MplFigure
 
-from figlib import Figure, arguments
+from figlib import ROUNDING, Figure, arguments
 from rbx import orbits
 from rbx.runfile import Run
 from rbx.plotting import draw_table_2d
@@ -78,26 +78,28 @@ def main():
     fig.measure("collisions", res.collisions)
     fig.measure("vertex angle (mean)", res.vertex_angle, "rad")
     fig.measure("vertex angle, closed form from the initial state", res.predicted_vertex_angle, "rad")
-    fig.measure("spread (max − min) of the vertex angle", res.vertex_angle_spread, "rad")
+    # spreads, offsets and distances of 1e-12 and below are rounding: the record keeps their size
+    fig.measure("spread (max − min) of the vertex angle", res.vertex_angle_spread, "rad", digits=ROUNDING)
     fig.measure("caustic radius of segments 1–2, 3–4, … (mean)", c.radii[0], "L")
     fig.measure("its closed form from the initial state", res.predicted_radii[0], "L")
-    fig.measure("its spread (max − min)", c.spreads[0], "L")
+    fig.measure("its spread (max − min)", c.spreads[0], "L", digits=ROUNDING)
     fig.measure("caustic radius of segments 2–3, 4–5, … (mean)", c.radii[1], "L")
     fig.measure("its closed form from the initial state", res.predicted_radii[1], "L")
-    fig.measure("its spread (max − min)", c.spreads[1], "L")
+    fig.measure("its spread (max − min)", c.spreads[1], "L", digits=ROUNDING)
     fig.measure("largest offset of the foot of the perpendicular from the segment's midpoint", res.midpoint_offset,
-                "L")
+                "L", digits=ROUNDING)
     fig.measure("largest distance of a collision point from the circle of radius ρ = R_table − R", res.off_circle,
-                "L")
+                "L", digits=ROUNDING)
 
-    fig.check("vertex angle constant: spread over the orbit [rad]", res.vertex_angle_spread, "<=", BOUND)
+    fig.check("vertex angle constant: spread over the orbit [rad]", res.vertex_angle_spread, "<=", BOUND,
+              digits=ROUNDING)
     fig.check("vertex angle = closed form from the initial state [rad]",
-              abs(res.vertex_angle - res.predicted_vertex_angle), "<=", BOUND)
+              abs(res.vertex_angle - res.predicted_vertex_angle), "<=", BOUND, digits=ROUNDING)
     fig.check("segments alternate between two circles: largest distance of a line from its circle",
-              c.alternation, "<=", BOUND)
+              c.alternation, "<=", BOUND, digits=ROUNDING)
     fig.check("two circles, not one: difference of the radii", c.separation, ">=", 0.1)
-    fig.check("caustic radii = closed form", res.radius_error, "<=", BOUND)
-    fig.check("touched at the midpoints: largest offset", res.midpoint_offset, "<=", BOUND)
+    fig.check("caustic radii = closed form", res.radius_error, "<=", BOUND, digits=ROUNDING)
+    fig.check("touched at the midpoints: largest offset", res.midpoint_offset, "<=", BOUND, digits=ROUNDING)
 
     pts = p[1:]
     out = MplFigure(figsize=(10.5, 5.0), layout="constrained")

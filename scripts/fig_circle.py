@@ -10,7 +10,7 @@ collisions each keep the run well under a second while rounding has time to show
 import numpy as np
 from matplotlib.figure import Figure as MplFigure
 
-from figlib import Figure, arguments
+from figlib import ROUNDING, Figure, arguments
 from fig_caustics import BOUND, draw_orbit, read_circle_run
 from rbx import orbits
 
@@ -29,24 +29,27 @@ def main():
         fig.measure(f"orbit {k}: collisions", res.collisions)
         fig.measure(f"orbit {k}: vertex angle (mean; closed form {res.predicted_vertex_angle:.12f})",
                     res.vertex_angle, "rad")
-        fig.measure(f"orbit {k}: spread (max − min) of the vertex angle", res.vertex_angle_spread, "rad")
+        # spreads and offsets of 1e-12 and below are rounding: the record keeps their size
+        fig.measure(f"orbit {k}: spread (max − min) of the vertex angle", res.vertex_angle_spread, "rad",
+                    digits=ROUNDING)
         fig.measure(f"orbit {k}: caustic radii (segments 1–2, 3–4, … / 2–3, 4–5, …)",
                     f"{c.radii[0]:.12f} / {c.radii[1]:.12f}", "L")
-        fig.measure(f"orbit {k}: spreads of the two radii", f"{c.spreads[0]:.3g} / {c.spreads[1]:.3g}", "L")
+        fig.measure(f"orbit {k}: spreads of the two radii", f"{c.spreads[0]:.2g} / {c.spreads[1]:.2g}", "L")
         fig.measure(f"orbit {k}: largest offset of the foot of the perpendicular from the midpoint",
-                    res.midpoint_offset, "L")
+                    res.midpoint_offset, "L", digits=ROUNDING)
 
     worst = lambda f: max(f(r) for r in results)
     fig.check("vertex angle constant: largest spread over the three orbits [rad]",
-              worst(lambda r: r.vertex_angle_spread), "<=", BOUND)
+              worst(lambda r: r.vertex_angle_spread), "<=", BOUND, digits=ROUNDING)
     fig.check("vertex angles = closed form from each initial state [rad]",
-              worst(lambda r: abs(r.vertex_angle - r.predicted_vertex_angle)), "<=", BOUND)
+              worst(lambda r: abs(r.vertex_angle - r.predicted_vertex_angle)), "<=", BOUND, digits=ROUNDING)
     fig.check("segments alternate between two circles: largest distance of a line from its circle",
-              worst(lambda r: r.caustics.alternation), "<=", BOUND)
+              worst(lambda r: r.caustics.alternation), "<=", BOUND, digits=ROUNDING)
     fig.check("two circles per orbit: smallest difference of the radii",
               min(r.caustics.separation for r in results), ">=", 0.1)
-    fig.check("caustic radii = closed form", worst(lambda r: r.radius_error), "<=", BOUND)
-    fig.check("touched at the midpoints: largest offset", worst(lambda r: r.midpoint_offset), "<=", BOUND)
+    fig.check("caustic radii = closed form", worst(lambda r: r.radius_error), "<=", BOUND, digits=ROUNDING)
+    fig.check("touched at the midpoints: largest offset", worst(lambda r: r.midpoint_offset), "<=", BOUND,
+              digits=ROUNDING)
     fig.check("three different orbits: smallest difference of vertex angles [rad]",
               min(abs(a.vertex_angle - b.vertex_angle) for i, a in enumerate(results) for b in results[i + 1:]),
               ">=", 0.1)

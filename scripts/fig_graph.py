@@ -16,7 +16,7 @@ hemispheres are met equally often.
 import numpy as np
 from matplotlib.figure import Figure as MplFigure
 
-from figlib import Figure, arguments
+from figlib import ROUNDING, Figure, arguments, geomspace, log10
 from rbx import analysis
 from rbx.runfile import Run
 
@@ -25,6 +25,7 @@ MEMORY_FROM = 100               # "long range": lags from 100 collisions ...
 MEMORY_TO = 0.1                 # ... to a tenth of the run
 MEMORY = 0.03                   # largest |ρ| at long lags that counts as memory (noise: ~0.005 on 10⁶ collisions)
 FLIGHT_SPREAD = 1e-9            # relative spread of the flight times that counts as constant
+LN10 = 2.302585092994046        # ln 10
 
 
 def read_orbit(path):
@@ -47,7 +48,9 @@ def autocorrelation(v, maxlag):
     v = np.asarray(v, float) - np.mean(v)
     n = len(v)
     f = np.fft.rfft(v, n=2 * n)
-    ac = np.fft.irfft(f * np.conj(f))[:maxlag + 1]
+    # |f|² as re² + im², not f·conj(f): NumPy's complex product fuses a multiply and an add (FMA) in its AVX2 and
+    # AVX-512 loops and not in the others, so its last bits depend on the CPU
+    ac = np.fft.irfft(f.real * f.real + f.imag * f.imag)[:maxlag + 1]
     ac /= np.arange(n, n - maxlag - 1, -1)          # unbiased: the mean over the pairs at each lag
     return ac / ac[0]
 
@@ -63,7 +66,7 @@ def orbit_measures(steps, t, x, rank, scales=SCALES):
     vx = np.diff(x[1:]) / dt                         # the velocity after each collision (straight flights)
     upto = [max(1, int(round(f * N))) for f in scales]
     rr = running_range(x)
-    n = np.unique(np.round(np.geomspace(1, N, 200)).astype(int))
+    n = np.unique(np.round(geomspace(1, N, 200)).astype(int))
     lo = max(1, N // 1000)
     maxlag = max(2, int(MEMORY_TO * len(vx)))
     rho = autocorrelation(vx, maxlag)
@@ -93,18 +96,18 @@ def orbit_measures(steps, t, x, rank, scales=SCALES):
 def record_orbit(fig, m, prefix=""):
     fig.measure(f"{prefix}collisions", m["collisions"])
     fig.measure(f"{prefix}flight time (after the first flight)", m["flight time"], "T")
-    fig.measure(f"{prefix}relative spread (max − min)/mean of the flight times", m["flight spread"])
+    fig.measure(f"{prefix}relative spread (max − min)/mean of the flight times", m["flight spread"], digits=ROUNDING)
     fig.measure(f"{prefix}fraction of rough (rank 1) collisions", m["rough fraction"])
     for n, r in zip(m["scales"], m["ranges"]):
         fig.measure(f"{prefix}range (max − min) of x over the first {n} collisions", r, "L")
     lo, hi = m["exponent window"]
     fig.measure(f"{prefix}growth exponent a of the range of x ∝ stepsᵃ ({lo} to {hi} collisions)",
-                m["range exponent"])
+                m["range exponent"], digits=4)
     fig.measure(f"{prefix}autocorrelation of v_x at lags 1, 2", f"{m['rho1']:.4f}, {m['rho2']:.4f}")
     a, b = m["memory window"]
     fig.measure(f"{prefix}largest |autocorrelation of v_x| at lags {a}–{b} (at lag {m['memory lag']})",
-                m["memory"])
-    fig.measure(f"{prefix}noise of an estimated autocorrelation (Bartlett, from lags 1–20)", m["noise"])
+                m["memory"], digits=4)
+    fig.measure(f"{prefix}noise of an estimated autocorrelation (Bartlett, from lags 1–20)", m["noise"], digits=4)
 
 
 def envelope(steps, x, bins=3000):
@@ -132,7 +135,7 @@ def draw_scales(axes, steps, x, upto, colour="tab:blue"):
 def memory_envelope(rho, bins=60):
     """(lag bin centres, largest |ρ| in each bin, lags in each bin) over logarithmic bins of the lags
     1 … len(rho) − 1."""
-    edges = np.unique(np.round(np.geomspace(1, len(rho), bins + 1)).astype(int))
+    edges = np.unique(np.round(geomspace(1, len(rho), bins + 1)).astype(int))
     centres = np.sqrt(edges[:-1] * np.maximum(edges[1:] - 1, edges[:-1]))
     top = np.array([np.max(np.abs(rho[a:b])) for a, b in zip(edges[:-1], edges[1:])])
     return centres, top, np.diff(edges)
@@ -143,7 +146,8 @@ def draw_memory(ax, m, level, level_label, colour="tab:blue"):
     lags), and a reference level of |ρ| (``level_label`` says what it separates)."""
     lag, top, size = memory_envelope(m["rho"])
     ax.loglog(lag, top, ".-", color=colour, lw=0.9, ms=3, label="largest |ρ(L)| in the lag bin")
-    ax.loglog(lag, m["noise"] * np.sqrt(2 * np.log(np.maximum(size, 2))), "--", color="tab:green", lw=1.0,
+    # ln = log10·ln 10 with figlib's log10 (the same bits on every CPU; np.log's last bits are the CPU's)
+    ax.loglog(lag, m["noise"] * np.sqrt(2 * LN10 * log10(np.maximum(size, 2))), "--", color="tab:green", lw=1.0,
               label="largest that noise gives in the bin")
     a, b = m["memory window"]
     ax.axvspan(a, b, color="0.9", zorder=0, label=f"long range: lags {a}–{b}")
@@ -161,10 +165,11 @@ def main():
     m = orbit_measures(steps, t, x, rank)
     record_orbit(fig, m)
 
-    fig.check("flight time constant: (max − min)/mean", m["flight spread"], "<=", FLIGHT_SPREAD)
+    fig.check("flight time constant: (max − min)/mean", m["flight spread"], "<=", FLIGHT_SPREAD, digits=ROUNDING)
     fig.check("both halves of the rim are met: rough fraction ≥", m["rough fraction"], ">=", 0.2)
     fig.check("both halves of the rim are met: rough fraction ≤", m["rough fraction"], "<=", 0.8)
-    fig.check("long-range memory, unlike a random rule: largest |ρ(L)| at long lags", m["memory"], ">=", MEMORY)
+    fig.check("long-range memory, unlike a random rule: largest |ρ(L)| at long lags", m["memory"], ">=", MEMORY,
+              digits=4)
     fig.check("x unbounded, and faster than a random walk (≈ √1000 ≈ 32): range at 10⁶ / range at 10³ collisions",
               m["ranges"][-1] / m["ranges"][0], ">=", 100)
 

@@ -21,7 +21,7 @@ from matplotlib.figure import Figure as MplFigure
 from scipy import stats
 
 from fig_graph import SCALES, draw_memory, draw_scales, orbit_measures, read_orbit, record_orbit
-from figlib import Figure, arguments
+from figlib import ROUNDING, Figure, arguments, geomspace
 from rbx import analysis
 from rbx.runfile import Run
 
@@ -112,7 +112,7 @@ def draw_ensemble(axes, e, m):
     ax = axes[1]
     ax.loglog(s, m["msd"][ok], ".", color="tab:blue", ms=2.5, label="ensemble MSD")
     ax.loglog(s, m["exact"][ok], "k-", lw=1.0, label=f"exact: 2Dt + c, c = {m['c']:.2f} L², + transient")
-    t = np.geomspace(fit.start, fit.stop, 100)
+    t = geomspace(fit.start, fit.stop, 100)
     ax.loglog(t, fit.msd(t), "-", color="tab:orange", lw=2.5, alpha=0.6,
               label=f"fit 2Dt + c: c = {fit.intercept:.0f} ± {fit.intercept_half_width:.0f} L²")
     ax.loglog(s, 2 * m["D"] * s, ":", color="0.4", lw=1.0, label="slope 1")
@@ -153,14 +153,14 @@ def main():
     fig.measure("closed form τ²|u|²(1 + 1/κ)/4 (p = ½)", m["closed"], "L²/collision")
     fig.measure("fitted intercept c, 95% interval", f"{fit.intercept:.1f} ± {fit.intercept_half_width:.1f}", "L²")
     fig.measure("exact intercept c", m["c"], "L²")
-    fig.measure("log–log slope of the MSD over the fit window", m["slope"])
-    fig.measure("KS p-value of the final displacement against the Gaussian of the exact variance", m["ks"])
+    fig.measure("log–log slope of the MSD over the fit window", m["slope"], digits=4)
+    fig.measure("KS p-value of the final displacement against the Gaussian of the exact variance", m["ks"], digits=4)
 
-    fig.check("orbit: flight time constant: (max − min)/mean", o["flight spread"], "<=", 1e-9)
+    fig.check("orbit: flight time constant: (max − min)/mean", o["flight spread"], "<=", 1e-9, digits=ROUNDING)
     fig.check("orbit: rough fraction = p: |fraction − p|", abs(o["rough fraction"] - e["p"]), "<=", 0.01)
-    fig.check("orbit: no long-range memory: largest |ρ(L)| at long lags", o["memory"], "<=", MEMORYLESS)
-    fig.check("MSD grows linearly: log–log slope ≥", m["slope"], ">=", 0.9)
-    fig.check("MSD grows linearly: log–log slope ≤", m["slope"], "<=", 1.1)
+    fig.check("orbit: no long-range memory: largest |ρ(L)| at long lags", o["memory"], "<=", MEMORYLESS, digits=4)
+    fig.check("MSD grows linearly: log–log slope ≥", m["slope"], ">=", 0.9, digits=4)
+    fig.check("MSD grows linearly: log–log slope ≤", m["slope"], "<=", 1.1, digits=4)
     fig.check("fitted D = exact D: relative difference", abs(fit.coefficient - m["D"]) / m["D"], "<=", 0.1)
 
     out = MplFigure(figsize=(14.0, 10.5), layout="constrained")

@@ -75,11 +75,11 @@ def main():
     fig.measure("returns that met a side wall: fraction", float(np.mean(side)))
     fig.measure("side-wall returns (even samples) against side-wall starts (odd): two-sample KS statistic, p",
                 f"{two.statistic:.5f}, {two.pvalue:.4f}")
-    fig.check("return angles follow sin 2φ: KS p-value", p, ">=", P_PASS)
+    fig.check("return angles follow sin 2φ: KS p-value", p, ">=", P_PASS, digits=4)
     fig.check("every sample returned", r["not_returned"], "<=", 0)
-    fig.check("the sampler draws the billiard measure: KS p-value of the starts", p0, ">=", P_PASS)
+    fig.check("the sampler draws the billiard measure: KS p-value of the starts", p0, ">=", P_PASS, digits=4)
     fig.check("returns via a side wall keep the law of their starts: two-sample KS p-value", two.pvalue, ">=",
-              P_PASS)
+              P_PASS, digits=4)
 
     out = MplFigure(figsize=(17.0, 4.8), layout="constrained")
     out.suptitle(f"histogram · disc (R = {r['radius']:g}, κ = {r['kappa']:.3g}) in a 2 × 1 {r['table']} · rough: "

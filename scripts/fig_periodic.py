@@ -20,7 +20,7 @@ import os
 import numpy as np
 from matplotlib.figure import Figure as MplFigure
 
-from figlib import Figure, arguments
+from figlib import ROUNDING, Figure, arguments, geomspace
 from rbx import orbits
 from rbx.runfile import Run
 from rbx.plotting import draw_table_2d
@@ -73,7 +73,7 @@ def draw_gap(ax, s_run, supremum):
     """(closed-form supremum − largest distance so far) / supremum against the collision, signed: its size on a
     log axis, the collisions where it is positive and where it is negative in two colours (a negative value is the
     computed orbit past the closed-form bound, by rounding), so no value is hidden or clipped."""
-    idx = np.unique(np.geomspace(1, len(s_run), 2000).astype(int)) - 1
+    idx = np.unique(geomspace(1, len(s_run), 2000).astype(int)) - 1
     gap = (supremum - s_run[idx]) / supremum
     n = idx + 1
     pos, neg = gap > 0, gap < 0
@@ -117,12 +117,14 @@ def main():
         name = f"{r['angle']:.6g}° wedge"
         fig.measure(f"{name}: free flights (of {r['requested']} asked)", r["flights"])
         fig.measure(f"{name}: detected period (collisions)", per.period if per.period else "none")
-        fig.measure(f"{name}: tolerance: largest relative difference of state[i+p] and state[i]", per.mismatch)
+        fig.measure(f"{name}: tolerance: largest relative difference of state[i+p] and state[i]", per.mismatch,
+                    digits=ROUNDING)
         fig.measure(f"{name}: smallest mismatch of a shorter period", per.shorter)
         fig.measure(f"{name}: closed-form period (2γ a rational turn)", pred.period if pred.period else "none")
         fig.measure(f"{name}: largest distance from the vertex", orbits.max_distance(r["position"]), "L")
         fig.check(f"{name}: bounded: free flights completed", r["flights"], ">=", r["requested"])
-        fig.check(f"{name}: periodic: relative mismatch at the detected period", per.mismatch, "<=", PERIOD_TOL)
+        fig.check(f"{name}: periodic: relative mismatch at the detected period", per.mismatch, "<=", PERIOD_TOL,
+                  digits=ROUNDING)
         fig.check(f"{name}: detected period − closed-form period, absolute",
                   abs(per.period - pred.period) if per.period and pred.period else np.inf, "<=", 0)
         fig.check(f"{name}: no shorter period: smallest mismatch below it", per.shorter, ">=", 1e-3)
@@ -147,15 +149,18 @@ def main():
     fig.measure(f"{name}: largest distance from the vertex over all collisions", orbits.max_distance(p), "L")
     fig.measure(f"{name}: largest distance from the shrunk vertex", float(s.max()), "L")
     fig.measure(f"{name}: closed-form supremum of that distance (from the initial state)", pred.supremum, "L")
-    fig.measure(f"{name}: (supremum − largest distance) / supremum after {first} collisions", gap(first))
-    fig.measure(f"{name}: (supremum − largest distance) / supremum after {len(s)} collisions", gap(len(s)))
-    fig.measure(f"{name}: relative spread of the invariant s·n", inv_spread)
+    fig.measure(f"{name}: (supremum − largest distance) / supremum after {first} collisions", gap(first), digits=4)
+    # the orbit past its supremum by rounding, and the spread of an invariant: their size is what they say
+    fig.measure(f"{name}: (supremum − largest distance) / supremum after {len(s)} collisions", gap(len(s)),
+                digits=ROUNDING)
+    fig.measure(f"{name}: relative spread of the invariant s·n", inv_spread, digits=ROUNDING)
     fig.measure(f"{name}: no period up to {head.length // 2}; smallest relative mismatch", head.mismatch)
     fig.check(f"{name}: bounded: free flights completed", t["flights"], ">=", t["requested"])
-    fig.check(f"{name}: s·n constant (relative spread)", inv_spread, "<=", 1e-9)
+    fig.check(f"{name}: s·n constant (relative spread)", inv_spread, "<=", 1e-9, digits=ROUNDING)
     fig.check(f"{name}: bounded by the closed-form supremum, to rounding: (supremum − largest distance) / supremum",
-              gap(len(s)), ">=", -1e-9)
-    fig.check(f"{name}: the band is filled: (supremum − largest distance) / supremum", gap(len(s)), "<=", 1e-6)
+              gap(len(s)), ">=", -1e-9, digits=ROUNDING)
+    fig.check(f"{name}: the band is filled: (supremum − largest distance) / supremum", gap(len(s)), "<=", 1e-6,
+              digits=ROUNDING)
     fig.check(f"{name}: not periodic: smallest mismatch of the first 1000 collisions", head.mismatch, ">=", 1e-3)
 
     out = MplFigure(figsize=(11.0, 8.6), layout="constrained")

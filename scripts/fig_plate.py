@@ -17,11 +17,13 @@ v, as in configs/examples/plates.yaml, the orbit stays in one vertical plane and
 same start in Figure roughrank; 10⁶ collisions (a fraction of a second) are far longer than the excursion takes to
 saturate.
 """
+import math
+
 import numpy as np
 from matplotlib.figure import Figure as MplFigure
 from matplotlib.ticker import MaxNLocator
 
-from figlib import Figure, arguments
+from figlib import ROUNDING, Figure, arguments, fixed, geomspace
 from rbx import analysis
 from rbx.runfile import Run
 
@@ -50,11 +52,12 @@ def plates_measures(o, first=1000):
     n1 = min(first, max(1, N // 10))
     k1 = int(np.searchsorted(steps, n1))
     exc = analysis.running_excursion(xy)
-    lags_coll = np.unique(np.round(np.geomspace(max(10, o["every"]), max(N // 100, 20 * o["every"]), 16)
+    lags_coll = np.unique(np.round(geomspace(max(10, o["every"]), max(N // 100, 20 * o["every"]), 16)
                                    / o["every"]).astype(int)) * o["every"]
     tamsd = analysis.time_averaged_msd(xy, lags_coll // o["every"])
     rough = analysis.rough_directions(o["rules"], o["geom"])
     init = o["init"]
+    speed = vector_length(np.asarray(init["velocity"], float)[:2])
     drift = analysis.conserved_drift(init["velocity"], init["angular_velocity"], rough, o["R"], o["kappa"])[:2]
     measured = (xy[-1] - xy[1]) / (t[-1] - t[1])
     # what is left after the conserved drift: bounded, or a random walk
@@ -64,33 +67,41 @@ def plates_measures(o, first=1000):
     return dict(steps=steps, rest=rest, rest_excursion=rest_exc,
                 rest_exponent=analysis.growth_exponent(steps, rest_exc, steps[k1], N),
                 rest_tamsd_exponent=analysis.growth_exponent(lags_coll, rest_tamsd, 0, np.inf),
-                drifts=bool(np.linalg.norm(drift) > 1e-6 * np.linalg.norm(np.asarray(init["velocity"], float)[:2])),
+                drifts=bool(vector_length(drift) > 1e-6 * speed),
 N=N, n1=int(steps[k1]), e1=float(exc[k1]), eN=float(exc[-1]), excursion=exc,
                 exponent=analysis.growth_exponent(steps, exc, steps[k1], N),
                 lags=lags_coll, tamsd=tamsd, tamsd_exponent=analysis.growth_exponent(lags_coll, tamsd, 0, np.inf),
                 drift=drift, measured_drift=measured,
-                drift_error=float(np.linalg.norm(measured - drift) / max(np.linalg.norm(drift), 1e-300)),
-                speed=float(np.linalg.norm(np.asarray(init["velocity"], float)[:2])))
+                drift_error=vector_length(measured - drift) / max(vector_length(drift), 1e-300), speed=speed)
+
+
+def vector_length(v):
+    """|v| of a short vector by math.hypot: np.linalg.norm of a vector is a BLAS dot product, whose last bits
+    depend on the CPU."""
+    return math.hypot(*np.asarray(v, float).tolist())
 
 
 def record_plates(fig, m, prefix=""):
     fig.measure(f"{prefix}collisions", m["N"])
     fig.measure(f"{prefix}largest horizontal distance from the start, first {m['n1']} collisions", m["e1"], "L")
     fig.measure(f"{prefix}largest horizontal distance from the start, all {m['N']} collisions", m["eN"], "L")
-    fig.measure(f"{prefix}growth exponent of that excursion ({m['n1']} to {m['N']} collisions)", m["exponent"])
+    # a bounded orbit's exponent is the rounding of a fit to a constant: its size is what it says
+    fig.measure(f"{prefix}growth exponent of that excursion ({m['n1']} to {m['N']} collisions)", m["exponent"],
+                digits=ROUNDING if abs(m["exponent"]) < 1e-3 else 4)
     fig.measure(f"{prefix}growth exponent of the time-averaged MSD (lags {m['lags'][0]}–{m['lags'][-1]})",
-                m["tamsd_exponent"])
+                m["tamsd_exponent"], digits=4)
     fig.measure(f"{prefix}conserved (slip-free) horizontal velocity, predicted",
-                f"({m['drift'][0]:.6f}, {m['drift'][1]:.6f})", "L/T")
+                f"({fixed(m['drift'][0], 6)}, {fixed(m['drift'][1], 6)})", "L/T")
     fig.measure(f"{prefix}mean horizontal velocity over the run, measured",
-                f"({m['measured_drift'][0]:.6f}, {m['measured_drift'][1]:.6f})", "L/T")
+                f"({fixed(m['measured_drift'][0], 6)}, {fixed(m['measured_drift'][1], 6)})", "L/T")
     if m["drifts"]:
         fig.measure(f"{prefix}after subtracting the drift: largest distance from the start, first {m['n1']} / all",
                     f"{m['rest_excursion'][int(np.searchsorted(m['steps'], m['n1']))]:.6g} / "
                     f"{m['rest_excursion'][-1]:.6g}", "L")
-        fig.measure(f"{prefix}after subtracting the drift: growth exponent of that excursion", m["rest_exponent"])
+        fig.measure(f"{prefix}after subtracting the drift: growth exponent of that excursion", m["rest_exponent"],
+                    digits=ROUNDING if abs(m["rest_exponent"]) < 1e-3 else 4)
         fig.measure(f"{prefix}after subtracting the drift: growth exponent of the time-averaged MSD",
-                    m["rest_tamsd_exponent"])
+                    m["rest_tamsd_exponent"], digits=4)
 
 
 def draw_plates(ax, gap, lo, hi):
@@ -104,7 +115,7 @@ def draw_tamsd(ax, m, xy, every, points=120):
     lags of the fitted exponent marked), with the slope of diffusion through its first point and the plateau of a
     bounded stationary orbit, 2·(var x + var y)."""
     lags, tamsd = m["lags"], m["tamsd"]
-    dense = np.unique(np.round(np.geomspace(lags[0], lags[-1], points) / every).astype(int)) * every
+    dense = np.unique(np.round(geomspace(lags[0], lags[-1], points) / every).astype(int)) * every
     values = analysis.time_averaged_msd(xy, dense // every)
     ax.loglog(dense, values, ".", color="tab:blue", ms=4,
               label="⟨|r(i + lag) − r(i)|²⟩ over collisions i, r = (x, y)")
@@ -127,12 +138,14 @@ def main():
     m = plates_measures(o)
     record_plates(fig, m)
     dt = np.diff(o["time"][1:])
-    fig.measure("relative spread of the flight times (|v_z| is kept)", float(np.ptp(dt) / np.mean(dt)))
+    fig.measure("relative spread of the flight times (|v_z| is kept)", float(np.ptp(dt) / np.mean(dt)),
+                digits=ROUNDING)
 
     fig.check(f"bounded: excursion over {m['N']} / over {m['n1']} collisions", m["eN"] / m["e1"], "<=", GROWTH)
-    fig.check("bounded: growth exponent of the time-averaged MSD", m["tamsd_exponent"], "<=", BOUNDED_TAMSD)
+    fig.check("bounded: growth exponent of the time-averaged MSD", m["tamsd_exponent"], "<=", BOUNDED_TAMSD,
+              digits=4)
     fig.check("no conserved slip-free motion: |mean horizontal velocity| / |initial horizontal velocity|",
-              float(np.linalg.norm(m["measured_drift"])) / m["speed"], "<=", 1e-3)
+              vector_length(m["measured_drift"]) / m["speed"], "<=", 1e-3, digits=4)
 
     p = o["position"]
     gap = o["geom"].size
@@ -170,7 +183,7 @@ def main():
 
     ax = out.add_subplot(2, 2, 3)
     s = o["steps"]
-    i = np.unique(np.geomspace(1, len(s) - 1, 2000).astype(int))
+    i = np.unique(geomspace(1, len(s) - 1, 2000).astype(int))
     ax.semilogx(s[i], m["excursion"][i], color="tab:blue", lw=1.0, label="largest |(x, y) − (x₀, y₀)| so far")
     ax.axvline(m["n1"], color="0.5", lw=0.8, ls=":", label=f"{m['n1']} collisions")
     ax.set_ylim(0, 1.3 * m["eN"])

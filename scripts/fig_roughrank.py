@@ -23,8 +23,8 @@ from matplotlib.ticker import MaxNLocator
 
 from rbx.model import Constant, Hemisphere, Random
 
-from fig_plate import plates_measures, read_plates_orbit, record_plates
-from figlib import Figure, arguments
+from fig_plate import plates_measures, read_plates_orbit, record_plates, vector_length
+from figlib import ROUNDING, Figure, arguments, fixed, geomspace
 
 UNBOUNDED = 0.3      # growth exponent of the excursion above which an orbit is unbounded (bounded: 0)
 BOUNDED = 0.05       # ... and below which it is bounded
@@ -79,24 +79,25 @@ def main():
     for k, (o, m) in scenes.items():
         random = uses_random(o["rules"])
         if k == "rank2-rank2":
-            fig.check(f"{k}: bounded: growth exponent of the excursion", m["exponent"], "<=", BOUNDED)
+            fig.check(f"{k}: bounded: growth exponent of the excursion", m["exponent"], "<=", BOUNDED,
+                      digits=ROUNDING if abs(m["exponent"]) < 1e-3 else 4)
             continue
-        fig.check(f"{k}: unbounded: growth exponent of the excursion", m["exponent"], ">=", UNBOUNDED)
+        fig.check(f"{k}: unbounded: growth exponent of the excursion", m["exponent"], ">=", UNBOUNDED, digits=4)
         if m["drifts"]:
             fig.check(f"{k}: drifts at the conserved slip-free velocity: relative error", m["drift_error"], "<=",
-                      DRIFT)
+                      DRIFT, digits=4)
         else:
             fig.check(f"{k}: nothing conserved: |mean velocity| / |initial horizontal velocity|",
-                      float(np.linalg.norm(m["measured_drift"])) / m["speed"], "<=", DRIFT)
+                      vector_length(m["measured_drift"]) / m["speed"], "<=", DRIFT, digits=4)
         what = "after the drift" if m["drifts"] else "the orbit"
         if random:
             fig.check(f"{k}: {what} is a random walk: time-averaged MSD exponent ≥", m["rest_tamsd_exponent"],
-                      ">=", 0.8)
+                      ">=", 0.8, digits=4)
             fig.check(f"{k}: {what} is a random walk: time-averaged MSD exponent ≤", m["rest_tamsd_exponent"],
-                      "<=", 1.2)
+                      "<=", 1.2, digits=4)
         else:
             fig.check(f"{k}: {what} is bounded (deterministic rules): growth exponent of its excursion",
-                      m["rest_exponent"], "<=", BOUNDED)
+                      m["rest_exponent"], "<=", BOUNDED, digits=ROUNDING if abs(m["rest_exponent"]) < 1e-3 else 4)
 
     out = MplFigure(figsize=(15.0, 9.0), layout="constrained")
     out.suptitle(f"roughrank · {title}: horizontal projections of one orbit of 10⁶ collisions per boundary "
@@ -119,9 +120,8 @@ def main():
             ax.plot(r[0, 0], r[0, 1], "o", color="k", ms=3)
             ax.set_xlabel(r"$x - v_x t$ [L]")
             ax.set_ylabel(r"$y - v_y t$ [L]")
-            vx, vy = (round(float(c), 4) + 0.0 for c in d)     # + 0.0: no "-0.0000"
-            ax.set_title(head + rf"drift $(v_x, v_y)$ = ({vx:.4f}, {vy:.4f}) L/T (predicted): {m['eN']:.3g} L in "
-                         f"{m['N']} collisions;\ndrawn: the path minus the drift, its excursion ∝ "
+            ax.set_title(head + rf"drift $(v_x, v_y)$ = ({fixed(d[0], 4)}, {fixed(d[1], 4)}) L/T (predicted): "
+                         f"{m['eN']:.3g} L in {m['N']} collisions;\ndrawn: the path minus the drift, its excursion ∝ "
                          f"steps^{m['rest_exponent']:.2f}", fontsize=7.5)
         else:
             q = p[::every]
@@ -140,10 +140,10 @@ def main():
             continue
         o, m = scenes[k]
         s = o["steps"]
-        i = np.unique(np.geomspace(1, len(s) - 1, 2000).astype(int))
+        i = np.unique(geomspace(1, len(s) - 1, 2000).astype(int))
         ax.loglog(s[i], m["excursion"][i], color=f"C{list(PLACES).index(k)}", lw=1.2,
                   label=f"{k}: exponent {m['exponent']:.3f}")
-    n = np.geomspace(1e3, 1e6, 10)
+    n = geomspace(1e3, 1e6, 10)
     ax.loglog(n, 0.5 * n, "k:", lw=0.9, label="∝ steps (ballistic)")
     ax.loglog(n, 0.5 * np.sqrt(n), "k--", lw=0.9, label="∝ steps^½ (random walk)")
     ax.axvspan(1e3, 1e6, color="0.93", zorder=0, label="where the exponent is fitted")

@@ -16,16 +16,41 @@ Use::
     fig.measure("spread of the vertex angle", 3e-13, "rad")
     fig.check("vertex angle constant along the orbit", spread, "<=", 1e-9)
     fig.save(matplotlib_figure, args)         # writes PNG and JSON, exits 1 if a check failed
+
+The PNG and the JSON are committed, so they must come out byte for byte the same on every CPU (an Intel Xeon
+rewrote them in the last digits). What differs between CPUs is not the arithmetic (+ − × ÷ √ are exactly rounded
+everywhere) but the library kernels NumPy chooses at run time: BLAS dot products and LAPACK (``x @ y``,
+``np.linalg.norm`` of a vector, ``pinv``, ``polyfit``), and the AVX-512 versions of ``log10``, ``power``,
+``arccos``, ``arctan2``, ``exp`` and of the complex product, which round differently from the ones other CPUs
+run. Hence, in the figure scripts and here:
+
+- no ``@``/``np.dot``/``np.linalg`` on the numbers a figure reports: sums in a fixed order, ``math.hypot``;
+- a record keeps :data:`RECORD_DIGITS` significant digits, and a quantity that measures rounding (a spread of
+  1e-12, a gap of 1e-11) only ``digits=ROUNDING`` of them; ``-0`` is written as ``0`` (:func:`fixed`);
+- log axes map their data with an exactly rounded log10 (:class:`PortableLogScale`, registered as ``"log"`` on
+  import), so that the drawn lines, and the pixels, do not depend on NumPy's ``log10``; :func:`geomspace` for
+  log-spaced samples.
 """
 import argparse
+import decimal
 import json
+import math
 import operator
 import os
 import sys
 
+import numpy as np
+from matplotlib import scale as mscale
+from matplotlib import ticker as mticker
+
 from rbx.plotting import letter_panels
 
 OPS = {"<": operator.lt, "<=": operator.le, ">": operator.gt, ">=": operator.ge}
+#: significant digits a record keeps: more than any figure's property needs, fewer than the 17 whose last ones are
+#: the rounding of the machine that computed them
+RECORD_DIGITS = 10
+#: ... and for a quantity that measures rounding itself (a spread of 1e-12 over a run, a gap of 1e-11): its size
+ROUNDING = 2
 
 
 def arguments(description):
@@ -42,15 +67,17 @@ class Figure:
         self.measured = []
         self.checks = []
 
-    def measure(self, name, value, unit=""):
-        """A measured quantity, reported in figures/README.md."""
-        self.measured.append({"name": name, "value": _plain(value), "unit": unit})
+    def measure(self, name, value, unit="", digits=RECORD_DIGITS):
+        """A measured quantity, reported in figures/README.md, recorded to ``digits`` significant digits."""
+        self.measured.append({"name": name, "value": _plain(value, digits), "unit": unit})
         return value
 
-    def check(self, claim, value, op, bound):
-        """The paper's property as an inequality on a measured value; a failed check fails the figure."""
+    def check(self, claim, value, op, bound, digits=RECORD_DIGITS):
+        """The paper's property as an inequality on a measured value; a failed check fails the figure. The check
+        is made on the value itself, the record keeps ``digits`` of it."""
         ok = bool(OPS[op](value, bound))
-        self.checks.append({"claim": claim, "value": _plain(value), "op": op, "bound": _plain(bound), "ok": ok})
+        self.checks.append({"claim": claim, "value": _plain(value, digits), "op": op, "bound": _plain(bound),
+                            "ok": ok})
         return ok
 
     def save(self, mpl_figure, args, dpi=150):
@@ -85,8 +112,105 @@ def _config_of(data_path):
     return cfg if os.path.exists(cfg) else None
 
 
-def _plain(x):
+def _plain(x, digits=RECORD_DIGITS):
+    """A number as a float rounded to ``digits`` significant digits (−0 as 0), anything else as text."""
     try:
-        return float(x)
+        x = float(x)
     except (TypeError, ValueError):
         return str(x)
+    if math.isfinite(x):
+        x = float(f"{x:.{digits}g}") + 0.0          # + 0.0: −0.0 becomes 0.0
+    return x
+
+
+def fixed(x, places):
+    """``x`` with ``places`` decimals, and no minus sign on a value that rounds to zero: ``fixed(-3e-17, 6)`` is
+    '0.000000' (a projection that is 0 in exact arithmetic comes out ±1e-17, its sign the CPU's)."""
+    return f"{round(float(x), places) + 0.0:.{places}f}"
+
+
+# ---- log axes that draw the same pixels on every CPU ------------------------------------------------------------
+
+_DECIMAL = decimal.Context(prec=25)
+
+
+def log10(values):
+    """log10 of each value, computed to 25 digits in decimal and rounded to the nearest double (−inf at 0, NaN
+    below) -> array of the shape of ``values`` (masked where it is): the same bits on every machine. ``np.log10``
+    is not: its AVX-512 version and the C library's differ in the last bit, which moves a line on a log axis by
+    1e-13 pixels and, through matplotlib's path simplification, changes pixels."""
+    a = np.asarray(values, float)
+    out = [float(_DECIMAL.log10(decimal.Decimal(x))) if 0.0 < x < math.inf else
+           (-math.inf if x == 0.0 else math.inf if x == math.inf else math.nan) for x in a.ravel().tolist()]
+    return _like(values, np.array(out, float).reshape(a.shape))
+
+
+def exp10(values):
+    """10**value for each value, computed to 25 digits in decimal and rounded to the nearest double -> array of
+    the shape of ``values`` (masked where it is)."""
+    a = np.asarray(values, float)
+    out = [float(_DECIMAL.power(10, decimal.Decimal(x))) if math.isfinite(x) else
+           (math.inf if x == math.inf else 0.0 if x == -math.inf else math.nan) for x in a.ravel().tolist()]
+    return _like(values, np.array(out, float).reshape(a.shape))
+
+
+def _like(values, out):
+    return np.ma.masked_array(out, mask=np.ma.getmaskarray(values)) if np.ma.isMaskedArray(values) else out
+
+
+def geomspace(start, stop, num):
+    """``num`` numbers from ``start`` to ``stop`` (both > 0) evenly spaced on a log scale, as ``np.geomspace`` but
+    the same bits on every CPU (np.geomspace goes through np.log10 and np.power)."""
+    out = exp10(np.linspace(log10(float(start)), log10(float(stop)), int(num)))
+    if len(out):
+        out[0], out[-1] = start, stop
+    return out
+
+
+class _PortableLogTransform(mscale.LogTransform):
+    def transform_non_affine(self, values):
+        if self.base != 10:
+            return super().transform_non_affine(values)
+        out = log10(values)
+        if self._clip:
+            out[np.asarray(values, float) <= 0] = -1000        # as matplotlib's LogTransform
+        return out
+
+    def inverted(self):
+        return _PortableInvertedLogTransform(self.base)
+
+
+class _PortableInvertedLogTransform(mscale.InvertedLogTransform):
+    def transform_non_affine(self, values):
+        return exp10(values) if self.base == 10 else super().transform_non_affine(values)
+
+    def inverted(self):
+        return _PortableLogTransform(self.base)
+
+
+class _PortableLogLocator(mticker.LogLocator):
+    """matplotlib's LogLocator with the decades found by :func:`log10` and the ticks m·10^k rounded to the
+    nearest double (it computes them with ``np.power``, whose last bit is the CPU's)."""
+
+    def _log_b(self, x):
+        return log10(x) if self._base == 10 else super()._log_b(x)
+
+    def tick_values(self, vmin, vmax):
+        return np.array([float(f"{t:.12g}") for t in np.asarray(super().tick_values(vmin, vmax), float)])
+
+
+class PortableLogScale(mscale.LogScale):
+    """The "log" axis scale, base 10, drawn the same on every CPU (:func:`log10`)."""
+
+    def __init__(self, *args, **kwargs):          # (axis, …) before matplotlib 3.11, without axis since
+        super().__init__(*args, **kwargs)
+        t = self._transform
+        self._transform = _PortableLogTransform(t.base, "clip" if t._clip else "mask")
+
+    def set_default_locators_and_formatters(self, axis):
+        super().set_default_locators_and_formatters(axis)
+        axis.set_major_locator(_PortableLogLocator(self.base))
+        axis.set_minor_locator(_PortableLogLocator(self.base, self.subs))
+
+
+mscale.register_scale(PortableLogScale)            # ax.loglog, semilogy, set_yscale("log") in every figure
