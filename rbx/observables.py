@@ -1,0 +1,391 @@
+"""The observables a study measures (``measure:`` in a study file; :mod:`rbx.study`): one registry, one
+:class:`Observable` record per name — its unit, what it means, what runs it needs (record fields, the tangent loop,
+the return-angle experiment), what the table must have (an exit wall, an unbounded direction), its options, its
+companion numbers, and the function from a point's runs to a value and a standard error. The sweep, the results
+file and ``rbx plot --kind sweep`` read these records and name no observable.
+
+How to add an observable: one ``register(Observable(...))`` call below (and a test against a closed form or an
+independent estimate in tests/test_sweep.py).
+
+Errors are standard errors (1σ) unless the record says otherwise: a share's is the half-width of its Wilson
+interval at z = 1 (its bounds are the companions ``<name>_low``/``<name>_high``); a p-value has none (NaN).
+"""
+import math
+from dataclasses import dataclass, field
+
+import numpy as np
+
+__all__ = ["Observable", "REGISTRY", "register", "get", "PointRuns", "Value"]
+
+
+@dataclass(frozen=True)
+class Companion:
+    """A number reported beside an observable's value (``<observable>_<suffix>`` in the results file)."""
+    suffix: str
+    unit: str
+    description: str
+    dim: str | None = None          # an extra dimension (its coordinate from ``Observable.coords``)
+
+
+@dataclass
+class Value:
+    """What an observable gives at one point: the value, its error, and the companions by suffix."""
+    value: object
+    stderr: object
+    companions: dict = field(default_factory=dict)
+
+
+@dataclass
+class PointRuns:
+    """The runs of one point: ``experiment``; ``run`` (:class:`rbx.Run` in memory, with the records the observables
+    asked for) or None; ``lyapunov`` (:class:`rbx.dynamics.Lyapunov`) or None; ``returns``
+    (:class:`rbx.histogram.Returns`) or None."""
+    experiment: object
+    run: object = None
+    lyapunov: object = None
+    returns: object = None
+
+
+@dataclass(frozen=True)
+class Observable:
+    """One observable. ``compute(runs, options) -> Value``; ``problem(experiment, options) -> str | None`` says why
+    this table cannot give it (after the generic needs ``exit`` and ``unbounded`` are checked)."""
+    name: str
+    unit: str
+    description: str
+    compute: object
+    fields: tuple = ()              # record fields of the simulate run
+    every_collision: bool = False   # the fields at every collision (else a record every collisions/segments)
+    tangent: bool = False           # needs rbx.lyapunov's run (the tangent loop)
+    returns: bool = False           # needs the return-angle experiment (rbx.histogram)
+    final: bool = False             # needs the simulate run for its final state only
+    exit: bool = False              # needs a wall with the rule exit
+    unbounded: bool = False         # needs a table unbounded along some axis (periodic, strip)
+    options: dict = field(default_factory=dict)     # name -> default
+    companions: tuple = ()
+    dim: str | None = None          # the value's extra dimension
+    coords: object = None           # experiment -> coordinate values of ``dim`` (and of companions' dims)
+    problem: object = None
+    error: str = "standard error"
+
+    @property
+    def simulate(self):
+        return bool(self.fields) or self.final
+
+
+REGISTRY = {}
+
+
+def register(observable):
+    REGISTRY[observable.name] = observable
+    return observable
+
+
+def get(name):
+    return REGISTRY[name]
+
+
+# ---- statistics ------------------------------------------------------------------------------------------------
+
+def wilson(k, n, z=1.0):
+    """The Wilson score interval of a binomial share k/n at z standard deviations -> (share, low, high)."""
+    if n == 0:
+        return math.nan, math.nan, math.nan
+    p = k / n
+    denom = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
+    return p, max(0.0, centre - half), min(1.0, centre + half)
+
+
+def _share(k, n):
+    p, lo, hi = wilson(k, n)
+    return Value(p, 0.5 * (hi - lo), {"low": lo, "high": hi})
+
+
+def ratio_batches(num, den):
+    """A ratio Σnum/Σden over batches (M trajectories × S segments; ``num`` may carry a trailing axis) and its
+    standard error -> (value, stderr): the ratio estimator's error from the spread of the segments, or of the
+    trajectories' own ratios if that is larger (a table that is not ergodic: trajectories differ)."""
+    num = np.asarray(num, float)
+    den = np.asarray(den, float)
+    value = num.sum(axis=(0, 1)) / den.sum()
+
+    def spread(a, b):
+        ok = b > 0
+        a, b = a[ok], b[ok]
+        B = len(b)
+        if B < 2:
+            return np.full(np.shape(value), np.nan)
+        resid = a - (value * b[:, None] if a.ndim == 2 else value * b)
+        return np.sqrt(np.sum(resid ** 2, axis=0) / (B * (B - 1))) / np.mean(b)
+
+    tail = num.shape[2:]
+    err = spread(num.reshape((-1,) + tail), den.reshape(-1))
+    if num.shape[0] > 1:
+        err = np.fmax(err, spread(num.sum(axis=1), den.sum(axis=1)))
+    return value, err
+
+
+def _segment_sums(values, counts, segments):
+    """Cut each row's series (M, K) into ``segments`` consecutive parts -> (sums (M, S), counts (M, S))."""
+    M, K = values.shape
+    edges = np.linspace(0, K, segments + 1).round().astype(int)
+    s = np.stack([values[:, a:b].sum(axis=1) for a, b in zip(edges[:-1], edges[1:])], axis=1)
+    c = np.stack([counts[:, a:b].sum(axis=1) for a, b in zip(edges[:-1], edges[1:])], axis=1)
+    return s, c
+
+
+# ---- what a table has ------------------------------------------------------------------------------------------
+
+def exit_walls(experiment):
+    from .model import Exit, rule_leaves
+    return [w for w, r in enumerate(experiment.wall_rules) if any(isinstance(x, Exit) for x in rule_leaves(r))]
+
+
+def wall_measure(geom, w):
+    """The length (2D) or area (flat 3D) of wall ``w`` of the shrunk table, from its sampling patches."""
+    total = 0.0
+    for patch in geom.wall_list[w].patches:
+        if patch[0] == "flat":
+            total += float(np.prod([x for _, x in patch[3]]))
+        elif patch[0] == "arc":
+            total += patch[2] * (patch[4] - patch[3])
+        elif patch[0] == "sphere":
+            total += 4 * np.pi * patch[2] ** 2
+        else:
+            raise ValueError("the measure of a curved 3D wall other than a sphere is not computed")
+    return total
+
+
+def _sampled_wall(experiment):
+    init = experiment.initial
+    return init[1] if isinstance(init, tuple) and init and init[0] == "sample" else None
+
+
+# ---- the observables -------------------------------------------------------------------------------------------
+
+def _lyapunov(runs, options):
+    ly = runs.lyapunov
+    per_collision = float(np.sum(ly.time) / max(1, int(np.sum(ly.collisions))))
+    out = {"per_collision": ly.exponents[0] * per_collision, "per_collision_stderr": ly.stderr[0] * per_collision}
+    if options.get("spectrum"):
+        out["spectrum"] = np.asarray(ly.exponents, float)
+        out["spectrum_stderr"] = np.asarray(ly.stderr, float)
+    return Value(float(ly.exponents[0]), float(ly.stderr[0]), out)
+
+
+def _exponent_coords(experiment):
+    from .analysis import velocity_dimension
+    return np.arange(1, 2 * velocity_dimension(experiment.dimension) + 1)
+
+
+register(Observable(
+    "lyapunov", "1/T", "largest Lyapunov exponent λ₁ of the flow per unit time (rbx.lyapunov: Benettin's method, "
+    "the error from segments and trajectories)", _lyapunov, tangent=True,
+    options={"spectrum": False, "segments": 10, "warmup": None},
+    companions=(Companion("per_collision", "1/collision", "λ₁ per collision (λ₁ · mean time between collisions)"),
+                Companion("per_collision_stderr", "1/collision", "standard error of λ₁ per collision"),
+                Companion("spectrum", "1/T", "the Lyapunov spectrum per unit time, largest first "
+                                             "(with spectrum: true)", dim="exponent"),
+                Companion("spectrum_stderr", "1/T", "standard errors of the spectrum", dim="exponent")),
+    coords=lambda exp: {"exponent": _exponent_coords(exp)}))
+
+
+def _regular_share(runs, options):
+    lam1 = runs.lyapunov.per_trajectory[:, 0]
+    ok = np.isfinite(lam1)
+    return _share(int(np.sum(lam1[ok] < float(options["threshold"]))), int(ok.sum()))
+
+
+register(Observable(
+    "regular_share", "1", "share of trajectories whose own λ₁ is below the threshold (per unit time): regular "
+    "(trapped) orbits", _regular_share, tangent=True, options={"threshold": 0.02},
+    companions=(Companion("low", "1", "Wilson interval, lower bound (z = 1)"),
+                Companion("high", "1", "Wilson interval, upper bound (z = 1)")),
+    error="half-width of the Wilson interval (z = 1)"))
+
+
+def _diffusion(runs, options):
+    from .analysis import unbounded_axes
+    run, exp = runs.run, runs.experiment
+    axes = sorted(unbounded_axes(exp.geometry()))
+    seg = max(1, exp.run.collisions // int(options["segments"]))
+    at = np.nonzero(run.step % seg == 0)[0]
+    pos = np.asarray(run.position)[:, at][..., axes]
+    t = np.asarray(run.time)[:, at]
+    dr2 = np.sum(np.diff(pos, axis=1) ** 2, axis=-1) / (2 * len(axes))
+    dt = np.diff(t, axis=1)
+    ok = np.isfinite(dr2) & np.isfinite(dt)
+    value, err = ratio_batches(np.where(ok, dr2, 0.0), np.where(ok, dt, 0.0))
+    return Value(float(value), float(err))
+
+
+def _bounded(exp, options):
+    from .analysis import unbounded_axes
+    if not unbounded_axes(exp.geometry()):
+        return f"the {exp.table_kind} table is bounded: no diffusion (it needs a periodic or open table)"
+    return None
+
+
+register(Observable(
+    "diffusion", "L²/T", "diffusion coefficient per unit time, ⟨|Δx|²⟩ = 2k·D·t over the k unbounded axes, from "
+    "the displacements over segments of each trajectory (run.collisions/segments collisions each)", _diffusion,
+    fields=("time", "position"), unbounded=True, options={"segments": 20}, problem=_bounded))
+
+
+def _escape_rate(runs, options):
+    from .dynamics import escape_times, exponential_rate
+    esc = escape_times(runs.run)
+    if not esc.exited.any():
+        return Value(math.nan, math.nan)
+    q = float(options["fit_from"])
+    start = float(np.quantile(esc.path[esc.exited], q)) if q > 0 else 0.0
+    rate, err, _ = exponential_rate(esc.path, esc.exited, start)
+    return Value(rate, err)
+
+
+register(Observable(
+    "escape_rate", "1/L", "exponential escape rate through the exit walls per unit path in (x, R√κ·θ), fitted on "
+    "paths beyond the fit_from quantile of the exits (censored trajectories count as exposure)", _escape_rate,
+    final=True, exit=True, options={"fit_from": 0.1}))
+
+
+def _trapped_share(runs, options):
+    from .dynamics import escape_times
+    esc = escape_times(runs.run)
+    return _share(int(np.sum(~esc.exited)), len(esc.exited))
+
+
+register(Observable(
+    "trapped_share", "1", "share of trajectories that never reach an exit wall within the run", _trapped_share,
+    final=True, exit=True,
+    companions=(Companion("low", "1", "Wilson interval, lower bound (z = 1)"),
+                Companion("high", "1", "Wilson interval, upper bound (z = 1)")),
+    error="half-width of the Wilson interval (z = 1)"))
+
+
+def kac_return_path(experiment):
+    """Kac's lemma with Santaló's formula: the mean return path to the exit walls, C_d·|table|/|holes| (4A/ℓ for a
+    disc), for billiard-measure starts on the holes when almost every state returns (docs/dynamics.md)."""
+    from .analysis import santalo_constant, table_measure, velocity_dimension
+    geom = experiment.geometry()
+    volume, _ = table_measure(geom)
+    hole = sum(wall_measure(geom, w) for w in exit_walls(experiment))
+    return santalo_constant(velocity_dimension(experiment.dimension)) * volume / hole
+
+
+def _return_path(runs, options):
+    from .dynamics import escape_times
+    esc = escape_times(runs.run)
+    p = esc.path[esc.exited]
+    kac = kac_return_path(runs.experiment)
+    if len(p) < 2:
+        return Value(math.nan, math.nan, {"kac": kac, "ratio": math.nan, "ratio_stderr": math.nan})
+    mean, err = float(p.mean()), float(p.std(ddof=1) / math.sqrt(len(p)))
+    return Value(mean, err, {"kac": kac, "ratio": mean / kac, "ratio_stderr": err / kac,
+                             "unreturned": float(np.mean(~esc.exited))})
+
+
+def _on_exit_wall(exp, options):
+    wall = _sampled_wall(exp)
+    if wall is None or wall not in exit_walls(exp):
+        return "needs starts on an exit wall (initial: {sample: billiard, wall: W}, W with the rule exit)"
+    return None
+
+
+register(Observable(
+    "return_path", "L", "mean path in (x, R√κ·θ) of the trajectories started with the billiard measure on the exit "
+    "wall until they return to it (those that do within the run)", _return_path, final=True, exit=True,
+    problem=_on_exit_wall,
+    companions=(Companion("kac", "L", "Kac/Santaló: C_d·|table|/|hole| (4A/ℓ for a disc)"),
+                Companion("ratio", "1", "mean return path / Kac's value"),
+                Companion("ratio_stderr", "1", "standard error of the ratio"),
+                Companion("unreturned", "1", "share of trajectories that did not return within the run"))))
+
+
+def _mean_free_path(runs, options):
+    from .analysis import santalo_constant, table_measure
+    run, exp = runs.run, runs.experiment
+    pos = np.asarray(run.position)[:, 1:]           # from the first collision (a start may be inside the table)
+    d = np.linalg.norm(np.diff(pos, axis=1), axis=-1)
+    ok = np.isfinite(d)
+    s, c = _segment_sums(np.where(ok, d, 0.0), ok.astype(float), int(options["segments"]))
+    value, err = ratio_batches(s[..., None], c)
+    try:
+        volume, surface = table_measure(exp.geometry())
+        santalo = santalo_constant(exp.dimension) * volume / surface
+    except ValueError:          # unbounded
+        santalo = math.nan
+    return Value(float(value[0]), float(err[0]), {"santalo": santalo})
+
+
+register(Observable(
+    "mean_free_path", "L", "the centre's mean distance between consecutive collisions", _mean_free_path,
+    fields=("position",), every_collision=True, options={"segments": 10},
+    companions=(Companion("santalo", "L", "Santaló's mean free path of a point in the shrunk table: "
+                                          "πA/P in 2D (4V/S in 3D)"),)))
+
+
+def _wall_share(runs, options):
+    run = runs.run
+    wall = np.asarray(run.wall)[:, 1:]
+    names = runs.experiment.wall_names
+    onehot = (wall[..., None] == np.arange(len(names))).astype(float)
+    counted = (wall >= 0).astype(float)
+    S = int(options["segments"])
+    M, K = wall.shape
+    edges = np.linspace(0, K, S + 1).round().astype(int)
+    num = np.stack([onehot[:, a:b].sum(axis=1) for a, b in zip(edges[:-1], edges[1:])], axis=1)
+    den = np.stack([counted[:, a:b].sum(axis=1) for a, b in zip(edges[:-1], edges[1:])], axis=1)
+    value, err = ratio_batches(num, den)
+    return Value(value, err)
+
+
+register(Observable(
+    "wall_share", "1", "share of the collisions made on each wall", _wall_share, fields=("wall",),
+    every_collision=True, options={"segments": 10}, dim="wall",
+    coords=lambda exp: {"wall": np.array(exp.wall_names, dtype=object)}))
+
+
+def _return_angle_ks(runs, options):
+    r = runs.returns
+    return Value(float(r.ks_pvalue), math.nan, {"statistic": float(r.ks_statistic),
+                                                "returned": float(np.mean(r.returned))})
+
+
+def _on_a_wall(exp, options):
+    if _sampled_wall(exp) is None:
+        return "needs starts on one wall (initial: {sample: billiard, wall: W})"
+    return None
+
+
+register(Observable(
+    "return_angle_ks", "1", "Kolmogorov–Smirnov p-value of the return angles to the sampled wall against the "
+    "billiard measure's law sin^(d−1) φ (rbx histogram)", _return_angle_ks, returns=True, problem=_on_a_wall,
+    companions=(Companion("statistic", "1", "the KS statistic"),
+                Companion("returned", "1", "share of the samples that returned within the run")),
+    error="none (a p-value)"))
+
+
+def _energy(velocity, spin, R, kappa):
+    v = np.asarray(velocity, float)
+    w = np.asarray(spin, float)
+    w2 = w * w if w.ndim == v.ndim - 1 else np.sum(w * w, axis=-1)
+    return 0.5 * (np.sum(v * v, axis=-1) + kappa * R * R * w2)
+
+
+def _energy_drift(runs, options):
+    run, exp = runs.run, runs.experiment
+    R, kappa = exp.ball.radius, exp.ball.kappa
+    e0 = _energy(np.asarray(run.velocity)[:, 0], np.asarray(run.angular_velocity)[:, 0], R, kappa)
+    e1 = _energy(run.final["velocity"], run.final["angular_velocity"], R, kappa)
+    drift = np.abs(e1 / e0 - 1.0)
+    M = len(drift)
+    return Value(float(drift.mean()), float(drift.std(ddof=1) / math.sqrt(M)) if M > 1 else math.nan,
+                 {"max": float(drift.max())})
+
+
+register(Observable(
+    "energy_drift", "1", "health check: mean relative change of the kinetic energy over the run", _energy_drift,
+    fields=("velocity", "angular_velocity"), companions=(Companion("max", "1", "largest relative change"),)))

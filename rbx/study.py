@@ -1,0 +1,529 @@
+"""Studies: a parameter swept over a grid, an ensemble per point, an error bar per number (``rbx sweep``,
+:func:`sweep`; docs/studies.md).
+
+A study file::
+
+    base: ../examples/sinai.yaml          # an experiment config (a path relative to the study file) or a mapping
+    set: {initial: {sample: billiard}}    # optional: dotted overrides made at every point
+    vary:                                  # dotted config keys; the product of all, or zip: true
+      ball.inertia: [0.1, 0.25, 0.5, 1.0]
+      table.radius: {from: 0.1, to: 0.4, num: 4, scale: linear}     # or scale: log
+    zip: false
+    measure: [lyapunov, regular_share, {mean_free_path: {segments: 10}}]   # rbx.observables.REGISTRY
+    ensemble: {trajectories: 32, collisions: 100000, seed: 1}
+
+Each point's experiment is ``rbx.load(base, set + point + ensemble)``, so checked as the YAML is. A point's seed is
+derived from the study's seed and the point's own keys and values (:func:`point_seed`), so adding a point changes
+no other point's numbers. Points run one after the other in this process, each on the engine's thread pool (or a
+Dask cluster: ``scheduler=``). The results file (NetCDF, h5netcdf) is rewritten atomically after each point as
+``OUT.partial`` and renamed to ``OUT`` at the end; ``resume=True`` computes only the points it lacks, and refuses a
+study whose canonical text changed (``study_digest``).
+"""
+import hashlib
+import itertools
+import json
+import math
+import os
+import time
+from collections.abc import Mapping
+
+import numpy as np
+
+from . import observables as obs
+from .model import ConfigError
+
+__all__ = ["sweep", "load_study", "Study", "point_seed"]
+
+STUDY_KEYS = ("base", "set", "vary", "zip", "measure", "ensemble")
+ENSEMBLE_KEYS = ("trajectories", "collisions", "seed")
+SCALES = ("linear", "log")
+
+
+class Study:
+    """A validated study: ``file`` (or None), ``folder``, ``base`` (a path or a mapping), ``fixed`` (the ``set``
+    overrides), ``keys`` and ``values`` (one array per varied key), ``zip``, ``measure`` (list of (name,
+    options)), ``ensemble`` (dict), ``text`` (canonical JSON) and ``digest``."""
+
+    def __init__(self, **kw):
+        self.__dict__.update(kw)
+
+    @property
+    def observables(self):
+        return [obs.get(name) for name, _ in self.measure]
+
+    def points(self):
+        """The points in order -> list of (index tuple, {key: value})."""
+        if self.zip:
+            n = len(self.values[0])
+            return [((i,), {k: v[i] for k, v in zip(self.keys, self.values)}) for i in range(n)]
+        out = []
+        for idx in itertools.product(*(range(len(v)) for v in self.values)):
+            out.append((idx, {k: v[i] for k, v, i in zip(self.keys, self.values, idx)}))
+        return out
+
+    @property
+    def shape(self):
+        return (len(self.values[0]),) if self.zip else tuple(len(v) for v in self.values)
+
+    @property
+    def dims(self):
+        return (self.keys[0],) if self.zip else tuple(self.keys)
+
+    def seed(self, point):
+        return point_seed(self.ensemble["seed"], point)
+
+    def experiment(self, point, fields=(), every=1):
+        """The experiment of one point: base + set + the point's values + the ensemble (+ what to record)."""
+        from .api import load
+        changes = dict(self.fixed)
+        changes.update(point)
+        changes.update({"run.trajectories": self.ensemble["trajectories"],
+                        "run.collisions": self.ensemble["collisions"], "run.seed": self.seed(point),
+                        "output.record": list(fields), "output.every": int(every)})
+        try:
+            if isinstance(self.base, Mapping):
+                return load(dict(self.base), changes, base=self.folder)
+            return load(self.base, changes)
+        except ConfigError as exc:
+            raise self._blame(exc) from None
+
+    def _blame(self, exc):
+        """An error found while building a point, named in the study file: the varied or set key at fault."""
+        key = exc.key or ""
+        for k in self.keys:
+            if key == k or key.startswith(k + "."):
+                return ConfigError(self.file, f"vary.{k}", exc.problem)
+        for k in self.fixed:
+            if key == k or key.startswith(k + "."):
+                return ConfigError(self.file, f"set.{k}", exc.problem)
+        if exc.file and self.file and os.path.abspath(exc.file) == os.path.abspath(self.file):
+            return exc
+        return ConfigError(self.file, f"base: {exc.file}: {key}" if exc.file else f"base.{key}", exc.problem) \
+            if key else ConfigError(self.file, "base", exc.problem)
+
+
+def point_seed(study_seed, point):
+    """The seed of one point: 63 bits of SHA-256 of the study seed and the point's canonical text (keys sorted,
+    values as JSON numbers): the same in every process and on every machine, and independent of the other points."""
+    text = json.dumps({"seed": int(study_seed), "point": {k: _plain(v) for k, v in sorted(point.items())}},
+                      sort_keys=True, separators=(",", ":"))
+    return int.from_bytes(hashlib.sha256(text.encode()).digest()[:8], "big") >> 1
+
+
+def _plain(v):
+    if isinstance(v, (np.integer, int)) and not isinstance(v, bool):
+        return int(v)
+    return float(v)
+
+
+# ---- reading a study file ---------------------------------------------------------------------------------------
+
+def load_study(study, base=None):
+    """A study file (YAML) or mapping -> :class:`Study`; a mistake raises :class:`rbx.ConfigError` naming the
+    file and the key (``vary.ball.inertia``, ``measure.diffusion``, …)."""
+    from .config import parse_yaml
+    if isinstance(study, Study):
+        return study
+    if isinstance(study, Mapping):
+        file, data = None, dict(study)
+        folder = os.path.abspath(os.fspath(base)) if base is not None else os.getcwd()
+        if os.path.isfile(folder):
+            folder = os.path.dirname(folder)
+    else:
+        file = os.path.abspath(os.fspath(study))
+        try:
+            with open(file, encoding="utf-8") as fh:
+                text = fh.read()
+        except FileNotFoundError:
+            raise ConfigError(file, None, "file not found") from None
+        except IsADirectoryError:
+            raise ConfigError(file, None, "is a directory, not a study file") from None
+        data = parse_yaml(text, file)
+        if not isinstance(data, Mapping):
+            raise ConfigError(file, None, "a study file is a mapping with base, vary, measure, ensemble")
+        folder = os.path.dirname(file)
+
+    def fail(key, problem):
+        raise ConfigError(file, key, problem)
+
+    for k in data:
+        if k not in STUDY_KEYS:
+            fail(str(k), f"unknown key (a study has {', '.join(STUDY_KEYS)})")
+    for k in ("base", "vary", "measure", "ensemble"):
+        if k not in data:
+            fail(k, "missing")
+    base_value = data["base"]
+    if isinstance(base_value, str):
+        base_path = os.path.normpath(os.path.join(folder, os.path.expanduser(base_value)))
+        if not os.path.isfile(base_path):
+            fail("base", f"no such config: {base_value}")
+        base_value = base_path
+    elif not isinstance(base_value, Mapping):
+        fail("base", "a config path or a mapping of config sections")
+    fixed = data.get("set") or {}
+    if not isinstance(fixed, Mapping):
+        fail("set", "a mapping of dotted config keys to values")
+    fixed = {str(k): v for k, v in fixed.items()}
+    zipped = data.get("zip", False)
+    if not isinstance(zipped, bool):
+        fail("zip", f"true or false, not {zipped!r}")
+    vary = data["vary"]
+    if not isinstance(vary, Mapping) or not vary:
+        fail("vary", "a mapping of dotted config keys to lists of values or {from, to, num, scale}")
+    keys, values = [], []
+    for key, spec in vary.items():
+        key = str(key)
+        values.append(_values(spec, f"vary.{key}", fail))
+        keys.append(key)
+    if zipped and len({len(v) for v in values}) > 1:
+        fail("vary", "with zip: true every key needs as many values (" +
+             ", ".join(f"{k}: {len(v)}" for k, v in zip(keys, values)) + ")")
+    measure = _measure(data["measure"], fail)
+    ensemble = data["ensemble"]
+    if not isinstance(ensemble, Mapping):
+        fail("ensemble", "a mapping {trajectories: M, collisions: N, seed: S}")
+    for k in ensemble:
+        if k not in ENSEMBLE_KEYS:
+            fail(f"ensemble.{k}", f"unknown key (ensemble has {', '.join(ENSEMBLE_KEYS)})")
+    ens = {}
+    for k, lo in (("trajectories", 1), ("collisions", 1), ("seed", 0)):
+        v = ensemble.get(k, 0 if k == "seed" else None)
+        if v is None:
+            fail(f"ensemble.{k}", "missing")
+        if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+            fail(f"ensemble.{k}", f"expected an integer ≥ {lo}, got {v!r}")
+        ens[k] = int(v)
+    canonical = {"base": _canonical_base(base_value, folder), "set": fixed, "vary": {k: [_plain(x) for x in v]
+                 for k, v in zip(keys, values)}, "zip": zipped, "measure": [[n, o] for n, o in measure],
+                 "ensemble": ens}
+    text = json.dumps(canonical, sort_keys=True, separators=(",", ":"), default=str, ensure_ascii=False)
+    study_obj = Study(file=file, folder=folder, base=base_value, fixed=fixed, keys=keys, values=values, zip=zipped,
+                      measure=measure, ensemble=ens, text=text, digest=hashlib.sha256(text.encode()).hexdigest(),
+                      source=(text if file is None else open(file, encoding="utf-8").read()))
+    _check_points(study_obj)
+    return study_obj
+
+
+def _canonical_base(base, folder):
+    """The base as it will be run: its resolved config (includes inlined), so that a changed base file changes
+    the study's digest too."""
+    if isinstance(base, Mapping):
+        return dict(base)
+    try:
+        from .api import load
+        return load(base).resolved
+    except ConfigError:
+        return base
+
+
+def _number(x, key, fail):
+    if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
+        fail(key, f"expected a finite number, got {x!r}")
+    return x
+
+
+def _values(spec, key, fail):
+    if isinstance(spec, (list, tuple)):
+        if not spec:
+            fail(key, "an empty list: give at least one value")
+        vals = [_number(x, key, fail) for x in spec]
+        if len(set(vals)) != len(vals):
+            fail(key, "a value is listed twice")
+        if all(isinstance(x, int) for x in vals):
+            return np.array(vals, dtype=np.int64)
+        return np.array(vals, dtype=float)
+    if isinstance(spec, Mapping):
+        for k in spec:
+            if k not in ("from", "to", "num", "scale"):
+                fail(f"{key}.{k}", "unknown key (a range has from, to, num, scale)")
+        for k in ("from", "to", "num"):
+            if k not in spec:
+                fail(f"{key}.{k}", "missing (a range is {from: A, to: B, num: N, scale: linear|log})")
+        a, b = _number(spec["from"], f"{key}.from", fail), _number(spec["to"], f"{key}.to", fail)
+        num = spec["num"]
+        if isinstance(num, bool) or not isinstance(num, int) or num < 1:
+            fail(f"{key}.num", f"expected an integer ≥ 1, got {num!r}")
+        scale = spec.get("scale", "linear")
+        if scale not in SCALES:
+            fail(f"{key}.scale", f"linear or log, not {scale!r}")
+        if scale == "log":
+            if a <= 0 or b <= 0:
+                fail(key, f"a log scale needs positive bounds, got from {a} to {b}")
+            return np.geomspace(float(a), float(b), num)
+        return np.linspace(float(a), float(b), num)
+    if isinstance(spec, (int, float)) and not isinstance(spec, bool):
+        return np.array([spec], dtype=float)
+    fail(key, f"a list of numbers or {{from, to, num, scale}}, got {spec!r}")
+
+
+def _measure(spec, fail):
+    items = spec if isinstance(spec, (list, tuple)) else [spec]
+    if not items:
+        fail("measure", "an empty list: name at least one observable")
+    out, seen = [], set()
+    for item in items:
+        if isinstance(item, Mapping) and len(item) == 1:
+            name, options = next(iter(item.items()))
+            options = options or {}
+            if not isinstance(options, Mapping):
+                fail(f"measure.{name}", "its options are a mapping")
+        elif isinstance(item, str):
+            name, options = item, {}
+        else:
+            fail("measure", f"an observable's name or {{name: {{options}}}}, got {item!r}")
+        name = str(name)
+        if name not in obs.REGISTRY:
+            fail(f"measure.{name}", f"unknown observable (known: {', '.join(sorted(obs.REGISTRY))})")
+        if name in seen:
+            fail(f"measure.{name}", "measured twice")
+        seen.add(name)
+        rec = obs.get(name)
+        for k in options:
+            if k not in rec.options:
+                fail(f"measure.{name}.{k}", "unknown option" + (f" (options: {', '.join(rec.options)})"
+                                                                if rec.options else " (it takes none)"))
+        opts = dict(rec.options)
+        opts.update(options)
+        out.append((name, opts))
+    return out
+
+
+def _check_points(study):
+    """Every point's experiment is built now (a bad value is refused before anything runs) and every observable
+    is asked whether this table can give it."""
+    from .analysis import unbounded_axes
+    for _, point in study.points():
+        exp = study.experiment(point)
+        for name, options in study.measure:
+            rec = obs.get(name)
+            problem = None
+            if rec.exit and not obs.exit_walls(exp):
+                problem = "needs a wall with the rule exit (boundary.walls.NAME: {rule: exit}); this table has none"
+            elif rec.unbounded and not unbounded_axes(exp.geometry()):
+                problem = f"the {exp.table_kind} table is bounded: no diffusion (it needs a periodic or open table)"
+            elif rec.problem is not None:
+                problem = rec.problem(exp, options)
+            if problem:
+                raise ConfigError(study.file, f"measure.{name}", problem)
+
+
+# ---- running ------------------------------------------------------------------------------------------------------
+
+def _needs(study):
+    recs = study.observables
+    fields = sorted({f for r in recs for f in r.fields})
+    each = any(r.every_collision for r in recs)
+    N = study.ensemble["collisions"]
+    if each or not fields:
+        every = 1
+    else:
+        segs = [int(o.get("segments", 20)) for n, o in study.measure if obs.get(n).fields]
+        every = max(1, N // max(segs))
+    opts = dict(study.measure).get("lyapunov", {"segments": 10, "warmup": None})
+    return dict(fields=fields, every=every, simulate=any(r.simulate for r in recs),
+                tangent=any(r.tangent for r in recs), returns=any(r.returns for r in recs),
+                segments=int(opts.get("segments", 10)), warmup=opts.get("warmup"))
+
+
+def run_point(study, point, scheduler=None):
+    """Run one point and measure every observable -> ({name: Value}, collisions, seconds)."""
+    import warnings
+
+    from .api import simulate
+    from .dynamics import lyapunov
+    need = _needs(study)
+    began = time.perf_counter()
+    exp = study.experiment(point, need["fields"], need["every"])
+    runs = obs.PointRuns(exp)
+    collisions = 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)     # repeated orbits: the study's numbers say it
+        if need["simulate"]:
+            runs.run = simulate(exp, scheduler=scheduler)
+            collisions += int(np.sum(runs.run.final["collisions"]))
+        if need["tangent"]:
+            runs.lyapunov = lyapunov(exp, segments=need["segments"], warmup=need["warmup"], scheduler=scheduler)
+            collisions += int(np.sum(runs.lyapunov.collisions))
+        if need["returns"]:
+            from .api import cluster_for
+            from .histogram import return_experiment
+            with cluster_for(scheduler, "scheduler") as on:
+                runs.returns = return_experiment(exp, cluster=on)
+            collisions += int(np.sum(runs.returns.collisions))
+    values = {name: obs.get(name).compute(runs, options) for name, options in study.measure}
+    return values, collisions, time.perf_counter() - began
+
+
+# ---- the results file -----------------------------------------------------------------------------------------------
+
+def _empty(study, exp0):
+    """The results dataset with every number NaN and ``done`` False."""
+    import xarray as xr
+    dims, shape = study.dims, study.shape
+    coords = {}
+    for i, (k, v) in enumerate(zip(study.keys, study.values)):
+        dim = dims[0] if study.zip else dims[i]
+        coords[k] = xr.Variable((dim,), v, {"units": _key_unit(k), "long_name": k})
+    data = {}
+    extra = {}
+    for name, options in study.measure:
+        rec = obs.get(name)
+        if rec.coords is not None:
+            extra.update(rec.coords(exp0))
+        vdims = dims + ((rec.dim,) if rec.dim else ())
+        vshape = shape + ((len(extra[rec.dim]),) if rec.dim else ())
+        data[name] = xr.Variable(vdims, np.full(vshape, np.nan), {"units": rec.unit, "description": rec.description,
+                                                                  "options": json.dumps(options)})
+        data[f"{name}_stderr"] = xr.Variable(vdims, np.full(vshape, np.nan),
+                                             {"units": rec.unit, "description": f"{rec.error} of {name}"})
+        for c in rec.companions:
+            if c.dim and not (name == "lyapunov" and options.get("spectrum")):
+                continue
+            cdims = dims + ((c.dim,) if c.dim else ())
+            cshape = shape + ((len(extra[c.dim]),) if c.dim else ())
+            data[f"{name}_{c.suffix}"] = xr.Variable(cdims, np.full(cshape, np.nan),
+                                                     {"units": c.unit, "description": c.description})
+    for dim, vals in extra.items():
+        coords[dim] = xr.Variable((dim,), np.asarray(vals, dtype=str) if np.asarray(vals).dtype == object
+                                  else np.asarray(vals))
+    data["collisions"] = xr.Variable(dims, np.zeros(shape, np.int64),
+                                     {"units": "collision", "description": "collisions run at the point (all runs)"})
+    data["wall_time"] = xr.Variable(dims, np.full(shape, np.nan), {"units": "s", "description":
+                                                                    "wall-clock time of the point"})
+    data["seed"] = xr.Variable(dims, np.zeros(shape, np.int64), {"description": "run.seed of the point"})
+    data["done"] = xr.Variable(dims, np.zeros(shape, np.int8), {"description": "1: the point is computed"})
+    ds = xr.Dataset(data, coords=coords)
+    ds.attrs.update(_attrs(study, exp0))
+    return ds
+
+
+def _key_unit(key):
+    units = {"ball.inertia": "1", "ball.radius": "L", "table.radius": "L", "table.width": "L",
+             "table.height": "L", "table.length": "L", "run.collisions": "collision"}
+    return units.get(key, "L" if key.startswith("table.") else "1")
+
+
+def _attrs(study, exp0):
+    import shlex
+    import sys
+
+    from . import __version__
+    from .analysis import scene_title
+    from .runfile import provenance
+    p = provenance()
+    return {"rbx_study": 1, "study": study.source, "study_canonical": study.text, "study_digest": study.digest,
+            "study_file": study.file or "", "title": scene_title(exp0), "varied": json.dumps(study.keys),
+            "zip": int(study.zip), "measure": json.dumps([n for n, _ in study.measure]),
+            "ensemble_trajectories": study.ensemble["trajectories"],
+            "ensemble_collisions": study.ensemble["collisions"], "ensemble_seed": study.ensemble["seed"],
+            "rbx_version": __version__, "numba_version": p["numba_version"], "numpy_version": p["numpy_version"],
+            "python_version": p["python_version"], "created": p["created"], "host": p["host"],
+            "command": shlex.join(sys.argv), "complete": 0}
+
+
+def _store(ds, index, study, values, collisions, seconds, seed):
+    sel = dict(zip(study.dims, index))
+    for name, _ in study.measure:
+        v = values[name]
+        ds[name][sel] = v.value
+        ds[f"{name}_stderr"][sel] = v.stderr
+        for suffix, x in v.companions.items():
+            key = f"{name}_{suffix}"
+            if key in ds:
+                ds[key][sel] = x
+    ds["collisions"][sel] = collisions
+    ds["wall_time"][sel] = seconds
+    ds["seed"][sel] = seed
+    ds["done"][sel] = 1
+
+
+def _write(ds, path):
+    """Write ``ds`` to ``path`` atomically: a temporary file in the same folder, flushed to disk, renamed."""
+    tmp = f"{path}.tmp"
+    ds.to_netcdf(tmp, engine="h5netcdf", invalid_netcdf=True)
+    fd = os.open(tmp, os.O_RDONLY)
+    try:
+        os.fsync(fd)
+    finally:
+        os.close(fd)
+    os.replace(tmp, path)
+
+
+def _read(path):
+    import xarray as xr
+    with xr.open_dataset(path, engine="h5netcdf") as ds:
+        return ds.load()
+
+
+def partial_path(output):
+    return f"{output}.partial"
+
+
+def sweep(study, output=None, *, scheduler=None, resume=False, force=False, progress=None, base=None):
+    """Run a study -> :class:`xarray.Dataset` (docs/studies.md).
+
+    ``study``: a study file or mapping (``base=``: the file or folder a mapping's relative paths start from);
+    ``output``: the results file (NetCDF via h5netcdf), committed after every point as ``output.partial`` and
+    renamed at the end; an existing one is refused unless ``force`` (start again) or ``resume`` (compute only
+    the points it lacks; a study whose canonical text changed is refused). ``scheduler``: a Dask scheduler
+    address, scheduler file or ``distributed.Client`` that every point's runs use (the same numbers as a local
+    run). ``progress(done, total)``: called after each point. A bad study raises :class:`rbx.ConfigError`."""
+    from .runfile import FileError
+    st = load_study(study, base)
+    points = st.points()
+    exp0 = st.experiment(points[0][1])
+    ds = None
+    if output is not None:
+        output = os.path.abspath(os.fspath(output))
+        partial = partial_path(output)
+        if resume:
+            source = partial if os.path.exists(partial) else output if os.path.exists(output) else None
+            if source is not None:
+                try:
+                    ds = _read(source)
+                except Exception as exc:     # not a results file
+                    raise FileError(source, None, f"cannot read as a study's results: {exc}") from None
+                if ds.attrs.get("study_digest") != st.digest:
+                    raise FileError(source, "--resume", "the study changed since this file was started (its "
+                                                        "digest differs): run it afresh with --force")
+                if source == output and int(ds["done"].values.min()) == 1:
+                    return ds
+        elif not force:
+            for p in (output, partial):
+                if os.path.exists(p):
+                    raise FileError(p, None, "exists: --force starts the study again, --resume continues it")
+        os.makedirs(os.path.dirname(output), exist_ok=True)
+    if ds is None:
+        ds = _empty(st, exp0)
+    done = ds["done"].values
+    todo = [(i, p) for i, p in points if not done[i]]
+    total, finished = len(points), len(points) - len(todo)
+    client = _client(scheduler)
+    try:
+        if progress is not None:
+            progress(finished, total)
+        for index, point in todo:
+            values, collisions, seconds = run_point(st, point, scheduler=client)
+            _store(ds, index, st, values, collisions, seconds, st.seed(point))
+            finished += 1
+            if output is not None:
+                _write(ds, partial)
+            if progress is not None:
+                progress(finished, total)
+    finally:
+        if client is not None and client is not scheduler:
+            client.close()
+    ds.attrs["complete"] = 1
+    if output is not None:
+        _write(ds, partial)
+        os.replace(partial, output)
+    return ds
+
+
+def _client(scheduler):
+    """One Dask client for the whole study (each point's runs would otherwise connect anew)."""
+    if scheduler is None or not isinstance(scheduler, (str, os.PathLike)):
+        return scheduler
+    from .cluster import connect
+    cluster = connect(scheduler, key="scheduler")
+    return cluster.client
