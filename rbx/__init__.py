@@ -3,7 +3,8 @@
 The Python API (docs/reference.md §9; :mod:`rbx.api`): ``rbx.load(path_or_dict)`` -> Experiment,
 ``rbx.simulate(experiment, …)`` -> Run, ``rbx.open(path)`` -> Run, ``rbx.Run``, ``rbx.ConfigError``,
 ``rbx.FileError``; and (docs/reference.md §10, :mod:`rbx.dynamics`) ``rbx.lyapunov(experiment, …)`` -> the
-Lyapunov spectrum, ``rbx.escape_times(run)`` -> escape or return times. ``python -m rbx`` is the command line.
+Lyapunov spectrum, ``rbx.escape_times(run)`` -> escape or return times; (docs/studies.md, :mod:`rbx.study`)
+``rbx.sweep(study, output=None, …)`` -> a parameter study as an xarray.Dataset. ``python -m rbx`` is the command line.
 Importing rbx is light: the engine (numba) loads when first used.
 """
 import importlib
@@ -11,7 +12,7 @@ import importlib
 __version__ = "0.1.0"
 
 _LAZY = {"load": "api", "simulate": "api", "open": "api", "Run": "runfile", "FileError": "runfile",
-         "ConfigError": "model", "lyapunov": "dynamics", "escape_times": "dynamics"}
+         "ConfigError": "model", "lyapunov": "dynamics", "escape_times": "dynamics", "sweep": "study"}
 
 
 def __getattr__(name):
@@ -24,4 +25,4 @@ def __dir__():
     return sorted(set(globals()) | set(_LAZY))
 
 
-__all__ = ["load", "simulate", "open", "lyapunov", "escape_times", "Run", "ConfigError", "FileError", "__version__"]
+__all__ = ["load", "simulate", "open", "lyapunov", "escape_times", "sweep", "Run", "ConfigError", "FileError", "__version__"]

@@ -632,3 +632,46 @@ def section_figure(panels, spin, title, spin_label):
     from matplotlib.cm import ScalarMappable
     fig.colorbar(ScalarMappable(norm=norm, cmap="coolwarm"), ax=axes, label=spin_label, shrink=0.85)
     return fig
+
+
+# ---- studies (rbx sweep; docs/studies.md) ----------------------------------------------------------------------
+
+
+@styled
+def sweep_figure(panels, title, width=None):
+    """An observable against a varied parameter with error bars, one panel per spec in ``panels``, side by side.
+
+    A panel: ``series`` [{x, y, err ((n,) symmetric or (2, n) below/above), label}], optional ``references``
+    [{x, y, label}] (dashed: a closed form at each point, or a constant when ``x`` is None), ``xlabel``,
+    ``ylabel``, ``title``, ``logx``, ``logy``."""
+    width = width or (4.6 * len(panels) + 2.8)
+    fig = _figure(width, 4.8, title)
+    axes = fig.subplots(1, len(panels), squeeze=False)[0]
+    for ax, panel in zip(axes, panels):
+        for k, s in enumerate(panel["series"]):
+            x, y = np.asarray(s["x"], float), np.asarray(s["y"], float)
+            err = None if s.get("err") is None else np.asarray(s["err"], float)
+            if err is not None:
+                err = np.where(np.isfinite(err), err, 0.0)
+            ax.errorbar(x, y, yerr=err, marker=s.get("marker", "o"), ms=4, lw=1.2, capsize=3,
+                        color=s.get("color", _colour(k)), label=s.get("label"))
+        for k, ref in enumerate(panel.get("references", ())):
+            style = dict(color=ref.get("color", "k"), ls=ref.get("ls", "--"), lw=1.0, label=ref.get("label"))
+            if ref.get("x") is None:
+                ax.axhline(float(ref["y"]), **style)
+            else:
+                ax.plot(np.asarray(ref["x"], float), np.asarray(ref["y"], float), **style)
+        if panel.get("logx"):
+            ax.set_xscale("log")
+        if panel.get("logy"):
+            ax.set_yscale("log")
+        ax.set_xlabel(panel.get("xlabel", ""))
+        ax.set_ylabel(panel.get("ylabel", ""))
+        if panel.get("ylim") is not None:
+            ax.set_ylim(*panel["ylim"])
+        if panel.get("title"):
+            ax.set_title(panel["title"])
+        ax.grid(True, alpha=0.3)
+        if any(h.get_label() and not h.get_label().startswith("_") for h in ax.get_lines() + ax.containers):
+            ax.legend(fontsize="small", loc="upper center", bbox_to_anchor=(0.5, -0.16), borderaxespad=0.0)
+    return fig

@@ -138,6 +138,7 @@ def load_study(study, base=None):
             raise ConfigError(file, None, "file not found") from None
         except IsADirectoryError:
             raise ConfigError(file, None, "is a directory, not a study file") from None
+        _duplicates(text, file)
         data = parse_yaml(text, file)
         if not isinstance(data, Mapping):
             raise ConfigError(file, None, "a study file is a mapping with base, vary, measure, ensemble")
@@ -202,6 +203,29 @@ def load_study(study, base=None):
                       source=(text if file is None else open(file, encoding="utf-8").read()))
     _check_points(study_obj)
     return study_obj
+
+
+def _duplicates(text, file):
+    """Refuse a key given twice in one mapping, naming its dotted path (``vary.ball.inertia``)."""
+    import yaml
+    try:
+        root = yaml.compose(text, Loader=yaml.SafeLoader)
+    except yaml.YAMLError:
+        return                      # parse_yaml says where the syntax is wrong
+    stack = [(root, "")]
+    while stack:
+        node, path = stack.pop()
+        if isinstance(node, yaml.MappingNode):
+            seen = set()
+            for k, v in node.value:
+                name = str(k.value)
+                where = f"{path}.{name}" if path else name
+                if name in seen:
+                    raise ConfigError(file, where, f"given twice (line {k.start_mark.line + 1}): one entry per key")
+                seen.add(name)
+                stack.append((v, where))
+        elif isinstance(node, yaml.SequenceNode):
+            stack.extend((v, path) for v in node.value)
 
 
 def _canonical_base(base, folder):

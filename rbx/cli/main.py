@@ -8,7 +8,7 @@ import click
 from .. import __version__
 from .common import Group
 from .simulate import simulate
-from . import histogram, lyapunov, plot
+from . import histogram, lyapunov, plot, sweep
 
 
 @click.group(cls=Group, context_settings={"help_option_names": ["-h", "--help"]})
@@ -19,7 +19,7 @@ def cli():
 
 
 cli.add_command(simulate)
-for _command in (plot.plot, histogram.histogram, lyapunov.lyapunov):
+for _command in (plot.plot, histogram.histogram, lyapunov.lyapunov, sweep.sweep):
     cli.add_command(_command)
 cli.add_command(__import__("rbx.cli.animate", fromlist=["animate"]).animate)
 

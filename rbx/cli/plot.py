@@ -10,7 +10,7 @@ from .common import (Command, UserError, display_path, duration, interrupted_exi
                      summary, user_errors)
 
 #: the plot kinds (``--kind``); kind K is drawn by the function ``_K`` below
-KINDS = ("orbit", "orbit3d", "phase", "series", "diffusion", "escape", "birkhoff", "poincare")
+KINDS = ("orbit", "orbit3d", "phase", "series", "diffusion", "escape", "birkhoff", "poincare", "sweep")
 #: --coordinate name -> (field, component or None, axis label, dimensions where it exists)
 COORDINATES = {
     "x": ("position", 0, "x [L]", (2, 3)), "y": ("position", 1, "y [L]", (2, 3)), "z": ("position", 2, "z [L]", (3,)),
@@ -22,7 +22,7 @@ COORDINATES = {
 }
 #: default number of trajectories drawn when --trajectories is not given
 DEFAULT_TRAJECTORIES = {"orbit": 10, "orbit3d": 10, "phase": 20, "series": 1, "diffusion": None, "escape": None,
-                        "birkhoff": 20, "poincare": 20}
+                        "birkhoff": 20, "poincare": 20, "sweep": None}
 
 
 @click.command(cls=Command)
@@ -46,20 +46,28 @@ DEFAULT_TRAJECTORIES = {"orbit": 10, "orbit3d": 10, "phase": 20, "series": 1, "d
 @click.option("--wall", "wall", help="birkhoff: the wall whose boundary map to draw (default: the whole boundary).")
 @click.option("--plane", default="z=0.5", show_default=True,
               help="poincare: the section plane, z=0.5 (or x=, y=) or n=NX,NY,NZ;c=C for n·x = C.")
+@click.option("--y", "y", metavar="OBSERVABLE", help="sweep: the variable to draw (default: the first measured).")
+@click.option("--x", "x", metavar="KEY", help="sweep: the varied key on the x axis (default: the first).")
+@click.option("--logx", is_flag=True, help="sweep: a log x axis.")
+@click.option("--logy", is_flag=True, help="sweep: a log y axis.")
 @click.option("--dpi", default=150, show_default=True, type=click.IntRange(10, 1200),
               help="Resolution of raster figures (10 to 1200; 100 000 used to exhaust the memory).")
 @quiet_option
 @click.option("--debug", is_flag=True, help="Show a traceback with user errors.")
-def plot(run_file, kind, out, records, trajectories, colour, coordinate, scales, fit_from, wall, plane, dpi, quiet,
-         debug):
+def plot(run_file, kind, out, records, trajectories, colour, coordinate, scales, fit_from, wall, plane, y, x, logx,
+         logy, dpi, quiet, debug):
     """Draw a picture of the run OUT.h5 (written by rbx simulate).
 
     escape: the survival function of escape or return times (walls with the rule exit) with the fitted rate;
     birkhoff: the boundary map of a 2D run coloured by the spin; poincare: a 3D run's section by a plane."""
     began = time.perf_counter()
     try:
-        path = _plot(run_file, kind, out, records, trajectories, colour, coordinate, scales, fit_from, dpi,
-                     wall=wall, plane=plane)
+        if run_file.endswith(".nc") or kind == "sweep":       # a study's results (rbx sweep), not a run file
+            from .sweep import plot_sweep
+            path = plot_sweep(run_file, kind, out, y, x, logx, logy, dpi)
+        else:
+            path = _plot(run_file, kind, out, records, trajectories, colour, coordinate, scales, fit_from, dpi,
+                         wall=wall, plane=plane)
     except UserError as exc:
         report_and_exit(exc, debug)
     except KeyboardInterrupt:
@@ -482,4 +490,4 @@ def _poincare(run, rec, traj, plane="z=0.5", **_):
 
 
 #: each plot kind is drawn by the function ``_<kind>`` of this module
-_BUILDERS = {kind: globals()["_" + kind] for kind in KINDS}
+_BUILDERS = {kind: globals()["_" + kind] for kind in KINDS if kind != "sweep"}

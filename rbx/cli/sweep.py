@@ -1,0 +1,193 @@
+"""``rbx sweep STUDY.yaml -o RESULTS.nc``: a parameter study (docs/studies.md; :mod:`rbx.study`)."""
+import sys
+import time
+
+import click
+
+from .common import (Command, UserError, display_path, duration, ending_on_signals, is_terminal, quiet_option,
+                     report_and_exit, summary, user_errors)
+
+
+class _StudyProgress:
+    """One line over the whole study on a terminal: points done, elapsed, time left."""
+
+    def __init__(self, quiet):
+        self.quiet = quiet or not is_terminal(sys.stderr)
+        self.start = time.perf_counter()
+        self.first = None
+        self.shown = False
+
+    def __call__(self, done, total):
+        now = time.perf_counter() - self.start
+        if self.first is None:
+            self.first = done               # points a resumed study had already
+        if self.quiet:
+            return
+        rate = (done - self.first) / now if now > 0 and done > self.first else 0.0
+        eta = (total - done) / rate if rate > 0 else float("inf")
+        bar = "#" * int(30 * done / total) if total else ""
+        sys.stderr.write(f"\rsweep [{bar:<30}] {done}/{total} points  {duration(now)}  eta {duration(eta):<12}")
+        sys.stderr.flush()
+        self.shown = True
+
+    def close(self):
+        if self.shown:
+            sys.stderr.write("\n")
+            sys.stderr.flush()
+
+
+@click.command(cls=Command)
+@click.argument("study", metavar="STUDY.yaml", type=click.Path(dir_okay=False))
+@click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), metavar="RESULTS.nc",
+              help="The results file (NetCDF; written as RESULTS.nc.partial after every point, renamed at the end).")
+@click.option("--scheduler", metavar="ADDRESS",
+              help="Run every point's trajectories on a Dask cluster: its scheduler's address (tcp://HOST:PORT) or "
+                   "scheduler file (docs/cluster.md). Same numbers as a local run.")
+@click.option("--resume", is_flag=True, help="Continue RESULTS.nc(.partial): compute only the missing points "
+                                            "(refused if the study changed).")
+@click.option("--force", is_flag=True, help="Replace an existing RESULTS.nc.")
+@quiet_option
+@click.option("--debug", is_flag=True, help="Show a traceback with user errors.")
+def sweep(study, output, scheduler, resume, force, quiet, debug):
+    """Run the study STUDY.yaml: the observables of `measure` at every point of `vary`, an ensemble per point,
+    with standard errors, into RESULTS.nc (xarray.open_dataset reads it)."""
+    from ..api import StopFlag
+    began = time.perf_counter()
+    stop = StopFlag()
+    bar = _StudyProgress(quiet)
+    try:
+        if resume and force:
+            raise UserError(None, "--resume", "give --resume or --force, not both")
+        with ending_on_signals(stop):
+            ds = _sweep(study, output, scheduler, resume, force, bar)
+    except UserError as exc:
+        bar.close()
+        report_and_exit(exc, debug)
+    bar.close()
+    points = int(ds["done"].size)
+    summary(quiet, f"wrote {display_path(output)}: {points} points × {ds.attrs['ensemble_trajectories']} "
+                   f"trajectories × {ds.attrs['ensemble_collisions']} collisions in "
+                   f"{duration(time.perf_counter() - began)}")
+
+
+def _sweep(study, output, scheduler, resume, force, progress):
+    from ..cluster import ClusterError, SchedulerUnreachable
+    from ..study import sweep as run
+    with user_errors():
+        try:
+            return run(study, output, scheduler=scheduler, resume=resume, force=force, progress=progress)
+        except SchedulerUnreachable as exc:
+            raise UserError(None, "--scheduler", exc.problem) from None
+        except ValueError as exc:        # a point whose trajectories all left the table before measuring
+            raise UserError(study, None, str(exc)) from None
+        except ClusterError as exc:
+            click.echo(f"rbx: {exc}; the points finished before are in {display_path(output)}.partial", err=True)
+            raise SystemExit(1) from None
+
+
+# ---- rbx plot RESULTS.nc --kind sweep ---------------------------------------------------------------------------
+
+def plot_sweep(path, kind, out, y, x, logx, logy, dpi):
+    """``rbx plot RESULTS.nc --kind sweep``: the figure of :func:`sweep_panel`, written -> its path."""
+    import os
+
+    from ..plotting import save, sweep_figure
+    if kind != "sweep":
+        raise UserError(path, "--kind", f"a study's results file is drawn with --kind sweep, not {kind}")
+    ds = open_results(path)
+    panel, title = sweep_panel(ds, y, x, logx, logy, path)
+    fig = sweep_figure([panel], title)
+    out = out or f"{os.path.splitext(path)[0]}_sweep.png"
+    try:
+        os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
+        save(fig, out, dpi=dpi)
+    except (OSError, ValueError) as exc:
+        raise UserError(out, None, f"cannot write the figure: {getattr(exc, 'strerror', None) or exc}") from None
+    return out
+
+
+def open_results(path):
+    """A study's results file -> xarray.Dataset (loaded), or a UserError."""
+    import os
+    if not os.path.exists(path):
+        raise UserError(path, None, "file not found")
+    try:
+        import xarray as xr
+        with xr.open_dataset(path, engine="h5netcdf") as ds:
+            ds = ds.load()
+    except Exception as exc:
+        raise UserError(path, None, f"not a NetCDF file rbx sweep wrote ({str(exc).splitlines()[0]})") from None
+    if "rbx_study" not in ds.attrs:
+        raise UserError(path, None, "not a results file of rbx sweep")
+    return ds
+
+
+def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=None):
+    """The panel spec of :func:`rbx.plotting.sweep_figure` for variable ``y`` (default: the first measured)
+    against the varied key ``x`` (default: the first), one line per value of a second varied key (or of the
+    variable's own extra dimension, such as wall), error bars from ``<y>_stderr`` or the Wilson bounds
+    ``<y>_low``/``<y>_high``, and the companions in the same unit (Santaló's, Kac's value) dashed -> (panel,
+    title)."""
+    import json
+
+    import numpy as np
+    varied = json.loads(ds.attrs["varied"])
+    measured = json.loads(ds.attrs["measure"])
+    y = y or measured[0]
+    if y not in ds.data_vars or y.endswith("_stderr") or y in ("done", "seed"):
+        choices = [v for v in ds.data_vars if not v.endswith("_stderr") and v not in ("done", "seed")]
+        raise UserError(path, "--y", f"no variable '{y}' in this study (variables: {', '.join(choices)})")
+    x = x or varied[0]
+    if x not in varied:
+        raise UserError(path, "--x", f"'{x}' was not varied (varied: {', '.join(varied)})")
+    var = ds[y]
+    xdim = ds[x].dims[0]
+    other = [d for d in var.dims if d != xdim]
+    if len(other) > 1:
+        raise UserError(path, "--y", f"{y} has {len(other) + 1} dimensions ({', '.join(var.dims)}): one line per "
+                                     "value of one other is drawn; select with a study of fewer keys")
+    unit = var.attrs.get("units", "")
+    xunit = ds[x].attrs.get("units", "")
+    xs = ds[x].values
+    done = ds["done"]
+    series, references = [], []
+
+    def error(sel):
+        if f"{y}_low" in ds and f"{y}_high" in ds:
+            v = var.isel(sel).values
+            return np.vstack([v - ds[f"{y}_low"].isel(sel).values, ds[f"{y}_high"].isel(sel).values - v])
+        return ds[f"{y}_stderr"].isel(sel).values if f"{y}_stderr" in ds else None
+
+    def pick(array, sel):
+        return array.isel({d: i for d, i in sel.items() if d in array.dims}).values.reshape(-1)
+
+    lines = [{}] if not other else [{other[0]: i} for i in range(ds.sizes[other[0]])]
+    for k, sel in enumerate(lines):
+        keep = pick(done, sel).astype(bool)
+        err = error(sel)
+        if err is not None:
+            err = err[..., keep]
+        name = f"{other[0]} = {_fmt(ds[other[0]].values[sel[other[0]]])}" if other else (label or y)
+        series.append({"x": xs[keep], "y": pick(var, sel)[keep], "err": err, "label": name})
+        for comp in ds.data_vars:
+            c = ds[comp]
+            if (comp.startswith(y + "_") and comp not in (f"{y}_stderr", f"{y}_low", f"{y}_high")
+                    and not comp.endswith("_stderr") and c.attrs.get("units") == unit
+                    and set(c.dims) <= set(var.dims)):
+                references.append({"x": xs[keep], "y": pick(c, sel)[keep],
+                                   "label": c.attrs.get("description", comp).split(":")[0] if k == 0 else None,
+                                   "color": "0.3" if len(lines) == 1 else f"C{k}"})
+    M, N = ds.attrs["ensemble_trajectories"], ds.attrs["ensemble_collisions"]
+    seconds = float(np.nansum(ds["wall_time"].values))
+    panel = {"series": series, "references": references, "xlabel": f"{x} [{xunit}]",
+             "ylabel": f"{y} [{unit}]", "logx": logx, "logy": logy}
+    title = (f"{ds.attrs.get('title', '')}\n{y} against {x} · {M} trajectories × {N} collisions per point · "
+             f"{int(done.values.sum())} of {done.size} points · run time {duration(seconds)}")
+    return panel, title
+
+
+def _fmt(v):
+    try:
+        return f"{float(v):.4g}"
+    except (TypeError, ValueError):
+        return str(v)
