@@ -355,8 +355,12 @@ def _return_angle_ks(runs, options):
 
 
 def _on_a_wall(exp, options):
-    if _sampled_wall(exp) is None:
+    wall = _sampled_wall(exp)
+    if wall is None:
         return "needs starts on one wall (initial: {sample: billiard, wall: W})"
+    if wall in exit_walls(exp):
+        return (f"the sampled wall '{exp.wall_names[wall]}' has the rule exit: a return there is no collision "
+                "(no state after a collision map to compare); sample on a wall without exit")
     return None
 
 

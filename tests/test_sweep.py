@@ -1,0 +1,251 @@
+"""Studies (``rbx sweep``, :func:`rbx.sweep`, :mod:`rbx.observables`): the observables against closed forms on the
+specular Sinai table (Santaló's mean free path, the wavefront-curvature exponent, wall shares ∝ wall lengths,
+Kac's mean return path), point seeds independent of the other points, a study killed with SIGKILL and resumed,
+a Dask cluster giving the local numbers, the one-line refusals of bad study files, and the sweep plot.
+Tiny ensembles: each number is compared with its own error bar."""
+import math
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+import rbx
+from rbx import analysis
+from rbx.study import load_study, sweep
+
+ROOT = Path(__file__).resolve().parents[1]
+SINAI = str(ROOT / "configs" / "examples" / "sinai.yaml")
+RBX = str(Path(sys.executable).with_name("rbx"))
+SPECULAR = {"boundary.default": {"rule": "constant", "rank": 0}}
+SKIP = {"wall_time"}        # the only number that differs between two runs of a point
+
+
+def specular_study(**ensemble):
+    return {"base": SINAI, "set": SPECULAR, "vary": {"table.radius": [0.2, 0.35]},
+            "measure": ["mean_free_path", "lyapunov", "wall_share", "energy_drift"],
+            "ensemble": {"trajectories": 4, "collisions": 3000, "seed": 3, **ensemble}}
+
+
+@pytest.fixture(scope="module")
+def specular(tmp_path_factory):
+    out = tmp_path_factory.mktemp("specular") / "specular.nc"
+    return sweep(specular_study(), out), out
+
+
+def wavefront_exponent(run, centre, rho, first):
+    """λ₁ of the classic billiard by the curvature of a divergent front (tests/test_lyapunov.py), pooled over the
+    trajectories: Σ log(1 + ℓB) over the flights after collision ``first`` / the time they take."""
+    S = T = 0.0
+    for j in range(run.trajectories):
+        pos, vel, t = run.position[j], run.velocity[j], run.time[j]
+        B = 0.0
+        for k in range(1, len(t)):
+            ell = (t[k] - t[k - 1]) * np.linalg.norm(vel[k - 1])
+            if k > first:
+                S += np.log1p(ell * B)
+            B = B / (1.0 + ell * B)
+            r = pos[k] - centre
+            if abs(np.linalg.norm(r) - rho) < 1e-9 * rho:
+                B += 2.0 / (rho * abs(vel[k] @ r) / (rho * np.linalg.norm(vel[k])))
+        T += t[-1] - t[first]
+    return S / T
+
+
+def test_specular_sinai_against_closed_forms(specular):
+    ds, _ = specular
+    st = load_study(specular_study())
+    assert list(ds["table.radius"].values) == [0.2, 0.35] and ds["table.radius"].attrs["units"] == "L"
+    for i, (_, point) in enumerate(st.points()):
+        exp = st.experiment(point)
+        geom = exp.geometry()
+        area, perimeter = analysis.table_measure(geom)
+        # Santaló: the mean free path of the classic (ergodic) Sinai billiard is πA/P of the table the centre sees
+        mfp, err = float(ds["mean_free_path"][i]), float(ds["mean_free_path_stderr"][i])
+        assert float(ds["mean_free_path_santalo"][i]) == pytest.approx(math.pi * area / perimeter, rel=1e-12)
+        assert 0 < err < 0.05 * mfp
+        assert abs(mfp - math.pi * area / perimeter) < 3 * err
+        # λ₁ by Benettin on the tangent loop = the wavefront-curvature recursion on the same orbits
+        run = rbx.simulate(st.experiment(point, ("time", "position", "velocity"), 1))
+        expected = wavefront_exponent(run, np.array([1.0, 0.75]), point["table.radius"] + exp.ball.radius,
+                                      exp.run.collisions // 10)
+        lam, lam_err = float(ds["lyapunov"][i]), float(ds["lyapunov_stderr"][i])
+        assert expected > 0.3 and 0 < lam_err < 0.3 * lam
+        assert abs(lam - expected) < lam_err
+        assert abs(lam - expected) < 5e-3 * expected        # the same orbits: much closer than the error
+        per_collision = lam * float(np.sum(run.time[:, -1] - run.time[:, exp.run.collisions // 10])) / (
+            run.trajectories * (exp.run.collisions - exp.run.collisions // 10))
+        assert float(ds["lyapunov_per_collision"][i]) == pytest.approx(per_collision, rel=1e-6)
+        # the boundary map's invariant measure ∝ ds·cos φ dφ: a wall's share of the collisions is its length's
+        lengths = np.array([analysis.wall_span(geom, w)[1] for w in range(len(exp.wall_names))])
+        share, share_err = ds["wall_share"][i].values, ds["wall_share_stderr"][i].values
+        assert list(ds["wall"].values) == list(exp.wall_names)
+        assert share.sum() == pytest.approx(1.0)
+        np.testing.assert_array_less(np.abs(share - lengths / lengths.sum()), 4 * share_err)
+        assert float(ds["energy_drift"][i]) < 1e-11
+    assert ds["done"].values.all() and (ds["collisions"].values > 0).all()
+    assert ds.attrs["rbx_version"] == rbx.__version__ and ds.attrs["numba_version"]
+    assert "table.radius" in ds.attrs["study"] and len(ds.attrs["study_digest"]) == 64
+
+
+def test_results_file_reads_back_with_xarray(specular):
+    import xarray as xr
+    ds, path = specular
+    assert path.exists() and not Path(f"{path}.partial").exists()
+    with xr.open_dataset(path) as back:
+        for name in ds.data_vars:
+            np.testing.assert_array_equal(back[name].values, ds[name].values)
+        assert back["lyapunov"].attrs["units"] == "1/T" and back["mean_free_path"].dims == ("table.radius",)
+
+
+def test_kac_return_path_and_return_angles():
+    """Started with the billiard measure on the left wall of the specular Sinai table (a hole: rule exit), the mean
+    return path is Kac's 4A/ℓ (docs/dynamics.md); without the hole, the return angles to the wall follow the
+    billiard measure (KS), and with a wrong spin in the samples they would not (tests/test_histogram.py)."""
+    study = {"base": SINAI, "set": {**SPECULAR, "boundary.walls.left": {"rule": "exit"},
+                                    "initial": {"sample": "billiard", "wall": "left"}},
+             "vary": {"ball.inertia": [0.5]}, "measure": ["return_path", "trapped_share"],
+             "ensemble": {"trajectories": 1500, "collisions": 3000, "seed": 5}}
+    ds = sweep(study)
+    area, _ = analysis.table_measure(rbx.load(SINAI).geometry())
+    assert float(ds["return_path_kac"][0]) == pytest.approx(4 * area / 1.3, rel=1e-12)
+    ratio, err = float(ds["return_path_ratio"][0]), float(ds["return_path_ratio_stderr"][0])
+    assert 0 < err < 0.05 and abs(ratio - 1) < 3 * err
+    assert float(ds["trapped_share"][0]) < 0.01 and float(ds["return_path_unreturned"][0]) < 0.01
+    rough = {"base": SINAI, "set": {"initial": {"sample": "billiard", "wall": "left"}},
+             "vary": {"ball.inertia": [0.2, 1.0]}, "measure": ["return_angle_ks"],
+             "ensemble": {"trajectories": 3000, "collisions": 3000, "seed": 6}}
+    ks = sweep(rough)
+    assert (ks["return_angle_ks"].values > 1e-3).all() and (ks["return_angle_ks_statistic"].values < 0.05).all()
+    assert (ks["return_angle_ks_returned"].values > 0.99).all()
+
+
+def test_adding_a_point_changes_no_other_point():
+    rough = {"base": SINAI, "vary": {"ball.inertia": [0.3, 0.6]}, "measure": ["mean_free_path", "wall_share"],
+             "ensemble": {"trajectories": 2, "collisions": 400, "seed": 9}}
+    a = sweep(rough)
+    b = sweep({**rough, "vary": {"ball.inertia": [0.3, 0.45, 0.6]}})
+    for name in a.data_vars:
+        if name not in SKIP:
+            np.testing.assert_array_equal(a[name].values, b[name].sel({"ball.inertia": [0.3, 0.6]}).values)
+    assert len(set(b["seed"].values.tolist())) == 3
+    c = sweep({**rough, "ensemble": {**rough["ensemble"], "seed": 10}})
+    assert not np.array_equal(a["mean_free_path"].values, c["mean_free_path"].values)
+
+
+def rbx_cli(*args, cwd):
+    return subprocess.run([RBX, *map(str, args)], cwd=cwd, capture_output=True, text=True, timeout=600)
+
+
+def same(a, b):
+    assert set(a.data_vars) == set(b.data_vars)
+    for name in a.data_vars:
+        if name not in SKIP:
+            np.testing.assert_array_equal(a[name].values, b[name].values, err_msg=name)
+
+
+def test_a_killed_study_resumes_to_the_uninterrupted_result(tmp_path):
+    import xarray as xr
+    study = {"base": SINAI, "vary": {"ball.inertia": {"from": 0.1, "to": 1.0, "num": 10}},
+             "measure": ["lyapunov", "regular_share"], "ensemble": {"trajectories": 4, "collisions": 30000,
+                                                                    "seed": 4}}
+    text = yaml.safe_dump(study, sort_keys=False)
+    (tmp_path / "study.yaml").write_text(text)
+    whole = sweep(tmp_path / "study.yaml")          # also puts the kernels in the disk cache
+    partial = tmp_path / "out.nc.partial"
+    proc = subprocess.Popen([RBX, "sweep", "study.yaml", "-o", "out.nc", "--quiet"], cwd=tmp_path,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    done = 0
+    while done < 1:
+        assert proc.poll() is None, proc.communicate()
+        if partial.exists():
+            with xr.open_dataset(partial) as ds:
+                done = int(ds["done"].sum())
+        time.sleep(0.01)
+    proc.send_signal(signal.SIGKILL)
+    proc.wait()
+    assert not (tmp_path / "out.nc").exists()
+    with xr.open_dataset(partial) as ds:
+        before = ds.load()
+    assert 1 <= int(before["done"].sum()) < 10
+    # a changed study is refused, in one line
+    (tmp_path / "study.yaml").write_text(text.replace("30000", "20000"))
+    res = rbx_cli("sweep", "study.yaml", "-o", "out.nc", "--resume", cwd=tmp_path)
+    assert res.returncode == 2 and len(res.stderr.splitlines()) == 1 and "--resume" in res.stderr, res.stderr
+    (tmp_path / "study.yaml").write_text(text)
+    res = rbx_cli("sweep", "study.yaml", "-o", "out.nc", "--resume", "--quiet", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert not partial.exists()
+    with xr.open_dataset(tmp_path / "out.nc") as ds:
+        resumed = ds.load()
+    same(resumed, whole)
+    kept = before["done"].values.astype(bool)      # the points done before the kill were not run again
+    np.testing.assert_array_equal(resumed["wall_time"].values[kept], before["wall_time"].values[kept])
+    # an existing results file without --resume or --force
+    res = rbx_cli("sweep", "study.yaml", "-o", "out.nc", cwd=tmp_path)
+    assert res.returncode == 2 and len(res.stderr.splitlines()) == 1 and "--force" in res.stderr
+
+
+def test_a_dask_cluster_gives_the_local_numbers(tmp_path):
+    pytest.importorskip("distributed")
+    from tests.test_cluster import LocalDask
+    study = {"base": SINAI, "vary": {"ball.inertia": [0.3, 0.6]}, "measure": ["lyapunov", "mean_free_path"],
+             "ensemble": {"trajectories": 6, "collisions": 1500, "seed": 2}}
+    local = sweep(study)
+    cluster = LocalDask(tmp_path / "dask", 2)
+    try:
+        on = sweep(study, scheduler=cluster.address)
+        workers = cluster.worker_pids()
+    finally:
+        cluster.stop()
+    assert len(workers) == 2
+    same(on, local)
+
+
+BASE = f"base: {SINAI}\n"
+ENSEMBLE = "ensemble: {trajectories: 2, collisions: 100, seed: 1}\n"
+BAD = {
+    "unknown-key": ("vary: {ball.inertai: [0.1]}\nmeasure: [lyapunov]\n", "vary.ball.inertai", "did you mean"),
+    "empty-list": ("vary: {ball.inertia: []}\nmeasure: [lyapunov]\n", "vary.ball.inertia", "empty"),
+    "not-a-number": ("vary: {ball.inertia: [0.1, x]}\nmeasure: [lyapunov]\n", "vary.ball.inertia", "number"),
+    "twice": ("vary:\n  ball.inertia: [0.1]\n  ball.inertia: [0.2]\nmeasure: [lyapunov]\n", "vary.ball.inertia",
+              "twice"),
+    "no-to": ("vary: {ball.inertia: {from: 0.1, num: 3}}\nmeasure: [lyapunov]\n", "vary.ball.inertia.to",
+              "missing"),
+    "num-zero": ("vary: {ball.inertia: {from: 0.1, to: 1, num: 0}}\nmeasure: [lyapunov]\n", "vary.ball.inertia.num",
+                 "≥ 1"),
+    "log-zero": ("vary: {ball.inertia: {from: 0, to: 1, num: 3, scale: log}}\nmeasure: [lyapunov]\n",
+                 "vary.ball.inertia", "positive"),
+    "unknown-observable": ("vary: {ball.inertia: [0.1]}\nmeasure: [lyapunv]\n", "measure.lyapunv", "unknown"),
+    "diffusion-bounded": ("vary: {ball.inertia: [0.1]}\nmeasure: [diffusion]\n", "measure.diffusion", "bounded"),
+    "escape-no-exit": ("vary: {ball.inertia: [0.1]}\nmeasure: [escape_rate]\n", "measure.escape_rate", "exit"),
+    "value-refused": ("vary: {table.radius: [0.4, 0.9]}\nmeasure: [lyapunov]\n", "vary.table.radius", "overlaps"),
+}
+
+
+@pytest.mark.parametrize("name", list(BAD))
+def test_a_bad_study_is_one_line_naming_the_key(name, tmp_path):
+    body, key, words = BAD[name]
+    (tmp_path / "bad.yaml").write_text(BASE + body + ENSEMBLE)
+    res = rbx_cli("sweep", "bad.yaml", "-o", "out.nc", cwd=tmp_path)
+    assert res.returncode == 2, res.stderr
+    lines = res.stderr.splitlines()
+    assert len(lines) == 1 and "Traceback" not in res.stderr, res.stderr
+    assert lines[0].startswith(f"rbx: bad.yaml: {key}: ") and words in lines[0], lines[0]
+    assert not (tmp_path / "out.nc").exists() and not (tmp_path / "out.nc.partial").exists()
+
+
+def test_plot_sweep_writes_a_figure(specular, tmp_path):
+    _, path = specular
+    res = rbx_cli("plot", path, "--kind", "sweep", "--y", "mean_free_path", "-o", "mfp.png", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    from PIL import Image
+    image = Image.open(tmp_path / "mfp.png")
+    assert image.size[0] > 600 and len(np.unique(np.asarray(image.convert("L")))) > 20    # drawn, not blank
+    res = rbx_cli("plot", path, "--kind", "sweep", "--y", "nothing", cwd=tmp_path)
+    assert res.returncode == 2 and "--y" in res.stderr and len(res.stderr.splitlines()) == 1
