@@ -4,7 +4,7 @@ VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 
-.PHONY: test test-numba reproduce-figures bench stress gallery clean
+.PHONY: test test-numba reproduce-figures bench stress gallery studies clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -68,6 +68,10 @@ stress: $(STAMP)
 # every `rbx plot` kind on every example scene, from short runs: docs/gallery/*.png and docs/gallery.md
 gallery: $(STAMP)
 	MPLBACKEND=Agg $(PY) scripts/gallery.py
+
+# three parameter studies (configs/studies/, rbx sweep): data/studies/*.nc, figures/studies/*.png, docs/studies.md
+studies: $(STAMP)
+	MPLBACKEND=Agg $(PY) scripts/studies.py
 
 clean:
 	rm -rf data runs figures/*.png figures/*.json
