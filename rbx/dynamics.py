@@ -15,64 +15,50 @@ __all__ = ["lyapunov", "Lyapunov", "flow_jacobian", "escape_times", "Escape"]
 # ---- the tangent dynamics ------------------------------------------------------------------------------------------
 
 class _Tangent:
-    """The state of M trajectories (as :class:`rbx.simulation.Simulation` makes it: the same initial states,
-    random streams and rules as ``rbx simulate``) and their tangent vectors, advanced by :mod:`rbx.tangent`."""
+    """M trajectories of an experiment as ``rbx simulate`` runs them (:class:`rbx.simulation.Simulation`: the same
+    initial states, random streams, rules and numerical options) with tangent vectors beside them: the engine's
+    own loop with the bit ``S_TANGENT`` (:mod:`rbx.engine`, :mod:`rbx.tangent`), nothing recorded. The orientation
+    is followed (it is a tangent coordinate, and part of :func:`flow_jacobian`'s final state); it never changes
+    the orbit, so the orbit is the simulation's, bit for bit."""
 
     def __init__(self, exp, state=None):
         from . import engine
         from .simulation import Simulation
         from .tangent import tangent_dimension
-        sim = self.sim = Simulation(exp, state=state)
-        geom, rules = sim.geom, sim.rules
+        sim = self.sim = Simulation(exp, state=state, force_bits=engine.S_TANGENT | engine.S_ORIENT,
+                                    drop_bits=engine.S_RECORD | engine.S_STOP_WALL)
         self.n, self.M = sim.n, sim.M
         self.d = tangent_dimension(self.n)
-        self.table = engine.make_table(geom, sim.tol)
-        self.rules = rules.kernel_arrays()
-        self.state = engine.State(pos=sim.pos, vel=sim.vel, W=sim.W, theta=sim.theta, A=sim.A, time=sim.time,
-                                  ncoll=sim.ncoll, draws=sim.draws, alive=sim.alive, keys=sim.keys,
-                                  last_wall=sim.last_wall, last_rank=sim.last_rank, energy0=sim.energy0,
-                                  comp=sim._comp)
-        self.flags = (bool(geom.slab), geom.lattice is not None, bool(rules.max_rank > 0), bool(rules.uses_orientation or rules.uses_random),
-                      int(exp.numerics.renormalize))
-        self.R, self.kappa = float(exp.ball.radius), float(exp.ball.kappa)
+        self.groups = sim.kernel_groups()
+        self.state = sim.state_group()
         self.Y = np.repeat(np.eye(self.d)[None], self.M, axis=0)
         self.sums = np.zeros((self.M, self.d))
 
     def kernel(self):
-        """What the tangent kernel needs besides the trajectories' rows: (flags, R, κ, Table, Rules) — the same for
-        every trajectory, so a worker of a cluster gets it with each slice (:func:`_measure_slice`)."""
-        return self.flags, self.R, self.kappa, self.table, self.rules
+        """What the kernel needs besides the trajectories' rows: the groups (Table, Rules, Settings) — the same for
+        every trajectory, so a worker of a cluster gets them with each slice (:func:`_measure_slice`)."""
+        return self.groups
 
-    def advance(self, stop, t_end=np.inf, ortho=True, threads=None):
+    def advance(self, stop, t_end=np.inf, ortho=True):
         """Advance every live trajectory to ``stop`` collisions in all or to time ``t_end``."""
-        _advance(self.kernel(), self.state, self.Y, self.sums, stop, t_end, ortho, threads)
+        _advance(self.kernel(), self.state, self.Y, self.sums, stop, t_end, ortho)
 
 
-def _advance(kernel, state, Y, sums, stop, t_end=np.inf, ortho=True, threads=None):
+def _advance(kernel, state, Y, sums, stop, t_end=np.inf, ortho=True):
     """Advance the live trajectories of ``state`` (and their tangent vectors ``Y``, log-stretch sums ``sums``) to
-    ``stop`` collisions in all or to time ``t_end``, on a pool of threads. Each trajectory's numbers depend only on
-    its own rows (its random stream is keyed by its global index, in ``state.keys``): not on the thread count, nor
-    on which other trajectories share the arrays."""
-    import numba
-
+    ``stop`` collisions in all or to time ``t_end``, on the engine's pool of threads
+    (:func:`rbx.engine.run_advance_all`). Each trajectory's numbers depend only on its own rows (its random
+    stream is keyed by its global index, in ``state.keys``): not on the thread count, nor on which other
+    trajectories share the arrays."""
     from . import engine
-    from ._jit import compile_lock, hooks
-    from .tangent import tangent_advance_all
-    flags, R, kappa, table, rules = kernel
-    M = len(Y)
+    from .simulation import record_buffers
+    table, rules, settings = kernel
+    M, n = state.pos.shape
     stop = np.broadcast_to(np.asarray(stop, np.int64), (M,)).copy()
     t_end = np.broadcast_to(np.asarray(t_end, float), (M,)).copy()
-    args = (stop, t_end, bool(ortho)) + flags + (R, kappa, table, rules, state, Y, sums)
-    threads = max(1, min(threads or numba.get_num_threads(), M))
-    if not hooks.is_compiled(tangent_advance_all):
-        with compile_lock("tangent"):          # another process compiling it meanwhile: wait, then load it
-            tangent_advance_all(0, 0, *args)   # compiles (or loads) the kernel; runs nothing
-    if threads == 1:
-        tangent_advance_all(0, M, *args)
-        return
-    # on the engine's pool: a Ctrl-C does not wait for the running slices (a whole segment; the command then ends
-    # the process, rbx.cli.common.interrupted_exit)
-    engine.run_slices(threads, tangent_advance_all, np.linspace(0, M, threads + 1).astype(np.int64), *args)
+    tangent = engine.Tangent(Y=Y, sums=sums, t_end=t_end, ortho=bool(ortho))
+    out = engine.Records(**record_buffers((), n, M, 0))
+    engine.run_advance_all(stop, table, rules, settings, state, out, tangent)
 
 
 def _measure(kernel, state, Y, sums, cuts):
@@ -84,7 +70,7 @@ def _measure(kernel, state, Y, sums, cuts):
     segments = len(cuts) - 1
     if cuts[0] > 0:
         _advance(kernel, state, Y, sums, cuts[0])
-    sums0, t0, c0 = sums.copy(), state.time.copy(), state.ncoll.copy()
+    sums0, t0, c0, alive0 = sums.copy(), state.time.copy(), state.ncoll.copy(), state.alive.copy()
     seg_sums = np.zeros((M, segments, d))
     seg_time = np.zeros((M, segments))
     for s in range(segments):
@@ -93,7 +79,9 @@ def _measure(kernel, state, Y, sums, cuts):
         seg_sums[:, s] = sums - before
         seg_time[:, s] = state.time - tb
     return {"seg_sums": seg_sums, "seg_time": seg_time, "total_sums": sums - sums0, "total_time": state.time - t0,
-            "collisions": state.ncoll - c0, "ended": ~state.alive}
+            "collisions": state.ncoll - c0, "ended": ~state.alive,
+            # an exit's contact counts as a collision (as in rbx simulate) but maps nothing
+            "exits": alive0 & ~state.alive & (state.last_rank == -1)}
 
 
 class _SliceTask:
@@ -113,8 +101,8 @@ def _measure_slice(task):
     def own(x):       # writable copies: Dask may hand read-only arrays, another type to Numba (a new compile)
         return np.array(x) if isinstance(x, np.ndarray) else x
 
-    flags, R, kappa, table, rules = task.kernel
-    kernel = (flags, R, kappa, type(table)(*map(own, table)), type(rules)(*map(own, rules)))
+    table, rules, settings = task.kernel
+    kernel = (type(table)(*map(own, table)), type(rules)(*map(own, rules)), settings)
     state = State(*map(own, task.state))
     return _measure(kernel, state, own(task.Y), own(task.sums), own(task.cuts))
 
@@ -134,16 +122,20 @@ def flow_jacobian(experiment, t_end, *, collisions=None, trajectories=None, seed
     Tangent coordinates (:func:`rbx.tangent.coordinate_names`): ``[a, R√κ·orientation, v, R√κ·ω]``; the 3D
     orientation's coordinate is the space-frame rotation vector δφ of δA = [δφ]×A. Collisions on the way are
     linearised with the rule drawn at each (docs/tangent-map.md). For checking the tangent map against finite
-    differences of the engine. ``state``: initial states as :class:`rbx.simulation.Simulation` takes them (a dict
+    differences of the engine. The final state's keys are those of a run's ``final`` (and ``W``, ``theta``, ``A``).
+    ``state``: initial states as :class:`rbx.simulation.Simulation` takes them (a dict
     of arrays: position, velocity, angular_velocity, orientation — 3D as matrices) instead of the experiment's."""
     exp = _load(experiment, collisions, trajectories, seed)
     if state is not None:
         state = {k: np.array(v, copy=True) for k, v in state.items()}   # the kernels write into them
     tan = _Tangent(exp, state)
     tan.advance(exp.run.collisions, t_end, ortho=False)
+    from .physics import spin_vector
     st = tan.state
     final = {"time": st.time.copy(), "position": st.pos.copy(), "velocity": st.vel.copy(), "W": st.W.copy(),
-             "theta": st.theta.copy(), "A": st.A.copy(), "collisions": st.ncoll.copy(), "alive": st.alive.copy()}
+             "angular_velocity": spin_vector(st.W), "theta": st.theta.copy(), "A": st.A.copy(),
+             "collisions": st.ncoll.copy(), "alive": st.alive.copy(), "draws": st.draws.copy(),
+             "last_wall": st.last_wall.copy(), "last_rank": st.last_rank.copy(), "compensation": st.comp.copy()}
     return tan.Y.copy(), final
 
 
@@ -157,7 +149,7 @@ class Lyapunov:
     per trajectory × ``trajectories``, each weighted by its duration), or from the spread of the trajectories'
     own estimates if that is larger (a table that is not ergodic); ``per_trajectory`` (M, d);
     ``segment_exponents`` (M, S, d) and ``segment_times`` (M, S); ``time`` (M,) and ``collisions`` (M,) measured
-    (after ``warmup`` collisions); ``coordinates``: the tangent coordinates' names."""
+    (after ``warmup`` collisions; counted as ``rbx simulate`` counts them: an exit's contact is a collision); ``coordinates``: the tangent coordinates' names."""
     exponents: np.ndarray
     stderr: np.ndarray
     per_trajectory: np.ndarray
@@ -230,7 +222,7 @@ def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segme
         per_traj = total_sums / total_time[:, None]
         seg_exp = m["seg_sums"] / seg_time[..., None]
     T = float(np.sum(total_time))
-    if not T > 0 or int(np.sum(m["collisions"])) == 0:
+    if not T > 0 or int(np.sum(m["collisions"]) - np.sum(m["exits"])) == 0:
         # with no collision measured, the exponents were reported as 0 ± 0 (free flight alone stretches nothing)
         raise ValueError("no trajectory moved after the warm-up (all left the table)" if not T > 0 else
                          "no collision after the warm-up: every trajectory left the table at its first contact")

@@ -2,7 +2,7 @@
 
 Three tiers (after stumpy): :mod:`rbx.simulation` validates and allocates → :func:`run_advance_all` runs
 slices of the trajectories on a thread pool → :func:`kernel` ``(spec)``, the serial loop over a slice (``nogil``; each
-trajectory writes only its own slots), one compiled closure per combination of compiled bits. Kernels take arrays and scalars only, in five
+trajectory writes only its own slots), one compiled closure per combination of compiled bits. Kernels take arrays and scalars only, in six
 named groups (module-level named tuples, so that Numba types them and its disk cache finds them again):
 
 - :class:`Table`: the shrunk table's primitives (codes, wall of each primitive, parameters) and the flight
@@ -11,7 +11,9 @@ named groups (module-level named tuples, so that Numba types them and its disk c
 - :class:`Settings`: the run's scalars (all ``spec`` bits, stop wall, record stride and mask, renormalisation
   period, the ball's R and κ);
 - :class:`State`: the state of the M trajectories, one row each, read and written in place;
-- :class:`Records`: the block's record buffers, one per field of :data:`rbx.model.FIELDS`, named as the fields.
+- :class:`Records`: the block's record buffers, one per field of :data:`rbx.model.FIELDS`, named as the fields;
+- :class:`Tangent`: tangent vectors carried along the orbit, for the Lyapunov spectrum and the flow's Jacobian
+  (:mod:`rbx.dynamics`; empty, and compiled out, in every other run).
 
 Beside them go only the per-call arguments (the trajectories' slice, their collision targets and the record
 counts); the compiled bits (:data:`COMPILED_BITS`) are constants of the loop's closure. A named tuple of arrays
@@ -27,6 +29,11 @@ Per collision (ARCHITECTURE.md, "The event loop"):
     contact point, random by the trajectory's counter-based stream;
  5. the strict collision map updates (v, W) in place;
  6. every ``every``-th collision, the requested fields go to the trajectory's row of the block buffers.
+
+With the compiled bit ``S_TANGENT`` the same loop carries tangent vectors beside the state (the flight's and the
+collision's linearisations, :mod:`rbx.tangent`, added after steps 2 and 5): the Lyapunov spectrum follows exactly
+the orbit ``rbx simulate`` records, by construction — the same search, snapping, compensated sums and exit
+bookkeeping.
 """
 from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
@@ -35,11 +42,12 @@ import numba
 import numpy as np
 
 from ._jit import compile_lock, hooks, jit_hot, jit_loop, stack_array
-from .geometry import (HALFSPACE, SEGMENT, box_collision, contact_normal, periodic_flight, periodic_images,
-                       slab_collision, snap)
+from .geometry import (HALFSPACE, SEGMENT, box_collision, contact_normal, normal_jacobian, periodic_flight,
+                       periodic_images, slab_collision, snap)
 from .model import FIELD, FIELDS
 from .physics import collide, collide_axis
 from .rules import EXIT, choose
+from .tangent import collision_tangent, flight_tangent, orthonormalise
 from .trig import sincos
 
 # bits of the record mask (rbx.model.FIELDS), as module constants so that Numba compiles them in
@@ -152,6 +160,18 @@ class Records(NamedTuple):
 assert Records._fields == tuple(f.name for f in FIELDS)
 
 
+class Tangent(NamedTuple):
+    """Tangent vectors carried along the orbit (with ``S_TANGENT``; :mod:`rbx.tangent`, :mod:`rbx.dynamics`)."""
+    Y: np.ndarray           # (M, d, k): trajectory j's k tangent vectors are the columns of Y[j]
+    sums: np.ndarray        # (M, k): with ``ortho``, the sums of the logarithms of the stretches
+    t_end: np.ndarray       # (M,): a trajectory stops in flight when its time reaches t_end[j] (inf: never)
+    ortho: bool             # re-orthonormalise the columns after every collision (Benettin), else Y is the Jacobian
+
+
+#: what the kernels get in every run without tangent vectors (the loop's tangent steps are compiled out)
+NO_TANGENT = Tangent(Y=np.zeros((0, 0, 0)), sums=np.zeros((0, 0)), t_end=np.zeros(0), ortho=False)
+
+
 
 @jit_hot
 def rotate(A, W, tau, E, tmp):
@@ -262,6 +282,7 @@ S_PERIODIC = 1024   # a periodic cell (Table.lattice_lo, period): the images of 
 S_EXIT = 2048       # some wall's rule is (or may resolve to) ``exit``: the trajectory ends at its contact
 S_AXES = 4096       # bounded by an axis-aligned box (Table.box): a division per axis, then the other primitives
 S_ROUND_HEMI = 8192  # 2D: a hemisphere rule on a wall without one normal: cos θ, sin θ (rbx.rules.choose)
+S_TANGENT = 16384   # carry tangent vectors (Tangent) along the orbit: the Lyapunov spectrum, the flow's Jacobian
 #: the bits compiled into the kernel; the others are tested at run time (a predictable branch). Each compiled
 #: combination in use costs a compile of 5–15 s the first time (then it is on disk), so the bits compiled are the
 #: ones that pay: the dimension (loops of constant length, state in registers), spin arithmetic, the slab's closed
@@ -276,17 +297,19 @@ S_ROUND_HEMI = 8192  # 2D: a hemisphere rule on a wall without one normal: cos �
 #: 50 without it) for 1.14 -> 1.08 of the strip's hand loop and 0.99 -> 0.96 of the plates' (interleaved, load
 #: ~2; the record branch is never taken when nothing is recorded). The variants and the stop wall are run-time
 #: bits too.
-COMPILED_BITS = S_DIM3 | S_SPIN | S_SLAB | S_TREE | S_ORIENT | S_AXES | S_PERIODIC | S_EXIT | S_ROUND_HEMI
+COMPILED_BITS = (S_DIM3 | S_SPIN | S_SLAB | S_TREE | S_ORIENT | S_AXES | S_PERIODIC | S_EXIT | S_ROUND_HEMI
+                 | S_TANGENT)
 RUNTIME_BITS = ~COMPILED_BITS
 
 
 def make_spec(n, orient=False, spin=True, tree=False, record=False, compensated=False, snap=False,
-              slab=False, stop_wall=False, periodic=False, exit=False, axes=False, round_hemisphere=False):
+              slab=False, stop_wall=False, periodic=False, exit=False, axes=False, round_hemisphere=False,
+              tangent=False):
     """The ``spec`` bits from flags (:class:`rbx.simulation.Simulation` derives them from the config)."""
     flags = ((n == 3, S_DIM3), (orient, S_ORIENT), (spin, S_SPIN), (tree, S_TREE), (record, S_RECORD),
              (compensated, S_COMPENSATED), (snap, S_SNAP), (slab, S_SLAB),
              (stop_wall, S_STOP_WALL), (periodic, S_PERIODIC), (exit, S_EXIT), (axes, S_AXES),
-             (round_hemisphere, S_ROUND_HEMI))
+             (round_hemisphere, S_ROUND_HEMI), (tangent, S_TANGENT))
     return sum(bit for on, bit in flags if on)
 
 
@@ -329,9 +352,10 @@ def _make_kernel(spec):
     ORIENT, SPIN, TREE = bool(spec & S_ORIENT), bool(spec & S_SPIN), bool(spec & S_TREE)
     SLAB, PERIODIC = bool(spec & S_SLAB), bool(spec & S_PERIODIC)
     EXIT_, AXES, ROUND_HEMI = bool(spec & S_EXIT), bool(spec & S_AXES), bool(spec & S_ROUND_HEMI)
+    TANGENT = bool(spec & S_TANGENT)
 
     @jit_loop
-    def advance_all(j0, j1, stop, table, rules, settings, state, out, nrec):
+    def advance_all(j0, j1, stop, table, rules, settings, state, out, tangent, nrec):
         """Run each live trajectory j0 ≤ j < j1 until it has made ``stop[j]`` collisions in all -> records written
         to row j of ``out``, their number in ``nrec[j]``.
 
@@ -339,7 +363,9 @@ def _make_kernel(spec):
         :class:`Settings`, :class:`State`, :class:`Records`. A trajectory ends early (``state.alive[j] = False``)
         when no wall lies ahead (an escape), at an exit, or, with ``S_STOP_WALL``, right after a collision with
         ``settings.stop_wall`` (the return loop of the invariant-measure experiment). With ``S_COMPENSATED``,
-        ``state.comp[j]`` carries the rounding errors of the position (0…n−1) and time (n) sums.
+        ``state.comp[j]`` carries the rounding errors of the position (0…n−1) and time (n) sums. With
+        ``S_TANGENT``, the columns of ``tangent.Y[j]`` follow the orbit's linearisation (:mod:`rbx.tangent`), and
+        the trajectory stops in flight when its time reaches ``tangent.t_end[j]``.
 
         Compiled without the Numba runtime (:data:`rbx._jit.jit_loop`): reading a member of a group is no reference
         count, and the members used per collision are taken into locals once, here; ``nogil``:
@@ -364,6 +390,16 @@ def _make_kernel(spec):
         loc = stack_array(3, (n,))             # … its position relative to the image of the cell hit, …
         off = stack_array(3, (n,))             # … and that image's shift (loc = a − off); …
         ahead = stack_array(3, (n,))           # … and where the flight is looked at from
+        if TANGENT:                            # the tangent steps' scratch space (d ≤ 12 tangent coordinates)
+            vm = stack_array(3, (n,))          # (v, W) before the collision map
+            Wm = stack_array(9, (n, n))
+            Jn = stack_array(9, (n, n))        # the normal's derivative along the wall
+            Rot = stack_array(9, (3, 3))
+            Kf = stack_array(9, (3, 3))
+            tv = stack_array(12, (12,))
+            twork = stack_array(36, (12, n))
+            dW = stack_array(9, (n, n))
+            dWp = stack_array(9, (n, n))
         alive = state.alive
         for j in range(j0, j1):
             if not alive[j]:
@@ -390,6 +426,9 @@ def _make_kernel(spec):
             count = 0
             until_record = every - c % every           # collisions to the next record
             until_renorm = renorm_every - c % renorm_every if renorm_every > 0 else 0
+            if TANGENT:
+                Yj = tangent.Y[j]
+                t_end = tangent.t_end[j]
             while c < stop[j]:
                 # 1. next collision: the flight time and the primitive hit
                 if SLAB:
@@ -400,7 +439,12 @@ def _make_kernel(spec):
                 else:
                     tau, p = box_collision(codes, params, a, v, tol, n, table.box, table.others, AXES,
                                             first_hit)
-                if p == -1:
+                in_flight = False               # the tangent loop's stop at t_end, in flight
+                if TANGENT:
+                    if t + tau > t_end:
+                        tau = t_end - t
+                        in_flight = True
+                if p == -1 and not in_flight:
                     state.alive[j] = False
                     break
                 # 2. free flight
@@ -412,15 +456,22 @@ def _make_kernel(spec):
                     for i in range(n):
                         a[i] += tau * v[i]
                     t += tau
-                if SLAB:
-                    a[n - 1] = params[p, n - 1]            # exactly on the wall: the normal coordinate is known
-                    if on & S_COMPENSATED:
-                        comp[j, n - 1] = 0.0
                 if ORIENT:
                     if n == 2:
                         th += tau * Wj[1, 0]
                     else:
                         rotate(Aj, Wj, tau, E, tmp)
+                if TANGENT:
+                    flight_tangent(Yj, tau, Wj, Rot, Kf, tv, n)
+                    if in_flight:
+                        t = t_end
+                        if on & S_COMPENSATED:
+                            comp[j, n] = 0.0
+                        break
+                if SLAB:
+                    a[n - 1] = params[p, n - 1]            # exactly on the wall: the normal coordinate is known
+                    if on & S_COMPENSATED:
+                        comp[j, n - 1] = 0.0
                 # 3. contact normal (a slab's is ±e_{n−1}, known from the wall: no lookup; the rule tree and snapping
                 #    read it, and the slab map takes only its sign); in a periodic table, on the image hit
                 if SLAB:
@@ -457,6 +508,19 @@ def _make_kernel(spec):
                                 count += 1
                         state.alive[j] = False
                         break
+                if TANGENT:                # the state before the map, and the normal's derivative at the contact
+                    for i in range(n):
+                        vm[i] = v[i]
+                        for k in range(n):
+                            Wm[i, k] = Wj[i, k]
+                    if SLAB:
+                        for i in range(n):
+                            for k in range(n):
+                                Jn[i, k] = 0.0
+                    elif PERIODIC:
+                        normal_jacobian(codes[p], params, p, loc, Jn, n)
+                    else:
+                        normal_jacobian(codes[p], params, p, a, Jn, n)
                 # 5. collision map
                 # Without spin arithmetic (a specular-only scene) the map is called with rank 0, a constant: only its
                 # reflection is compiled. Every renorm_every-th rough collision, the factor onto the initial energy is
@@ -488,6 +552,11 @@ def _make_kernel(spec):
                         collide(v, Wj, nu, R, kappa, map_rank, rules.basis, node, w, work, n)
                 if f != 0.0:
                     scale_state(v, Wj, f, n)
+                if TANGENT:
+                    collision_tangent(Yj, vm, Wm, v, Wj, nu, Jn, R, kappa, map_rank, rules.basis, node, w, twork, dW, dWp,
+                                      n)
+                    if tangent.ortho:
+                        orthonormalise(Yj, tangent.sums, j, tv)
                 c += 1
                 # 6. record
                 if on & S_RECORD:
@@ -556,7 +625,7 @@ def _entry_point(stop, spec, groups, nrec):
     return entry
 
 
-def run_advance_all(stop, table, rules, settings, state, out):
+def run_advance_all(stop, table, rules, settings, state, out, tangent=NO_TANGENT):
     """Advance every live trajectory j to ``stop[j]`` collisions on ``numba.get_num_threads()`` threads -> records
     written per trajectory (M,).
 
@@ -575,7 +644,7 @@ def run_advance_all(stop, table, rules, settings, state, out):
     M = state.pos.shape[0]
     spec = int(settings.flags) & COMPILED_BITS
     nrec = np.zeros(M, np.int64)
-    groups = (table, rules, settings, state, out)
+    groups = (table, rules, settings, state, out, tangent)
     entry = _entry_point(stop, spec, groups, nrec)
     threads = max(1, min(numba.get_num_threads(), M))
     if threads == 1:

@@ -1,10 +1,9 @@
 """The linearised dynamics of the rough billiard flow and Benettin's method (docs/reference.md §10;
 docs/tangent-map.md).
 
-The orbit is the engine's: the same :func:`rbx.geometry.next_collision`, :func:`~rbx.geometry.contact_normal`,
-:func:`rbx.rules.choose`, :func:`rbx.physics.collide` and energy projection (:func:`rbx.engine.energy_factor`) in
-the same order, so a trajectory followed here is the trajectory ``rbx simulate`` records (tests/test_lyapunov.py).
-Beside the state, ``d`` tangent vectors (the columns of ``Y``) are carried through
+These are the tangent steps of the engine's own loop (:func:`rbx.engine.kernel` with the bit ``S_TANGENT``): the
+orbit is the one ``rbx simulate`` records, by construction, and only the tangent part is added beside it.
+Beside the state, tangent vectors (the columns of ``Y``) are carried through
 
 - the free flight: δa += τ δv, δφ̂ ← e^{τW} δφ̂ + (∫₀^τ e^{uW} du) δω̂ (2D: δθ̂ += τ δω̂);
 - each collision: δx⁺ = DM·(δx⁻ + f⁻ δt) − f⁺ δt with δt = −(ν·δa)/(ν·v⁻), where DM is the derivative of the
@@ -18,12 +17,8 @@ and the logarithms of the stretches are added to ``sums``: their growth per unit
 """
 import numpy as np
 
-from ._jit import jit, jit_hot
-from .engine import energy_factor, rotate, scale_state
-from .geometry import contact_normal, next_collision, normal_jacobian, periodic_flight, slab_collision
-
-from .physics import collide, collide_axis, project_roughness
-from .rules import EXIT, choose
+from ._jit import jit_call, jit_hot
+from .physics import project_roughness
 
 
 def tangent_dimension(n):
@@ -71,7 +66,7 @@ def spin_matrix_of(w, scale, W, n):
         W[0, 1] = -z
 
 
-@jit
+@jit_hot
 def flight_rotation(W, tau, Rot, K):
     """3D: Rot ← e^{τW} and K ← ∫₀^τ e^{uW} du (Rodrigues; a series for small angles)."""
     wx, wy, wz = W[2, 1], W[0, 2], W[1, 0]
@@ -97,7 +92,7 @@ def flight_rotation(W, tau, Rot, K):
             K[i, j] = tau * e + c1 * W[i, j] + k2 * ww
 
 
-@jit
+@jit_call
 def flight_tangent(Y, tau, W, Rot, K, tmp, n):
     """Carry the tangent vectors (columns of Y) through a free flight of duration τ (fixed τ: the change of the
     flight time is the collision's δt)."""
@@ -120,8 +115,8 @@ def flight_tangent(Y, tau, W, Rot, K, tmp, n):
                 Y[3 + i, k] = tmp[i]
 
 
-@jit
-def collision_tangent(Y, vm, Wm, vp, Wp, nu, J, R, kappa, rank, basis, node, wall, work, n):
+@jit_call
+def collision_tangent(Y, vm, Wm, vp, Wp, nu, J, R, kappa, rank, basis, node, wall, work, dW, dWp, n):
     """Carry the tangent vectors (columns of Y) through a collision (docs/tangent-map.md):
 
         δt  = −(ν·δa)/(ν·v⁻)                               the change of the collision time
@@ -130,7 +125,7 @@ def collision_tangent(Y, vm, Wm, vp, Wp, nu, J, R, kappa, rank, basis, node, wal
 
     ``vm``, ``Wm``: the state before the map; ``vp``, ``Wp``: after it; ``nu``, ``J``: the normal and its derivative
     ∂ν_i/∂a_j at the contact; ``rank``, ``basis[node, wall]``: the rule applied there (as in
-    :func:`rbx.physics.collide`). ``work``: scratch (12, n)."""
+    :func:`rbx.physics.collide`). ``work``: scratch (12, n); ``dW``, ``dWp``: scratch (n, n)."""
     m = n * (n - 1) // 2
     d = Y.shape[1]
     c = R * np.sqrt(kappa)
@@ -155,8 +150,6 @@ def collision_tangent(Y, vm, Wm, vp, Wp, nu, J, R, kappa, rank, basis, node, wal
             project_roughness(work, rank, basis, node, wall, n)
         for i in range(n):
             work[3, i] = work[1, i]
-    dW = np.empty((n, n))
-    dWp = np.empty((n, n))
     for k in range(d):
         na = 0.0
         for i in range(n):
@@ -208,7 +201,7 @@ def collision_tangent(Y, vm, Wm, vp, Wp, nu, J, R, kappa, rank, basis, node, wal
             Y[2 * n + m + i, k] = c * work[8, i]
 
 
-@jit
+@jit_call
 def orthonormalise(Y, sums, j, tmp):
     """Gram–Schmidt twice on the columns of Y (QR: Y = QR, Y ← Q) and sums[j, k] += log R_kk."""
     d = Y.shape[1]
@@ -229,140 +222,3 @@ def orthonormalise(Y, sums, j, tmp):
         sums[j, k] += np.log(s)
         for i in range(Y.shape[0]):
             Y[i, k] /= s
-
-
-@jit
-def tangent_advance(j, stop, t_end, ortho, slab, periodic, spin, tree, renorm_every, R, kappa, table, rules, state, Y,
-                    sums):
-    """Advance trajectory j and its tangent vectors Y[j] (columns) until it has made ``stop`` collisions or its time
-    reaches ``t_end`` (then it stops in flight) -> collisions made in this call.
-
-    The orbit as in :func:`rbx.engine.advance` (default numerics: no snapping, no compensated sums), orientation
-    always followed. ``ortho``: re-orthonormalise after each collision, adding log-stretches to ``sums[j]``; else Y
-    is the flow's Jacobian applied to the initial Y. ``slab``, ``periodic``, ``spin``, ``tree``: as the engine's bits
-    S_SLAB, S_PERIODIC, S_SPIN, S_TREE. The trajectory ends (``alive`` False) on an exit wall (no map; the contact is its last state)
-    or when no wall lies ahead."""
-    n = state.pos.shape[1]
-    codes, prim_wall, params, tol = table.codes, table.prim_wall, table.params, table.tol
-    a = state.pos[j]
-    v = state.vel[j]
-    W = state.W[j]
-    A = state.A[j]
-    Yj = Y[j]
-    nu = np.zeros(n)
-    J = np.zeros((n, n))
-    vm = np.zeros(n)
-    Wm = np.zeros((n, n))
-    work = np.zeros((12, n))
-    E = np.zeros((3, 3))
-    tmp = np.zeros((3, 3))
-    Rot = np.zeros((3, 3))
-    K = np.zeros((3, 3))
-    tv = np.zeros(max(Yj.shape[1], 3))
-    base = np.zeros(n)          # periodic tables: the centre's cell, its position relative to the image hit, and
-    loc = np.zeros(n)           # that image's shift (loc = a − off)
-    off = np.zeros(n)
-    ahead = np.zeros(n)         # where a periodic table's flight is looked at from
-    th = state.theta[j]
-    t = state.time[j]
-    c = state.ncoll[j]
-    d = state.draws[j]
-    key = state.keys[j]
-    e0 = state.energy0[j]
-    half_inv_e0 = 0.5 / e0
-    until_renorm = renorm_every - c % renorm_every if renorm_every > 0 else 0
-    made = 0
-    while c < stop:
-        if slab:
-            tau, p = slab_collision(params, a, v, n)
-        elif periodic:
-            tau, p = periodic_flight(codes, params, a, v, tol, n, table.lattice_lo, table.period, table.images,
-                                     table.image_shift, base, loc, off, ahead)
-        else:
-            tau, p = next_collision(codes, params, a, v, tol, n)
-        if t + tau > t_end:                       # stop in flight at t_end (also when no wall lies ahead)
-            tau = t_end - t
-            p = -3
-        if p == -1:
-            state.alive[j] = False
-            break
-        for i in range(n):
-            a[i] += tau * v[i]
-        t += tau
-        if n == 2:
-            th += tau * W[1, 0]
-        else:
-            rotate(A, W, tau, E, tmp)
-        flight_tangent(Yj, tau, W, Rot, K, tv, n)
-        if p == -3:
-            t = t_end
-            break
-        if not periodic:
-            for i in range(n):
-                loc[i] = a[i]
-        else:
-            for i in range(n):
-                loc[i] = a[i] - off[i]
-        if slab:
-            a[n - 1] = params[p, n - 1]
-            for i in range(n - 1):
-                nu[i] = 0.0
-            nu[n - 1] = 1.0 if p == 0 else -1.0
-        else:
-            contact_normal(codes[p], params, p, loc, nu, n)
-        w = prim_wall[p]
-        if tree:
-            node, d = choose(w, nu, A, th, key, d, rules.root, rules.kind, rules.first, rules.children,
-                             rules.threshold, rules.axis, rules.phase, n, True)
-        else:
-            node = rules.root[w]
-        state.last_wall[j] = w
-        if rules.kind[node] == EXIT:
-            state.last_rank[j] = -1
-            state.alive[j] = False
-            break
-        rk = rules.rank[node]
-        state.last_rank[j] = rk
-        f = 0.0
-        map_rank = 0
-        if spin:
-            map_rank = rk
-            if renorm_every > 0:
-                until_renorm -= 1
-                if until_renorm == 0:
-                    until_renorm = renorm_every
-                    f = energy_factor(v, W, R, kappa, e0, half_inv_e0, n)
-        for i in range(n):
-            vm[i] = v[i]
-            for q in range(n):
-                Wm[i, q] = W[i, q]
-        if slab:
-            collide_axis(v, W, n - 1, nu[n - 1], R, kappa, map_rank, rules.basis, node, w, work, n)
-            for i in range(n):
-                for q in range(n):
-                    J[i, q] = 0.0
-        else:
-            collide(v, W, nu, R, kappa, map_rank, rules.basis, node, w, work, n)
-            normal_jacobian(codes[p], params, p, loc, J, n)
-        if f != 0.0:
-            scale_state(v, W, f, n)
-        collision_tangent(Yj, vm, Wm, v, W, nu, J, R, kappa, map_rank, rules.basis, node, w, work, n)
-        if ortho:
-            orthonormalise(Yj, sums, j, tv)
-        c += 1
-        made += 1
-    state.theta[j] = th
-    state.time[j] = t
-    state.ncoll[j] = c
-    state.draws[j] = d
-    return made
-
-
-@jit
-def tangent_advance_all(j0, j1, stop, t_end, ortho, slab, periodic, spin, tree, renorm_every, R, kappa, table, rules,
-                        state, Y, sums):
-    """:func:`tangent_advance` for the live trajectories j0 ≤ j < j1 (``nogil``: slices run on threads)."""
-    for j in range(j0, j1):
-        if state.alive[j]:
-            tangent_advance(j, stop[j], t_end[j], ortho, slab, periodic, spin, tree, renorm_every, R, kappa, table,
-                            rules, state, Y, sums)

@@ -8,6 +8,7 @@ block, so every scene is cut at a known point, resumed, cut again and resumed to
 """
 import copy
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -152,20 +153,24 @@ def test_a_signal_while_setting_up_aborts_at_once(tmp_path):
 
 
 def wait_until_open(proc, path, closed=False, timeout=900):
-    """Wait until the process has ``path`` open (from /proc/PID/fd), and with ``closed`` until it has closed it
-    again: a compile lock opened and closed means the kernel is compiled or loaded and the run is about to
-    start. Polled every millisecond; the lock is held for the whole load or compile (tens of ms at the least)."""
+    """Wait until the process has a file open (from /proc/PID/fd) whose path is ``path`` or matches it (a compiled
+    regular expression), and with ``closed`` until it has closed it again: a compile lock opened and closed means
+    the kernel is compiled or loaded and the run is about to start. Polled every millisecond; the lock is held for
+    the whole load or compile (tens of ms at the least)."""
     deadline = time.monotonic() + timeout
     seen = False
     while True:
         assert proc.poll() is None, proc.communicate()
+        links = set()
         try:
-            links = {os.readlink(f"/proc/{proc.pid}/fd/{fd}") for fd in os.listdir(f"/proc/{proc.pid}/fd")}
-        except FileNotFoundError:
-            links = set()
+            for fd in os.listdir(f"/proc/{proc.pid}/fd"):
+                try:
+                    links.add(os.readlink(f"/proc/{proc.pid}/fd/{fd}"))
+                except OSError:        # closed meanwhile
+                    pass
         except OSError:
-            links = set()
-        if path in links:
+            pass
+        if any(link == path if isinstance(path, str) else path.search(link) for link in links):
             seen = True
             if not closed:
                 return
@@ -470,8 +475,9 @@ def test_ctrl_c_in_lyapunov_does_not_wait_for_the_running_segment(tmp_path):
     proc = subprocess.Popen([RBX, "lyapunov", "l.yaml", "--quiet", "--warmup", "0"], cwd=tmp_path,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
     from rbx import _jit
-    # the tangent kernel's compile lock, opened and closed: the kernel is there and the segments start
-    wait_until_open(proc, os.path.join(_jit.CACHE_DIR, ".tangent.lock"), closed=True)
+    # the compile lock of the loop carrying tangent vectors, opened and closed: the kernel is there and the
+    # segments start
+    wait_until_open(proc, re.compile(re.escape(_jit.CACHE_DIR) + r"/\.advance-\d+\.lock$"), closed=True)
     time.sleep(0.5)
     assert proc.poll() is None
     proc.send_signal(signal.SIGINT)

@@ -65,7 +65,7 @@ def _params(f):
 
 
 def test_the_kernels_take_named_groups():
-    groups = ["table", "rules", "settings", "state", "out"]
+    groups = ["table", "rules", "settings", "state", "out", "tangent"]
     assert _params(engine.kernel(0)) == ["j0", "j1", "stop"] + groups + ["nrec"]
     assert _params(engine.run_advance_all) == ["stop"] + groups
     assert len(_params(engine.kernel(0))) <= 10
@@ -79,7 +79,8 @@ def test_one_kernel_per_combination_of_compiled_bits():
     closure = dict(zip(engine.kernel(engine.S_AXES).py_func.__code__.co_freevars,
                        (c.cell_contents for c in engine.kernel(engine.S_AXES).py_func.__closure__)))
     assert closure["AXES"] is True and closure["N"] == 2
-    assert not any(closure[k] for k in ("ORIENT", "SPIN", "TREE", "SLAB", "PERIODIC", "EXIT_", "ROUND_HEMI"))
+    assert not any(closure[k] for k in ("ORIENT", "SPIN", "TREE", "SLAB", "PERIODIC", "EXIT_", "ROUND_HEMI",
+                                        "TANGENT"))
 
 
 def test_the_groups():

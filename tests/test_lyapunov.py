@@ -14,6 +14,7 @@ import os
 
 import numpy as np
 import pytest
+import yaml
 
 import rbx
 from rbx import geometry, tables
@@ -198,21 +199,70 @@ ROUGH2 = {"rule": "constant", "rank": 1}
 SINAI = {"kind": "sinai", "size": [2.0, 1.5], "radius": 0.4}
 
 
-@pytest.mark.parametrize("table,rule", [
-    (SINAI, {"rule": "random", "choices": [SMOOTH, ROUGH2], "probabilities": [0.5, 0.5]}),
-    ({"kind": "sinai", "size": [2.0, 1.5, 1.5], "radius": 0.3}, {"rule": "constant", "rank": 2}),
-    ({"kind": "plates", "gap": 1.0}, {"rule": "constant", "rank": 1, "direction_deg": 30}),
-    ({"kind": "lorentz", "cell": [1.0, 1.0], "radius": 0.3}, ROUGH2),      # periodic: the same windowed flights
-])
-def test_the_orbit_is_the_engines(table, rule):
-    """The tangent loop follows the engine's trajectory: same collisions, same random draws, same numbers."""
-    cfg = _scene(table, rule, 300, trajectories=2)
-    run = rbx.simulate(cfg)
-    J, final = flow_jacobian(cfg, np.inf)   # to the run's collision count
-    np.testing.assert_array_equal(final["collisions"], run.count - 1)
-    np.testing.assert_allclose(final["position"], run.position[:, -1], rtol=0, atol=1e-9)
-    np.testing.assert_allclose(final["velocity"], run.velocity[:, -1], rtol=0, atol=1e-9)
-    np.testing.assert_allclose(final["time"], run.time[:, -1], rtol=1e-12)
+EXAMPLES = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "configs", "examples")
+BOUNDARY = os.path.join(os.path.dirname(EXAMPLES), "boundary")
+#: variants beside the examples as they are: every rule kind (a 2D hemisphere on curved walls, 3D random
+#: directions, exits) and every numerical option
+VARIANTS = {
+    "circle-hemisphere": ("circle", {"boundary": os.path.join(BOUNDARY, "hemisphere.yaml")}),
+    "plates-random-directions": ("plates", {"boundary": os.path.join(BOUNDARY, "plates-random-directions.yaml")}),
+    "sinai-compensated-snap": ("sinai", {"numerics": {"compensated": True, "snap": True, "renormalize": 1}}),
+    "strip-compensated": ("strip", {"numerics": {"compensated": True, "renormalize": 0}}),
+    "lorentz-snap": ("lorentz", {"numerics": {"snap": True, "compensated": True}}),
+    "sphere-snap-compensated": ("sphere", {"numerics": {"snap": True, "compensated": True, "renormalize": 3}}),
+    "escape-sinai-compensated": ("escape-sinai", {"numerics": {"compensated": True}}),
+}
+PARITY = sorted([name[:-5] for name in os.listdir(EXAMPLES) if name.endswith(".yaml")]) + sorted(VARIANTS)
+
+
+def _parity_experiment(name):
+    from rbx import config
+    base, changes = VARIANTS.get(name, (name, {}))
+    path = os.path.join(EXAMPLES, base + ".yaml")
+    with open(path) as f:
+        data = yaml.safe_load(f)
+    data.update(changes)
+    trajectories = 3
+    if "sample" not in data["initial"]:
+        if base in ("wedge", "strip", "plates"):    # infinite walls: no billiard measure; one trajectory
+            trajectories = 1
+        else:                                       # three different ones (copies of one are warned about)
+            data["initial"] = {"sample": "billiard"}
+    data["run"] = {"collisions": 400, "trajectories": trajectories, "seed": 5}
+    data["output"] = {"record": []}
+    return config.from_dict(data, path)
+
+
+@pytest.mark.parametrize("name", PARITY)
+def test_the_orbit_is_the_engines(name):
+    """The tangent vectors ride on the engine's own loop: ``rbx lyapunov`` follows the orbit ``rbx simulate``
+    records, bit for bit — every example, every rule kind (exits and hemispheres too), every numerical option."""
+    exp = _parity_experiment(name)
+    run = rbx.simulate(exp)
+    _, final = flow_jacobian(exp, np.inf)   # to the run's collision count
+    want = run.final
+    np.testing.assert_array_equal(final["collisions"], want["collisions"])
+    np.testing.assert_array_equal(final["alive"], want["alive"])
+    for key, theirs in (("position", "position"), ("velocity", "velocity"), ("time", "time"), ("draws", "draws"),
+                        ("last_wall", "last_wall"), ("last_rank", "last_rank"),
+                        ("angular_velocity", "angular_velocity")):
+        np.testing.assert_array_equal(final[key], want[theirs], err_msg=key)
+    if exp.numerics.compensated:
+        np.testing.assert_array_equal(final["compensation"], want["compensation"])
+
+
+def test_the_parity_covers_every_rule_kind_and_option():
+    from rbx import rules
+    kinds, options = set(), set()
+    for name in PARITY:
+        exp = _parity_experiment(name)
+        compiled = rules.compile_rules(exp.wall_rules, exp.geometry())
+        kinds |= {int(k) for k in compiled.kind}
+        options |= {k for k in ("compensated", "snap") if getattr(exp.numerics, k)}
+        if exp.numerics.renormalize == 0:
+            options.add("no renormalisation")
+    assert {rules.CONSTANT, rules.HEMISPHERE, rules.RANDOM, rules.EXIT} <= kinds
+    assert options == {"compensated", "snap", "no renormalisation"}
 
 
 def _wavefront_exponent(run, centre, rho, first):
