@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
 # The test suite with the oldest and the newest Numba that pyproject.toml declares, each in a venv of its own
 # (.venv-numba-oldest, .venv-numba-newest; NumPy pinned to what that Numba supports), and once more with kernels
-# compiled for a generic x86-64/arm64 CPU instead of this machine's (NUMBA_CPU_NAME=generic).
+# compiled for a generic x86-64/arm64 CPU instead of this machine's (NUMBA_CPU_NAME=generic), with the BLAS and
+# NumPy's vectorised loops of another processor where they can be chosen (OPENBLAS_CORETYPE, NPY_DISABLE_CPU_FEATURES).
 # Usage: scripts/test_numba.sh [oldest|newest|generic ...]   (default: all three)
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -36,7 +37,13 @@ for what in "${@:-oldest newest generic}"; do
         case $w in
             oldest) run oldest "$(env_for oldest "$OLDEST")" ;;
             newest) run newest "$(env_for newest "$NEWEST")" ;;
-            generic) run generic "$(env_for newest "$NEWEST")" NUMBA_CPU_NAME=generic ;;
+            generic)
+                other=()
+                if [ "$(uname -m)" = x86_64 ]; then
+                    # the BLAS kernel of an AVX-512 Xeon, and NumPy's loops without AVX-512
+                    other=(OPENBLAS_CORETYPE=SkylakeX "NPY_DISABLE_CPU_FEATURES=X86_V4 AVX512F AVX512CD AVX512_SKX AVX512_CLX AVX512_CNL AVX512_ICL AVX512_SPR")
+                fi
+                run generic "$(env_for newest "$NEWEST")" NUMBA_CPU_NAME=generic "${other[@]}" ;;
             *) echo "test_numba.sh: unknown '$w' (oldest, newest, generic)" >&2; exit 2 ;;
         esac
     done
