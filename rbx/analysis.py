@@ -36,7 +36,8 @@ def normal_angle(velocity, angular_velocity, normal, R, kappa):
     w2 = w * w if w.ndim == 1 else np.sum(w * w, axis=-1)
     speed = np.sqrt(np.sum(v * v, axis=-1) + kappa * R * R * w2)
     c = np.sum(v * np.asarray(normal, float), axis=-1) / speed
-    return np.arccos(np.clip(c, -1.0, 1.0))
+    # math.acos (libm), not np.arccos, whose AVX-512 version gives other last bits than the one other CPUs run
+    return np.array([math.acos(x) for x in np.clip(c, -1.0, 1.0).ravel().tolist()], float).reshape(np.shape(c))
 
 
 def cos_law_pdf(phi, d):
@@ -374,7 +375,13 @@ def growth_exponent(n, values, lo, hi):
     sel = (n >= lo) & (n <= hi) & (values > 0) & np.isfinite(values)
     if sel.sum() < 2:
         raise ValueError("a growth exponent needs at least 2 points with positive values in the window")
-    return float(np.polyfit(np.log(n[sel]), np.log(values[sel]), 1)[0])
+    # the slope in closed form with exactly rounded sums and libm's log: np.polyfit goes through LAPACK and BLAS
+    # and np.log has an AVX-512 version, both of which give other last bits on other CPUs
+    x = [math.log(a) for a in n[sel].tolist()]
+    y = [math.log(b) for b in values[sel].tolist()]
+    xm, ym = math.fsum(x) / len(x), math.fsum(y) / len(y)
+    dx = [a - xm for a in x]
+    return math.fsum(a * (b - ym) for a, b in zip(dx, y)) / math.fsum(a * a for a in dx)
 
 
 def running_excursion(points):
@@ -466,15 +473,37 @@ def conserved_drift(velocity, angular_velocity, rough, R, kappa):
     v = np.asarray(velocity, float).copy()
     n = len(v)
     normal = np.asarray(rough[0][0], float) if rough else np.eye(n)[-1]
-    v = v - (v @ normal) * normal
+    v = v - _fdot(v, normal) * normal
     w = np.atleast_1d(np.asarray(angular_velocity, float)) * R * math.sqrt(kappa)
     z = np.concatenate([v, w])
     if not rough:
         return v
-    K = slip_constraints(rough, R, kappa)
-    zF = z - np.linalg.pinv(K) @ (K @ z)
+    # z minus its projection on the row space of K, from an orthonormal basis of the rows (modified Gram–Schmidt,
+    # exactly rounded sums): not np.linalg.pinv and @, whose LAPACK and BLAS kernels give other last bits (and signs
+    # of the zeros) on other CPUs
+    basis = []
+    for row in slip_constraints(rough, R, kappa):
+        q = np.asarray(row, float)
+        scale = _fnorm(q)
+        for b in basis:
+            q = q - _fdot(b, q) * b
+        size = _fnorm(q)
+        if size > 1e-9 * scale:
+            basis.append(q / size)
+    zF = z
+    for b in basis:
+        zF = zF - _fdot(b, zF) * b
     drift = zF[:n]
-    return drift - (drift @ normal) * normal
+    return drift - _fdot(drift, normal) * normal
+
+
+def _fdot(x, y):
+    """x·y of two short vectors, exactly rounded (math.fsum) -> float: the same bits on every CPU."""
+    return math.fsum(a * b for a, b in zip(np.asarray(x, float).tolist(), np.asarray(y, float).tolist()))
+
+
+def _fnorm(x):
+    return math.sqrt(_fdot(x, x))
 
 
 def rough_directions(wall_rules, geom):

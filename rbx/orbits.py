@@ -26,6 +26,20 @@ from dataclasses import dataclass
 import numpy as np
 
 
+def _dot(x, y):
+    """x·y of two short vectors, summed in index order -> float. Not ``x @ y``: NumPy hands that to BLAS, whose
+    kernel (and so the last bits of a sum of products) depends on the CPU."""
+    total = 0.0
+    for a, b in zip(np.asarray(x, float).tolist(), np.asarray(y, float).tolist()):
+        total += a * b
+    return total
+
+
+def _norm(x):
+    """|x| of a short vector (``math.hypot``: no BLAS, the same bits on every CPU) -> float."""
+    return math.hypot(*np.asarray(x, float).tolist())
+
+
 def _points(p):
     p = np.asarray(p, float)
     if p.ndim != 2 or p.shape[1] != 2:
@@ -56,7 +70,9 @@ def vertex_angles(points):
     u = segment_directions(points)
     c = np.sum(-u[:-1] * u[1:], axis=1)
     s = np.abs(u[:-1, 0] * u[1:, 1] - u[:-1, 1] * u[1:, 0])
-    return np.arctan2(s, c)          # better conditioned than arccos near 0 and π
+    # better conditioned than arccos near 0 and π; math.atan2 (libm), not np.arctan2, whose AVX-512 version gives
+    # other last bits than the one other CPUs run
+    return np.array([math.atan2(a, b) for a, b in zip(s.tolist(), c.tolist())], float)
 
 
 def line_distances(points, centre=(0.0, 0.0)):
@@ -118,7 +134,7 @@ def rough_collision(V, normal, kappa):
     angle–position form)."""
     a = rough_axis(normal, kappa)
     V = np.asarray(V, float)
-    return 2.0 * (V @ a) * a - V
+    return 2.0 * _dot(V, a) * a - V
 
 
 def predicted_caustic_radii(position, velocity, angular_velocity, rho, R, kappa, centre=(0.0, 0.0)):
@@ -219,10 +235,10 @@ def wedge_invariant(positions, velocities, walls, angle_deg, R):
 
 def _min_on_circle(V, e, N):
     """min of V'·N over the circle of V' obtained by rotating V about the unit axis e."""
-    c = (V @ e) * e
-    r = np.linalg.norm(V - c)
-    Np = N - (N @ e) * e
-    return float(c @ N - r * np.linalg.norm(Np))
+    c = _dot(V, e) * e
+    r = _norm(V - c)
+    Np = N - _dot(N, e) * e
+    return float(_dot(c, N) - r * _norm(Np))
 
 
 def wedge_distance_supremum(velocity, angular_velocity, wall, invariant, angle_deg, R, kappa):
@@ -239,16 +255,15 @@ def wedge_distance_supremum(velocity, angular_velocity, wall, invariant, angle_d
     _, normals = wedge_frame(angle_deg, R)
     V = np.concatenate([[R * math.sqrt(kappa) * angular_velocity], np.asarray(velocity, float)])
     a = [rough_axis(nu, kappa) for nu in normals]
-    half_turn = [2.0 * np.outer(x, x) - np.eye(3) for x in a]
     here, other = int(wall), 1 - int(wall)
     # V leaving `here` → leaving `other` (H_other·V) → leaving `here` again: the rotation Q = H_here·H_other
-    Q = half_turn[here] @ half_turn[other]
-    w, vecs = np.linalg.eig(Q)
-    e = np.real(vecs[:, np.argmin(np.abs(w - 1.0))])
-    e /= np.linalg.norm(e)
+    # Q turns about the axis perpendicular to both half-turn axes (its direction's sign does not matter below)
+    e = np.cross(a[here], a[other])
+    e = e / _norm(e)
     N = [np.concatenate([[0.0], nu]) for nu in normals]
     n_here = _min_on_circle(V, e, N[here])
-    n_other = _min_on_circle(half_turn[other] @ V, half_turn[other] @ e, N[other])
+    n_other = _min_on_circle(2.0 * _dot(a[other], V) * a[other] - V, 2.0 * _dot(a[other], e) * a[other] - e,
+                             N[other])
     n_min = min(n_here, n_other)
     return (invariant / n_min if n_min > 0 else math.inf), n_min
 
@@ -350,13 +365,13 @@ def wedge_prediction(position, velocity, angular_velocity, angle_deg, R, kappa):
     p, v = np.asarray(position, float), np.asarray(velocity, float)
     times = []
     for nu in normals:
-        vn = float(v @ nu)
-        times.append(float((p - apex) @ nu) / -vn if vn < 0 else math.inf)
+        vn = _dot(v, nu)
+        times.append(_dot(p - apex, nu) / -vn if vn < 0 else math.inf)
     wall = int(np.argmin(times))
     if not math.isfinite(times[wall]):
         return None
     hit = p + times[wall] * v
-    invariant = float(np.linalg.norm(hit - apex)) * float(-(v @ normals[wall]))
+    invariant = _norm(hit - apex) * -_dot(v, normals[wall])
     V = rough_collision(np.concatenate([[R * math.sqrt(kappa) * angular_velocity], v]), normals[wall], kappa)
     sup, n_min = wedge_distance_supremum(V[1:], V[0] / (R * math.sqrt(kappa)), wall, invariant, angle_deg, R, kappa)
     period = wedge_period(angle_deg, kappa) if math.isfinite(sup) else None
