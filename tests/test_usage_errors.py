@@ -77,6 +77,15 @@ MISTAKES = {
         (["lyapunov", "folder"], "CONFIG"),
         (["lyapunov", "x.yaml", "--set", "ball.inertia"], "--set"),
     ],
+    "sweep": [
+        (["sweep"], "STUDY.yaml"),
+        (["sweep", "x.yaml"], "-o, --output"),                  # a required option
+        (["sweep", "--bogus"], "--bogus"),
+        (["sweep", "x.yaml", "y.yaml", "-o", "r.nc"], "sweep"),
+        (["sweep", "x.yaml", "-o"], "-o"),
+        (["sweep", "x.yaml", "-o", "r.nc"], "x.yaml"),
+        (["sweep", "folder", "-o", "r.nc"], "STUDY.yaml"),
+    ],
     "animate": [
         (["animate"], "RUN.h5"),
         (["animate", "x.h5"], "-o, --output"),
