@@ -673,3 +673,18 @@ def plane_axes(normal):
     e1 = base - (base @ normal) * normal
     e1 /= np.linalg.norm(e1)
     return e1, np.cross(normal, e1)
+
+
+def wall_measure(geom, w):
+    """The length (2D) or area (flat 3D) of wall ``w`` of the shrunk table, from its sampling patches."""
+    total = 0.0
+    for patch in geom.wall_list[w].patches:
+        if patch[0] == "flat":
+            total += float(np.prod([x for _, x in patch[3]]))
+        elif patch[0] == "arc":
+            total += patch[2] * (patch[4] - patch[3])
+        elif patch[0] == "sphere":
+            total += 4 * np.pi * patch[2] ** 2
+        else:
+            raise ValueError("the measure of a curved 3D wall other than a sphere is not computed")
+    return total

@@ -143,21 +143,6 @@ def exit_walls(experiment):
     return [w for w, r in enumerate(experiment.wall_rules) if any(isinstance(x, Exit) for x in rule_leaves(r))]
 
 
-def wall_measure(geom, w):
-    """The length (2D) or area (flat 3D) of wall ``w`` of the shrunk table, from its sampling patches."""
-    total = 0.0
-    for patch in geom.wall_list[w].patches:
-        if patch[0] == "flat":
-            total += float(np.prod([x for _, x in patch[3]]))
-        elif patch[0] == "arc":
-            total += patch[2] * (patch[4] - patch[3])
-        elif patch[0] == "sphere":
-            total += 4 * np.pi * patch[2] ** 2
-        else:
-            raise ValueError("the measure of a curved 3D wall other than a sphere is not computed")
-    return total
-
-
 def _sampled_wall(experiment):
     init = experiment.initial
     return init[1] if isinstance(init, tuple) and init and init[0] == "sample" else None
@@ -268,7 +253,7 @@ register(Observable(
 def kac_return_path(experiment):
     """Kac's lemma with Santaló's formula: the mean return path to the exit walls, C_d·|table|/|holes| (4A/ℓ for a
     disc), for billiard-measure starts on the holes when almost every state returns (docs/dynamics.md)."""
-    from .analysis import santalo_constant, table_measure, velocity_dimension
+    from .analysis import santalo_constant, table_measure, velocity_dimension, wall_measure
     geom = experiment.geometry()
     volume, _ = table_measure(geom)
     hole = sum(wall_measure(geom, w) for w in exit_walls(experiment))

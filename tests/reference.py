@@ -712,3 +712,21 @@ def reference_run(config, uniforms=None, start=None, collisions=None):
         v, W = collide(v, W, nu, P, R, kappa)
         records.append(_record(n, time, a, v, W, A, theta, wall, rank))
     return records
+
+
+def wavefront_sums(position, velocity, time, centre, rho, first):
+    """The classic 2D billiard's largest exponent from one orbit's records (a specular run), by the curvature B of a
+    divergent front: B ← B/(1 + ℓB) along a flight of length ℓ and B ← B + 2K/cos φ at a wall of curvature K
+    (K = 1/ρ on the dispersing circle of radius ρ about ``centre``, 0 on flat walls) -> (Σ log(1 + ℓB) over the
+    flights after collision ``first``, the time they take); λ₁ is their ratio."""
+    S, B = 0.0, 0.0
+    for k in range(1, len(time)):
+        ell = (time[k] - time[k - 1]) * np.linalg.norm(velocity[k - 1])
+        if k > first:
+            S += np.log1p(ell * B)
+        B = B / (1.0 + ell * B)
+        r = position[k] - centre
+        if abs(np.linalg.norm(r) - rho) < 1e-9 * rho:
+            cos_phi = abs(velocity[k] @ r) / (rho * np.linalg.norm(velocity[k]))
+            B += 2.0 / (rho * cos_phi)
+    return S, time[-1] - time[first]

@@ -22,6 +22,8 @@ from rbx.dynamics import flow_jacobian, lyapunov
 from rbx.physics import rotation_from_vector, spin_matrix
 from rbx.simulation import MemorySink, Simulation
 
+from reference import wavefront_sums
+
 R = 0.1
 def _rule(name, n, flat=True):
     if name == "specular":
@@ -266,22 +268,9 @@ def test_the_parity_covers_every_rule_kind_and_option():
 
 
 def _wavefront_exponent(run, centre, rho, first):
-    """The classic 2D billiard's largest exponent from an orbit (records of a specular run): the curvature B of a
-    divergent front, B ← B/(1 + ℓB) along a flight of length ℓ and B ← B + 2K/cos φ at a wall of curvature K
-    (K = 1/ρ on the dispersing circle of radius ρ about ``centre``, 0 on flat walls); λ = Σ log(1 + ℓB)/T over the
-    flights after collision ``first``."""
-    pos, vel, t = run.position[0], run.velocity[0], run.time[0]
-    B, S = 0.0, 0.0
-    for k in range(1, len(t)):
-        ell = (t[k] - t[k - 1]) * np.linalg.norm(vel[k - 1])
-        if k > first:
-            S += np.log1p(ell * B)
-        B = B / (1.0 + ell * B)
-        r = pos[k] - centre
-        if abs(np.linalg.norm(r) - rho) < 1e-9 * rho:
-            cos_phi = abs(vel[k] @ r) / (rho * np.linalg.norm(vel[k]))
-            B += 2.0 / (rho * cos_phi)
-    return S / (t[-1] - t[first])
+    """The classic 2D billiard's largest exponent from trajectory 0 of a specular run (tests/reference.py)."""
+    S, T = wavefront_sums(run.position[0], run.velocity[0], run.time[0], centre, rho, first)
+    return S / T
 
 
 @pytest.mark.parametrize("table,centre,rho,collisions", [

@@ -19,6 +19,8 @@ import rbx
 from rbx import analysis
 from rbx.study import load_study, sweep
 
+from reference import wavefront_sums
+
 ROOT = Path(__file__).resolve().parents[1]
 SINAI = str(ROOT / "configs" / "examples" / "sinai.yaml")
 RBX = str(Path(sys.executable).with_name("rbx"))
@@ -39,22 +41,11 @@ def specular(tmp_path_factory):
 
 
 def wavefront_exponent(run, centre, rho, first):
-    """λ₁ of the classic billiard by the curvature of a divergent front (tests/test_lyapunov.py), pooled over the
+    """λ₁ of the classic billiard by the curvature of a divergent front (tests/reference.py), pooled over the
     trajectories: Σ log(1 + ℓB) over the flights after collision ``first`` / the time they take."""
-    S = T = 0.0
-    for j in range(run.trajectories):
-        pos, vel, t = run.position[j], run.velocity[j], run.time[j]
-        B = 0.0
-        for k in range(1, len(t)):
-            ell = (t[k] - t[k - 1]) * np.linalg.norm(vel[k - 1])
-            if k > first:
-                S += np.log1p(ell * B)
-            B = B / (1.0 + ell * B)
-            r = pos[k] - centre
-            if abs(np.linalg.norm(r) - rho) < 1e-9 * rho:
-                B += 2.0 / (rho * abs(vel[k] @ r) / (rho * np.linalg.norm(vel[k])))
-        T += t[-1] - t[first]
-    return S / T
+    sums = [wavefront_sums(run.position[j], run.velocity[j], run.time[j], centre, rho, first)
+            for j in range(run.trajectories)]
+    return sum(S for S, _ in sums) / sum(T for _, T in sums)
 
 
 def test_specular_sinai_against_closed_forms(specular):

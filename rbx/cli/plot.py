@@ -102,6 +102,8 @@ def make_figure(run_file, kind, records=slice(None), trajectories=None, **option
         with run:
             traj = parse_trajectories(trajectories, run.trajectories, DEFAULT_TRAJECTORIES[kind], run.path)
             check_records(records, len(run.step), run.path)
+            if kind == "sweep":
+                raise UserError(run.path, None, "--kind sweep draws the results of rbx sweep (a .nc file), not a run")
             try:
                 return _BUILDERS[kind](run, records, traj, **options)
             except ValueError as exc:
@@ -356,7 +358,7 @@ def _refuse_one_orbit(run, traj, values, kind, what, why):
 
 def _escape(run, rec, traj, fit_from=0.1, **_):
     from .. import plotting
-    from ..analysis import santalo_constant, table_measure, velocity_dimension
+    from ..analysis import santalo_constant, table_measure, velocity_dimension, wall_measure
     from ..dynamics import escape_times
     from ..model import Exit
     exp = run.experiment
@@ -382,7 +384,7 @@ def _escape(run, rec, traj, fit_from=0.1, **_):
     try:
         volume, _ = table_measure(geom)
         holes = [w for w, r in enumerate(exp.wall_rules) if isinstance(r, Exit)]
-        hole = sum(_wall_measure(geom, w) for w in holes)
+        hole = sum(wall_measure(geom, w) for w in holes)
         d = velocity_dimension(run.dimension)
         # flux through the holes over the phase volume: |∂Q_hole|/(C_d·|Q|) per unit path (small holes)
         expected = (hole / (santalo_constant(d) * volume),
@@ -399,18 +401,6 @@ def _escape(run, rec, traj, fit_from=0.1, **_):
 def _leaves(rule):
     from ..model import rule_leaves
     return rule_leaves(rule)
-
-
-def _wall_measure(geom, w):
-    total = 0.0
-    for patch in geom.wall_list[w].patches:
-        if patch[0] == "flat":
-            total += float(np.prod([x for _, x in patch[3]]))
-        elif patch[0] == "arc":
-            total += patch[2] * (patch[4] - patch[3])
-        else:
-            raise ValueError("the hole's measure is computed for 2D walls and flat 3D walls")
-    return total
 
 
 def _birkhoff(run, rec, traj, wall=None, **_):
