@@ -1,6 +1,6 @@
 """rbx: simulate non-standard (rough) billiards with the strict collision maps of Cox, Feres and Ward.
 
-The Python API (docs/reference.md §9; :mod:`rbx.api`): ``rbx.load(path_or_dict)`` -> Experiment,
+The Python API (docs/reference.md §9; :mod:`rbx.api`): ``rbx.load(config, overrides)`` -> Experiment,
 ``rbx.simulate(experiment, …)`` -> Run, ``rbx.open(path)`` -> Run, ``rbx.Run``, ``rbx.ConfigError``,
 ``rbx.FileError``; and (docs/reference.md §10, :mod:`rbx.dynamics`) ``rbx.lyapunov(experiment, …)`` -> the
 Lyapunov spectrum, ``rbx.escape_times(run)`` -> escape or return times; (docs/studies.md, :mod:`rbx.study`)
