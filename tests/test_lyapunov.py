@@ -215,6 +215,10 @@ VARIANTS = {
     "escape-sinai-compensated": ("escape-sinai", {"numerics": {"compensated": True}}),
 }
 PARITY = sorted([name[:-5] for name in os.listdir(EXAMPLES) if name.endswith(".yaml")]) + sorted(VARIANTS)
+#: the cases make test runs (each a loop of its own to compile): every rule kind, every numerical option, 2D and 3D,
+#: slabs, periodic cells, boxes; make stress runs all of PARITY
+QUICK_PARITY = ("strip-compensated", "rectangle", "escape-sinai", "circle-hemisphere", "plates-random-directions",
+                "sinai-compensated-snap", "lorentz-snap", "sphere-snap-compensated", "box")
 
 
 def _parity_experiment(name):
@@ -235,7 +239,8 @@ def _parity_experiment(name):
     return config.from_dict(data, path)
 
 
-@pytest.mark.parametrize("name", PARITY)
+@pytest.mark.parametrize("name", [pytest.param(name, marks=() if name in QUICK_PARITY else pytest.mark.heavy)
+                                  for name in PARITY])
 def test_the_orbit_is_the_engines(name):
     """The tangent vectors ride on the engine's own loop: ``rbx lyapunov`` follows the orbit ``rbx simulate``
     records, bit for bit — every example, every rule kind (exits and hemispheres too), every numerical option."""
@@ -265,6 +270,12 @@ def test_the_parity_covers_every_rule_kind_and_option():
             options.add("no renormalisation")
     assert {rules.CONSTANT, rules.HEMISPHERE, rules.RANDOM, rules.EXIT} <= kinds
     assert options == {"compensated", "snap", "no renormalisation"}
+    # and the cases of make test alone cover them too
+    quick = [_parity_experiment(name) for name in QUICK_PARITY]
+    assert {rules.CONSTANT, rules.HEMISPHERE, rules.RANDOM, rules.EXIT} <= {
+        int(k) for exp in quick for k in rules.compile_rules(exp.wall_rules, exp.geometry()).kind}
+    assert all(any(getattr(exp.numerics, k) for exp in quick) for k in ("compensated", "snap"))
+    assert any(exp.numerics.renormalize == 0 for exp in quick) and {exp.dimension for exp in quick} == {2, 3}
 
 
 def _wavefront_exponent(run, centre, rho, first):
