@@ -5,12 +5,12 @@ import os
 import signal
 import subprocess
 import sys
-import time
 
 import h5py
 import numpy as np
 
 from rbx import _jit
+from tests.test_interrupt import wait_until_open
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 CONFIG = os.path.join(ROOT, "configs", "examples", "strip.yaml")
@@ -91,7 +91,8 @@ def test_ctrl_c_while_waiting_for_another_compile_ends_the_wait():
     with _jit.compile_lock("interrupt-probe"):
         child = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.PIPE, text=True)
         assert child.stdout.readline().strip() == "waiting"
-        time.sleep(0.2)
+        # waiting for the lock: its file is open in the child (no delay, which a loaded machine can outrun)
+        wait_until_open(child, os.path.join(_jit.CACHE_DIR, ".interrupt-probe.lock"))
         child.send_signal(signal.SIGINT)
         out, _ = child.communicate(timeout=60)      # while this process still holds the lock
     assert out.strip() == "interrupted", out
