@@ -6,7 +6,7 @@ segments at a collision is the same all along the orbit. Right: how far the coll
 along y, spin −15) gives two well separated caustics, radii 0.300 and 0.686, and advances the collision point by
 about 0.61 of a turn every two flights, so the segments spread evenly round the annulus instead of bunching into a
 star; 10⁵ collisions let rounding accumulate far beyond what is drawn. The caustic radii and the vertex angle are
-also computed in closed form from the initial state (the collision map of SPEC §1), an independent check.
+also computed in closed form from the initial state (the collision map of docs/reference.md §1), an independent check.
 """
 import numpy as np
 from matplotlib.figure import Figure as MplFigure

@@ -9,7 +9,7 @@ import json
 import os
 import sys
 
-# the paper's figures, in the paper's order (SPEC §6)
+# the paper's figures, in the paper's order (docs/reference.md §6)
 LABELS = ["caustics", "circle", "periodic", "graph", "graphRandom", "plate", "roughrank", "histogram"]
 
 
