@@ -82,7 +82,10 @@ def test_ctrl_c_while_waiting_for_another_compile_ends_the_wait():
     """A process waiting for the compile lock is interrupted at once, even when the signal reaches another of its
     threads (the main thread has it blocked here: the kernel then delivers it elsewhere, and a blocking flock in the
     main thread never saw it, so Python's handler ran only once the other process had compiled)."""
+    # the default Ctrl-C handler set explicitly: a child inherits an ignored SIGINT from its parent (a test worker
+    # after an in-process CLI run), and Python then installs none
     code = ("import signal, threading, time, rbx._jit as j\n"
+            "signal.signal(signal.SIGINT, signal.default_int_handler)\n"
             "threading.Thread(target=time.sleep, args=(60,), daemon=True).start()\n"
             "signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})\n"
             "print('waiting', flush=True)\n"
