@@ -167,8 +167,15 @@ def test_the_scenes_cover_every_primitive():
     assert known <= _covered_codes(), known - _covered_codes()
 
 
-@pytest.mark.parametrize("rule", ["specular", "rough", "random", "hemisphere"])
-@pytest.mark.parametrize("name,table", SCENES, ids=[s[0] for s in SCENES])
+RULES = ("specular", "rough", "random", "hemisphere")
+#: every scene with every rule; make test takes each scene once, the rules in turn (every primitive and every rule
+#: covered: each pair is a loop of its own to compile), make stress all pairs
+FD_CASES = [pytest.param(name, table, rule, id=f"{name}-{rule}",
+                         marks=() if RULES.index(rule) == k % len(RULES) else pytest.mark.heavy)
+            for k, (name, table) in enumerate(SCENES) for rule in RULES]
+
+
+@pytest.mark.parametrize("name,table,rule", FD_CASES)
 def test_tangent_map_equals_finite_differences_of_the_engine(name, table, rule):
     n = tables.dimension(table["kind"], table)
     cfg = _config(table, rule, n)
