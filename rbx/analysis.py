@@ -688,3 +688,14 @@ def wall_measure(geom, w):
         else:
             raise ValueError("the measure of a curved 3D wall other than a sphere is not computed")
     return total
+
+
+def wilson(k, n, z=1.0):
+    """The Wilson score interval of a binomial share k/n at z standard deviations -> (share, low, high)."""
+    if n == 0:
+        return math.nan, math.nan, math.nan
+    p = k / n
+    denom = 1 + z * z / n
+    centre = (p + z * z / (2 * n)) / denom
+    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
+    return p, max(0.0, centre - half), min(1.0, centre + half)

@@ -139,6 +139,11 @@ def flow_jacobian(experiment, t_end, *, collisions=None, trajectories=None, seed
     return tan.Y.copy(), final
 
 
+#: a trajectory whose own λ₁ per unit time is below this is counted regular (:meth:`Lyapunov.regular_share`; the
+#: studies' ``regular_share`` observable takes the same default)
+REGULAR_THRESHOLD = 0.02
+
+
 @dataclass
 class Lyapunov:
     """The Lyapunov spectrum of the flow (per unit time, largest first) and its standard error.
@@ -162,14 +167,36 @@ class Lyapunov:
     title: str = ""
     ended: np.ndarray = field(default=None)
 
+    def per_collision(self):
+        """The exponents per collision: per unit time × the measured time / the measured collisions."""
+        collisions = float(np.sum(self.collisions))
+        return self.exponents * (float(np.sum(self.time)) / collisions) if collisions > 0 else self.exponents * np.nan
+
+    def regular_share(self, threshold=REGULAR_THRESHOLD):
+        """The share of trajectories whose own λ₁ (per unit time) is below ``threshold`` — regular orbits, which a
+        rough table can trap beside chaotic ones — with its Wilson interval (z = 1) -> (share, low, high)."""
+        from .analysis import wilson
+        lam1 = self.per_trajectory[:, 0]
+        ok = np.isfinite(lam1)
+        return wilson(int(np.sum(lam1[ok] < threshold)), int(np.sum(ok)))
+
     def to_dict(self):
-        """Plain data for JSON: exponents, stderr, their sum, the time and collisions measured."""
+        """Plain data for JSON: exponents and stderr (per unit time), per collision, their sum, each trajectory's
+        own exponents (null where it measured no time), the regular share, the time and collisions measured (the
+        warm-up excluded; an exit's contact is a collision, as in rbx simulate)."""
+        def finite(x):
+            return float(x) if np.isfinite(x) else None
+        share, low, high = self.regular_share()
         return {"exponents": [float(x) for x in self.exponents], "stderr": [float(x) for x in self.stderr],
+                "per_collision": [finite(x) for x in self.per_collision()],
                 "sum": float(np.sum(self.exponents)), "time": float(np.sum(self.time)),
                 "collisions": int(np.sum(self.collisions)), "trajectories": int(len(self.time)),
                 "segments": int(self.segment_times.shape[1]), "warmup": int(self.warmup),
                 "coordinates": list(self.coordinates), "title": self.title,
-                "ended_early": int(np.sum(self.ended)) if self.ended is not None else 0}
+                "ended_early": int(np.sum(self.ended)) if self.ended is not None else 0,
+                "per_trajectory": [[finite(x) for x in row] for row in self.per_trajectory],
+                "regular_share": {"threshold": REGULAR_THRESHOLD, "share": finite(share), "low": finite(low),
+                                  "high": finite(high)}}
 
 
 def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segments=10, warmup=None,

@@ -15,6 +15,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from .analysis import wilson
+from .dynamics import REGULAR_THRESHOLD
+
 __all__ = ["Observable", "REGISTRY", "register", "get", "PointRuns", "Value"]
 
 
@@ -86,17 +89,6 @@ def get(name):
 
 
 # ---- statistics ------------------------------------------------------------------------------------------------
-
-def wilson(k, n, z=1.0):
-    """The Wilson score interval of a binomial share k/n at z standard deviations -> (share, low, high)."""
-    if n == 0:
-        return math.nan, math.nan, math.nan
-    p = k / n
-    denom = 1 + z * z / n
-    centre = (p + z * z / (2 * n)) / denom
-    half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / denom
-    return p, max(0.0, centre - half), min(1.0, centre + half)
-
 
 def _share(k, n):
     p, lo, hi = wilson(k, n)
@@ -185,7 +177,7 @@ def _regular_share(runs, options):
 
 register(Observable(
     "regular_share", "1", "share of trajectories whose own λ₁ is below the threshold (per unit time): regular "
-    "(trapped) orbits", _regular_share, tangent=True, options={"threshold": 0.02},
+    "(trapped) orbits", _regular_share, tangent=True, options={"threshold": REGULAR_THRESHOLD},
     companions=(Companion("low", "1", "Wilson interval, lower bound (z = 1)"),
                 Companion("high", "1", "Wilson interval, upper bound (z = 1)")),
     error="half-width of the Wilson interval (z = 1)"))

@@ -358,6 +358,13 @@ def test_lyapunov_command_prints_json(tmp_path):
     api = lyapunov(str(path), collisions=600)
     assert data["exponents"] == pytest.approx(list(api.exponents), rel=1e-12)
     assert len(data["stderr"]) == 6 and data["exponents"][0] > 0.5
+    # each trajectory's own exponents, per collision as well as per unit time, and the regular share
+    assert np.array(data["per_trajectory"]) == pytest.approx(api.per_trajectory, rel=1e-12)
+    rate = float(np.sum(api.collisions)) / float(np.sum(api.time))          # collisions per unit time
+    assert data["per_collision"] == pytest.approx(list(api.exponents / rate), rel=1e-12)
+    share = data["regular_share"]
+    assert share["threshold"] == 0.02 and share["share"] == float(np.mean(api.per_trajectory[:, 0] < 0.02))
+    assert share["low"] <= share["share"] <= share["high"]
     bad = CliRunner().invoke(cli, ["lyapunov", str(path), "--collisions", "-3"])
     assert bad.exit_code == 2 and bad.output.count("\n") == 1
 

@@ -3,6 +3,7 @@ import json
 import time
 
 import click
+import numpy as np
 
 from .common import (Command, UserError, check_cluster_options, connect, duration, ending_on_signals, parse_sets,
                      quiet_option, report_and_exit, set_option, summary, user_errors, warn_repeated)
@@ -50,6 +51,7 @@ def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as
     both streams)."""
     from ..cluster import ClusterError
     from ..config import load as config_load
+    from ..dynamics import REGULAR_THRESHOLD
     from ..dynamics import lyapunov as spectrum
 
     check_cluster_options(cluster)
@@ -84,6 +86,13 @@ def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as
     for k, (lam, err) in enumerate(zip(result.exponents, result.stderr), 1):
         click.echo(f"  λ{k:<2} = {lam: .6f} ± {err:.6f}")
     click.echo(f"  sum = {result.exponents.sum(): .3e}")
+    click.echo(f"  λ1 per collision = {result.per_collision()[0]:.6f}")
+    share, low, high = result.regular_share()
+    if len(result.time) > 1:
+        lam1 = result.per_trajectory[:, 0]
+        regular, measured = int(np.sum(lam1[np.isfinite(lam1)] < REGULAR_THRESHOLD)), int(np.sum(np.isfinite(lam1)))
+        click.echo(f"regular orbits (own λ1 < {REGULAR_THRESHOLD}): {regular} of {measured}, share {share:.3f} "
+                   f"(Wilson interval {low:.3f} … {high:.3f})")
     if result.ended is not None and result.ended.any():
         click.echo(f"{int(result.ended.sum())} trajectories left the table (an exit or an escape) before the end")
     summary(quiet, said)
