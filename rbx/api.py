@@ -176,7 +176,7 @@ def open(path):   # noqa: A001 - the name docs/reference.md §9 gives it
 
 def _progress(progress):
     if progress is True:
-        from .cli.common import Progress
+        from .progress import Progress
         return Progress("simulate", delay=0.5)
     if progress is False or progress is None:
         return None

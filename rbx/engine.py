@@ -46,7 +46,7 @@ from .geometry import (HALFSPACE, SEGMENT, box_collision, contact_normal, normal
                        periodic_images, slab_collision, snap)
 from .model import FIELD, FIELDS
 from .physics import collide, collide_axis
-from .rules import EXIT, choose
+from .rules import EXIT, Rules, choose  # noqa: F401 - Rules: a group of the kernels, defined with the rules
 from .tangent import collision_tangent, flight_tangent, orthonormalise
 from .trig import sincos
 
@@ -101,19 +101,6 @@ def flat_axes(geom):
             if abs(nu[i]) == 1.0 and np.count_nonzero(nu) == 1:
                 out[k] = i
     return out
-
-
-class Rules(NamedTuple):
-    """The rule trees of the walls as arrays (:class:`rbx.rules.CompiledRules`; :func:`rbx.rules.choose`)."""
-    root: np.ndarray        # (walls,) root node of each wall
-    kind: np.ndarray        # (nodes,) node kind
-    rank: np.ndarray        # (nodes,) roughness rank (constant nodes)
-    first: np.ndarray       # (nodes,) first child in ``children``
-    children: np.ndarray    # (links,) child nodes
-    threshold: np.ndarray   # (links,) uint64 thresholds on a draw's 53 bits (random nodes)
-    axis: np.ndarray        # (nodes, n) body-frame axis (hemisphere nodes)
-    phase: np.ndarray       # (nodes, walls) 2D hemisphere nodes on flat walls, else NaN (rbx.rules.phases)
-    basis: np.ndarray       # (nodes, walls, n-1, n) roughness basis (constant nodes)
 
 
 class Settings(NamedTuple):

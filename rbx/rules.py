@@ -8,6 +8,7 @@ or exit node) that applies. Adding a rule kind = a code, a branch in :func:`choo
 :func:`compile_rules` and in the config validation.
 """
 from dataclasses import dataclass
+from typing import NamedTuple
 
 import numpy as np
 
@@ -17,6 +18,20 @@ from .geometry import HALFSPACE, SEGMENT
 from .rng import draw_bits
 
 CONSTANT, HEMISPHERE, RANDOM, EXIT = 0, 1, 2, 3
+
+
+class Rules(NamedTuple):
+    """The rule trees of the walls as arrays, one of the kernels' argument groups (:mod:`rbx.engine`;
+    :meth:`CompiledRules.kernel_arrays`, :func:`choose`). At module level: Numba's disk cache finds the type again."""
+    root: np.ndarray        # (walls,) root node of each wall
+    kind: np.ndarray        # (nodes,) node kind
+    rank: np.ndarray        # (nodes,) roughness rank (constant nodes)
+    first: np.ndarray       # (nodes,) first child in ``children``
+    children: np.ndarray    # (links,) child nodes
+    threshold: np.ndarray   # (links,) uint64 thresholds on a draw's 53 bits (random nodes)
+    axis: np.ndarray        # (nodes, n) body-frame axis (hemisphere nodes)
+    phase: np.ndarray       # (nodes, walls) 2D hemisphere nodes on flat walls, else NaN (rbx.rules.phases)
+    basis: np.ndarray       # (nodes, walls, n-1, n) roughness basis (constant nodes)
 
 
 @dataclass
@@ -39,8 +54,7 @@ class CompiledRules:
     round_hemisphere: bool = False  # 2D: a hemisphere rule on a wall without one normal (no ``phase``)
 
     def kernel_arrays(self):
-        """The arrays the kernels read, as the group :class:`rbx.engine.Rules`."""
-        from .engine import Rules       # here: rbx.engine imports this module
+        """The arrays the kernels read, as the group :class:`Rules`."""
         return Rules(root=self.root, kind=self.kind, rank=self.rank, first=self.first, children=self.children,
                      threshold=self.threshold, axis=self.axis, phase=self.phase, basis=self.basis)
 

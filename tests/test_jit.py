@@ -91,8 +91,9 @@ def test_the_groups():
                                      "basis")
     assert set(engine.Settings._fields) == {"flags", "stop_wall", "every", "mask", "renorm_every", "R", "kappa"}
     assert "pos" in engine.State._fields and len(engine.State._fields) == 14
-    for group in (engine.Table, engine.Rules, engine.Settings, engine.State, engine.Records):
+    for group in (engine.Table, engine.Settings, engine.State, engine.Records, engine.Tangent):
         assert group.__module__ == "rbx.engine"    # module level: Numba's disk cache finds the types again
+    assert engine.Rules.__module__ == "rbx.rules"  # beside the rules it flattens (rbx.engine imports it)
 
 
 def test_the_entry_point_is_found_by_the_fingerprint_of_the_types(monkeypatch):
