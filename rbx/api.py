@@ -240,12 +240,22 @@ class StopFlag:
     A second signal while running does not abort harder: the kernels hand back control only between blocks
     (well under a second each), and aborting in the middle of an HDF5 write could damage the file."""
 
-    def __init__(self):
+    def __init__(self, pending=None):
         self.signum = 0
         self.running = False
+        #: a callable -> the number of a signal that came before this flag's handlers were installed (0: none):
+        #: the command line's own handler notes it, since the KeyboardInterrupt it raised can be lost (raised in a
+        #: callback, Python drops it as "Exception ignored")
+        self.pending = pending
 
     def __call__(self):
         return self.signum != 0
+
+    def check(self):
+        """Setting up: KeyboardInterrupt if a signal came already (one that came before the handlers were
+        installed, whose own KeyboardInterrupt may have been lost)."""
+        if self.signum and not self.running:
+            raise KeyboardInterrupt
 
     def start_running(self):
         """Switch from aborting to flagging -> True if a signal came already (then abort instead)."""
@@ -274,6 +284,8 @@ class StopFlag:
             hook(unraisable)
         sys.unraisablehook = quiet
         try:
+            came = self.pending() if self.pending is not None else 0
+            self.signum = self.signum or came   # the command's check() or start_running() then stops it
             yield
         finally:
             sys.unraisablehook = hook

@@ -116,6 +116,23 @@ def check_memory(cfg, overrides, command="simulate"):
                                    f"machine has ({available / 2**30:.3g} GiB)")
 
 
+_PENDING = []
+
+
+def note_interrupt(signum, frame):
+    """SIGINT's handler from :func:`rbx.cli.main.main` until a command installs its own: KeyboardInterrupt, and a
+    note of the signal (:func:`pending_signal`, which each command's :class:`rbx.api.StopFlag` reads). The
+    KeyboardInterrupt alone can be lost: raised inside a callback (a ctypes callback of LLVM's, a finaliser) it
+    is printed as "Exception ignored" and dropped, and the command then ran as if nothing had come."""
+    _PENDING.append(signum)
+    raise KeyboardInterrupt
+
+
+def pending_signal():
+    """The signal :func:`note_interrupt` saw first, or 0."""
+    return _PENDING[0] if _PENDING else 0
+
+
 def interrupted_exit(signum=signal.SIGINT):
     """Ctrl-C (or ``signum``) in a command that writes nothing until it is done (plot, histogram, lyapunov): one
     line, exit 128 + signum (click would print 'Aborted!' and exit 1).
@@ -135,6 +152,7 @@ def ending_on_signals(stop):
     errors pass on."""
     try:
         with stop.installed():
+            stop.check()            # a signal noted before the handlers were in
             yield
     except KeyboardInterrupt:
         interrupted_exit(stop.signum or signal.SIGINT)

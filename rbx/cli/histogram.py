@@ -10,8 +10,8 @@ import time
 import click
 
 from .common import (Command, Progress, UserError, check_cluster_options, check_memory, connect, display_path,
-                     duration, ending_on_signals, parse_sets, quiet_option, report_and_exit, set_option, summary,
-                     user_errors)
+                     duration, ending_on_signals, parse_sets, pending_signal, quiet_option, report_and_exit,
+                     set_option, summary, user_errors)
 
 
 @click.command(cls=Command)
@@ -47,7 +47,7 @@ def histogram(config, out, data, trajectories, seed, sets, force, scheduler, sli
     # SIGINT/SIGTERM: KeyboardInterrupt while setting up and drawing; while the trajectories run, a flag polled
     # between blocks, so that no exception is raised while the main thread waits on the kernels' threads (one
     # full-suite run hung there for 120 s after Ctrl-C, its worker threads idle)
-    stop = StopFlag()
+    stop = StopFlag(pending=pending_signal)
     try:
         with ending_on_signals(stop):
             _histogram(config, out, data, trajectories, seed, sets, force, quiet, cluster, began, stop)

@@ -6,7 +6,7 @@ import click
 import numpy as np
 
 from .common import (Command, UserError, check_cluster_options, connect, duration, ending_on_signals, parse_sets,
-                     quiet_option, report_and_exit, set_option, summary, user_errors, warn_repeated)
+                     pending_signal, quiet_option, report_and_exit, set_option, summary, user_errors, warn_repeated)
 
 
 @click.command(cls=Command)
@@ -37,7 +37,7 @@ def lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as_
     from ..api import StopFlag
     cluster = {"scheduler": scheduler, "slices": slices, "task_collisions": None}
     began = time.perf_counter()
-    stop = StopFlag()      # never running: every signal raises KeyboardInterrupt, and stop.signum says it came
+    stop = StopFlag(pending=pending_signal)      # never running: every signal raises KeyboardInterrupt, and stop.signum says it came
     try:
         with ending_on_signals(stop):
             _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as_json, cluster,

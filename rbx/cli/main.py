@@ -6,7 +6,7 @@ import sys
 import click
 
 from .. import __version__
-from .common import Group
+from .common import Group, note_interrupt
 from .simulate import simulate
 from . import histogram, lyapunov, plot, sweep
 
@@ -25,7 +25,8 @@ cli.add_command(__import__("rbx.cli.animate", fromlist=["animate"]).animate)
 
 
 def main():
-    signal.signal(signal.SIGINT, signal.default_int_handler)   # imported: Ctrl-C is a KeyboardInterrupt again
+    # imported: Ctrl-C is a KeyboardInterrupt again, and noted, so that a command sees it even where it was lost
+    signal.signal(signal.SIGINT, note_interrupt)
     try:
         os.getcwd()
     except OSError:   # deleted under us: relative paths mean nothing, and Numba's compiler needs it too

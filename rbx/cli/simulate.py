@@ -18,8 +18,8 @@ import weakref
 import click
 
 from .common import (Command, Progress, UserError, check_cluster_options, check_memory, connect, display_path,
-                     duration, hard_exit, parse_sets, quiet_option, report_and_exit, set_option, summary, user_errors,
-                     warn_repeated)
+                     duration, hard_exit, parse_sets, pending_signal, quiet_option, report_and_exit, set_option,
+                     summary, user_errors, warn_repeated)
 
 OVERRIDES = ("collisions", "trajectories", "seed")
 
@@ -51,12 +51,13 @@ def simulate(config, out, collisions, trajectories, seed, sets, max_size, resume
     from ..api import StopFlag
 
     began = time.perf_counter()
-    stop = StopFlag()
+    stop = StopFlag(pending=pending_signal)
     overrides = {"collisions": collisions, "trajectories": trajectories, "seed": seed, "max_size": max_size}
     cluster = {"scheduler": scheduler, "slices": slices, "task_collisions": task_collisions}
     # the handlers go in first, so that Ctrl-C while numba loads is a clean stop too, never a traceback
     with stop.installed():
         try:
+            stop.check()            # a signal noted before the handlers were in
             with user_errors():
                 check_cluster_options(cluster)
                 if resume is not None:

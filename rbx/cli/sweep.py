@@ -4,8 +4,8 @@ import time
 
 import click
 
-from .common import (Command, UserError, display_path, duration, ending_on_signals, is_terminal, quiet_option,
-                     report_and_exit, summary, user_errors)
+from .common import (Command, UserError, display_path, duration, ending_on_signals, is_terminal, pending_signal,
+                     quiet_option, report_and_exit, summary, user_errors)
 
 
 class _StudyProgress:
@@ -53,7 +53,7 @@ def sweep(study, output, scheduler, resume, force, quiet, debug):
     with standard errors, into RESULTS.nc (xarray.open_dataset reads it)."""
     from ..api import StopFlag
     began = time.perf_counter()
-    stop = StopFlag()
+    stop = StopFlag(pending=pending_signal)
     bar = _StudyProgress(quiet)
     try:
         if resume and force:
