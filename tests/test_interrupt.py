@@ -446,9 +446,12 @@ def test_ctrl_c_in_histogram_and_while_starting_is_one_line_and_130(tmp_path, de
            "boundary": {"default": {"rule": "constant", "rank": 1}}, "initial": {"sample": "billiard", "wall": "bottom"},
            "run": {"trajectories": 10**7, "collisions": 1000}, "output": {"path": "ret.h5"}}
     (tmp_path / "h.yaml").write_text(yaml.safe_dump(cfg))
+    # SIGINT at its default in the child, as from a shell: a test worker can have it ignored, the child inherits
+    # that, and a signal sent while it still imports (delay 0) is then discarded by the kernel (it ran on for 120 s)
     proc = subprocess.Popen([RBX, "histogram", "h.yaml", "-o", "h.png", "--quiet"], cwd=tmp_path,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            env={**os.environ, "PYTHONFAULTHANDLER": "1"})
+                            env={**os.environ, "PYTHONFAULTHANDLER": "1"},
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     wait_until_loaded(proc, "numba")
     time.sleep(delay)
     assert proc.poll() is None
