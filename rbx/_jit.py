@@ -26,7 +26,8 @@ from . import _numba_hooks as hooks
 
 #: every module that defines kernels (tests/test_jit.py checks that each module under rbx/ importing this one is
 #: listed)
-KERNEL_MODULES = ("_jit", "_numba_hooks", "engine", "geometry", "physics", "rng", "rules", "tangent", "trig")
+KERNEL_MODULES = ("_jit", "_numba_hooks", "engine", "geometry", "physics", "primitives", "rng", "rules", "tangent",
+                  "trig")
 #: modules whose values the kernels compile in as constants (the record bits of rbx.model.FIELDS): the cache key
 #: covers those values (:func:`_compiled_constants`), not the modules' whole text, so that an edit elsewhere in
 #: rbx/model.py (a config key, a docstring) does not compile every kernel again

@@ -17,7 +17,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .model import Constant, Exit, Hemisphere, Random, roughness_direction, rule_leaves
+from . import rules
+from .model import roughness_direction, rule_leaves
 
 # ---- the billiard measure (paper §2.7) -------------------------------------------------------------------------
 
@@ -550,27 +551,10 @@ def describe_table(kind, t):
 
 
 def describe_rule(rule, n):
-    """A short name for a rule (``rbx.model`` Constant / Hemisphere / Random): 'specular', 'rough',
-    'rank 1 at 60°', 'hemisphere rough/specular', 'random (specular 0.5, rough 0.5)'."""
-    if isinstance(rule, Constant):
-        if rule.rank == 0:
-            return "specular"
-        if rule.rank == n - 1:
-            return "rough" if n == 2 else f"rough (rank {rule.rank})"
-        if rule.direction is None:
-            return f"rank {rule.rank}"
-        kind, value = rule.direction
-        if kind == "deg":
-            return f"rank {rule.rank} at {_num(value)}°"
-        return f"rank {rule.rank} along ({', '.join(_num(x) for x in value)})"
-    if isinstance(rule, Hemisphere):
-        return f"hemisphere {describe_rule(rule.rough, n)}/{describe_rule(rule.smooth, n)}"
-    if isinstance(rule, Exit):
-        return "exit"
-    if isinstance(rule, Random):
-        return "random (" + ", ".join(f"{describe_rule(c, n)} {_num(p)}"
-                                      for c, p in zip(rule.choices, rule.probabilities)) + ")"
-    return "?"
+    """A short name for a rule (``rbx.model`` Constant / Hemisphere / Random / Exit): 'specular', 'rough',
+    'rank 1 at 60°', 'hemisphere rough/specular', 'random (specular 0.5, rough 0.5)' — the ``phrase`` of its
+    kind's record (:mod:`rbx.rules`); :class:`rbx.rules.NotARule` for anything else."""
+    return rules.describe(rule, n)
 
 
 def describe_boundary(wall_rules, wall_names, n):

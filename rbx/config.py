@@ -27,10 +27,10 @@ from collections.abc import Mapping
 import numpy as np
 import yaml
 
-from . import tables
-from .model import (COMPRESSIONS, DEFAULT_MAX_SIZE, RECORD_FIELDS, VALIDATED, Ball, ConfigError, Constant, Exit,
-                    Experiment, Hemisphere, Numerics, Output, Random, RunSettings)
-from .physics import kappa_of
+from . import rules, tables
+from .model import (COMPRESSIONS, DEFAULT_MAX_SIZE, RECORD_FIELDS, SERVICES, VALIDATED, Ball, ConfigError, Constant,
+                    Exit, Experiment, Hemisphere, Numerics, Output, Random, RunSettings, kappa_of)
+from .rules import PROBABILITY_SUM_TOLERANCE, parse_rule  # noqa: F401 - the tolerance: read by the rules' checks
 
 SECTIONS = ("table", "boundary", "ball", "initial", "run", "output", "numerics")
 #: command-line options that override config keys, and the option each one's errors name
@@ -50,8 +50,6 @@ SIZE_UNITS = {"": 1, "b": 1, "kb": 1e3, "mb": 1e6, "gb": 1e9, "tb": 1e12, "pb": 
 #: counters are int64 in the kernels; anything near this is a typo, not a run anyone can wait for
 MAX_COUNT = 2**62
 MAX_SEED = 2**63 - 1
-#: tolerance on the sum of the probabilities of a random rule (1/3 written as 0.3333333333 is accepted)
-PROBABILITY_SUM_TOLERANCE = 1e-9
 
 
 # ---- YAML -----------------------------------------------------------------------------------------------------
@@ -648,65 +646,9 @@ def _check_fits(kind, p, R, geom, c, tc, tkey):
 
 
 def _rule(r, key, n, c, geom, wall_ids):
-    """Validate a rule (recursively); ``wall_ids``: the walls it applies to, for checking 3D directions."""
-    if not isinstance(r, dict):
-        c.fail(key, f"expected a rule mapping such as {{rule: constant, rank: 1}}, got {_kind(r)}")
-    kinds = ("constant", "hemisphere", "random", "exit")
-    if "rule" not in r:
-        c.fail(_join(key, "rule"), f"missing required key (one of: {', '.join(kinds)})")
-    kind = c.choice(r["rule"], _join(key, "rule"), kinds, "rule")
-    if kind == "exit":
-        c.mapping(r, key, ("rule",))
-        return Exit()
-    if kind == "constant":
-        c.mapping(r, key, ("rule", "rank", "direction_deg", "direction"), ("rank",))
-        rank = c.integer(r["rank"], _join(key, "rank"), lo=0, hi=n - 1)
-        has_dir = "direction_deg" in r or "direction" in r
-        if "direction_deg" in r and "direction" in r:
-            c.fail(_join(key, "direction"), "give either direction or direction_deg, not both")
-        if has_dir and not (n == 3 and rank == 1):
-            c.fail(_join(key, "direction_deg" if "direction_deg" in r else "direction"),
-                   "a direction is used only for 3D rank 1")
-        if n == 3 and rank == 1:
-            if not has_dir:
-                c.fail(_join(key, "direction_deg"), "3D rank 1 needs a roughness direction "
-                                                    "(direction_deg or direction)")
-            curved = [geom.wall_names[w] for w in wall_ids or () if geom.wall_list[w].tangents is None]
-            if curved:
-                c.fail(_join(key, "direction_deg" if "direction_deg" in r else "direction"),
-                       f"a rank-1 roughness direction is fixed in a flat wall's tangent axes; wall '{curved[0]}' is "
-                       "curved (use rank 0 or 2 there)")
-            if "direction_deg" in r:
-                return Constant(1, ("deg", c.number(r["direction_deg"], _join(key, "direction_deg"))))
-            vec = c.nonzero_vector(r["direction"], _join(key, "direction"), 3)
-            for w in wall_ids or ():
-                t = geom.wall_list[w].tangents
-                if np.linalg.norm(t @ vec) < 1e-9 * max(np.linalg.norm(vec), 1e-300):
-                    c.fail(_join(key, "direction"), f"is normal to wall '{geom.wall_names[w]}': it has no "
-                                                    "tangential part")
-            return Constant(1, ("vector", tuple(vec)))
-        return Constant(rank)
-    if kind == "hemisphere":
-        c.mapping(r, key, ("rule", "axis", "rough", "smooth"), ("axis", "rough", "smooth"))
-        axis = c.nonzero_vector(r["axis"], _join(key, "axis"), n)
-        norm = np.linalg.norm(axis)
-        if not np.isfinite(norm) or norm < 1e-150:
-            # huge or tiny components: normalise in two steps so that the norm neither overflows nor underflows
-            axis = axis / np.max(np.abs(axis))
-            norm = np.linalg.norm(axis)
-        return Hemisphere(tuple(axis / norm), _rule(r["rough"], _join(key, "rough"), n, c, geom, wall_ids),
-                          _rule(r["smooth"], _join(key, "smooth"), n, c, geom, wall_ids))
-    c.mapping(r, key, ("rule", "choices", "probabilities"), ("choices", "probabilities"))
-    ch, pr = r["choices"], r["probabilities"]
-    if not isinstance(ch, list) or not ch:
-        c.fail(_join(key, "choices"), "expected a non-empty list of rules")
-    if not isinstance(pr, list) or len(pr) != len(ch):
-        c.fail(_join(key, "probabilities"), f"expected a list of {len(ch)} numbers, one per choice")
-    probs = tuple(c.number(p, f"{_join(key, 'probabilities')}[{i}]", lo=0.0) for i, p in enumerate(pr))
-    if abs(sum(probs) - 1.0) > PROBABILITY_SUM_TOLERANCE:
-        c.fail(_join(key, "probabilities"), f"must sum to 1, they sum to {sum(probs):.12g}")
-    return Random(tuple(_rule(x, f"{_join(key, 'choices')}[{i}]", n, c, geom, wall_ids) for i, x in enumerate(ch)),
-                  probs)
+    """Validate a rule (recursively) by its kind's record (:func:`rbx.rules.parse_rule`); ``wall_ids``: the walls
+    it applies to, for checking 3D directions."""
+    return parse_rule(r, key, n, c, geom, wall_ids)
 
 
 STATE_KEYS = ("position", "velocity", "angular_velocity", "orientation")
@@ -915,15 +857,6 @@ def _plain(x):
     return copy.deepcopy(x)
 
 
-def check_ball(ball):
-    """A :class:`rbx.model.Ball` as made (by the config or by hand): a positive radius, a mass distribution that
-    exists in its dimension (2 or 3). Raises :class:`ConfigError` naming ``ball.…``."""
-    c = _Checker(None)
-    if isinstance(ball.dimension, bool) or ball.dimension not in (2, 3):
-        c.fail("ball.dimension", f"must be 2 (a disc) or 3 (a ball), got {ball.dimension!r}")
-    _ball({"radius": ball.radius, "inertia": ball.inertia}, ball.dimension, c)
-
-
 def revalidate(exp, changed):
     """``exp`` whose parts ``changed`` were changed by hand (:meth:`rbx.model.Experiment.replace`,
     ``dataclasses.replace``), validated again as a config: the changed parts in the plain form of a config, the
@@ -983,24 +916,12 @@ def _plain_part(name, value, exp):
 
 
 def rule_config(rule, key="rule"):
-    """A rule (:class:`rbx.model.Constant`, …) as its config mapping."""
-    if isinstance(rule, Exit):
-        return {"rule": "exit"}
-    if isinstance(rule, Constant):
-        out = {"rule": "constant", "rank": rule.rank}
-        if rule.direction is not None:
-            kind, v = rule.direction
-            out.update({"direction_deg": v} if kind == "deg" else {"direction": _plain(v)})
-        return out
-    if isinstance(rule, Hemisphere):
-        return {"rule": "hemisphere", "axis": _plain(rule.axis), "rough": rule_config(rule.rough, f"{key}.rough"),
-                "smooth": rule_config(rule.smooth, f"{key}.smooth")}
-    if isinstance(rule, Random):
-        return {"rule": "random",
-                "choices": [rule_config(r, f"{key}.choices[{i}]") for i, r in enumerate(rule.choices)],
-                "probabilities": _plain(rule.probabilities)}
-    raise ConfigError(None, key, f"expected a rule (rbx.model.Constant, Hemisphere, Random or Exit), got "
-                                 f"{type(rule).__name__}")
+    """A rule (:class:`rbx.model.Constant`, …) as its config mapping (its kind's record: :mod:`rbx.rules`)."""
+    try:
+        return rules.rule_config(rule, key)
+    except rules.NotARule as exc:
+        raise ConfigError(None, exc.key, f"expected a rule (rbx.model.Constant, Hemisphere, Random or Exit), got "
+                                         f"{exc.got}") from None
 
 
 # ---- ensembles of one orbit ---------------------------------------------------------------------------------------
@@ -1045,3 +966,7 @@ def repeated_orbits(experiment):
                 f"copies of one orbit ({fix})")
     return (f"only {distinct} of the {M} trajectories start from different states and no rule draws random numbers: "
             f"the others repeat their orbits ({fix})")
+
+
+# an experiment changed by hand is validated again here (rbx.model asks through SERVICES: it imports no loader)
+SERVICES["revalidate"] = revalidate

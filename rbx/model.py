@@ -3,8 +3,10 @@ options) as frozen dataclasses, and the table of record fields (docs/reference.m
 
 Everything else reads these: :mod:`rbx.config` validates YAML into them, the engine takes its record bits from
 :data:`FIELDS`, the run file takes each field's dtype, shape, units and description from it, the precise loop
-and the tests walk it. Nothing here imports a loader, h5py or numba at import time (a changed experiment is
-validated by :mod:`rbx.config`, imported when that happens).
+and the tests walk it. This is the lowest layer: it imports no other rbx module, at module level or inside a
+function (tests/test_imports.py). What an experiment asks of the layers above it — its table's geometry
+(:mod:`rbx.tables`) and a new validation when a part is changed by hand (:mod:`rbx.config`) — they register in
+:data:`SERVICES` when they are imported; every experiment is made by :mod:`rbx.config`, which imports both.
 
 No value is stored beside the values it is derived from: κ is computed from the ball's ``inertia`` (a property),
 and an experiment changed by hand (``dataclasses.replace``, :meth:`Experiment.replace`) is validated again as a
@@ -103,14 +105,79 @@ class Ball:
     dimension: int
 
     def __post_init__(self):
-        from .config import check_ball
         check_ball(self)
 
     @property
     def kappa(self):
         """κ = 2λ/R² of the mass distribution in this dimension (a number ``inertia`` is κ itself)."""
-        from .physics import kappa_of
         return kappa_of(self.inertia, self.dimension)
+
+
+#: κ = 2λ/R² of named mass distributions; 'uniform' depends on the dimension: 2/(n+2)
+INERTIA_KAPPA = {"shell": {2: 1.0, 3: 2.0 / 3.0}, "ring": {2: 1.0}}
+#: the named mass distributions of a ball in each dimension
+INERTIA_NAMES = {2: ("uniform", "shell", "ring"), 3: ("uniform", "shell")}
+
+
+def kappa_of(inertia, n):
+    """κ of a named mass distribution in dimension n, or the number itself (validated by :func:`check_ball` and
+    the config loader)."""
+    if isinstance(inertia, str):
+        if inertia == "uniform":
+            return 2.0 / (n + 2)
+        return INERTIA_KAPPA[inertia][n]
+    return float(inertia)
+
+
+def check_ball(ball):
+    """A :class:`Ball` as made (by the config or by hand): dimension 2 or 3, a finite positive radius, a mass
+    distribution that exists in its dimension (a name of :data:`INERTIA_NAMES` or κ in (0, 1]). Raises
+    :class:`ConfigError` naming ``ball.…`` (no file), with the config's words."""
+    n = ball.dimension
+    if isinstance(n, bool) or n not in (2, 3):
+        raise ConfigError(None, "ball.dimension", f"must be 2 (a disc) or 3 (a ball), got {n!r}")
+    radius = _number(ball.radius, "ball.radius")
+    if radius <= 0:
+        raise ConfigError(None, "ball.radius", f"must be positive, got {radius:g}")
+    inertia = ball.inertia
+    if isinstance(inertia, str):
+        names = INERTIA_NAMES[n]
+        if inertia not in names:
+            raise ConfigError(None, "ball.inertia", f"unknown mass distribution '{inertia}' for a {n}D ball (use "
+                                                    f"{', '.join(names)} or a number κ in (0, 1])")
+    else:
+        kappa = _number(inertia, "ball.inertia")
+        if not 0.0 < kappa <= 1.0:
+            raise ConfigError(None, "ball.inertia", f"must be {'> 0' if kappa <= 0 else '≤ 1'}, got {kappa:g}")
+
+
+def _number(value, key):
+    """A finite real number (not a bool) -> float, else :class:`ConfigError` naming ``key``."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ConfigError(None, key, f"expected a number, got {type(value).__name__}")
+    try:
+        value = float(value)
+    except OverflowError:
+        raise ConfigError(None, key, "is too large") from None
+    if not math.isfinite(value):
+        raise ConfigError(None, key, f"must be finite, got {value}")
+    return value
+
+
+#: what the model asks of the layers above it, each registered by its module when imported (the model imports
+#: none of them): ``build(kind, table, R)`` -> the shrunk table's geometry (:func:`rbx.tables.build`), and
+#: ``revalidate(experiment, changed)`` -> the experiment validated again as a config (:func:`rbx.config.revalidate`).
+#: Both are there whenever an experiment asks: every experiment with a table is made by :mod:`rbx.config`, which
+#: imports :mod:`rbx.tables`.
+SERVICES = {}
+
+
+def _service(name):
+    try:
+        return SERVICES[name]
+    except KeyError:
+        raise RuntimeError(f"rbx.model: '{name}' is registered by rbx.config and rbx.tables when they are imported; "
+                           "make experiments with rbx.load") from None
 
 
 @dataclass(frozen=True)
@@ -220,8 +287,7 @@ class Experiment:
                 raise ConfigError(None, name, _derived(name))
         if not changed:
             return
-        from .config import revalidate
-        new = revalidate(self, changed)
+        new = _service("revalidate")(self, changed)
         for f in dataclasses.fields(self):
             if f.name not in ("source", "includes"):
                 object.__setattr__(self, f.name, getattr(new, f.name))
@@ -241,8 +307,7 @@ class Experiment:
 
     def geometry(self):
         """The shrunk table the centre moves in (:class:`rbx.geometry.Geometry`)."""
-        from .tables import build
-        return build(self.table_kind, self.table, self.ball.radius)
+        return _service("build")(self.table_kind, self.table, self.ball.radius)
 
     def replace(self, **changes):
         """A copy with some parts changed, validated with the rest as a config is (raises :class:`ConfigError`).

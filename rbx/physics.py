@@ -18,18 +18,7 @@ no basis is needed (P is the tangent projector at whatever point of the wall was
 import numpy as np
 
 from ._jit import jit, jit_hot
-
-#: κ = 2λ/R² of named mass distributions; 'uniform' depends on the dimension: 2/(n+2)
-INERTIA_KAPPA = {"shell": {2: 1.0, 3: 2.0 / 3.0}, "ring": {2: 1.0}}
-
-
-def kappa_of(inertia, n):
-    """κ of a named mass distribution in dimension n, or the number itself (validated by the config loader)."""
-    if isinstance(inertia, str):
-        if inertia == "uniform":
-            return 2.0 / (n + 2)
-        return INERTIA_KAPPA[inertia][n]
-    return float(inertia)
+from .model import INERTIA_KAPPA, kappa_of  # noqa: F401 - κ of the mass distributions: the ball's, in rbx.model
 
 
 @jit_hot

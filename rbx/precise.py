@@ -48,8 +48,17 @@ from fractions import Fraction
 
 import numpy as np
 
+from . import rules, tables
+from .config import from_dict
 from .model import RECORD_FIELDS as FIELDS  # the one table of record fields
 from .model import roughness_direction
+from .rng import PURPOSE_RULES, stream_key, uniform
+
+
+def _kinds_in(rule, n):
+    """The names of the rule kinds in a rule tree -> set."""
+    kind = rules.kind_of(rule)
+    return {kind.name}.union(*(_kinds_in(c, n) for c in kind.node(rule, n)[3]))
 
 
 def _mpmath():
@@ -144,7 +153,6 @@ class PreciseBilliard:
     def __init__(self, cfg, digits=50, trajectory=0, initial=None, uniforms=None, orientation=True):
         mp = _mpmath()
         if not hasattr(cfg, "resolved"):
-            from .config import from_dict
             cfg = from_dict(cfg)
         self.cfg = cfg
         data = cfg.resolved
@@ -160,9 +168,8 @@ class PreciseBilliard:
         self.kappa = self._kappa(data["ball"].get("inertia", "uniform"))
         self._build_table(data["table"])
         self.rules = [self._rule(r) for r in cfg.wall_rules]
-        self.uses_orientation = orientation or any(self._has_hemisphere(r) for r in self.rules)
+        self.uses_orientation = orientation or any("hemisphere" in _kinds_in(r, n) for r in cfg.wall_rules)
         if uniforms is None:
-            from .rng import PURPOSE_RULES, stream_key, uniform
             key = stream_key(cfg.run.seed, trajectory, PURPOSE_RULES)
             self._draw = lambda k: float(uniform(key, k))
         else:
@@ -200,7 +207,6 @@ class PreciseBilliard:
     # -- the table --------------------------------------------------------------------------------------------------
     def _build_table(self, t):
         """The shrunk table at this precision from the table's wall pieces (:mod:`rbx.tables`): no kind is named."""
-        from . import tables
         ctx, R = self.ctx, self.R
         params = {k: v for k, v in t.items() if k != "kind"}
         self.tangent_axes = {}
@@ -259,7 +265,6 @@ class PreciseBilliard:
         """A closed counter-clockwise boundary of segments and arcs: each piece's offset towards the table over
         its extent, and an arc of radius R about every reflex joint (the tangents turn clockwise there),
         attributed to the piece leaving it, over the fan (x − joint)·t_in ≥ 0, (x − joint)·t_out ≤ 0."""
-        from . import tables
         ctx, R = self.ctx, self.R
         prims, starts, ends = [], [], []
         for i, piece in enumerate(pieces):
@@ -319,43 +324,20 @@ class PreciseBilliard:
 
     # -- rules ------------------------------------------------------------------------------------------------------
     def _rule(self, rule):
-        """Config rule objects (rbx.config Constant / Hemisphere / Random) -> nested tuples at this precision."""
-        from .model import Constant, Exit, Hemisphere
-        if isinstance(rule, Constant):
-            return ("constant", rule.rank, rule.direction)
-        if isinstance(rule, Exit):
-            return ("exit", -1, None)
-        if isinstance(rule, Hemisphere):
-            axis = self.vec(rule.axis)
-            return ("hemisphere", axis, self._rule(rule.rough), self._rule(rule.smooth))
-        cum = np.cumsum(np.asarray(rule.probabilities, float))   # the engine's float64 cumulative probabilities
-        cum[-1] = np.inf
-        return ("random", [float(c) for c in cum], [self._rule(c) for c in rule.choices])
+        """A rule (rbx.model Constant / Hemisphere / Random / Exit) -> its form at this precision: a tuple whose
+        first entry is its kind's name (the ``precise`` facet of its record in :mod:`rbx.rules`)."""
+        return rules.kind_of(rule).precise(rule, self, self._rule)
 
-    def _has_hemisphere(self, rule):
-        if rule[0] == "hemisphere":
-            return True
-        if rule[0] == "random":
-            return any(self._has_hemisphere(c) for c in rule[2])
-        return False
+    def draw(self):
+        """The next draw of the trajectory's stream of rule draws (a random rule's step)."""
+        u = self._draw(self.draws)
+        self.draws += 1
+        return u
 
     def _choose(self, wall, nu):
         rule = self.rules[wall]
-        while rule[0] not in ("constant", "exit"):
-            if rule[0] == "hemisphere":
-                if self.n == 2:   # b = −ν rotated by −θ
-                    c, s = self.ctx.cos(self.theta), self.ctx.sin(self.theta)
-                    b = [-(c * nu[0] + s * nu[1]), -(-s * nu[0] + c * nu[1])]
-                else:             # b = Aᵀ(−ν)
-                    b = [-sum(self.A[i][j] * nu[i] for i in range(3)) for j in range(3)]
-                rule = rule[2] if _dot(b, rule[1]) > 0 else rule[3]
-            else:
-                u = self._draw(self.draws)
-                self.draws += 1
-                k = 0
-                while not u < rule[1][k]:
-                    k += 1
-                rule = rule[2][k]
+        while not rules.RULE_KINDS[rule[0]].leaf:
+            rule = rules.RULE_KINDS[rule[0]].precise_step(rule, self, nu)
         return rule
 
     def _rough_direction(self, rule, wall, nu):

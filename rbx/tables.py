@@ -28,129 +28,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import geometry
-
-INF = math.inf
-
-
-# ---- wall pieces ------------------------------------------------------------------------------------------------
-
-@dataclass(frozen=True)
-class Line:
-    name: str
-    point: tuple
-    direction: tuple
-    normal: tuple
-    s_min: float = -INF
-    s_max: float = INF
-
-
-@dataclass(frozen=True)
-class Plane:
-    name: str
-    point: tuple
-    normal: tuple
-    tangents: tuple
-    lo: tuple = (-INF, -INF, -INF)
-    hi: tuple = (INF, INF, INF)
-
-
-@dataclass(frozen=True)
-class Circle:
-    name: str
-    center: tuple
-    radius: float
-
-
-@dataclass(frozen=True)
-class Polygon:
-    names: tuple
-    vertices: tuple
-
-
-@dataclass(frozen=True)
-class Segment:
-    """2D straight piece of a :class:`Boundary` from ``start`` to ``end``; the table lies on its left."""
-    name: str
-    start: tuple
-    end: tuple
-
-
-@dataclass(frozen=True)
-class Arc:
-    """2D circular piece of a :class:`Boundary` from ``start`` to ``end`` on the circle about ``center``, going
-    counter-clockwise (``turn = "ccw"``: focusing, the table on the circle's inside) or clockwise (``"cw"``:
-    dispersing, the circle bulges into the table). Its radius is ``|start − center|`` (= ``|end − center|``, checked
-    when the table is read); ``start == end`` is not allowed (a full circle is a :class:`Circle` or an obstacle)."""
-    name: str
-    start: tuple
-    end: tuple
-    center: tuple
-    turn: str
-
-
-@dataclass(frozen=True)
-class Boundary:
-    """A closed 2D outer boundary: ``pieces`` (:class:`Segment`, :class:`Arc`), each ending where the next starts,
-    traversed counter-clockwise (the table on the left). Wall i is piece i. In the shrunk table a joint where the
-    boundary turns clockwise (a reflex joint) is rounded by an arc of radius R about the joint, which belongs to
-    the piece leaving the joint."""
-    pieces: tuple
-
-
-@dataclass(frozen=True)
-class Sphere:
-    """A round wall in n = len(center) dimensions (a circle in 2D, a sphere in 3D). ``inside``: the table is the
-    inside of the sphere (the 3D ``sphere`` table); else the sphere is an obstacle (a scatterer: a disc in 2D), the
-    table outside it. Shrunk table: radius − R inside, radius + R for an obstacle."""
-    name: str
-    center: tuple
-    radius: float
-    inside: bool = False
-
-
-@dataclass(frozen=True)
-class Cylinder:
-    """3D side wall of a cylinder with axis parallel to z through ``center`` (x, y), the table inside it; its ends
-    are closed by :class:`Plane` caps. Shrunk: radius − R."""
-    name: str
-    center: tuple
-    radius: float
-
-
-@dataclass(frozen=True)
-class Lattice:
-    """A periodic cell ``lo ≤ x ≤ hi``: opposite sides are identified (they are not walls: the ball passes
-    through), and every other piece repeats with period ``hi − lo`` along each axis. Positions are recorded
-    unfolded."""
-    lo: tuple
-    hi: tuple
-
-
-def unit(direction, cos=math.cos, sin=math.sin, radians=math.radians):
-    """A piece's direction as numbers: ``("deg", θ)`` -> (cos θ, sin θ); a tuple stays as it is."""
-    if direction and direction[0] == "deg":
-        th = radians(direction[1])
-        return (cos(th), sin(th))
-    return tuple(direction)
-
-
-def piece_names(piece):
-    """The names of the walls a piece makes, in order -> tuple."""
-    if isinstance(piece, Polygon):
-        return tuple(piece.names)
-    if isinstance(piece, Boundary):
-        return tuple(q.name for q in piece.pieces)
-    if isinstance(piece, Lattice):
-        return ()
-    return (piece.name,)
-
-
-def wall_names(pieces):
-    """The walls' names in wall order (the order of the pieces, a polygon's edges and a boundary's pieces in
-    turn) -> list."""
-    return [name for p in pieces for name in piece_names(p)]
-
+from . import drawing, geometry
+from .drawing import (SHRUNK_STYLE, TABLE_STYLE, _draw_box, _draw_nothing, _draw_outline,  # noqa: F401
+                      _draw_strip, _draw_wedge)
+from .pieces import (INF, OBSTACLES, Arc, Boundary, Circle, Cylinder, Lattice, Line, Plane,  # noqa: F401
+                     Polygon, Segment, Sphere, piece_names, unit, wall_names)
+from .model import SERVICES
 
 # ---- the record -------------------------------------------------------------------------------------------------
 
@@ -180,9 +63,6 @@ class TableKind:
 KINDS = {}
 #: ``build=FROM_WALLS`` in a registration: the kind is built from its wall pieces alone (:func:`from_walls`)
 FROM_WALLS = "from its walls"
-#: the optional parameter every kind takes: scatterers inside the table (discs in 2D, spheres in 3D), walls named
-#: by the user, after the kind's own walls
-OBSTACLES = "obstacles"
 
 
 def register(kind):
@@ -216,7 +96,7 @@ def build(name, params, R):
     geom.table = dict(params)
     extra = obstacle_pieces(params)
     if extra:
-        geom = geometry.add_pieces(geom, extra, R)
+        geom = geometry.add_pieces(geom, extra, R, own=walls(name, params))
         geom.table = dict(params)
     return geom
 
@@ -335,52 +215,6 @@ def _edges_fit(p, R, geom):
         bad = int(np.argmin(geom.lengths))
         return f"does not fit in the {geom.kind} (near wall '{geom.wall_names[bad]}')"
     return None
-
-
-def _closed_outlines(ax, geom, style_table, style_shrunk):
-    for line, style in ((geom.outline, style_table), (geom.shrunk_outline, style_shrunk)):
-        if line is not None:
-            closed = np.vstack([line, line[:1]])
-            ax.plot(closed[:, 0], closed[:, 1], **style)
-
-
-TABLE_STYLE = dict(color="0.15", lw=1.4)
-SHRUNK_STYLE = dict(color="0.45", lw=0.9, ls="--")
-
-
-def _draw_outline(ax, geom, lo, hi):
-    _closed_outlines(ax, geom, TABLE_STYLE, SHRUNK_STYLE)
-
-
-def _draw_strip(ax, geom, lo, hi):
-    w, R = geom.table["width"], geom.shrunk_radius
-    for y, style in ((0.0, TABLE_STYLE), (w, TABLE_STYLE), (R, SHRUNK_STYLE), (w - R, SHRUNK_STYLE)):
-        ax.axhline(y, **style)
-    pad = 0.05 * max(hi[0] - lo[0], w)
-    ax.set_xlim(lo[0] - pad, hi[0] + pad)
-    ax.set_ylim(-0.1 * w, 1.1 * w)
-
-
-def _draw_wedge(ax, geom, lo, hi):
-    far = 10.0 * (np.max(np.abs(np.concatenate([lo, hi]))) + geom.size)
-    for line, style in ((geom.outline, TABLE_STYLE), (geom.shrunk_outline, SHRUNK_STYLE)):
-        apex = line[1]
-        rays = [apex + far * (p - apex) / np.linalg.norm(p - apex) for p in (line[0], line[2])]
-        ax.plot(*np.array([rays[0], apex, rays[1]]).T, **style)
-    span = max(np.max(hi - lo), geom.size)
-    ax.set_xlim(min(lo[0], 0.0) - 0.05 * span, max(hi[0], 0.0) + 0.05 * span)
-    ax.set_ylim(min(lo[1], 0.0) - 0.05 * span, max(hi[1], 0.0) + 0.05 * span)
-
-
-def _draw_nothing(ax, geom, lo, hi):
-    """Plates have no side walls: their horizontal projection is the whole plane."""
-
-
-def _draw_box(ax, geom, lo, hi):
-    lx, ly = geom.table["size"][:2]
-    R = geom.shrunk_radius
-    for (x0, y0, x1, y1), style in (((0, 0, lx, ly), TABLE_STYLE), ((R, R, lx - R, ly - R), SHRUNK_STYLE)):
-        ax.plot([x0, x1, x1, x0, x0], [y0, y0, y1, y1, y0], **style)
 
 
 # ---- the kinds (docs/reference.md §2) --------------------------------------------------------------------------
@@ -600,8 +434,7 @@ def fits(name, p, R, geom):
     return problem
 
 
-def _draw_pieces(ax, geom, lo, hi):
-    geometry.draw(ax, geom, lo, hi, TABLE_STYLE, SHRUNK_STYLE)
+_draw_pieces = drawing.draw_pieces
 
 
 def draw(ax, geom, lo, hi):
@@ -733,3 +566,7 @@ register(TableKind(
     walls=_cylinder_walls, build=FROM_WALLS, fits=_zoo_fits, scale=lambda p: max(2 * p["radius"], p["height"]),
     phrase=lambda p: f"in a cylinder of radius {_g(p['radius'])} and height {_g(p['height'])}",
     draw=_draw_pieces, example={"radius": 1.0, "height": 1.5}))
+
+
+# an experiment's geometry is built here (rbx.model asks through SERVICES: the model imports no table code)
+SERVICES["build"] = build
