@@ -153,3 +153,109 @@ def explicit_states(states, dimension, count):
     else:
         out["orientation"] = np.array([rotation_from_vector(s["orientation"]) for s in reps])
     return out
+
+
+# ---- a point particle's start: uniform in the table's area and in direction, unit speed, no spin ------------------
+
+#: uniforms per trajectory and round of :func:`sample_point_particle` (position n, direction n − 1, orientation
+#: 1 or 3)
+POINT_DRAWS = 8
+#: the most rounds of rejection: a table whose area is so small a part of its bounding box that a start is still
+#: missing after them is refused (a Sinai table takes 1–2 rounds on average)
+POINT_ROUNDS = 10_000
+
+
+def _draws(seed, first, count, start, k, rows=None):
+    """Draws ``start … start+k−1`` of the initial-state streams of trajectories ``first + rows`` (all ``count``
+    of them when ``rows`` is None) -> (len(rows), k) array, the same numbers as :func:`rbx.rng.uniforms`."""
+    from .rng import stream_key
+    rows = np.arange(count) if rows is None else rows
+    keys = np.array([stream_key(seed, first + int(j), PURPOSE_INITIAL) for j in rows], dtype=np.uint64)
+    counter = np.arange(start, start + k, dtype=np.uint64) + np.uint64(1)
+    with np.errstate(over="ignore"):
+        z = keys[:, None] + counter[None, :] * np.uint64(0x9E3779B97F4A7C15)
+        z = (z ^ (z >> np.uint64(30))) * np.uint64(0xBF58476D1CE4E5B9)
+        z = (z ^ (z >> np.uint64(27))) * np.uint64(0x94D049BB133111EB)
+        z = z ^ (z >> np.uint64(31))
+    return (z >> np.uint64(11)).astype(np.float64) * (1.0 / 9007199254740992.0)
+
+
+def area_box(geom):
+    """An axis-aligned box holding the shrunk table -> (lo, hi) arrays; along an infinite direction of the table
+    (a strip's x, the plates' x and y) both are 0. A periodic table: its cell. From the walls' sampling patches,
+    which bound the region the centre can reach."""
+    n = geom.dimension
+    if geom.lattice is not None:
+        lo, period = (np.asarray(a, float) for a in geom.lattice)
+        return lo, lo + period
+    pts, infinite = [], np.zeros(n, bool)
+    for wall in geom.wall_list:
+        for patch in wall.patches:
+            kind = patch[0]
+            if kind == "flat":
+                _, origin, _, axes = patch
+                corners = [np.asarray(origin, float)]
+                for axis, length in axes:
+                    axis = np.asarray(axis, float)
+                    if np.isfinite(length):
+                        corners += [c + length * axis for c in corners]
+                    else:
+                        infinite |= axis != 0
+                pts += corners
+            elif kind in ("arc", "sphere"):
+                centre, rho = np.asarray(patch[1], float), patch[2]
+                pts += [centre - rho, centre + rho]
+            elif kind == "cylinder":
+                _, centre, rho, z0, z1 = patch
+                pts += [np.array([centre[0] - rho, centre[1] - rho, z0]), np.array([centre[0] + rho, centre[1] + rho, z1])]
+            else:                                        # a disc across z
+                _, centre, _, rho = patch
+                centre = np.asarray(centre, float)
+                pts += [centre - [rho, rho, 0.0], centre + [rho, rho, 0.0]]
+    pts = np.array(pts)
+    lo, hi = pts.min(axis=0), pts.max(axis=0)
+    lo[infinite], hi[infinite] = 0.0, 0.0
+    return lo, hi
+
+
+def sample_point_particle(geom, seed, first, count):
+    """A point particle's starts (``initial: {sample: point_particle}``) for trajectories first … -> dict of arrays
+    as :func:`sample_billiard` (no ``normal``): the centre uniform in the area (3D: volume) of the shrunk table,
+    the direction of the velocity uniform on the unit circle (sphere), ``|v| = 1``, no spin, orientation uniform.
+    This is the invariant measure of the billiard flow of a point particle (Liouville: area × direction).
+
+    Along an infinite direction (strip, plates) the position is 0, as for :func:`sample_billiard`. The position
+    is drawn by rejection from :func:`area_box`: trajectory j takes the first round r whose point lies in the
+    shrunk table (:meth:`rbx.geometry.Geometry.clearance` ≥ 0), round r being the draws r·8 … r·8+7 of its own
+    stream; the direction and orientation come from the same round. So a trajectory's start depends only on the
+    seed and its index."""
+    n = geom.dimension
+    lo, hi = area_box(geom)
+    U = np.empty((count, POINT_DRAWS))
+    left = np.arange(count)
+    for r in range(POINT_ROUNDS):
+        if not len(left):
+            break
+        u = _draws(seed, first, count, r * POINT_DRAWS, POINT_DRAWS, left)
+        pos = lo + (hi - lo) * u[:, :n]
+        with np.errstate(all="ignore"):
+            inside = geom.clearance(pos) >= 0.0
+        U[left[inside]] = u[inside]
+        left = left[~inside]
+    else:
+        if len(left):
+            raise ValueError(f"no start inside the {geom.kind} table after {POINT_ROUNDS} rounds of rejection")
+    pos = lo + (hi - lo) * U[:, :n]
+    if n == 2:
+        phi = 2.0 * np.pi * U[:, n]
+        vel = np.stack([np.cos(phi), np.sin(phi)], axis=1)
+        spin = np.zeros(count)
+        orient = 2.0 * np.pi * U[:, n + 1]
+    else:                              # uniform on the sphere: z uniform in [−1, 1] (Archimedes), then the angle
+        z = 1.0 - 2.0 * U[:, n]
+        phi = 2.0 * np.pi * U[:, n + 1]
+        s = np.sqrt(np.maximum(0.0, 1.0 - z * z))
+        vel = np.stack([s * np.cos(phi), s * np.sin(phi), z], axis=1)
+        spin = np.zeros((count, 3))
+        orient = np.array([_uniform_rotation(U[m, n + 2:n + 5]) for m in range(count)]).reshape(count, 3, 3)
+    return {"position": pos, "velocity": vel, "angular_velocity": spin, "orientation": orient}

@@ -14,7 +14,7 @@ from .model import FIELD, FIELDS
 from .physics import energy, spin_matrix, spin_vector
 from .rng import PURPOSE_RULES, stream_key
 from .rules import compile_rules
-from .sampling import explicit_states, sample_billiard
+from .sampling import explicit_states, sample_billiard, sample_point_particle
 
 #: collisions per block summed over trajectories: ~0.1 s of work, so progress and Ctrl-C stay responsive
 BLOCK_WORK = 2_000_000
@@ -101,6 +101,8 @@ class Simulation:
 
     def _initial_state(self):
         cfg = self.cfg
+        if cfg.initial[0] == "point_particle":
+            return sample_point_particle(self.geom, cfg.run.seed, 0, self.M)
         if cfg.initial[0] == "sample":
             return sample_billiard(self.geom, cfg.ball.kappa, cfg.ball.radius, cfg.run.seed, cfg.initial[1], 0,
                                    self.M)

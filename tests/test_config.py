@@ -307,3 +307,82 @@ def test_a_ball_computes_kappa_from_its_inertia():
         with pytest.raises(ConfigError) as info:
             dataclasses.replace(ball, **bad)
         assert info.value.key == key and info.value.file is None
+
+
+# ---- explicit states of any number; aliases counted, not values written out -------------------------------------
+
+def _states_yaml(n, anchored=False):
+    head = ("table: {kind: rectangle, width: 2.0, height: 1.0}\nboundary: {default: {rule: constant, rank: 0}}\n"
+            "ball: {radius: 0.1}\n")
+    if anchored:
+        return head + "initial:\n- &s {position: [1.0, 0.5], velocity: [0.6, 0.8]}\n" + "- *s\n" * (n - 1)
+    rng = np.random.default_rng(0)
+    xs, ys, a = rng.uniform(0.2, 1.8, n), rng.uniform(0.2, 0.8, n), rng.uniform(0, 2 * np.pi, n)
+    rows = (f"- {{position: [{float(x)!r}, {float(y)!r}], velocity: [{float(np.cos(t))!r}, {float(np.sin(t))!r}]}}\n"
+            for x, y, t in zip(xs, ys, a))
+    return head + "initial:\n" + "".join(rows)
+
+
+def test_a_list_of_40000_states_written_out_loads(tmp_path):
+    # 40 000 states hold ~440 000 values: refused before as "a bomb of nested aliases?" though no alias was used
+    path = tmp_path / "many.yaml"
+    path.write_text(_states_yaml(40_000))
+    exp = config.load(str(path))
+    assert len(exp.initial) == 40_000 and exp.run.trajectories == 40_000
+    assert exp.initial[39_999]["position"].flags.writeable is False
+
+
+def test_a_list_of_states_that_all_name_one_anchor_loads(tmp_path):
+    # one anchored state named 40 000 times: the aliases add ~400 000 values, ten times what is written out
+    path = tmp_path / "same.yaml"
+    path.write_text(_states_yaml(40_000, anchored=True))
+    exp = config.load(str(path))
+    assert len(exp.initial) == 40_000
+    assert config.from_dict({**yaml.safe_load(path.read_text())}).run.trajectories == 40_000
+
+
+def test_an_alias_bomb_is_still_refused_in_one_line(tmp_path):
+    # "billion laughs": 30 levels, each a list naming the one before 10 times: 10³⁰ values from 30 lines
+    text = "a0: &a0 [lol]\n" + "".join(f"a{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 10)}]\n" for i in range(1, 31))
+    with pytest.raises(ConfigError) as info:
+        config.parse_yaml(text, "bomb.yaml")
+    assert "aliases are expanded" in info.value.problem and "bomb" in info.value.problem
+    expanded, written = config.alias_count(config._load_yaml(text))
+    assert expanded > 10 ** 30 and written < 400
+
+
+def test_alias_count_counts_uses_of_shared_parts_only():
+    leaf = [1, 2]
+    assert config.alias_count({"a": leaf, "b": leaf}) == (1 + 2 * (1 + 2) + 2, 1 + (1 + 2) + 1 + 2)
+    honest = [[float(i), 0.0] for i in range(1000)]
+    expanded, written = config.alias_count(honest)
+    assert expanded == written == 1 + 3 * 1000
+
+
+def test_states_checked_in_bulk_read_as_one_by_one():
+    # the bulk path (plain numbers, checked as arrays) and the one-by-one path give the same experiment, and the
+    # first bad state is named as before, wherever it is in the list
+    base = yaml.safe_load(_states_yaml(300))
+    bulk = config.from_dict(base)
+    mixed = copy_of(base)
+    mixed["initial"][0]["position"] = [np.float64(x) for x in mixed["initial"][0]["position"]]   # not plain
+    slow = config.from_dict(mixed)
+    for a, b in zip(bulk.initial, slow.initial):
+        assert set(a) == set(b)
+        for k in a:
+            assert np.array_equal(a[k], b[k]) and type(a[k]) is type(b[k])
+    for i, (key, value, problem) in enumerate([("position", [5.0, 0.5], "outside the table"),
+                                                ("velocity", [0, 0], "must be non-zero"),
+                                                ("velocity", [1e200, 1e200], "overflows"),
+                                                ("angular_velocity", float("nan"), "finite"),
+                                                ("position", [0.5], "expected 2 numbers")]):
+        bad = copy_of(base)
+        bad["initial"][250][key] = value
+        bad["initial"][270]["position"] = [9.0, 9.0]
+        with pytest.raises(ConfigError) as info:
+            config.from_dict(bad)
+        assert info.value.key.startswith("initial[250]") and problem in info.value.problem, (i, info.value)
+
+
+def copy_of(data):
+    return yaml.safe_load(yaml.safe_dump(data))
