@@ -1,8 +1,8 @@
 """rbx: simulate non-standard (rough) billiards with the strict collision maps of Cox, Feres and Ward.
 
 The Python API (docs/reference.md §9; :mod:`rbx.api`): ``rbx.load(config, overrides)`` -> Experiment,
-``rbx.simulate(experiment, …)`` -> Run, ``rbx.open(path)`` -> Run, ``rbx.Run``, ``rbx.ConfigError``,
-``rbx.FileError``; and (docs/reference.md §10, :mod:`rbx.dynamics`) ``rbx.lyapunov(experiment, …)`` -> the
+``rbx.simulate(experiment, …)`` -> Run, ``rbx.resume(path, …)`` -> Run, ``rbx.open(path)`` -> Run, ``rbx.Run``,
+``rbx.ConfigError``, ``rbx.FileError``; and (docs/reference.md §10, :mod:`rbx.dynamics`) ``rbx.lyapunov(experiment, …)`` -> the
 Lyapunov spectrum, ``rbx.escape_times(run)`` -> escape or return times; (docs/studies.md, :mod:`rbx.study`)
 ``rbx.sweep(study, output=None, …)`` -> a parameter study as an xarray.Dataset. ``python -m rbx`` is the command line.
 Importing rbx is light: the engine (numba) loads when first used.
@@ -11,7 +11,7 @@ import importlib
 
 __version__ = "0.1.0"
 
-_LAZY = {"load": "api", "simulate": "api", "open": "api", "Run": "runfile", "FileError": "runfile",
+_LAZY = {"load": "api", "simulate": "api", "resume": "api", "open": "api", "Run": "runfile", "FileError": "runfile",
          "ConfigError": "model", "lyapunov": "dynamics", "escape_times": "dynamics", "sweep": "study"}
 
 
@@ -25,4 +25,4 @@ def __dir__():
     return sorted(set(globals()) | set(_LAZY))
 
 
-__all__ = ["load", "simulate", "open", "lyapunov", "escape_times", "sweep", "Run", "ConfigError", "FileError", "__version__"]
+__all__ = ["load", "simulate", "resume", "open", "lyapunov", "escape_times", "sweep", "Run", "ConfigError", "FileError", "__version__"]

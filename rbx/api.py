@@ -23,7 +23,7 @@ import warnings
 from collections.abc import Mapping
 
 # nothing heavy at import: the CLI takes StopFlag from here before it installs its signal handlers
-__all__ = ["load", "simulate", "open"]
+__all__ = ["load", "simulate", "resume", "open"]
 
 _OVERRIDES = ("collisions", "trajectories", "seed", "max_size")
 
@@ -168,6 +168,49 @@ def simulate(experiment, *, collisions=None, trajectories=None, seed=None, outpu
             bar.close()
 
 
+def resume(path, *, output=None, force=False, max_size=None, progress=False, scheduler=None, slices=None,
+           task_collisions=None):
+    """Continue the interrupted run in ``path`` to its requested length -> :class:`Run` (as
+    ``rbx simulate --resume``, the same code: the records are those of an uninterrupted run, bit for bit).
+
+    ``path``: the run's file (``OUT.h5.partial`` left by a kill, or ``OUT.h5`` marked ``complete = False``;
+    ``OUT.h5`` when only ``OUT.h5.partial`` exists names that). ``output``: write the continued run there instead
+    (the file read is left as it was); by default the run's own output, its ``.partial`` worked on in place.
+    ``force``: replace an existing ``output``. ``max_size``: the largest file the run may reach (bytes or '50
+    GB'; default: the stored ``output.max_size``). The saved state is checked against the stored config before
+    anything runs. A complete run is returned as it is (a complete ``.partial`` left by a kill before its rename
+    is renamed first). ``progress``, ``scheduler``, ``slices``, ``task_collisions``: as for :func:`simulate`.
+
+    Raises :class:`FileError` or :class:`ConfigError` for a file that cannot be continued (in one line, naming
+    the file and key), :class:`rbx.paths.DiskFull` when there is no room, KeyboardInterrupt after Ctrl-C (the
+    file then holds the records so far, ``complete = False``)."""
+    from .driver import prepare_resume, resume_to_file
+    from .runfile import Run
+    if scheduler is None and (slices is not None or task_collisions is not None):
+        raise TypeError("slices and task_collisions cut a run for a cluster: give scheduler too")
+    r = prepare_resume(path, output, force=force, max_size=max_size, out_key="output", size_key="max_size",
+                       force_hint="force=True")
+    if r.state != "continue":
+        return Run.open(r.path if r.state == "renamed" else r.source)
+    for note in r.notes:
+        warnings.warn(f"{r.source}: {note}", RuntimeWarning, stacklevel=2)
+    bar = _progress(progress)
+    stop = StopFlag()
+    try:
+        with stop.installed(), cluster_for(scheduler, "scheduler", slices, task_collisions) as r.sim.cluster:
+            compile_kernels(r.sim)
+            if stop.start_running():
+                raise KeyboardInterrupt
+            resume_to_file(r, progress=bar, should_stop=stop,
+                           report=lambda message: warnings.warn(message, RuntimeWarning, stacklevel=3))
+    finally:
+        if hasattr(bar, "close"):
+            bar.close()
+    if stop():
+        raise KeyboardInterrupt(f"interrupted; {r.path} holds the records so far (complete = false)")
+    return Run.open(r.path)
+
+
 def open(path):   # noqa: A001 - the name docs/reference.md §9 gives it
     """A run file read back -> :class:`Run`. Raises :class:`FileError` if ``path`` is not an rbx run file."""
     from .runfile import Run
@@ -189,10 +232,10 @@ def _progress(progress):
 
 def check_target(path, force, experiment, key="output", file=None, force_hint="force=True", partial_ok=False,
                  size_key=None):
-    """Refuse to write ``path`` (see :func:`rbx.runfile.check_target`), or a run whose file would exceed
-    ``output.max_size`` or the free disk space (:func:`rbx.runfile.check_size`): raises :class:`FileError`."""
-    from .runfile import check_size
-    from .runfile import check_target as check
+    """Refuse to write ``path`` (see :func:`rbx.driver.check_target`), or a run whose file would exceed
+    ``output.max_size`` or the free disk space (:func:`rbx.driver.check_size`): raises :class:`FileError`."""
+    from .driver import check_size
+    from .driver import check_target as check
     check(path, force, key, file=file,
           config_source=(experiment.source,) + tuple(experiment.includes) if experiment is not None else None,
           partial_ok=partial_ok, force_hint=force_hint)
@@ -219,18 +262,9 @@ def cluster_for(scheduler, key, slices=None, task_collisions=None):
 
 
 def run_to_file(sim, path, *, progress=None, should_stop=None, report=None, force=False):
-    """Run a new ``sim`` into ``path`` through ``path.partial`` -> True if it finished (see
-    :func:`rbx.runfile.stream`; ``force``: replace an existing ``path``). Raises :class:`FileError` if the file
-    cannot be created, OSError if writing fails midway (the file then holds what was written, ``complete =
-    False``)."""
-    from .runfile import FileError, create, stream, temporary_path
-    tmp = temporary_path(path)
-    try:
-        h5 = create(path, force=force)
-    except OSError as exc:
-        raise FileError(tmp, None, f"cannot write: {exc.strerror or exc}") from None
-    return stream(sim, h5, tmp, path, fresh=True, progress=progress, should_stop=should_stop, report=report,
-                  replace=force)
+    """Run a new ``sim`` into ``path`` (:func:`rbx.driver.run_to_file`)."""
+    from .driver import run_to_file as run
+    return run(sim, path, progress=progress, should_stop=should_stop, report=report, force=force)
 
 
 class StopFlag:

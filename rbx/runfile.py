@@ -46,7 +46,24 @@ import yaml
 
 from . import __version__
 from . import journal
+from .locks import busy as _busy
+from .locks import lock_holder
 from .model import FIELD, FIELDS, RECORD_FIELDS, ConfigError
+from .paths import DiskFull, FileError, format_size
+# names that lived here before the locks and the driver had modules of their own, for code that reads them here
+from .locks import _process_start, acquire_lock, lock_path, release_held_locks, release_lock  # noqa: F401, E402
+from .paths import creation_path, display_path, temporary_path  # noqa: F401, E402
+
+#: the run's lifecycle, now in :mod:`rbx.driver` (which imports this module): read here by older code
+_IN_DRIVER = ("estimated_size", "check_size", "check_target", "create", "publish_new", "stream", "publish",
+              "trim", "write_returns", "forget_second_name")
+
+
+def __getattr__(name):
+    if name in _IN_DRIVER:
+        from . import driver      # below this module's import: here, not at the top (driver imports runfile)
+        return getattr(driver, name)
+    raise AttributeError(f"module 'rbx.runfile' has no attribute '{name}'")
 
 SCHEMA_VERSION = 1
 CHUNK_BYTES = 1 << 18
@@ -99,26 +116,6 @@ DIMENSION_ONLY = "This is a netCDF dimension but not a netCDF variable."
 
 #: room kept free on the disk beyond a block's records, its new chunks and the state, for HDF5's metadata
 DISK_MARGIN = 256 << 10
-
-
-class DiskFull(OSError):
-    """The disk has no room for the next block: the run stops between blocks, its file intact and resumable."""
-
-    def __init__(self, message):
-        import errno
-        super().__init__(errno.ENOSPC, message)
-
-    def __str__(self):
-        return self.strerror
-
-
-class FileError(Exception):
-    """A file that cannot be read or written as asked: ``<file>: <key>: <problem>`` (the parts that apply)."""
-
-    def __init__(self, file, key, problem):
-        self.file = None if file is None else str(file)
-        self.key, self.problem = key, problem
-        super().__init__(": ".join(x for x in (self.file, key, problem) if x))
 
 
 # ---- writing ---------------------------------------------------------------------------------------------------
@@ -249,6 +246,7 @@ class H5Sink:
         self.g = h5["collisions"]
         #: datasets a write can add a chunk of CHUNK_BYTES to (the scales' are small, or never grow)
         self.chunked = sum(1 for name in self.g if name not in SCALES)
+        self._growing = None     # the growing datasets' chunks (:meth:`_chunk_bytes`), read once
         if not fresh:
             _extend_record_scale(self.g)      # resume cut the records back (or emptied them)
         #: bytes of one saved state, twice over (the new one is written beside the last), for the space check
@@ -259,10 +257,10 @@ class H5Sink:
         self.full = False
 
     def write(self, block, nrec):
-        self._check_space(sum(a.nbytes for a in block.values()))
         g = self.g
         b = next(iter(block.values())).shape[1]
         start = g["step"].shape[0]
+        self._check_space(self._chunk_bytes(start, b))
         for f, arr in block.items():
             ds = g[f]
             ds.resize(start + b, axis=1)
@@ -272,14 +270,32 @@ class H5Sink:
         _extend_record_scale(g)
         g["count"][...] = g["count"][...] + nrec
 
-    def _check_space(self, nbytes, chunks=True):
-        """Stop with :class:`DiskFull` before a write the disk has no room for (the block, the state and a margin
-        for HDF5's metadata): HDF5 meeting ENOSPC mid-write left the file half-updated and h5py crashed
-        (a segmentation fault) closing it. Checked, the run stops between blocks like an interrupted one: the last
-        checkpoint is intact and the file can be resumed once there is space."""
+    def _chunk_bytes(self, start, b):
+        """Bytes of every chunk that writing records ``start`` … ``start + b − 1`` touches (each dataset's chunks
+        along the trajectories × those along the records the block spans; a checksum of 4 bytes each): the most
+        the block can make HDF5 allocate, or rewrite. A tiny run's chunks are tiny: the room asked for follows
+        them (it was two chunks of :data:`CHUNK_BYTES` per dataset: 3.4 MB for a run of 10 collisions)."""
+        if self._growing is None:      # (chunk bytes, chunk length along the records, chunks across) per dataset
+            self._growing = []
+            for name in self.g:
+                ds = self.g[name]
+                if not ds.chunks or ds.maxshape[0 if ds.ndim == 1 else 1] is not None:
+                    continue      # a dataset that never grows (count, the fixed scales)
+                if name == "record" and DIMENSION_ONLY in _text(ds.attrs.get("NAME", b"")):
+                    continue      # a scale without values: nothing is written
+                across = 1 if ds.ndim == 1 else -(-ds.shape[0] // ds.chunks[0])
+                self._growing.append((int(np.prod(ds.chunks)) * ds.dtype.itemsize + 4,
+                                      ds.chunks[0 if ds.ndim == 1 else 1], across))
+        return sum((-(-(start + b) // rc) - start // rc) * across * per for per, rc, across in self._growing)
+
+    def _check_space(self, chunk_bytes):
+        """Stop with :class:`DiskFull` before a write the disk has no room for (the chunks the block touches,
+        :meth:`_chunk_bytes`, the state and a margin for HDF5's metadata): HDF5 meeting ENOSPC mid-write left the
+        file half-updated and h5py crashed (a segmentation fault) closing it. Checked, the run stops between
+        blocks like an interrupted one: the last checkpoint is intact and the file can be resumed once there is
+        space."""
         import shutil
-        # a write can allocate a whole new chunk in every dataset, and HDF5 adds its metadata
-        need = nbytes + self.state_bytes + (2 * CHUNK_BYTES * self.chunked if chunks else 0) + DISK_MARGIN
+        need = chunk_bytes + self.state_bytes + DISK_MARGIN
         # the checkpoint's journal (rbx.journal), another file, holds what is rewritten in place: at most as much
         journal_bytes = need - DISK_MARGIN
         try:
@@ -330,7 +346,7 @@ class H5Sink:
         target = next(name for name in ("final_previous", "final", "final_swap") if name != newest)
         fin = self.h5.require_group(target)
         state = sim.final_state()
-        self._check_space(0, chunks=False)
+        self._check_space(0)
         for k, v in state.items():
             v = np.asarray(v)
             ds = fin.get(k)               # one lookup: group access is most of a checkpoint's Python time
@@ -448,447 +464,6 @@ def state_digest(state):
     return h.hexdigest()
 
 
-# ---- the .partial lifecycle --------------------------------------------------------------------------------------
-
-def estimated_size(cfg):
-    """Bytes a run of ``cfg`` writes, about: every recorded field of every record of every trajectory (a trajectory
-    may end early, so this is the most), the final state, and chunk rounding across trajectories -> int."""
-    M, n = cfg.run.trajectories, cfg.dimension
-    records = cfg.run.collisions // cfg.output.every + 1
-    per_record = sum(FIELD[f].size(n) * np.dtype(FIELD[f].dtype).itemsize for f in cfg.output.record)
-    state = M * (4 * n + n * n + 9 + 8) * 8                 # final/: the state and its counters, generously
-    steps = records * 8 if cfg.output.record else 0          # collisions/step
-    return int(M * records * per_record * 1.05 + steps + state + (1 << 20))
-
-
-def format_size(nbytes):
-    """'2.3 TB', '512 MB', … (decimal units, as disks are sold)."""
-    for unit, scale in (("PB", 1e15), ("TB", 1e12), ("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
-        if nbytes >= scale:
-            return f"{nbytes / scale:.3g} {unit}"
-    return f"{int(nbytes)} bytes"
-
-
-def check_size(cfg, path, key_file=None):
-    """Refuse a run whose file would be larger than ``output.max_size`` or than the free space where it goes:
-    raises :class:`FileError` before anything is written. ``key_file``: (file, key) the limit is named by."""
-    import shutil
-    need = estimated_size(cfg)
-    # compression: the size before it (what it saves depends on the numbers, unknown before the run)
-    raw = "" if cfg.output.compression == "none" else " before compression"
-    if need > cfg.output.max_size:
-        file, key = key_file or (cfg.source, "output.max_size")
-        raise FileError(file, key, f"the run would write about {format_size(need)}{raw} "
-                                   f"({cfg.run.trajectories} trajectories × {cfg.run.collisions // cfg.output.every + 1}"
-                                   f" records of {', '.join(cfg.output.record)}), more than the limit "
-                                   f"{format_size(cfg.output.max_size)}; raise output.max_size or --max-size if that "
-                                   "is meant")
-    folder = os.path.dirname(os.path.abspath(path)) or "."
-    while not os.path.isdir(folder) and os.path.dirname(folder) != folder:
-        folder = os.path.dirname(folder)                   # the folder is made later: ask its nearest parent
-    try:
-        free = shutil.disk_usage(folder).free
-    except OSError:
-        return
-    if need > free:
-        raise FileError(path, None, f"the run would write about {format_size(need)}{raw} but the disk has "
-                                    f"{format_size(free)} free")
-
-
-def temporary_path(path):
-    """Where a run writes until it stops: beside the target, renamed over it at the end."""
-    return f"{path}.partial"
-
-
-def creation_path(path):
-    """Where a new run's file is made, before its structure is complete: ``OUT.h5.partial.new``, renamed to
-    ``OUT.h5.partial`` once the structure is on disk (:func:`stream`), so that a ``.partial`` is never a torn
-    HDF5 file. A leftover one (a run killed in its first milliseconds) holds no records: the next run removes it."""
-    return f"{temporary_path(path)}.new"
-
-
-def check_target(path, force, key, file=None, config_source=None, partial_ok=False, force_hint="--force"):
-    """Refuse to write ``path`` when it is a folder, the config or a file it includes (``config_source``: the
-    config's path, or a sequence of it and its includes), or (without ``force``) when it exists or
-    a run may still be writing its ``.partial``. Raises :class:`FileError`; ``key``/``file`` name where the path
-    came from (``-o``, ``output.path``, ``output``), ``force_hint`` how to force (``--force``, ``force=True``)."""
-    show = display_path(path)
-    holder = lock_holder(path)
-    if holder is not None:
-        raise _busy(path, holder)
-    if os.path.isdir(path):
-        raise FileError(file, key, f"{show} is a directory; give a file name such as run.h5")
-    sources = [config_source] if isinstance(config_source, str) else list(config_source or ())
-    for i, source in enumerate(sources):
-        if source and os.path.exists(path) and os.path.exists(source) and os.path.samefile(path, source):
-            raise FileError(file, key, f"{show} is the config file itself" if i == 0 else
-                            f"{show} is a file the config includes ({display_path(source)})")
-    if os.path.exists(path) and not force:
-        raise FileError(path, None, f"exists; use {force_hint} to overwrite it")
-    tmp = temporary_path(path)
-    if os.path.exists(tmp) and not force and not partial_ok:
-        raise FileError(tmp, None, "exists: another run may be writing it, or an earlier one was killed "
-                                   f"(try: rbx simulate --resume {display_path(tmp)}); remove it or use {force_hint}")
-
-
-def create(path, force=False):
-    """Open a new file for a new run (folders made as needed) -> ``h5py.File`` at :func:`creation_path`
-    (``OUT.h5.partial.new``), which :func:`stream` renames to ``OUT.h5.partial`` once the run's structure is
-    written and on disk (:func:`publish_new`). OSError if it cannot.
-
-    The run's lock (:func:`acquire_lock`, ``OUT.h5.lock``) is taken first and held until :func:`stream` ends; a
-    ``.partial`` that exists is refused (and its rename later does not replace one that appeared meanwhile):
-    of two runs started on one output, the second fails here instead of both writing one file. With ``force`` a
-    leftover ``.partial`` is removed first (never one a live run holds the lock of). A leftover ``.partial.new``
-    is removed when no run holds the lock (a killed run's: it holds no records); the ``.partial.new`` of a run
-    of this same process (which holds the lock already) is created exclusively, so the second fails."""
-    os.makedirs(os.path.dirname(os.path.abspath(path)) or ".", exist_ok=True)
-    tmp, new = temporary_path(path), creation_path(path)
-    lock = acquire_lock(path)   # first: --force must not remove the .partial of a run still writing it
-    try:
-        if force and os.path.exists(tmp):
-            os.remove(tmp)
-        if os.path.exists(tmp):
-            raise FileExistsError(tmp)
-        if _HELD.get(lock) == 1:      # the lock was free: no live run is making this file
-            with contextlib.suppress(FileNotFoundError):
-                os.remove(new)
-            # journals without their file (a killed run's .partial removed by hand): the next file here may get
-            # the same inode number, and must not be mistaken for theirs
-            journal.discard(new)
-            journal.discard(tmp)
-        return open_journaled(new, create=True)
-    except (FileExistsError, OSError) as exc:
-        release_lock(path)
-        for busy in (tmp, new):
-            if os.path.exists(busy):
-                raise FileError(busy, None, "exists: another run is writing it (or was killed); remove it or use "
-                                            "--force") from None
-        raise exc
-    except BaseException:
-        release_lock(path)
-        raise
-
-
-# ---- the run lock ------------------------------------------------------------------------------------------------
-
-#: locks this process holds: lock path -> how many times taken (taking one twice is not an error)
-_HELD = {}
-
-
-def lock_path(path):
-    """The lock file of a run writing ``path`` (``OUT.h5`` -> ``OUT.h5.lock``; a ``.partial`` is locked by its
-    output's lock)."""
-    path = os.path.abspath(str(path))
-    if path.endswith(".partial"):
-        path = path[:-len(".partial")]
-    return f"{path}.lock"
-
-
-def _process_start(pid):
-    """The start time of process ``pid`` in clock ticks since boot (Linux), or None where that is not known: with
-    the pid it tells a lock's process apart from a later one that reused its pid."""
-    try:
-        with open(f"/proc/{pid}/stat") as fh:
-            return int(fh.read().rsplit(")", 1)[1].split()[19])
-    except (OSError, ValueError, IndexError):
-        return None
-
-
-def _lock_text():
-    import socket
-    import time
-    return (f"host: {socket.gethostname()}\npid: {os.getpid()}\n"
-            f"started: {time.strftime('%Y-%m-%d %H:%M:%S %z')}\nprocess_start: {_process_start(os.getpid())}\n")
-
-
-def _read_lock(lock):
-    """A lock file's fields -> dict (empty when it cannot be read: being written this instant, or not a lock)."""
-    try:
-        with open(lock) as fh:
-            text = fh.read(4096)
-    except OSError:
-        return {}
-    fields = {}
-    for line in text.splitlines():
-        key, _, value = line.partition(":")
-        fields[key.strip()] = value.strip()
-    return fields
-
-
-def _holder(fields):
-    return (f"pid {fields.get('pid', '?')} on {fields.get('host', '?')} since {fields.get('started', '?')}")
-
-
-def _is_stale(fields):
-    """True if the lock's process is known to be gone: on this host, its pid no longer runs (or runs a process
-    started later, which reused the pid). A lock of another host is never judged stale."""
-    import socket
-    if fields.get("host") != socket.gethostname():
-        return False
-    try:
-        pid = int(fields.get("pid", ""))
-    except ValueError:
-        return False
-    if pid <= 0:
-        return False
-    if pid == os.getpid():
-        return False
-    try:
-        os.kill(pid, 0)
-    except ProcessLookupError:
-        return True
-    except PermissionError:   # another user's live process
-        return False
-    recorded = fields.get("process_start")
-    now = _process_start(pid)
-    return recorded not in (None, "None", "") and now is not None and str(now) != recorded
-
-
-def _busy(path, holder):
-    return FileError(path, None, f"another rbx run is writing it ({holder}; lock {display_path(lock_path(path))}): "
-                                 "wait for it to end or stop it (a lock of a process on another host that is gone: "
-                                 "remove it)")
-
-
-def lock_holder(path):
-    """Who holds the lock of a run writing ``path`` -> 'pid N on HOST since TIME', or None when no live process
-    does (no lock, a stale one, or this process's own)."""
-    lock = lock_path(path)
-    if lock in _HELD or not os.path.exists(lock):
-        return None
-    fields = _read_lock(lock)
-    if not fields or _is_stale(fields) or fields.get("pid") == str(os.getpid()):
-        return None
-    return _holder(fields)
-
-
-def acquire_lock(path, warn=None):
-    """Take the lock of a run writing ``path`` (``OUT.h5.lock``, created with O_EXCL, holding the host, pid and
-    start time): held while the run writes, released by :func:`release_lock` (and, should the process end
-    without that, at its exit). A lock whose process is gone (same host, pid not running: a SIGKILLed run) is
-    stale: said through ``warn(message)`` (default: one line on stderr) and taken over. Raises :class:`FileError`
-    naming the holder when a live process holds it. Taking a lock this process holds already is allowed."""
-    lock = lock_path(path)
-    if lock in _HELD:
-        _HELD[lock] += 1
-        return lock
-    folder = os.path.dirname(lock)
-    os.makedirs(folder, exist_ok=True)
-    for _ in range(5):
-        try:
-            fd = os.open(lock, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o644)
-        except FileExistsError:
-            fields = _read_lock(lock)
-            if not fields:         # created this instant and not yet written: a live run starting
-                import time
-                time.sleep(0.05)
-                fields = _read_lock(lock)
-            if fields and _is_stale(fields):
-                _take_over(lock, fields, warn)
-                continue
-            raise _busy(path, _holder(fields)) from None
-        except OSError as exc:
-            raise FileError(lock, None, f"cannot create the run's lock file: {exc.strerror or exc}") \
-                from None
-        with os.fdopen(fd, "w") as fh:
-            fh.write(_lock_text())
-        _HELD[lock] = 1
-        _at_exit()
-        return lock
-    raise FileError(path, None, f"cannot take the lock {display_path(lock)}: other runs keep taking it")
-
-
-def _take_over(lock, fields, warn):
-    """Remove a stale lock, unless another process took it over first (then the loop sees its live lock)."""
-    aside = f"{lock}.stale.{os.getpid()}"
-    try:
-        os.rename(lock, aside)     # one process wins this; the others find no lock, or a new live one
-    except FileNotFoundError:
-        return
-    if _read_lock(aside) != fields:            # not the stale lock but one taken meanwhile: put it back
-        try:
-            os.link(aside, lock)
-        except OSError:
-            pass
-        os.remove(aside)
-        return
-    os.remove(aside)
-    message = (f"{display_path(lock)}: warning: a stale lock ({_holder(fields)}, a process that no longer runs: "
-               "killed?) was taken over")
-    if warn is None:
-        import sys
-        sys.stderr.write(f"rbx: {message}\n")
-    else:
-        warn(message)
-
-
-def release_lock(path):
-    """Give back the lock of ``path`` taken by :func:`acquire_lock` (removed when its last taker gives it back)."""
-    lock = lock_path(path)
-    if lock not in _HELD:
-        return
-    _HELD[lock] -= 1
-    if _HELD[lock] <= 0:
-        del _HELD[lock]
-        _remove_own_lock(lock)
-
-
-def _remove_own_lock(lock):
-    if _read_lock(lock).get("pid") == str(os.getpid()):
-        with contextlib.suppress(OSError):
-            os.remove(lock)
-
-
-_EXIT_HOOK = []
-
-
-def _at_exit():
-    """Once per process: remove the locks still held when it exits (an error or a signal between taking a lock
-    and the end of the run). Not in a forked child: its parent holds them."""
-    if _EXIT_HOOK:
-        return
-    import atexit
-    owner = os.getpid()
-
-    def release_all():
-        if os.getpid() == owner:
-            release_held_locks()
-
-    atexit.register(release_all)
-    _EXIT_HOOK.append(release_all)
-
-
-def release_held_locks():
-    """Remove every lock this process still holds: what the exit hook does, for an exit that skips Python's own
-    (``rbx.cli.common.hard_exit``)."""
-    for lock in list(_HELD):
-        _HELD.pop(lock, None)
-        _remove_own_lock(lock)
-
-
-def _is_complete_run(path):
-    import h5py
-    try:
-        with h5py.File(path, "r") as f:
-            return bool(f.attrs.get("complete", False))
-    except Exception:   # noqa: BLE001 - not an rbx run, or damaged: not a result worth keeping over the new one
-        return False
-
-
-def publish_new(h5, tmp):
-    """Rename a file made by :func:`create` (open as ``h5``, at ``tmp + '.new'``) to ``tmp`` once its structure is
-    written: flushed and fsynced first, so that ``tmp`` is a whole HDF5 file from the instant it exists (a kill
-    while HDF5 wrote the structure of a new ``.partial`` used to leave a torn file). Not over a ``tmp`` that
-    appeared meanwhile: :class:`FileError`. Nothing to do for any other file (a resumed one)."""
-    new = f"{tmp}.new"
-    if os.path.abspath(file_path(h5)) != os.path.abspath(new):
-        return
-    h5.flush()
-    commit(h5)
-    jf = journal_of(h5)
-    if jf is not None:
-        os.fsync(jf.fd)
-    try:
-        os.link(new, tmp)                  # atomic, and fails if tmp exists
-    except FileExistsError:
-        raise FileError(tmp, None, "appeared while this run was starting (another run?); remove it or use "
-                                   "--force") from None
-    except OSError:                        # a file system without hard links: check, then rename
-        if os.path.exists(tmp):
-            raise FileError(tmp, None, "appeared while this run was starting (another run?)") from None
-        os.replace(new, tmp)
-    else:
-        os.remove(new)
-    if jf is not None:
-        jf.rename(tmp)
-    _fsync_folder(tmp)
-
-
-def _fsync_folder(path):
-    """Make a rename in ``path``'s folder durable (where the system allows opening a folder)."""
-    with contextlib.suppress(OSError):
-        fd = os.open(os.path.dirname(os.path.abspath(path)) or ".", os.O_RDONLY)
-        try:
-            os.fsync(fd)
-        finally:
-            os.close(fd)
-
-
-def stream(sim, h5, tmp, path, *, fresh=True, progress=None, should_stop=None, write_initial=None, report=None,
-           replace=False):
-    """Run ``sim`` into the open file ``h5`` (at ``tmp``, or made by :func:`create` and renamed to ``tmp`` once
-    its structure is written: :func:`publish_new`), mark it complete or not, close it and rename it to ``path``
-    -> True if the run finished (False: ``should_stop()`` said stop). The config stored in the file names
-    ``path`` as its ``output.path``.
-
-    The rename happens however the run ends (complete, interrupted, an error), so the records computed so far
-    are in ``path`` and ``complete`` says whether that is all of them (docs/reference.md §4), with two exceptions
-    that keep what is already there: a run that did not finish never replaces a *complete* ``path`` (``--force`` then
-    Ctrl-C used to leave a fragment in place of a finished result), and without ``replace`` (``--force``) a
-    ``path`` that appeared while this run was writing (another run) is not replaced either. Either way the
-    records stay in ``tmp``: said through ``report(message)`` for an unfinished run, a :class:`FileError` for a
-    finished one. A rename that fails is passed to ``report``. Errors writing (OSError) propagate."""
-    complete = False
-    sink = None
-    new = os.path.abspath(file_path(h5)) == os.path.abspath(f"{tmp}.new")
-    raised = True
-    try:
-        try:
-            with h5:
-                sink = H5Sink(h5, sim.cfg, fresh=fresh, path=path)
-                if not fresh:
-                    _store_path(h5, sim.cfg, path)
-                publish_new(h5, tmp)
-                new = False
-                try:
-                    complete = sim.run(sink, progress=progress, should_stop=should_stop, write_initial=write_initial)
-                finally:
-                    with contextlib.suppress(Exception):   # an error writing must not hide the error itself
-                        sink.settle()
-                h5.attrs["complete"] = bool(complete)
-                raised = False
-        finally:
-            # the last commit: what HDF5 wrote when it closed the file; none after an error (the file then stays at
-            # its last checkpoint exactly: its records are those the saved state accounts for), nor if it fails
-            failure = close_journal(h5, commit=not raised)
-            if failure is not None:
-                complete = False
-        if failure is not None:
-            raise failure
-        return complete
-    finally:
-        try:
-            if new:      # stopped before its structure was written: nothing worth keeping
-                with contextlib.suppress(OSError):
-                    os.remove(f"{tmp}.new")
-                journal.discard(f"{tmp}.new")
-            elif journal.pending(tmp):
-                # a commit failed after its commit point: the file is whole only with its journal, which is
-                # applied when the .partial is next opened (resumed), so the .partial is not renamed
-                pass
-            else:
-                if sink is not None and sink.reserved and journal_of(h5) is None:
-                    trim(tmp)        # a journaled file was cut to HDF5's end when it closed (JournaledFile.close)
-                publish(tmp, path, complete, replace, report)
-        finally:
-            # the run's lock (taken by create, or by rbx.resume.load for the file resumed), released last
-            release_lock(path)
-            for release in getattr(sim, "locks", ()):
-                release()
-
-
-def _store_path(h5, cfg, path):
-    """A resumed run written to another file (``--resume RUN.h5 -o OUT.h5``): its stored config names that file."""
-    try:
-        stored = yaml.safe_load(_text(h5.attrs["config"]))
-        if (stored.get("output") or {}).get("path") == os.path.abspath(path):
-            return
-    except Exception:   # noqa: BLE001 - unreadable: written anew below
-        pass
-    h5.attrs["config"] = config_yaml(cfg, path)
-
-
 def open_journaled(path, create=False):
     """Open a run's file for writing through its journal (:mod:`rbx.journal`) -> ``h5py.File`` (``create``: a new
     file, exclusively; else an existing one, its pending journal applied first). Commit with :func:`commit`;
@@ -945,64 +520,6 @@ def close_journal(h5, commit=True):
         with contextlib.suppress(Exception):
             journal.recover(jf.path)
     return failure
-
-
-def trim(path):
-    """Give back the room :meth:`H5Sink._reserve` allocated and HDF5 did not use: HDF5 cuts the file to its own
-    end when it closes a file it opened for writing (it keeps a longer file it made longer itself)."""
-    import h5py
-    with contextlib.suppress(Exception):
-        with h5py.File(path, "r+"):
-            pass
-
-
-def publish(tmp, path, complete, replace, report):
-    """Rename ``tmp`` to ``path`` by the rules of :func:`stream` (also the last step of a resume in place)."""
-    def say(message):
-        if report is not None:
-            report(message)
-
-    if not complete and os.path.exists(path) and _is_complete_run(path):
-        say(f"{display_path(path)}: kept: it holds a complete run and this one did not finish; the records so far "
-            f"are in {display_path(tmp)}")
-        return
-    try:
-        if replace:
-            os.replace(tmp, path)
-        else:
-            try:
-                os.link(tmp, path)      # fails if path exists: no run's file is replaced without --force
-            except FileExistsError:
-                raise
-            except OSError:             # a file system without hard links: check, then rename (not atomic)
-                if os.path.exists(path):
-                    raise FileExistsError(path) from None
-                os.replace(tmp, path)
-                return
-            os.remove(tmp)
-    except FileExistsError:
-        message = (f"appeared while this run was writing (another run?) and was not replaced; the records are in "
-                   f"{display_path(tmp)}")
-        if complete:
-            raise FileError(path, None, message) from None
-        say(f"{display_path(path)}: {message}")
-    except OSError as exc:
-        say(f"{display_path(path)}: cannot rename {display_path(tmp)} to it: {exc.strerror or exc}; the records "
-            f"are in {display_path(tmp)}")
-
-
-def display_path(path):
-    """A path as the user would write it: relative to the working directory when it lies below it."""
-    if path is None:
-        return None
-    path = str(path)
-    if not os.path.isabs(path):
-        return path
-    try:
-        rel = os.path.relpath(path)
-    except (ValueError, OSError):   # another drive (Windows); a working directory that was deleted
-        return path
-    return path if rel.startswith("..") else rel
 
 
 # ---- opening a file for reading ----------------------------------------------------------------------------------
@@ -1072,6 +589,61 @@ def _check_rbx_file(f, path, group):
         for k in INDEX_DATASETS:
             if k not in f["collisions"]:
                 raise FileError(path, f"collisions/{k}", "not in this file (a damaged run?)")
+
+
+def check_layout(f, path):
+    """Every dataset of ``collisions/`` as the layout says (module docstring) before anything reads it: the record
+    fields (T, N) + their tail in dimension n with their dtype, ``count`` (T,) integers within 0 … N, ``step``
+    (N,) integers, T the config's trajectories. Raises :class:`FileError` naming the dataset. A crafted file
+    (``step`` shorter than the records, ``time`` declared (1, 10¹²), ``position`` of shape (1, 5001, 7)) gave an
+    IndexError, a MemoryError or a wrong picture."""
+    g = f["collisions"]
+    n = int(f.attrs["dimension"]) if np.ndim(f.attrs["dimension"]) == 0 else 0
+    if n not in (2, 3):
+        raise FileError(path, "dimension", f"is {f.attrs['dimension']!r}; the layout has 2 or 3")
+
+    def fail(name, problem):
+        raise FileError(path, f"collisions/{name}", f"{problem} (a damaged or crafted file)")
+
+    count, step = g["count"], g["step"]
+    if count.ndim != 1 or count.dtype.kind not in "iu":
+        fail("count", f"has shape {count.shape} and dtype {count.dtype}; the layout says (T,) integers")
+    if step.ndim != 1 or step.dtype.kind not in "iu":
+        fail("step", f"has shape {step.shape} and dtype {step.dtype}; the layout says (N,) integers")
+    T, N = count.shape[0], step.shape[0]
+    try:
+        wanted = int((yaml.safe_load(_text(f.attrs["config"])) or {}).get("run", {}).get("trajectories", T))
+    except Exception:   # noqa: BLE001 - an unreadable config is said by the reader, with its own key
+        wanted = T
+    if T != wanted:
+        fail("count", f"has {T} trajectories, the stored config {wanted}")
+    for name in RECORD_FIELDS:
+        if name not in g:
+            continue
+        ds, field = g[name], FIELD[name]
+        shape = (T, N) + tuple(field.shape(n))
+        if not isinstance(ds, _h5_dataset()) or ds.shape != shape:
+            fail(name, f"has shape {getattr(ds, 'shape', None)}; the layout says {shape} ({T} trajectories × {N} "
+                       "records, as count and step)")
+        want = np.dtype(field.dtype)
+        if ds.dtype.kind != want.kind or ds.dtype.itemsize != want.itemsize:
+            fail(name, f"has dtype {ds.dtype}; the layout says {want}")
+    c = count[...]
+    if c.size and (c.min() < 0 or c.max() > N):
+        fail("count", f"holds {int(c.min())} … {int(c.max())}; the layout says 0 … {N} (the records)")
+
+
+def _check_final(final, T, path):
+    """The saved state read from ``final/``: one row per trajectory in every array."""
+    for k, v in final.items():
+        if np.ndim(v) == 0 or np.shape(v)[0] != T:
+            raise FileError(path, f"final/{k}", f"has shape {np.shape(v)}; the layout says {T} trajectories first "
+                                                "(a damaged or crafted file)")
+
+
+def _h5_dataset():
+    import h5py
+    return h5py.Dataset
 
 
 def _first_line(exc):
@@ -1159,7 +731,9 @@ class Run:
                 g = f["collisions"]
                 attrs = {k: _attr(f.attrs[k]) for k in f.attrs}
                 fields = [k for k in RECORD_FIELDS if k in g]
+                check_layout(f, path)
                 final, _, _ = latest_state(f)
+                _check_final(final, len(g["count"]), path)
                 return cls(attrs, g["count"][...], g["step"][...], final, fields, path=path)
             except FileError:
                 raise
@@ -1249,7 +823,12 @@ class Run:
                                      f"{', '.join(self.fields) or 'nothing'}; add it to output.record)")
             if name not in self._arrays:
                 with self._reading() as g:
-                    self._arrays[name] = _frozen(g[name][...])
+                    try:
+                        self._arrays[name] = _frozen(g[name][...])
+                    except MemoryError:
+                        raise FileError(self.path, f"collisions/{name}",
+                                        f"{g[name].nbytes / 1e9:.3g} GB do not fit in the free memory: read a part "
+                                        f"with run.read('{name}', trajectories, records)") from None
             return self._arrays[name]
         raise AttributeError(f"'Run' object has no attribute '{name}'")
 
@@ -1332,37 +911,25 @@ RETURNS_ATTRS = {
 }
 
 
-def write_returns(path, cfg, result):
-    """Write a return-angle experiment (:class:`rbx.histogram.Returns`) to a new HDF5 file (via ``path.partial``,
-    renamed at the end).
-
-    Root attributes :data:`ROOT_ATTRS`; group ``returns/``: ``angle`` (K,) return angles [rad], ``trajectory``
-    (K,) their trajectory indices, ``collisions`` (K,) collisions to return, ``initial_angle`` (M,) sampled
-    angles; attributes :data:`RETURNS_ATTRS`."""
+def fill_returns(h5, cfg, result, path):
+    """Write the root attributes and ``returns/`` of a return-angle experiment (:class:`rbx.histogram.Returns`)
+    into the new file ``h5`` (``path``: the file it becomes), by the layout :func:`rbx.driver.write_returns`
+    documents."""
     names = cfg.wall_names
-    try:
-        _write_returns(path, cfg, result, names)
-    finally:
-        release_lock(path)
-
-
-def _write_returns(path, cfg, result, names):
-    with create(path) as h5:
-        write_root_attrs(h5, cfg, complete=True, path=path)
-        g = h5.create_group("returns")
-        g.create_dataset("angle", data=result.angle)
-        g.create_dataset("trajectory", data=np.nonzero(result.returned)[0].astype(np.int64))
-        g.create_dataset("collisions", data=result.collisions[result.returned].astype(np.int64))
-        g.create_dataset("initial_angle", data=result.initial_angle)
-        values = {"wall": "" if result.wall is None else names[result.wall], "samples": result.samples,
-                  "returned": result.samples - result.not_returned, "not_returned": result.not_returned,
-                  "velocity_dimension": result.d,
-                  "predicted_density": f"{result.d - 1}·cos φ·sin^{result.d - 2} φ",
-                  "predicted_cdf": f"sin^{result.d - 1} φ", "ks_statistic": result.ks_statistic,
-                  "ks_pvalue": result.ks_pvalue, "seconds": result.seconds}
-        assert set(values) == set(RETURNS_ATTRS)
-        g.attrs.update(values)
-    os.replace(creation_path(path), path)
+    write_root_attrs(h5, cfg, complete=True, path=path)
+    g = h5.create_group("returns")
+    g.create_dataset("angle", data=result.angle)
+    g.create_dataset("trajectory", data=np.nonzero(result.returned)[0].astype(np.int64))
+    g.create_dataset("collisions", data=result.collisions[result.returned].astype(np.int64))
+    g.create_dataset("initial_angle", data=result.initial_angle)
+    values = {"wall": "" if result.wall is None else names[result.wall], "samples": result.samples,
+              "returned": result.samples - result.not_returned, "not_returned": result.not_returned,
+              "velocity_dimension": result.d,
+              "predicted_density": f"{result.d - 1}·cos φ·sin^{result.d - 2} φ",
+              "predicted_cdf": f"sin^{result.d - 1} φ", "ks_statistic": result.ks_statistic,
+              "ks_pvalue": result.ks_pvalue, "seconds": result.seconds}
+    assert set(values) == set(RETURNS_ATTRS)
+    g.attrs.update(values)
 
 
 def read_returns(path):

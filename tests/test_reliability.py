@@ -285,7 +285,7 @@ def test_two_resumes_into_one_other_file_the_second_is_refused_naming_the_first(
 
 
 #: ``python -c`` running the CLI, SIGKILLing itself when the run, marked complete, is about to be renamed
-KILL_BEFORE_RENAME = ("import os, sys, rbx.runfile as f; p = f.publish\n"
+KILL_BEFORE_RENAME = ("import os, sys, rbx.driver as f; p = f.publish\n"
                       "def publish(tmp, path, complete, *a):\n"
                       "    if complete: os.kill(os.getpid(), 9)\n"
                       "    p(tmp, path, complete, *a)\n"

@@ -201,7 +201,7 @@ def test_a_bad_compression_is_one_line_exit_2(value, problem, tmp_path):
 KILLED = textwrap.dedent("""
     import os, sys
     import h5py
-    import rbx, rbx.runfile as runfile
+    import rbx, rbx.driver as runfile
     from tests.catalog import scene
     where, out = sys.argv[1], sys.argv[2]
     if where == "structure":        # killed while HDF5 writes the new file's structure: the third dataset

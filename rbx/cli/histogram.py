@@ -73,7 +73,7 @@ def _check_data_target(path, key, force, cfg, config):
     """The return angles may replace an existing file only with --force (as the figure), never the config or a
     file it includes, and, by default (output.path), never a run of ``rbx simulate``: the two commands share
     output.path, and --force once replaced a simulation this way."""
-    from ..runfile import check_target
+    from ..driver import check_target
     file = config if key == "output.path" else None
     if key != "--data" and _holds_run(path):
         raise UserError(file, key, f"{display_path(path)} holds a run of rbx simulate, which rbx histogram does not "
@@ -101,7 +101,7 @@ def _histogram(config, out, data, trajectories, seed, sets, force, quiet, cluste
     from ..analysis import scene_title
     from ..cluster import ClusterError
     from ..histogram import return_experiment
-    from ..runfile import write_returns
+    from ..driver import write_returns
 
     check_cluster_options(cluster)
 

@@ -9,11 +9,9 @@ checkpointed and closed cleanly. Either way the run ends by renaming ``OUT.h5.pa
 143). An existing ``OUT.h5`` is replaced only with ``--force``. ``--resume`` continues such a file to its
 requested length and writes the same records as an uninterrupted run.
 """
-import errno
 import os
 import signal
 import time
-import weakref
 
 import click
 
@@ -49,6 +47,7 @@ def simulate(config, out, collisions, trajectories, seed, sets, max_size, resume
              task_collisions, quiet, debug):
     """Run the experiment CONFIG (YAML) and write its trajectories to HDF5."""
     from ..api import StopFlag
+    from ..paths import DiskFull
 
     began = time.perf_counter()
     stop = StopFlag(pending=pending_signal)
@@ -69,6 +68,10 @@ def simulate(config, out, collisions, trajectories, seed, sets, max_size, resume
                     code = _simulate(config, out, overrides, parse_sets(sets), force, quiet, stop, cluster, began)
         except UserError as exc:
             report_and_exit(exc, debug)
+        except DiskFull as exc:
+            # no room for the lock or the copy a resume starts from: nothing of the run was written
+            click.echo(f"rbx: {exc}; nothing was written", err=True)
+            code = 1
         except (KeyboardInterrupt, Exception) as exc:
             # KeyboardInterrupt: raised by StopFlag only while setting up, before any file is written. Another
             # error after a signal: the KeyboardInterrupt raised inside a callback of Numba's compiler is lost
@@ -122,9 +125,10 @@ def _simulate(config, out, overrides, changes, force, quiet, stop, cluster, bega
 
 
 def _resume(config, run_file, out, overrides, force, quiet, stop, cluster, began):
-    from ..api import check_target, compile_kernels
-    from ..resume import load, version_note
-    from ..runfile import Run, acquire_lock, lock_path, release_lock, temporary_path
+    """``--resume RUN``: the library's resume (:func:`rbx.driver.prepare_resume`, :func:`rbx.driver.resume_to_file`,
+    which :func:`rbx.resume` calls too), with the command's lines and exit codes."""
+    from ..api import compile_kernels
+    from ..driver import prepare_resume, resume_to_file
 
     if config is not None:
         raise UserError(None, "--resume", "give either CONFIG or --resume RUN.h5, not both")
@@ -132,114 +136,34 @@ def _resume(config, run_file, out, overrides, force, quiet, stop, cluster, began
         if overrides[name] is not None:
             raise UserError(None, f"--{name}", "cannot be changed when resuming: the run continues with the "
                                                "settings stored in its file")
-    source = os.path.abspath(run_file)
-    # a killed run leaves only OUT.h5.partial: resuming it writes OUT.h5, working on the .partial in place
-    default = source[:-len(".partial")] if source.endswith(".partial") else source
-    path = os.path.abspath(out) if out else default
-    tmp = temporary_path(path)
-    in_place = tmp == source
-    # the source's lock before its file is read: a run still writing it is named in one line (reading a file that
-    # HDF5 is writing can fail as "damaged"); load takes the lock for itself, this hold ends once it has
-    acquire_lock(source)
-    try:
-        run = Run.open(run_file)
-        if run.complete:
-            run.close()
-            if source.endswith(".partial"):     # killed after marking it complete, before renaming it
-                return _rename_complete(run_file, source, path, out, force)
-            click.echo(f"rbx: {display_path(run_file)}: the run is complete; nothing to resume", err=True)
-            return 0
-        note = version_note(run)
-        with run:
-            try:
-                sim, write_initial, done = load(run, run_file)
-            except MemoryError:
-                raise UserError(run_file, "run.trajectories",
-                                "the trajectories do not fit in the free memory") from None
-    finally:
-        release_lock(source)
-    if lock_path(path) != lock_path(source):
-        # -o OTHER.h5: OTHER's own lock too (load took RUN's), held to the final rename like a new run's, so that
-        # two resumes into one OTHER cannot write one OTHER.h5.partial (with --force the second truncated it)
-        acquire_lock(path)
-        sim.locks.append(weakref.finalize(sim, release_lock, path))
-    if path != source:
-        check_target(path, force, None, key="-o", partial_ok=in_place, force_hint="--force")
-    if os.path.exists(tmp) and not force and not in_place:
-        raise UserError(tmp, None, "exists: another run may be writing it, or an earlier one was killed; "
-                                   "remove it or use --force")
-    if note:
-        click.echo(f"rbx: {display_path(run_file)}: warning: {note}", err=True)
-    for field, chunks in sim.torn_chunks.items():
-        click.echo(f"rbx: {display_path(run_file)}: warning: collisions/{field}: {len(chunks)} chunk(s) of the last "
-                   "saved records failed their checksum (torn by the kill while HDF5 rewrote them): the saved "
-                   "records were read from the raw bytes of the chunks", err=True)
-    with connect(cluster) as sim.cluster:
-        compile_kernels(sim)
+    r = prepare_resume(run_file, out, force=force, max_size=overrides["max_size"])
+    shown = display_path(r.source)
+    if r.state == "complete":
+        click.echo(f"rbx: {shown}: the run is complete; nothing to resume", err=True)
+        return 0
+    if r.state == "renamed":
+        click.echo(f"rbx: {shown}: the run was complete (stopped before its rename): renamed to "
+                   f"{display_path(r.path)}", err=True)
+        return 0
+    for note in r.notes:
+        click.echo(f"rbx: {shown}: warning: {note}", err=True)
+    with connect(cluster) as r.sim.cluster:
+        compile_kernels(r.sim)
         if stop.start_running():
             raise KeyboardInterrupt
-        return _continue(sim, source, path, tmp, in_place, force, quiet, stop, write_initial, done, run_file, began)
-
-
-def _rename_complete(run_file, source, path, out, force):
-    """A ``.partial`` marked complete: its run was killed between marking it and renaming it to ``OUT.h5``, so
-    resuming it only does that rename (under the run's lock; never over a file without ``--force``)."""
-    from ..resume import finish_complete
-    if out and path != source[:-len(".partial")]:
-        raise UserError(None, "-o", f"{display_path(run_file)} holds a complete run that was not yet renamed; resume "
-                                    "it without -o to rename it to its own output")
-    finish_complete(source, path, force)
-    click.echo(f"rbx: {display_path(run_file)}: the run was complete (stopped before its rename): renamed to "
-               f"{display_path(path)}", err=True)
-    return 0
-
-
-def _continue(sim, source, path, tmp, in_place, force, quiet, stop, write_initial, done, run_file, began):
-    """The running part of --resume: a copy (or the .partial itself) made consistent, then streamed."""
-    import shutil
-
-    from .. import journal
-    from ..resume import make_consistent
-    from ..runfile import close_journal, open_journaled, stream
-
-    # work on a copy (unless resuming a .partial): if this attempt dies badly, the file it started from is intact
-    try:
-        if not in_place:
-            journal.discard(tmp)            # a journal left by a .partial that was removed by hand is not this copy's
-            shutil.copyfile(source, tmp)
-        h5 = open_journaled(tmp)
-    except OSError as exc:
-        if os.path.exists(tmp) and not in_place:
-            os.remove(tmp)
-        if exc.errno == errno.ENOSPC:      # not the user's input: the disk is still full
-            click.echo(f"rbx: {display_path(tmp)}: the disk is full: no room to continue the run; free some "
-                       f"space and resume again ({display_path(run_file)} is unchanged)", err=True)
-            return 1
-        raise UserError(tmp, None, f"cannot write: {exc.strerror or exc}") from None
-    try:
-        make_consistent(h5, sim, write_initial)
-    except BaseException:
-        h5.close()
-        close_journal(h5, commit=False)        # the file as it was: nothing of the attempt reaches it
-        if not in_place:
-            os.remove(tmp)
-        raise
-    return _execute(sim, path, stop, quiet, done, lambda **how: stream(sim, h5, tmp, path, fresh=False,
-                                                                       write_initial=write_initial,
-                                                                       replace=force or path == source, **how),
-                    began)
+        return _execute(r.sim, r.path, stop, quiet, r.done, lambda **how: resume_to_file(r, **how), began)
 
 
 def _execute(sim, path, stop, quiet, done, start, began):
-    """Run ``sim`` into ``path`` with ``start(progress=, should_stop=, report=)`` (:func:`rbx.api.run_to_file`
-    for a new run, :func:`rbx.runfile.stream` for a resumed one: the same code as the API) -> exit code. A run
+    """Run ``sim`` into ``path`` with ``start(progress=, should_stop=, report=)`` (:func:`rbx.driver.run_to_file`
+    for a new run, :func:`rbx.driver.resume_to_file` for a resumed one: the same code as the API) -> exit code. A run
     that finished ends with the summary line (unless ``quiet``); ``began``: when the command started.
 
     The file is renamed from ``.partial`` to ``path`` however the run ends (complete, interrupted, or an
     unexpected error), so ``path`` always holds every record computed so far, and ``complete`` says whether that
     is all of them (docs/reference.md §4)."""
     from ..cluster import ClusterError
-    from ..runfile import DiskFull, temporary_path
+    from ..paths import DiskFull, temporary_path
     from ..simulation import NonFiniteState
 
     progress = Progress("simulate", quiet=quiet, start=done, trajectories=sim.M)
@@ -260,6 +184,9 @@ def _execute(sim, path, stop, quiet, done, start, began):
         elif isinstance(failure, NonFiniteState):
             click.echo(f"rbx: {display_path(where)}: {failure}; the run stopped, the file holds every record up to "
                        "its last checkpoint (complete = false)", err=True)
+        elif isinstance(failure, DiskFull) and not os.path.exists(where):
+            click.echo(f"rbx: {display_path(where)}: {failure}; nothing was saved (the run stopped before its file "
+                       "was made)", err=True)
         elif isinstance(failure, DiskFull):
             click.echo(f"rbx: {display_path(where)}: {failure}; the run stopped, the file holds every record up to "
                        "its last checkpoint (complete = false). Free some space, then continue with: "

@@ -12,16 +12,17 @@ saved state; those are dropped and recomputed. A file with no ``final/`` (stoppe
 over from the config's initial state.
 
 A ``.partial`` already marked complete (a run killed between marking it and renaming it) needs no simulation:
-:func:`finish_complete` renames it.
+:func:`rbx.driver.finish_complete` renames it. The workflow around these (locks, copy, journal, rename) is
+:mod:`rbx.driver`'s: :func:`rbx.driver.prepare_resume`, :func:`rbx.driver.resume_to_file`.
 """
 import weakref
 
 import numpy as np
 
-from . import __version__
+from . import __version__, runfile
+from .locks import acquire_lock, release_lock
 from .model import ConfigError
-from . import runfile
-from .runfile import STATE_GROUPS, acquire_lock, check_target, latest_state, release_lock
+from .runfile import STATE_GROUPS, latest_state
 from .simulation import Simulation
 
 #: what ``final/`` must hold to continue (Simulation takes the rest from the config)
@@ -29,15 +30,18 @@ STATE_KEYS = ("time", "position", "velocity", "angular_velocity", "orientation",
               "last_wall", "last_rank")
 
 
-def load(run, source):
+def load(run, source, lock=True):
     """Read an incomplete run (a :class:`rbx.runfile.Run` opened from its file; the file is only read) ->
-    (Simulation, write_initial, done).
+    (Simulation, write_initial, done). ``lock``: take the file's run lock, held until the run's file is done
+    (False: a file on a read-only file system, which nothing can write).
 
     ``done``: collisions already made by the trajectories still running; ``write_initial``: True when the file
     has no saved state yet and the run starts over. Raises :class:`rbx.config.ConfigError` (naming ``source``)
     if the file does not hold a run that can be continued. Then call :func:`make_consistent` on a writable copy."""
     # the run's lock first (OUT.h5.lock for OUT.h5 and OUT.h5.partial): two resumes of one file, or a resume of a
     # file a run still writes, would both write it. Held until rbx.runfile.stream ends (sim.locks).
+    if not lock:
+        return _load(run, source)
     acquire_lock(run.path or source)
     try:
         sim, write_initial, done = _load(run, source)
@@ -84,6 +88,7 @@ def _load(run, source):
                           "missing: the run uses numerics.compensated and its saved state lacks the sums' error "
                           "terms (written by an older rbx), so a resumed run would not equal an uninterrupted one; "
                           "run it again from its config")
+    _check_state_fits(run, cfg, state, slot, damaged)
     collisions = state["collisions"].astype(np.int64)
     alive = state["alive"].astype(bool)
     running = np.unique(collisions[alive])
@@ -103,6 +108,43 @@ def _load(run, source):
     sim.torn_chunks = torn
     done = int(running[0]) if running.size else cfg.run.collisions
     return sim, False, done
+
+
+#: how far (in units of the table's size) a saved centre may lie outside the shrunk table: rounding on a wall
+FIT_TOLERANCE = 1e-9
+
+
+def _check_state_fits(run, cfg, state, slot, damaged):
+    """The saved state must be a state of the stored config before the run goes on: the root attributes written
+    with the run (radius, κ, table kind, walls) equal to the config's, every running trajectory's state finite
+    and its centre inside the table shrunk by the ball's radius. A config changed in the file (the radius 0.1
+    made 0.2) had continued the old orbits outside the new table and marked the file complete."""
+    for key, stored, expected in (("radius", run.radius, cfg.ball.radius), ("kappa", run.kappa, cfg.ball.kappa),
+                                  ("table_kind", run.table_kind, cfg.table_kind),
+                                  ("wall_names", list(run.wall_names), list(cfg.wall_names))):
+        if stored != expected:
+            raise damaged(f"config: {key}", f"is {expected!r} but the run was made with {stored!r} (root attribute "
+                                            f"'{key}'): the stored config was changed")
+    alive = np.asarray(state["alive"]).astype(bool)
+    for k in ("time", "position", "velocity", "angular_velocity", "orientation"):
+        values = np.asarray(state[k])[alive]
+        if values.dtype.kind != "f" or not np.all(np.isfinite(values)):
+            raise damaged(f"{slot}/{k}", "not finite for a running trajectory")
+    geom = cfg.geometry()
+    if geom.lattice is not None or not alive.any():
+        return          # a periodic table's centres are unfolded: any cell is the table
+    pos = np.asarray(state["position"])[alive]
+    if pos.shape[1:] != (cfg.dimension,):
+        raise damaged(f"{slot}/position", f"has shape {pos.shape[1:]} per trajectory, the config "
+                                          f"({cfg.dimension},)")
+    with np.errstate(all="ignore"):
+        clearance = np.asarray(geom.clearance(pos), dtype=float)
+    bad = np.nonzero(~(clearance >= -FIT_TOLERANCE * geom.size))[0]
+    if bad.size:
+        j = int(np.nonzero(alive)[0][bad[0]])
+        raise damaged(f"{slot}/position", f"trajectory {j} is at {pos[bad[0]].tolist()}, outside the table of the "
+                                          "stored config shrunk by the ball's radius: the config does not fit the "
+                                          "saved state (was it changed?)")
 
 
 def _torn_chunks(g, cfg, length, damaged):
@@ -250,19 +292,3 @@ def version_note(run):
     if written != __version__:
         return f"written by rbx {written}, continued with rbx {__version__}"
     return None
-
-
-def finish_complete(partial, path, force=False):
-    """Rename the complete run ``partial`` (``OUT.h5.partial``, marked ``complete = true``: its process was killed
-    before the rename) to ``path`` as the end of a run would have: under the run's lock (a stale one is taken
-    over), never over an existing file without ``force``. Raises :class:`rbx.runfile.FileError`."""
-    acquire_lock(path)
-    try:
-        check_target(path, force, None, partial_ok=True)
-        runfile.publish(partial, path, True, force, _rename_failed)
-    finally:
-        release_lock(path)
-
-
-def _rename_failed(message):
-    raise runfile.FileError(None, None, message)

@@ -1,0 +1,538 @@
+"""The run driver: a run into its file, from the first check to the last rename (docs/reference.md §4–5).
+
+The file's lifecycle: the checks before anything is written (:func:`check_target`: what the output is, the
+``.partial`` and lock beside it; :func:`check_size`: ``output.max_size`` and the free space, for a new run and a
+resumed one alike), ``OUT.h5.partial.new`` made under the run's lock (:func:`create`, :mod:`rbx.locks`), renamed
+to ``OUT.h5.partial`` once its structure is on disk (:func:`publish_new`), the run streamed into it
+(:func:`stream`) and renamed to ``OUT.h5`` however it ends (:func:`publish`). :func:`run_to_file` runs a new
+simulation so; :func:`prepare_resume` and :func:`resume_to_file` continue an interrupted run (the source's lock, a
+copy unless it is resumed in place, the journal, the state checked against its own config,
+:mod:`rbx.continuation`), for ``rbx simulate --resume`` and :func:`rbx.resume` alike.
+
+The file's layout (what is written inside) is :mod:`rbx.runfile`'s; this module decides which file is written,
+when, and under which name.
+"""
+import contextlib
+import dataclasses
+import errno
+import os
+import shutil
+
+import numpy as np
+import yaml
+
+from . import journal
+from .locks import LockNotWritable, acquire_lock, lock_holder, lock_path, release_lock, taken_fresh
+from .locks import busy as _busy
+from .model import FIELD
+from .paths import (NO_ROOM, DiskFull, FileError, check_replaceable, creation_path, display_path, format_size,
+                    temporary_path)
+from .runfile import (H5Sink, Run, _text, close_journal, commit, config_yaml, file_path, fill_returns, journal_of,
+                      open_journaled)
+
+# ---- the .partial lifecycle --------------------------------------------------------------------------------------
+
+def estimated_size(cfg):
+    """Bytes a run of ``cfg`` writes, about: every recorded field of every record of every trajectory (a trajectory
+    may end early, so this is the most), the final state, and chunk rounding across trajectories -> int."""
+    M, n = cfg.run.trajectories, cfg.dimension
+    records = cfg.run.collisions // cfg.output.every + 1
+    per_record = sum(FIELD[f].size(n) * np.dtype(FIELD[f].dtype).itemsize for f in cfg.output.record)
+    state = M * (4 * n + n * n + 9 + 8) * 8                 # final/: the state and its counters, generously
+    steps = records * 8 if cfg.output.record else 0          # collisions/step
+    return int(M * records * per_record * 1.05 + steps + state + (1 << 20))
+
+
+def check_size(cfg, path, key_file=None, written=0):
+    """Refuse a run whose file would be larger than ``output.max_size`` or than the free space where it goes:
+    raises :class:`FileError` before anything is written. ``key_file``: (file, key) the limit is named by;
+    ``written``: bytes of the file already on that disk (a run resumed in place: only the rest must fit)."""
+    need = estimated_size(cfg)
+    # compression: the size before it (what it saves depends on the numbers, unknown before the run)
+    raw = "" if cfg.output.compression == "none" else " before compression"
+    if need > cfg.output.max_size:
+        file, key = key_file or (cfg.source, "output.max_size")
+        raise FileError(file, key, f"the run would write about {format_size(need)}{raw} "
+                                   f"({cfg.run.trajectories} trajectories × {cfg.run.collisions // cfg.output.every + 1}"
+                                   f" records of {', '.join(cfg.output.record)}), more than the limit "
+                                   f"{format_size(cfg.output.max_size)}; raise output.max_size or --max-size if that "
+                                   "is meant")
+    folder = os.path.dirname(os.path.abspath(path)) or "."
+    while not os.path.isdir(folder) and os.path.dirname(folder) != folder:
+        folder = os.path.dirname(folder)                   # the folder is made later: ask its nearest parent
+    try:
+        free = shutil.disk_usage(folder).free
+    except OSError:
+        return
+    if need - written > free:
+        more = f", {format_size(written)} of it written already," if written else ""
+        raise FileError(path, None, f"the run would write about {format_size(need)}{raw}{more} but the disk has "
+                                    f"{format_size(free)} free")
+
+
+def check_target(path, force, key, file=None, config_source=None, partial_ok=False, force_hint="--force"):
+    """Refuse to write ``path`` when it is a folder, the config or a file it includes (``config_source``: the
+    config's path, or a sequence of it and its includes), or (without ``force``) when it exists or
+    a run may still be writing its ``.partial``. Raises :class:`FileError`; ``key``/``file`` name where the path
+    came from (``-o``, ``output.path``, ``output``), ``force_hint`` how to force (``--force``, ``force=True``)."""
+    show = display_path(path)
+    holder = lock_holder(path)
+    if holder is not None:
+        raise _busy(path, holder)
+    if os.path.isdir(path) and not os.path.islink(path):
+        raise FileError(file, key, f"{show} is a directory; give a file name such as run.h5")
+    check_replaceable(path, key, file)       # a device, FIFO, socket or link: never replaced, even with force
+    sources = [config_source] if isinstance(config_source, str) else list(config_source or ())
+    for i, source in enumerate(sources):
+        if source and os.path.exists(path) and os.path.exists(source) and os.path.samefile(path, source):
+            raise FileError(file, key, f"{show} is the config file itself" if i == 0 else
+                            f"{show} is a file the config includes ({display_path(source)})")
+    forget_second_name(temporary_path(path), path)
+    if os.path.exists(path) and not force:
+        raise FileError(path, None, f"exists; use {force_hint} to overwrite it")
+    tmp = temporary_path(path)
+    if os.path.exists(tmp) and not force and not partial_ok:
+        raise FileError(tmp, None, "exists: another run may be writing it, or an earlier one was killed "
+                                   f"(try: rbx simulate --resume {display_path(tmp)}); remove it or use {force_hint}")
+
+
+def forget_second_name(tmp, path):
+    """Remove ``tmp`` (``OUT.h5.partial``) when it is ``path`` itself under a second name: the run that linked it
+    to ``path`` was killed before it removed ``tmp`` (a resume said "exists" for ever, the ``.partial`` was never
+    cleaned up). Only a regular file that is the same inode as ``path``; a live run's is not touched (the
+    caller checked the lock) -> True if removed."""
+    try:
+        a, b = os.lstat(tmp), os.lstat(path)
+    except OSError:
+        return False
+    if (a.st_ino, a.st_dev) != (b.st_ino, b.st_dev) or not os.path.isfile(tmp) or os.path.islink(tmp):
+        return False
+    if lock_holder(path) is not None:
+        return False
+    with contextlib.suppress(FileNotFoundError):
+        os.remove(tmp)
+    return True
+
+
+def create(path, force=False):
+    """Open a new file for a new run (folders made as needed) -> ``h5py.File`` at :func:`creation_path`
+    (``OUT.h5.partial.new``), which :func:`stream` renames to ``OUT.h5.partial`` once the run's structure is
+    written and on disk (:func:`publish_new`). OSError if it cannot.
+
+    The run's lock (:func:`acquire_lock`, ``OUT.h5.lock``) is taken first and held until :func:`stream` ends; a
+    ``.partial`` that exists is refused (and its rename later does not replace one that appeared meanwhile):
+    of two runs started on one output, the second fails here instead of both writing one file. With ``force`` a
+    leftover ``.partial`` is removed first (never one a live run holds the lock of). A leftover ``.partial.new``
+    is removed when no run holds the lock (a killed run's: it holds no records); the ``.partial.new`` of a run
+    of this same process (which holds the lock already) is created exclusively, so the second fails."""
+    os.makedirs(os.path.dirname(os.path.abspath(path)) or ".", exist_ok=True)
+    tmp, new = temporary_path(path), creation_path(path)
+    lock = acquire_lock(path)   # first: --force must not remove the .partial of a run still writing it
+    try:
+        if force and os.path.exists(tmp):
+            os.remove(tmp)
+        if os.path.exists(tmp):
+            raise FileExistsError(tmp)
+        if taken_fresh(lock):      # the lock was free: no live run is making this file
+            with contextlib.suppress(FileNotFoundError):
+                os.remove(new)
+            # journals without their file (a killed run's .partial removed by hand): the next file here may get
+            # the same inode number, and must not be mistaken for theirs
+            journal.discard(new)
+            journal.discard(tmp)
+        return open_journaled(new, create=True)
+    except (FileExistsError, OSError) as exc:
+        release_lock(path)
+        for busy in (tmp, new):
+            if os.path.exists(busy):
+                raise FileError(busy, None, "exists: another run is writing it (or was killed); remove it or use "
+                                            "--force") from None
+        raise exc
+    except BaseException:
+        release_lock(path)
+        raise
+
+
+def _is_complete_run(path):
+    import h5py
+    try:
+        with h5py.File(path, "r") as f:
+            return bool(f.attrs.get("complete", False))
+    except Exception:   # noqa: BLE001 - not an rbx run, or damaged: not a result worth keeping over the new one
+        return False
+
+
+def publish_new(h5, tmp):
+    """Rename a file made by :func:`create` (open as ``h5``, at ``tmp + '.new'``) to ``tmp`` once its structure is
+    written: flushed and fsynced first, so that ``tmp`` is a whole HDF5 file from the instant it exists (a kill
+    while HDF5 wrote the structure of a new ``.partial`` used to leave a torn file). Not over a ``tmp`` that
+    appeared meanwhile: :class:`FileError`. Nothing to do for any other file (a resumed one)."""
+    new = f"{tmp}.new"
+    if os.path.abspath(file_path(h5)) != os.path.abspath(new):
+        return
+    h5.flush()
+    commit(h5)
+    jf = journal_of(h5)
+    if jf is not None:
+        os.fsync(jf.fd)
+    try:
+        os.link(new, tmp)                  # atomic, and fails if tmp exists
+    except FileExistsError:
+        raise FileError(tmp, None, "appeared while this run was starting (another run?); remove it or use "
+                                   "--force") from None
+    except OSError:                        # a file system without hard links: check, then rename
+        if os.path.exists(tmp):
+            raise FileError(tmp, None, "appeared while this run was starting (another run?)") from None
+        os.replace(new, tmp)
+    else:
+        os.remove(new)
+    if jf is not None:
+        jf.rename(tmp)
+    _fsync_folder(tmp)
+
+
+def _fsync_folder(path):
+    """Make a rename in ``path``'s folder durable (where the system allows opening a folder)."""
+    with contextlib.suppress(OSError):
+        fd = os.open(os.path.dirname(os.path.abspath(path)) or ".", os.O_RDONLY)
+        try:
+            os.fsync(fd)
+        finally:
+            os.close(fd)
+
+
+def stream(sim, h5, tmp, path, *, fresh=True, progress=None, should_stop=None, write_initial=None, report=None,
+           replace=False):
+    """Run ``sim`` into the open file ``h5`` (at ``tmp``, or made by :func:`create` and renamed to ``tmp`` once
+    its structure is written: :func:`publish_new`), mark it complete or not, close it and rename it to ``path``
+    -> True if the run finished (False: ``should_stop()`` said stop). The config stored in the file names
+    ``path`` as its ``output.path``.
+
+    The rename happens however the run ends (complete, interrupted, an error), so the records computed so far
+    are in ``path`` and ``complete`` says whether that is all of them (docs/reference.md §4), with two exceptions
+    that keep what is already there: a run that did not finish never replaces a *complete* ``path`` (``--force`` then
+    Ctrl-C used to leave a fragment in place of a finished result), and without ``replace`` (``--force``) a
+    ``path`` that appeared while this run was writing (another run) is not replaced either. Either way the
+    records stay in ``tmp``: said through ``report(message)`` for an unfinished run, a :class:`FileError` for a
+    finished one. A rename that fails is passed to ``report``. Errors writing (OSError) propagate."""
+    complete = False
+    sink = None
+    new = os.path.abspath(file_path(h5)) == os.path.abspath(f"{tmp}.new")
+    raised = True
+    try:
+        try:
+            with h5:
+                sink = H5Sink(h5, sim.cfg, fresh=fresh, path=path)
+                if not fresh:
+                    _store_path(h5, sim.cfg, path)
+                publish_new(h5, tmp)
+                new = False
+                try:
+                    complete = sim.run(sink, progress=progress, should_stop=should_stop, write_initial=write_initial)
+                finally:
+                    with contextlib.suppress(Exception):   # an error writing must not hide the error itself
+                        sink.settle()
+                h5.attrs["complete"] = bool(complete)
+                raised = False
+        finally:
+            # the last commit: what HDF5 wrote when it closed the file; none after an error (the file then stays at
+            # its last checkpoint exactly: its records are those the saved state accounts for), nor if it fails
+            failure = close_journal(h5, commit=not raised)
+            if failure is not None:
+                complete = False
+        if failure is not None:
+            raise failure
+        return complete
+    finally:
+        try:
+            if new:      # stopped before its structure was written: nothing worth keeping
+                with contextlib.suppress(OSError):
+                    os.remove(f"{tmp}.new")
+                journal.discard(f"{tmp}.new")
+            elif journal.pending(tmp):
+                # a commit failed after its commit point: the file is whole only with its journal, which is
+                # applied when the .partial is next opened (resumed), so the .partial is not renamed
+                pass
+            else:
+                if sink is not None and sink.reserved and journal_of(h5) is None:
+                    trim(tmp)        # a journaled file was cut to HDF5's end when it closed (JournaledFile.close)
+                publish(tmp, path, complete, replace, report)
+        finally:
+            # the run's lock (taken by create, or by rbx.resume.load for the file resumed), released last
+            release_lock(path)
+            for release in getattr(sim, "locks", ()):
+                release()
+
+
+def _store_path(h5, cfg, path):
+    """A resumed run written to another file (``--resume RUN.h5 -o OUT.h5``): its stored config names that file."""
+    try:
+        stored = yaml.safe_load(_text(h5.attrs["config"]))
+        if (stored.get("output") or {}).get("path") == os.path.abspath(path):
+            return
+    except Exception:   # noqa: BLE001 - unreadable: written anew below
+        pass
+    h5.attrs["config"] = config_yaml(cfg, path)
+
+
+
+
+def trim(path):
+    """Give back the room :meth:`H5Sink._reserve` allocated and HDF5 did not use: HDF5 cuts the file to its own
+    end when it closes a file it opened for writing (it keeps a longer file it made longer itself)."""
+    import h5py
+    with contextlib.suppress(Exception):
+        with h5py.File(path, "r+"):
+            pass
+
+
+def publish(tmp, path, complete, replace, report):
+    """Rename ``tmp`` to ``path`` by the rules of :func:`stream` (also the last step of a resume in place)."""
+    def say(message):
+        if report is not None:
+            report(message)
+
+    if not complete and os.path.exists(path) and _is_complete_run(path):
+        say(f"{display_path(path)}: kept: it holds a complete run and this one did not finish; the records so far "
+            f"are in {display_path(tmp)}")
+        return
+    try:
+        check_replaceable(path)          # a device or a link put there while the run wrote: not replaced
+    except FileError as exc:
+        say(f"{exc.problem}; the records are in {display_path(tmp)}")
+        return
+    try:
+        if replace:
+            os.replace(tmp, path)
+        else:
+            try:
+                os.link(tmp, path)      # fails if path exists: no run's file is replaced without --force
+            except FileExistsError:
+                raise
+            except OSError:             # a file system without hard links: check, then rename (not atomic)
+                if os.path.exists(path):
+                    raise FileExistsError(path) from None
+                os.replace(tmp, path)
+                return
+            os.remove(tmp)
+    except FileExistsError:
+        message = (f"appeared while this run was writing (another run?) and was not replaced; the records are in "
+                   f"{display_path(tmp)}")
+        if complete:
+            raise FileError(path, None, message) from None
+        say(f"{display_path(path)}: {message}")
+    except OSError as exc:
+        say(f"{display_path(path)}: cannot rename {display_path(tmp)} to it: {exc.strerror or exc}; the records "
+            f"are in {display_path(tmp)}")
+
+
+
+
+
+def write_returns(path, cfg, result):
+    """Write a return-angle experiment (:class:`rbx.histogram.Returns`) to a new HDF5 file (via ``path.partial``,
+    renamed at the end).
+
+    Root attributes :data:`rbx.runfile.ROOT_ATTRS`; group ``returns/``: ``angle`` (K,) return angles [rad],
+    ``trajectory`` (K,) their trajectory indices, ``collisions`` (K,) collisions to return, ``initial_angle`` (M,)
+    sampled angles; attributes :data:`rbx.runfile.RETURNS_ATTRS` (:func:`rbx.runfile.fill_returns`)."""
+    try:
+        h5 = create(path)
+        try:
+            with h5:
+                fill_returns(h5, cfg, result, path)
+        finally:
+            failure = close_journal(h5)
+        if failure is not None:
+            raise failure
+        check_replaceable(path)
+        os.replace(creation_path(path), path)
+    finally:
+        release_lock(path)
+
+
+# ---- a new run ----------------------------------------------------------------------------------------------------
+
+def run_to_file(sim, path, *, progress=None, should_stop=None, report=None, force=False):
+    """Run a new ``sim`` into ``path`` through ``path.partial`` -> True if it finished (see :func:`stream`;
+    ``force``: replace an existing ``path``). Raises :class:`FileError` if the file cannot be created,
+    :class:`DiskFull` if there is no room for it, OSError if writing fails midway (the file then holds what was
+    written, ``complete = False``)."""
+    tmp = temporary_path(path)
+    try:
+        h5 = create(path, force=force)
+    except DiskFull:
+        raise
+    except OSError as exc:
+        if exc.errno in NO_ROOM:     # not the user's input: the disk (or a size limit) has no room
+            raise DiskFull(f"cannot write: {exc.strerror}: no room on the disk (or a size limit, ulimit -f?)") \
+                from None
+        raise FileError(tmp, None, f"cannot write: {exc.strerror or exc}") from None
+    return stream(sim, h5, tmp, path, fresh=True, progress=progress, should_stop=should_stop, report=report,
+                  replace=force)
+
+
+# ---- resuming a run -----------------------------------------------------------------------------------------------
+
+@dataclasses.dataclass
+class Resumption:
+    """An interrupted run made ready to continue (:func:`prepare_resume`).
+
+    ``state``: 'continue' (``sim`` set up from the file's saved state), 'renamed' (the file held a complete run
+    killed before its rename, which was done now), or 'complete' (nothing to do). ``source``: the file read,
+    ``path``: the file written in the end, ``tmp``: its ``.partial`` (``source`` itself when resumed in place),
+    ``done``: collisions already made, ``notes``: warnings to show (another rbx version, chunks read raw)."""
+    state: str
+    source: str
+    path: str
+    tmp: str = None
+    in_place: bool = False
+    force: bool = False
+    sim: object = None
+    write_initial: bool = False
+    done: int = 0
+    notes: list = dataclasses.field(default_factory=list)
+
+
+def resumed_source(run_file):
+    """The file ``--resume RUN`` reads -> absolute path: RUN itself, or ``RUN.partial`` when RUN does not exist
+    and its run was interrupted (killed: only ``OUT.h5.partial`` is left; ``--resume OUT.h5`` said "file not
+    found")."""
+    source = os.path.abspath(os.fspath(run_file))
+    if not os.path.lexists(source) and os.path.isfile(temporary_path(source)):
+        return temporary_path(source)
+    return source
+
+
+def prepare_resume(run_file, output=None, *, force=False, max_size=None, out_key="-o", size_key="--max-size",
+                   force_hint="--force"):
+    """Read the interrupted run in ``run_file`` and set it up to continue into ``output`` (default: the run's own
+    output, working on its ``.partial`` in place) -> :class:`Resumption`. Nothing is written yet, except the rename
+    of a complete ``.partial`` (``state`` 'renamed').
+
+    Checked before any work: the source's lock (a run still writing it is named; a source on a read-only file
+    system, where nothing can write it, is read without), the saved state against the stored config
+    (:func:`rbx.continuation.load`), the output (:func:`check_target`) and the size the run's file will reach
+    against ``output.max_size`` (or ``max_size``: bytes or a text such as '50 GB', named by ``size_key``) and the
+    free space. Raises :class:`FileError` or :class:`rbx.model.ConfigError`."""
+    from . import continuation
+    from .config import loads
+    source = resumed_source(run_file)
+    default = source[:-len(".partial")] if source.endswith(".partial") else source
+    path = os.path.abspath(os.fspath(output)) if output else default
+    tmp = temporary_path(path)
+    in_place = tmp == source
+    # the source's lock before its file is read: a run still writing it is named in one line (reading a file that
+    # HDF5 is writing can fail as "damaged"); continuation.load holds it on for the run
+    locked = _lock_source(source, in_place)
+    try:
+        run = Run.open(source)
+        if run.complete:
+            run.close()
+            if not source.endswith(".partial"):
+                return Resumption("complete", source, path)
+            if output and path != default:
+                raise FileError(None, out_key, f"{display_path(source)} holds a complete run that was not yet "
+                                               "renamed; resume it without -o to rename it to its own output")
+            finish_complete(source, path, force)
+            return Resumption("renamed", source, path)
+        note = continuation.version_note(run)
+        with run:
+            try:
+                sim, write_initial, done = continuation.load(run, source, lock=locked)
+            except MemoryError:
+                raise FileError(source, "run.trajectories", "the trajectories do not fit in the free memory") \
+                    from None
+    finally:
+        if locked:
+            release_lock(source)
+    if lock_path(path) != lock_path(source):
+        # -o OTHER.h5: OTHER's own lock too, held to the final rename like a new run's, so that two resumes into
+        # one OTHER cannot write one OTHER.h5.partial (with --force the second truncated it)
+        import weakref
+        acquire_lock(path)
+        sim.locks.append(weakref.finalize(sim, release_lock, path))
+    if path != source:
+        check_target(path, force, out_key, partial_ok=in_place, force_hint=force_hint)
+    if os.path.exists(tmp) and not force and not in_place:
+        raise FileError(tmp, None, f"exists: another run may be writing it, or an earlier one was killed; remove "
+                                   f"it or use {force_hint}")
+    # every limit a new run has: output.max_size (or the one given now) and the free space, for the whole file
+    cfg = sim.cfg
+    if max_size is not None:
+        cfg = loads(run.attrs["config"], source, {"max_size": max_size})
+        key_file = (None, size_key)
+    else:
+        key_file = (source, "config: output.max_size")
+    written = os.path.getsize(source) if in_place else 0
+    check_size(cfg, path, key_file, written=written)
+    notes = [note] if note else []
+    for field, chunks in sim.torn_chunks.items():
+        notes.append(f"collisions/{field}: {len(chunks)} chunk(s) of the last saved records failed their checksum "
+                     "(torn by the kill while HDF5 rewrote them): the saved records were read from the raw bytes "
+                     "of the chunks")
+    return Resumption("continue", source, path, tmp, in_place, force or path == source, sim, write_initial, done,
+                      notes)
+
+
+def _lock_source(source, in_place):
+    """Take the lock of the file a resume reads -> True; False when its folder cannot be written (a read-only file
+    system: nothing can write the file there either) and the run is written elsewhere. In place it must be
+    taken: :class:`FileError`."""
+    try:
+        acquire_lock(source)
+    except LockNotWritable as exc:
+        if in_place:
+            raise FileError(source, None, f"cannot be resumed in place: {exc.problem} (a read-only file system?); "
+                                          "resume it into a writable folder with -o") from None
+        return False
+    return True
+
+
+def resume_to_file(r, *, progress=None, should_stop=None, report=None):
+    """Continue the run :func:`prepare_resume` set up -> True if it finished (see :func:`stream`). Works on a copy
+    of the source (unless resumed in place): if this attempt dies badly, the file it started from is intact.
+    Raises :class:`DiskFull` when the copy finds no room (the source unchanged), OSError if writing fails
+    midway."""
+    from . import continuation
+    sim, tmp = r.sim, r.tmp
+    try:
+        if not r.in_place:
+            journal.discard(tmp)            # a journal left by a .partial that was removed by hand is not this copy's
+            shutil.copyfile(r.source, tmp)
+        h5 = open_journaled(tmp)
+    except OSError as exc:
+        if os.path.exists(tmp) and not r.in_place:
+            os.remove(tmp)
+        if exc.errno in NO_ROOM:           # not the user's input: the disk is still full
+            raise DiskFull(f"the disk is full: no room to continue the run; free some space and resume again "
+                           f"({display_path(r.source)} is unchanged)") from None
+        raise FileError(tmp, None, f"cannot write: {exc.strerror or exc}") from None
+    try:
+        continuation.make_consistent(h5, sim, r.write_initial)
+    except BaseException:
+        h5.close()
+        close_journal(h5, commit=False)        # the file as it was: nothing of the attempt reaches it
+        if not r.in_place:
+            os.remove(tmp)
+        raise
+    return stream(sim, h5, tmp, r.path, fresh=False, write_initial=r.write_initial, replace=r.force,
+                  progress=progress, should_stop=should_stop, report=report)
+
+
+def finish_complete(partial, path, force=False):
+    """Rename the complete run ``partial`` (``OUT.h5.partial``, marked ``complete = true``: its process was killed
+    before the rename) to ``path`` as the end of a run would have: under the run's lock (a stale one is taken
+    over), never over an existing file without ``force``. Raises :class:`rbx.FileError`."""
+    acquire_lock(path)
+    try:
+        if forget_second_name(partial, path):
+            return          # the rename was done: only the .partial's second name was left
+        check_target(path, force, None, partial_ok=True)
+        publish(partial, path, True, force, _rename_failed)
+    finally:
+        release_lock(path)
+
+
+def _rename_failed(message):
+    raise FileError(None, None, message)

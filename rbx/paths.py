@@ -1,0 +1,138 @@
+"""The files around a run, named and checked before rbx reads or replaces them: the errors a file raises
+(:class:`FileError`, :class:`DiskFull`), the names beside a run's output (``OUT.h5.partial``, ``.partial.new``,
+``.lock``), and what a path is (:func:`what_it_is`): rbx reads only regular files of a sane size
+(:func:`config_file_problem`) and replaces only regular files (:func:`check_replaceable`).
+
+The lowest of the run-file modules: :mod:`rbx.locks`, :mod:`rbx.runfile` and :mod:`rbx.driver` import it, it
+imports none of them.
+"""
+import errno
+import os
+import stat
+
+#: the largest config (or table, boundary) file rbx reads: a YAML config is a few kB
+MAX_CONFIG_BYTES = 64 << 20
+
+#: errno values that mean "no room": the disk full, a quota, a file size limit
+NO_ROOM = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
+
+
+class FileError(Exception):
+    """A file that cannot be read or written as asked: ``<file>: <key>: <problem>`` (the parts that apply)."""
+
+    def __init__(self, file, key, problem):
+        self.file = None if file is None else str(file)
+        self.key, self.problem = key, problem
+        super().__init__(": ".join(x for x in (self.file, key, problem) if x))
+
+
+class DiskFull(OSError):
+    """The disk has no room for the next block: the run stops between blocks, its file intact and resumable."""
+
+    def __init__(self, message):
+        super().__init__(errno.ENOSPC, message)
+
+    def __str__(self):
+        return self.strerror
+
+
+def display_path(path):
+    """A path as the user would write it: relative to the working directory when it lies below it."""
+    if path is None:
+        return None
+    path = str(path)
+    if not os.path.isabs(path):
+        return path
+    try:
+        rel = os.path.relpath(path)
+    except (ValueError, OSError):   # another drive (Windows); a working directory that was deleted
+        return path
+    return path if rel.startswith("..") else rel
+
+
+def format_size(nbytes):
+    """'2.3 TB', '512 MB', … (decimal units, as disks are sold)."""
+    for unit, scale in (("PB", 1e15), ("TB", 1e12), ("GB", 1e9), ("MB", 1e6), ("kB", 1e3)):
+        if nbytes >= scale:
+            return f"{nbytes / scale:.3g} {unit}"
+    return f"{int(nbytes)} bytes"
+
+
+def temporary_path(path):
+    """Where a run writes until it stops: beside the target, renamed over it at the end."""
+    return f"{path}.partial"
+
+
+def creation_path(path):
+    """Where a new run's file is made, before its structure is complete: ``OUT.h5.partial.new``, renamed to
+    ``OUT.h5.partial`` once the structure is on disk (:func:`rbx.driver.stream`), so that a ``.partial`` is never
+    a torn HDF5 file. A leftover one (a run killed in its first milliseconds) holds no records: the next run
+    removes it."""
+    return f"{temporary_path(path)}.new"
+
+
+def lock_path(path):
+    """The lock file of a run writing ``path`` (``OUT.h5`` -> ``OUT.h5.lock``; a ``.partial`` is locked by its
+    output's lock)."""
+    path = os.path.abspath(str(path))
+    if path.endswith(".partial"):
+        path = path[:-len(".partial")]
+    return f"{path}.lock"
+
+
+def what_it_is(path):
+    """What ``path`` names, by its own entry (a link is not followed) -> None (nothing there), 'a regular file',
+    'a directory', 'a symbolic link to X' ('…, which does not exist'), 'a character device', 'a block device',
+    'a FIFO (named pipe)', 'a socket'."""
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return None
+    except OSError:
+        return "unreadable"
+    mode = st.st_mode
+    if stat.S_ISLNK(mode):
+        try:
+            target = os.readlink(path)
+        except OSError:
+            target = "?"
+        return f"a symbolic link to {target}" + ("" if os.path.exists(path) else ", which does not exist")
+    for test, name in ((stat.S_ISREG, "a regular file"), (stat.S_ISDIR, "a directory"),
+                       (stat.S_ISCHR, "a character device"), (stat.S_ISBLK, "a block device"),
+                       (stat.S_ISFIFO, "a FIFO (named pipe)"), (stat.S_ISSOCK, "a socket")):
+        if test(mode):
+            return name
+    return "not a regular file"
+
+
+def check_replaceable(path, key=None, file=None):
+    """Raise :class:`FileError` unless ``path`` is nothing yet or a regular file: rbx replaces only regular files
+    (with ``--force``), never a device (``-o /dev/null --force`` as root would have replaced the system's), a
+    FIFO, a socket or a symbolic link (a dangling one was found only after the whole run, when the rename
+    refused it)."""
+    what = what_it_is(path)
+    if what is None or what == "a regular file" or what == "a directory":   # a directory: the caller says so
+        return
+    show = display_path(path)
+    if what.startswith("a symbolic link"):
+        raise FileError(file, key, f"{show} is {what}; rbx writes only regular files and does not write through "
+                                   "links: give the file's own path, or remove the link")
+    raise FileError(file, key, f"{show} is {what}, not a regular file; rbx replaces only regular files: give "
+                               "a file name such as run.h5")
+
+
+def config_file_problem(path, limit=MAX_CONFIG_BYTES):
+    """Why the file at ``path`` is not one to read a config from -> None (a regular file of at most ``limit``
+    bytes), or the problem: a device (``/dev/zero`` was read without bound), a FIFO (reading it waited for ever),
+    a socket, a file larger than ``limit``. Raises FileNotFoundError / IsADirectoryError / PermissionError /
+    OSError as ``open`` would."""
+    st = os.stat(path)
+    if stat.S_ISDIR(st.st_mode):
+        raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), path)
+    if not stat.S_ISREG(st.st_mode):
+        what = what_it_is(os.path.realpath(path)) or "not a regular file"
+        return f"is {what}, not a regular file: give a YAML file"
+    if st.st_size > limit:
+        return (f"is {format_size(st.st_size)}, larger than a config can be ({limit >> 20} MiB): give a YAML "
+                "config file")
+    return None
