@@ -1,0 +1,85 @@
+"""Observables of rbx/observables.py against closed forms, those tests/test_sweep.py does not cover: the escape
+rate through a small hole (the flux of the Liouville measure through the hole), the diffusion coefficient of the
+specular Lorentz gas (Machta–Zwanzig's random walk between traps, and the Einstein relation on the same orbits),
+and the regular share (integrable against ergodic). Starts are a point particle's (initial: {sample:
+point_particle}): the invariant measure the closed forms are written for."""
+import math
+
+import numpy as np
+import pytest
+
+import rbx
+from rbx import analysis
+from rbx.study import sweep
+
+SPECULAR = {"rule": "constant", "rank": 0}
+
+
+def point_study(base, measure, trajectories, collisions, seed, vary=None):
+    return {"base": base, "set": {"initial": {"sample": "point_particle"}},
+            "vary": vary or {"ball.inertia": [0.5]}, "measure": measure,
+            "ensemble": {"trajectories": trajectories, "collisions": collisions, "seed": seed}}
+
+
+def test_escape_rate_through_a_small_hole():
+    # A point particle in a chaotic table of area A with a hole of length h escapes at the rate of the flux of the
+    # Liouville measure through the hole, h·∫cos φ dφ / (2π·A) = h/(πA) per unit path, to first order in h
+    # (Kac's lemma: the mean return time is πA/h). The table: a Sinai table (disc of radius 0.4 in a 2 × 1.5
+    # rectangle) with its top-left corner cut by a short edge, the hole (0.09 long once shrunk by R = 0.01).
+    base = {"table": {"kind": "polygon", "vertices": [[0, 0], [2, 0], [2, 1.5], [0.07, 1.5], [0, 1.43]],
+                      "obstacles": [{"name": "disc", "disc": {"center": [1.0, 0.75], "radius": 0.4}}]},
+            "boundary": {"default": SPECULAR, "walls": {"edge3": {"rule": "exit"}}}, "ball": {"radius": 0.01}}
+    ds = sweep(point_study(base, ["escape_rate", "trapped_share"], 3000, 3000, 2))
+    geom = rbx.load({**base, "initial": {"sample": "point_particle"}}).geometry()
+    area, _ = analysis.table_measure(geom)
+    hole = analysis.wall_measure(geom, 3)
+    assert 0.08 < hole < 0.1 and 2.3 < area < 2.5
+    expected = hole / (math.pi * area)
+    rate, err = float(ds["escape_rate"][0]), float(ds["escape_rate_stderr"][0])
+    assert 0 < err < 0.05 * rate
+    assert abs(rate - expected) < 4 * err, (rate, err, expected)
+    # the rough ball's rate would be h/(4A) (velocity dimension 3): 21 % lower, far outside the error
+    assert abs(rate - hole / (4 * area)) > 8 * err
+    assert float(ds["trapped_share"][0]) < 0.01           # e^(−γ·path): ~1e-9 survive 3000 collisions
+
+
+def test_diffusion_of_the_specular_lorentz_gas():
+    # The triangular Lorentz gas of finite horizon (lattice spacing 1; the centre meets discs of radius
+    # r = 0.36 + R = 0.46). Machta & Zwanzig (Phys. Rev. Lett. 50, 1959 (1983)): a random walk between the
+    # triangular traps, of free area A_t = (√3/2 − πr²)/2 each, left through 3 gaps of width w = 1 − 2r at the
+    # small-hole rate 3w/(πA_t), by jumps of l = 1/√3: D = l²/(4τ). Exact as w → 0; at w = 0.08 within 20 %.
+    # And the Einstein relation on the same orbits, D = ⟨|x(T) − x(0)|²⟩/(4T), computed here independently of
+    # the observable's segments.
+    base = str(rbx.__path__[0] + "/../configs/examples/lorentz-triangular.yaml")
+    study = point_study(base, [{"diffusion": {"segments": 20}}], 200, 20000, 3)
+    study["set"]["boundary"] = {"default": SPECULAR}
+    ds = sweep(study)
+    D, err = float(ds["diffusion"][0]), float(ds["diffusion_stderr"][0])
+    assert 0 < err < 0.1 * D
+    r = 0.46
+    area_trap = (math.sqrt(3) / 2 - math.pi * r * r) / 2
+    w = 1 - 2 * r
+    machta_zwanzig = (1 / 3) * (3 * w / (math.pi * area_trap)) / 4
+    assert abs(D - machta_zwanzig) < 0.2 * machta_zwanzig, (D, machta_zwanzig)
+    exp = rbx.load(base, {"boundary": {"default": SPECULAR}, "initial": {"sample": "point_particle"},
+                          "run.trajectories": 200, "run.collisions": 20000, "run.seed": 7,
+                          "output.record": ["time", "position"], "output.every": 20000})
+    run = rbx.simulate(exp)
+    dx = run.position[:, -1] - run.position[:, 0]
+    T = run.time[:, -1] - run.time[:, 0]
+    per = np.sum(dx * dx, axis=1) / (4 * T)
+    einstein, einstein_err = per.mean(), per.std(ddof=1) / math.sqrt(len(per))
+    assert abs(D - einstein) < 4 * math.hypot(err, einstein_err), (D, err, einstein, einstein_err)
+
+
+def test_regular_share_integrable_against_ergodic():
+    # a specular disc is integrable: every orbit has λ₁ = 0 (share 1); the specular Sinai table is ergodic and
+    # hyperbolic: no orbit is regular (share 0). The Wilson interval (z = 1) must hold each.
+    circle = {"table": {"kind": "circle", "radius": 1.0}, "boundary": {"default": SPECULAR}, "ball": {"radius": 0.1}}
+    sinai = {"table": {"kind": "sinai", "size": [2.0, 1.5], "radius": 0.4}, "boundary": {"default": SPECULAR},
+             "ball": {"radius": 0.1}}
+    for base, expected in ((circle, 1.0), (sinai, 0.0)):
+        ds = sweep(point_study(base, ["regular_share"], 24, 4000, 5))
+        share = float(ds["regular_share"][0])
+        low, high = float(ds["regular_share_low"][0]), float(ds["regular_share_high"][0])
+        assert share == pytest.approx(expected) and low - 1e-12 <= expected <= high + 1e-12
