@@ -427,16 +427,54 @@ def _key_unit(key):
     return units.get(key, "L" if key.startswith("table.") else "1")
 
 
+_PUNCT = "(),;:"
+
+
+def study_title(study, exp0=None):
+    """What the whole study shows: the scene's title (:func:`rbx.analysis.scene_title`) with each word that
+    changes from point to point given as its range over the points ('κ = 0.05–1'), then the varied keys and their
+    ranges ('ball.inertia: 8 values, 0.05–1') -> str. (The first point's title alone named its κ as the study's.)"""
+    from .analysis import scene_title
+    points = study.points()
+    titles = [scene_title(exp0 if i == 0 and exp0 is not None else study.experiment(p))
+              for i, (_, p) in enumerate(points)]
+    words = [t.split(" ") for t in titles]
+    if len({len(w) for w in words}) == 1:
+        merged = []
+        for column in zip(*words):
+            if len(set(column)) == 1:
+                merged.append(column[0])
+                continue
+            core = [w.strip(_PUNCT) for w in column]
+            head = column[0][:len(column[0]) - len(column[0].lstrip(_PUNCT))]
+            tail = column[0][len(column[0].rstrip(_PUNCT)):]
+            try:
+                nums = [float(w) for w in core]
+                span = f"{min(nums):g}–{max(nums):g}"
+            except ValueError:
+                span = "/".join(dict.fromkeys(core))
+            merged.append(head + span + tail)
+        scene = " ".join(merged)
+    else:                 # the description changes shape from point to point: name the first and say so
+        scene = f"{titles[0]} (at the first point)"
+    varied = []
+    for key, values in zip(study.keys, study.values):
+        nums = [float(v) for v in values if isinstance(v, (int, float)) and not isinstance(v, bool)]
+        span = f"{min(nums):g}–{max(nums):g}" if len(nums) == len(values) and len(values) > 1 else \
+            ", ".join(str(v) for v in values)
+        varied.append(f"{key}: {len(values)} value{'s' if len(values) != 1 else ''}, {span}")
+    return f"{scene}\nvaried{' together' if study.zip and len(study.keys) > 1 else ''}: " + "; ".join(varied)
+
+
 def _attrs(study, exp0):
     import shlex
     import sys
 
     from . import __version__
-    from .analysis import scene_title
     from .runfile import provenance
     p = provenance()
     return {"rbx_study": 1, "study": study.source, "study_canonical": study.text, "study_digest": study.digest,
-            "study_file": study.file or "", "title": scene_title(exp0), "varied": json.dumps(study.keys),
+            "study_file": study.file or "", "title": study_title(study, exp0), "varied": json.dumps(study.keys),
             "zip": int(study.zip), "measure": json.dumps([n for n, _ in study.measure]),
             "ensemble_trajectories": study.ensemble["trajectories"],
             "ensemble_collisions": study.ensemble["collisions"], "ensemble_seed": study.ensemble["seed"],

@@ -240,3 +240,17 @@ def test_plot_sweep_writes_a_figure(specular, tmp_path):
     assert image.size[0] > 600 and len(np.unique(np.asarray(image.convert("L")))) > 20    # drawn, not blank
     res = rbx_cli("plot", path, "--kind", "sweep", "--y", "nothing", cwd=tmp_path)
     assert res.returncode == 2 and "--y" in res.stderr and len(res.stderr.splitlines()) == 1
+
+
+def test_the_title_says_what_the_whole_study_varies(specular):
+    # the first point's scene named its radius (0.2) as the study's; the title gives the range over the points
+    ds, _ = specular
+    title = ds.attrs["title"]
+    assert "scatterer of radius 0.2–0.35" in title and "radius 0.2 " not in title
+    assert "varied: table.radius: 2 values, 0.2–0.35" in title
+    two = load_study({"base": SINAI, "vary": {"ball.inertia": [0.1, 1.0], "table.radius": [0.2, 0.3, 0.4]},
+                      "measure": ["mean_free_path"], "ensemble": {"trajectories": 1, "collisions": 10}})
+    from rbx.study import study_title
+    text = study_title(two)
+    assert "κ = 0.1–1" in text and "radius 0.2–0.4" in text
+    assert text.endswith("varied: ball.inertia: 2 values, 0.1–1; table.radius: 3 values, 0.2–0.4")
