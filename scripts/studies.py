@@ -226,6 +226,13 @@ The results file opens with `xarray.open_dataset`: one dimension per varied key,
 `<observable>_stderr` (and companions such as `mean_free_path_santalo`, `return_path_kac`, `regular_share_low/high`),
 per point `collisions`, `wall_time`, `seed`, `done`, the study's text, digest and provenance as attributes.
 
+Starts for comparisons with classic billiards: `set: {{initial: {{sample: point_particle}}}}` starts every trajectory
+as a point particle's, the centre uniform in the area of the shrunk table and the direction uniform, |v| = 1 and no
+spin (docs/reference.md §4). With a specular rule this is the classic billiard in its invariant measure: the mean
+free path is then Santaló's πA/P of the shrunk table, the `mean_free_path` observable's companion
+`mean_free_path_santalo` (checked in `tests/test_point_particle.py`, with the disc's mean first flight 8r/3π and
+mean chord 16r/3π). `{{sample: billiard}}` starts on the walls instead, with spin.
+
 Observables: {', '.join(sorted(rbx.observables.REGISTRY) if hasattr(rbx, 'observables') else [])}.
 
 """
