@@ -169,8 +169,8 @@ def legend_outside(ax, where="right", **kwargs):
             h, t = a.get_legend_handles_labels()
             handles, labels = handles + h, labels + t
         short = max((len(t) for t in labels), default=0) < 20
-        return axes[0].figure.legend(handles, labels, loc="outside lower center",
-                                     ncols=min(5, len(labels)) if short else min(2, len(labels)), **kwargs)
+        kwargs.setdefault("ncols", min(5, len(labels)) if short else min(2, len(labels)))
+        return axes[0].figure.legend(handles, labels, loc="outside lower center", **kwargs)
     return ax.legend(loc="upper left", bbox_to_anchor=(1.02, 1.0), borderaxespad=0.0, **kwargs)
 
 
@@ -296,12 +296,21 @@ def draw_table_3d(ax, geom, lo, hi):
 # ---- orbits ----------------------------------------------------------------------------------------------------
 
 
+def _first(k, stride):
+    """What the drawn part of a long orbit is: its first k flights as lines, or, when the records skip collisions
+    (``stride`` > 1: no straight flight joins them), its first k records as points."""
+    if stride > 1:
+        return f"points: the first {k} records of each trajectory (one every {stride} collisions)"
+    return f"lines: the first {k} collisions of each trajectory"
+
+
 @styled
-def orbit_figure(paths, geom, title, labels=None, points_only=False):
+def orbit_figure(paths, geom, title, labels=None, points_only=False, stride=1):
     """The 2D path of the centre (or the horizontal projection of a 3D one) in the table drawn to scale.
 
     ``paths``: list of (T_j, ≥2) arrays of positions, one per trajectory; consecutive collision points are joined
-    by straight segments (the free flights) unless ``points_only`` (records that skip collisions). A long orbit
+    by straight segments (the free flights) unless ``points_only`` (records that skip collisions, ``stride``
+    collisions apart). A long orbit
     is drawn as its first flights (:data:`ORBIT_SEGMENTS` in all) over a grey density of the whole run; a table
     much longer than wide (a strip) is stretched across, and the axis label says so."""
     fig = _figure(6.4, 6.0, title)
@@ -338,7 +347,7 @@ def orbit_figure(paths, geom, title, labels=None, points_only=False):
         ax.set_xlabel("x [L] (not to scale)")
         ax.set_ylabel("y [L]")
     if k is not None:
-        ax.set_title(f"lines: the first {k} collisions of each trajectory; grey: the whole run")
+        ax.set_title(f"{_first(k, stride if points_only else 1)}; grey: the whole run")
     if labels and len(paths) <= MAX_LEGEND:
         legend_outside(ax, "below" if ratio < 0.5 else "right")
     return fig
@@ -353,7 +362,7 @@ def _round_caps(ax):
 
 
 @styled
-def orbit3d_figure(paths, geom, title, labels=None, points_only=False):
+def orbit3d_figure(paths, geom, title, labels=None, points_only=False, stride=1):
     """The 3D path of the centre between plates or in a box, beside its horizontal projection (x, y). A long
     orbit is drawn as its first flights (:data:`ORBIT3D_SEGMENTS` in all in 3D)."""
     fig = _figure(11.0, 5.2, title)
@@ -379,7 +388,9 @@ def orbit3d_figure(paths, geom, title, labels=None, points_only=False):
     ax.set_xlabel("x [L]")
     ax.set_ylabel("y [L]")
     ax.set_zlabel("z [L]")
-    ax.set_title("3D path of the centre" + (f" (first {k} collisions each)" if k else ""))
+    stride = stride if points_only else 1
+    ax.set_title("3D path of the centre" + (f" (first {k} {'records' if stride > 1 else 'collisions'} each)"
+                                            if k else ""))
     ax2 = fig.add_subplot(gs[0, 2])
     lo2, hi2 = _extent(paths)
     draw_table_2d(ax2, geom, lo2, hi2)
@@ -399,7 +410,8 @@ def orbit3d_figure(paths, geom, title, labels=None, points_only=False):
     else:
         ax2.set_xlabel("x [L] (not to scale)")
     ax2.set_ylabel("y [L]")
-    ax2.set_title("horizontal projection" + (f": lines, first {k2} collisions; grey, whole run" if k2 else ""))
+    drawn = f"points, first {k2} records" if stride > 1 else f"lines, first {k2} collisions"
+    ax2.set_title("horizontal projection" + (f": {drawn}; grey, whole run" if k2 else ""))
     if labels and len(paths) <= MAX_LEGEND:
         legend_outside(ax2)
     return fig
@@ -484,9 +496,10 @@ def series_figure(steps, values, title, ylabel, labels=None, scales=(0.01, 0.1, 
 
 
 @styled
-def diffusion_figure(steps, msd, fit, displacement, title, coordinate="x"):
+def diffusion_figure(steps, msd, fit, displacement, title, coordinate="x", time_per_step=None):
     """Left: mean-square displacement against steps (log–log) with the fit 2·D·t + c and its confidence
-    interval; right: the distribution of the final displacement against the Gaussian of the fitted MSD."""
+    interval; right: the distribution of the final displacement against the Gaussian of the fitted MSD.
+    ``time_per_step``: the mean time per collision τ [T], if known: D is then also given per unit time, D/τ."""
     from scipy import stats
     fig = _figure(11.0, 4.6, title)
     ax = fig.add_subplot(1, 2, 1)
@@ -496,8 +509,11 @@ def diffusion_figure(steps, msd, fit, displacement, title, coordinate="x"):
     t = np.geomspace(fit.start, fit.stop, 200)                # the fit is drawn where it was made
     model = fit.msd(t)
     pct = round(100 * fit.confidence)
-    ax.loglog(t[model > 0], model[model > 0], "-", color="k", lw=1,
-              label=f"fit 2Dt + c: D = {fit.coefficient:.4g} ± {fit.half_width:.2g} L²/step ({pct}% CI)")
+    label = f"fit 2Dt + c: D = {fit.coefficient:.4g} ± {fit.half_width:.2g} L²/collision ({pct}% CI)"
+    if time_per_step:
+        label += (f"\n  = {fit.coefficient / time_per_step:.4g} ± {fit.half_width / time_per_step:.2g} L²/T per unit "
+                  f"time (mean time per collision {time_per_step:.4g} T)")
+    ax.loglog(t[model > 0], model[model > 0], "-", color="k", lw=1, label=label)
     band_lo, band_hi = 2 * fit.low * t + fit.intercept, 2 * fit.high * t + fit.intercept
     # where the interval reaches 0 or below (few trajectories), a log axis cannot show its lower edge: the band
     # then runs to the bottom of the axis, rather than stop where the edge turns negative
@@ -506,16 +522,16 @@ def diffusion_figure(steps, msd, fit, displacement, title, coordinate="x"):
     ax.fill_between(t[good], np.maximum(band_lo[good], ylim[0] / 10), band_hi[good], color="0.6", alpha=0.4, lw=0)
     ax.set_ylim(ylim[0], max(ylim[1], float(np.max(band_hi[good], initial=ylim[1]))))
     ax.axvspan(fit.start, fit.stop, color=_colour(2), alpha=0.07, label="fit window")
-    ax.set_xlabel("collision step [–]")
+    ax.set_xlabel("collisions [–]")
     ax.set_ylabel(f"MSD ⟨Δ{coordinate}²⟩ [L²]")
-    ax.set_title(f"mean-square displacement, {fit.trajectories} trajectories")
+    ax.set_title(f"mean-square displacement, {fit.trajectories} trajectories")   # a fit needs 2 or more
     ax2 = fig.add_subplot(1, 2, 2)
     dx = np.asarray(displacement, float)
     dx = dx[np.isfinite(dx)]
     T = float(steps.max()) if len(steps) else 0.0
     var = float(fit.msd(T))
     ax2.hist(dx, bins=max(10, min(60, int(np.sqrt(len(dx))) + 1)), density=True, color=_colour(0), alpha=0.6,
-             label=f"Δ{coordinate} after {T:.0f} steps")
+             label=f"Δ{coordinate} after {T:.0f} collisions")
     if var > 0:
         sd = np.sqrt(var)
         u = np.linspace(min(dx.min(), -4 * sd) if len(dx) else -4 * sd, max(dx.max(), 4 * sd) if len(dx) else 4 * sd,
@@ -565,28 +581,46 @@ def histogram_figure(angle, d, ks_statistic, ks_pvalue, title, bins=50):
 
 
 @styled
-def escape_figure(s, S, rate, rate_err, start, exits, total, title, unit="path length [L]", expected=None):
+def escape_figure(s, S, rate, rate_err, start, exits, total, title, unit="path length [L]", expected=None,
+                  trapped=None, stop=None):
     """The survival function S(s) (Kaplan–Meier: the fraction of trajectories still in the table after path s) on
-    a log scale, with the fitted exponential tail A·exp(−γ s) for s ≥ ``start`` and its rate γ ± error.
-    ``expected``: (γ, label) of a predicted rate, drawn dashed."""
+    a log scale, with the fitted exponential tail A·exp(−γ s) for ``start`` ≤ s ≤ ``stop`` and its rate γ ± error.
+    ``expected``: (γ, label) of a predicted rate, drawn dashed. ``trapped``: (share, low, high) where survival
+    levels off: the share drawn as a level with its interval, the fit as that level plus the decay of the rest."""
     fig = _figure(8.4, 5.0, title)
     ax = fig.add_subplot()
     s, S = np.asarray(s)[np.asarray(S) > 0], np.asarray(S)[np.asarray(S) > 0]   # S = 0 has no place on a log axis
     ax.step(s, S, where="post", color=_colour(0), lw=1.2, label=f"Kaplan–Meier survival ({exits} of {total} exited)")
+    end = float(np.max(s)) if len(s) else start + 1.0
+    stop = end if stop is None else stop
+    level = 0.0 if trapped is None else trapped[0]
+    if trapped is not None:
+        share, low, high = trapped
+        ax.axhspan(low, high, color=_colour(1), alpha=0.25, lw=0)
+        ax.axhline(share, color=_colour(1), lw=1.0, ls=":",
+                   label=f"trapped share: {100 * share:.3g} % never exited (Wilson interval {100 * low:.3g}–"
+                         f"{100 * high:.3g} %, z = 1)")
     if rate > 0 and np.isfinite(rate_err):
-        x = np.linspace(start, float(np.max(s)) if len(s) else start + 1.0, 200)
+        x = np.linspace(start, stop, 200)
         S0 = float(S[np.searchsorted(s, start, side="right") - 1]) if len(s) else 1.0
-        ax.plot(x, S0 * np.exp(-rate * (x - start)), "k-", lw=1.0,
-                label=f"fit s ≥ {start:.3g}: γ = {rate:.4g} ± {rate_err:.2g} per unit")
+        what = f"{start:.3g} ≤ s < {stop:.3g}" + (" (the trapped share plus the decay of the trajectories that "
+                                                   "leave)" if trapped is not None else "")
+        ax.plot(x, level + (S0 - level) * np.exp(-rate * (x - start)), "k-", lw=1.0,
+                label=f"exponential fit over {what}: γ = {rate:.4g} ± {rate_err:.2g} per unit path")
         if expected is not None:
             ax.plot(x, S0 * np.exp(-expected[0] * (x - start)), "k--", lw=0.9, label=expected[1])
     ax.set_yscale("log")
     positive = S[S > 0]
-    ax.set_ylim(max(0.5 * float(positive.min()) if len(positive) else 1e-3, 0.5 / max(total, 1)), 1.5)
+    bottom = max(0.5 * float(positive.min()) if len(positive) else 1e-3, 0.5 / max(total, 1))
+    if trapped is not None and trapped[1] > 0:
+        bottom = min(bottom, 0.5 * trapped[1])
+    ax.set_ylim(bottom, 1.5)
     ax.set_xlim(0.0, None)
+    if trapped is not None:         # the decay takes a small part of the run: show it, and the level beyond
+        ax.set_xlim(0.0, min(end, 5.0 * stop))
     ax.set_xlabel(unit)
     ax.set_ylabel("fraction still in the table S(s) [–]")
-    legend_outside(ax, "below")
+    legend_outside(ax, "below", ncols=1 if trapped is not None or expected is not None else 2)
     return fig
 
 

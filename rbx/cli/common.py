@@ -14,7 +14,8 @@ import sys
 
 import click
 
-from ..progress import Progress, duration, is_terminal, per_second  # noqa: F401 - the commands' names
+from ..progress import (Progress, duration, is_terminal, per_second, plural, setup_note,  # noqa: F401 - the
+                        watch_compiles)                                                  # commands' names
 
 EXIT_USER_ERROR = 2
 
@@ -207,8 +208,6 @@ def usage_line(exc, command_path):
     if hasattr(exc, "command_name"):       # click.exceptions.NoSuchCommand (click >= 8.4)
         maybe = f"; did you mean {' or '.join(exc.possibilities)}?" if exc.possibilities else ""
         return f"{exc.command_name}: No such command{maybe} {commands}"
-    if isinstance(exc, click.exceptions.NoArgsIsHelpError) and group is not None:   # plain `rbx`
-        return f"COMMAND: missing {commands}"
     return f"{command_path.split()[-1]}: {flat(exc.format_message())}{see}"
 
 
@@ -242,8 +241,13 @@ class Command(OneLineUsage, click.Command):
 
 
 class Group(OneLineUsage, click.Group):
-    """The ``rbx`` group: its own usage errors (``rbx --bogus``, ``rbx simlate``, a bare ``rbx``) are one line,
-    exit 2, too."""
+    """The ``rbx`` group: its own usage errors (``rbx --bogus``, ``rbx simlate``) are one line, exit 2, too. A bare
+    ``rbx`` is no mistake: it shows the help (the commands) and exits 0, as ``rbx --help`` does."""
+
+    def make_context(self, info_name, args, parent=None, **extra):
+        if not args and parent is None:
+            args = ["--help"]
+        return super().make_context(info_name, args, parent=parent, **extra)
 
 
 # ---- the Dask cluster of --scheduler (simulate, histogram, lyapunov) ---------------------------------------

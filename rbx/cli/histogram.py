@@ -11,7 +11,7 @@ import click
 
 from .common import (Command, Progress, UserError, check_cluster_options, check_memory, connect, display_path,
                      duration, ending_on_signals, parse_sets, pending_signal, quiet_option, report_and_exit,
-                     set_option, summary, user_errors)
+                     plural, set_option, summary, user_errors)
 
 
 @click.command(cls=Command)
@@ -155,8 +155,9 @@ def _histogram(config, out, data, trajectories, seed, sets, force, quiet, cluste
     click.echo(f"{result.samples} samples on {wall}, {result.samples - result.not_returned} returned "
                f"in {result.seconds:.2f} s")
     if result.not_returned:
-        click.echo(f"rbx: warning: {result.not_returned} trajectories did not return within "
-                   f"{cfg.run.collisions} collisions (run.collisions); they are left out", err=True)
+        click.echo(f"rbx: warning: {plural(result.not_returned, 'trajectory')} did not return within "
+                   f"{plural(cfg.run.collisions, 'collision')} (run.collisions); "
+                   f"{'it is' if result.not_returned == 1 else 'they are'} left out", err=True)
     if len(result.angle) == 0:
         click.echo("no trajectory returned: nothing to compare (raise run.collisions)")
     else:

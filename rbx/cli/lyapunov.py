@@ -6,7 +6,9 @@ import click
 import numpy as np
 
 from .common import (Command, UserError, check_cluster_options, connect, duration, ending_on_signals, parse_sets,
-                     pending_signal, quiet_option, report_and_exit, set_option, summary, user_errors, warn_repeated)
+                     pending_signal, plural, quiet_option, report_and_exit, set_option, summary, user_errors,
+                     warn_repeated)
+from ..progress import compile_note
 
 
 @click.command(cls=Command)
@@ -67,6 +69,7 @@ def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as
     if N - (N // 10 if warmup is None else warmup) < segments:
         raise UserError(None, "--segments", f"more segments ({segments}) than measured collisions")
     with connect(cluster) as on:     # an unreachable scheduler is a user error, said before any work
+        watch_compiles()
         try:
             result = spectrum(exp, segments=segments, warmup=warmup, scheduler=on)
         except ValueError as exc:   # every trajectory left the table (exits, a wedge's escapes) before measuring
@@ -75,13 +78,14 @@ def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as
             click.echo(f"rbx: {exc}; nothing computed", err=True)
             raise SystemExit(1) from None
     warn_repeated(exp, overrides)        # after every refusal: a user error stays one line
-    said = (f"lyapunov: {len(result.time)} trajectories × {exp.run.collisions} collisions in "
-            f"{duration(time.perf_counter() - began)}")
+    said = (f"lyapunov: {plural(len(result.time), 'trajectory')} × {plural(exp.run.collisions, 'collision')} in "
+            f"{duration(time.perf_counter() - began)}" + (f" ({compile_note()})" if compile_note() else ""))
     if as_json:
         click.echo(json.dumps(result.to_dict()))
         return
     click.echo(f"Lyapunov spectrum (per unit time): {result.title}")
-    click.echo(f"{len(result.time)} trajectories, {int(result.collisions.sum())} collisions measured over time "
+    click.echo(f"{plural(len(result.time), 'trajectory')}, {plural(int(result.collisions.sum()), 'collision')} "
+               f"measured over time "
                f"{result.time.sum():.6g} (after {result.warmup} warm-up collisions each)")
     for k, (lam, err) in enumerate(zip(result.exponents, result.stderr), 1):
         click.echo(f"  λ{k:<2} = {lam: .6f} ± {err:.6f}")
@@ -94,5 +98,6 @@ def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as
         click.echo(f"regular orbits (own λ1 < {REGULAR_THRESHOLD}): {regular} of {measured}, share {share:.3f} "
                    f"(Wilson interval {low:.3f} … {high:.3f})")
     if result.ended is not None and result.ended.any():
-        click.echo(f"{int(result.ended.sum())} trajectories left the table (an exit or an escape) before the end")
+        click.echo(f"{plural(int(result.ended.sum()), 'trajectory')} left the table (an exit or an escape) before "
+                   "the end")
     summary(quiet, said)

@@ -6,8 +6,8 @@ import time
 import click
 import numpy as np
 
-from .common import (Command, UserError, display_path, duration, interrupted_exit, quiet_option, report_and_exit,
-                     summary, user_errors)
+from .common import (Command, UserError, display_path, duration, interrupted_exit, plural, quiet_option,
+                     report_and_exit, summary, user_errors)
 
 #: the plot kinds (``--kind``); kind K is drawn by the function ``_K`` below
 KINDS = ("orbit", "orbit3d", "phase", "series", "diffusion", "escape", "birkhoff", "poincare", "sweep")
@@ -42,7 +42,7 @@ DEFAULT_TRAJECTORIES = {"orbit": 10, "orbit3d": 10, "phase": 20, "series": 1, "d
               help="series: fractions of the run shown in the panels.")
 @click.option("--fit-from", default=0.1, show_default=True, type=float,
               help="diffusion: fit the MSD over steps ≥ this fraction of the last step; escape: fit the rate over "
-                   "paths ≥ this quantile of the exit paths.")
+                   "the exit paths between this quantile and 1 − it (below 0.5).")
 @click.option("--wall", "wall", help="birkhoff: the wall whose boundary map to draw (default: the whole boundary).")
 @click.option("--plane", default="z=0.5", show_default=True,
               help="poincare: the section plane, z=0.5 (or x=, y=) or n=NX,NY,NZ;c=C for n·x = C.")
@@ -51,29 +51,63 @@ DEFAULT_TRAJECTORIES = {"orbit": 10, "orbit3d": 10, "phase": 20, "series": 1, "d
 @click.option("--logx", is_flag=True, help="sweep: a log x axis.")
 @click.option("--logy", is_flag=True, help="sweep: a log y axis.")
 @click.option("--dpi", default=150, show_default=True, type=click.IntRange(10, 1200),
-              help="Resolution of raster figures (10 to 1200; 100 000 used to exhaust the memory).")
+              help="Resolution of raster figures, in dots per inch (10 to 1200).")
 @quiet_option
 @click.option("--debug", is_flag=True, help="Show a traceback with user errors.")
-def plot(run_file, kind, out, records, trajectories, colour, coordinate, scales, fit_from, wall, plane, y, x, logx,
-         logy, dpi, quiet, debug):
-    """Draw a picture of the run OUT.h5 (written by rbx simulate).
+@click.pass_context
+def plot(ctx, run_file, kind, out, records, trajectories, colour, coordinate, scales, fit_from, wall, plane, y, x,
+         logx, logy, dpi, quiet, debug):
+    """Draw a picture of the run OUT.h5 (written by rbx simulate), or of a study's results (rbx sweep).
 
-    escape: the survival function of escape or return times (walls with the rule exit) with the fitted rate;
-    birkhoff: the boundary map of a 2D run coloured by the spin; poincare: a 3D run's section by a plane."""
+    \b
+    --kind
+      orbit      the centre's path in the table, drawn to scale (a 3D run: its horizontal projection)
+      orbit3d    3D runs: the path in 3D beside its horizontal projection
+      phase      boundary map, and tangential velocity against spin, at each collision
+      series     a --coordinate against the collision step, over several --scales
+      diffusion  ensemble mean-square displacement along --coordinate with the fitted D (per collision and,
+                 with time recorded, per unit time) and the displacements' distribution
+      escape     survival of the exit paths (walls with the rule exit): the fitted rate, and the trapped share
+                 where survival levels off
+      birkhoff   2D runs: the boundary map (arc length, sin ψ) coloured by the spin, one --wall or all
+      poincare   3D runs: the section by a --plane, coloured by the spin
+      sweep      a study's .nc file (rbx sweep): --y against --x with error bars"""
     began = time.perf_counter()
     try:
+        _check_kind_options(ctx, kind)
+        result = None
         if run_file.endswith(".nc") or kind == "sweep":       # a study's results (rbx sweep), not a run file
             from .sweep import plot_sweep
             path = plot_sweep(run_file, kind, out, y, x, logx, logy, dpi)
         else:
-            path = _plot(run_file, kind, out, records, trajectories, colour, coordinate, scales, fit_from, dpi,
-                         wall=wall, plane=plane)
+            path, result = _plot(run_file, kind, out, records, trajectories, colour, coordinate, scales, fit_from,
+                                 dpi, wall=wall, plane=plane)
     except UserError as exc:
         report_and_exit(exc, debug)
     except KeyboardInterrupt:
         interrupted_exit()
     summary(quiet, f"wrote {display_path(path)}: {kind} of {display_path(run_file)} in "
                    f"{duration(time.perf_counter() - began)}")
+    if result:
+        click.echo(result)
+
+
+#: the options that apply to some kinds only (the others refuse them rather than ignore them)
+KIND_OPTIONS = {"colour": ("--color", ("phase",)), "coordinate": ("--coordinate", ("series", "diffusion")),
+                "scales": ("--scales", ("series",)), "fit_from": ("--fit-from", ("diffusion", "escape")),
+                "wall": ("--wall", ("birkhoff",)), "plane": ("--plane", ("poincare",)),
+                "y": ("--y", ("sweep",)), "x": ("--x", ("sweep",)), "logx": ("--logx", ("sweep",)),
+                "logy": ("--logy", ("sweep",))}
+
+
+def _check_kind_options(ctx, kind):
+    """An option given on the command line that the kind does not use is refused in one line: ``--coordinate vx``
+    with ``--kind orbit`` drew the orbit as if it had not been given."""
+    from click.core import ParameterSource
+    for name, (option, kinds) in KIND_OPTIONS.items():
+        if kind not in kinds and ctx.get_parameter_source(name) == ParameterSource.COMMANDLINE:
+            used = " and ".join(f"--kind {k}" for k in kinds)
+            raise UserError(None, option, f"is for {used} only; --kind {kind} does not use it")
 
 
 def _plot(run_file, kind, out, records, trajectories, colour, coordinate, scales, fit_from, dpi, wall=None,
@@ -87,7 +121,7 @@ def _plot(run_file, kind, out, records, trajectories, colour, coordinate, scales
         save(fig, path, dpi=dpi)
     except (OSError, ValueError) as exc:
         raise UserError(path, None, f"cannot write the figure: {getattr(exc, 'strerror', None) or exc}") from None
-    return path
+    return path, getattr(fig, "rbx_result", None)     # what the picture measured, for stdout (escape)
 
 
 def make_figure(run_file, kind, records=slice(None), trajectories=None, **options):
@@ -213,15 +247,18 @@ def _orbit(run, rec, traj, **_):
     paths = _paths(run, rec, traj)
     what = "orbit of the centre" if run.dimension == 2 else "horizontal projection of the orbit"
     return plotting.orbit_figure(paths, run.geometry(), _title(run, what, traj, rec),
-                                 labels=[f"trajectory {j}" for j in traj], points_only=_stride(run, rec) > 1)
+                                 labels=[f"trajectory {j}" for j in traj], points_only=_stride(run, rec) > 1,
+                                 stride=_stride(run, rec))
 
 
 def _orbit3d(run, rec, traj, **_):
     from .. import plotting
     if run.dimension != 3:
-        raise UserError(run.path, None, "orbit3d needs a 3D run (plates or box); this one is 2D: use --kind orbit")
+        raise UserError(run.path, None, "orbit3d needs a 3D run (a table in three dimensions: plates, box, sphere, "
+                                        "cylinder, a 3D sinai or lorentz, …); this one is 2D: use --kind orbit")
     return plotting.orbit3d_figure(_paths(run, rec, traj), run.geometry(), _title(run, "orbit", traj, rec),
-                                   labels=[f"trajectory {j}" for j in traj], points_only=_stride(run, rec) > 1)
+                                   labels=[f"trajectory {j}" for j in traj], points_only=_stride(run, rec) > 1,
+                                   stride=_stride(run, rec))
 
 
 def _phase(run, rec, traj, colour="trajectory", **_):
@@ -333,8 +370,18 @@ def _diffusion(run, rec, traj, coordinate="x", fit_from=0.1, **_):
     msd = analysis.mean_square_displacement(x)
     fit = analysis.fit_diffusion(t, x, fit_from=fit_from)
     full = np.all(np.isfinite(x), axis=1)
+    per_time = None
+    if "time" in run.fields:
+        # D per unit time: D per collision over the mean time per collision (each complete trajectory's own time
+        # over its own collisions, averaged); a ratio of ensemble means, as diffusion in time is asymptotically
+        clock = run.read("time", traj, rec)[full]
+        span = float(steps[-1] - steps[0])
+        tau = float(np.mean(clock[:, -1] - clock[:, 0])) / span if span > 0 else np.nan
+        if np.isfinite(tau) and tau > 0:
+            per_time = tau
     return plotting.diffusion_figure(t, msd, fit, (x[full, -1] - x[full, 0]),
-                                     _title(run, f"diffusion along {coordinate}", traj, rec), coordinate=coordinate)
+                                     _title(run, f"diffusion along {coordinate}", traj, rec), coordinate=coordinate,
+                                     time_per_step=per_time)
 
 
 def _refuse_one_orbit(run, traj, values, kind, what, why):
@@ -358,7 +405,6 @@ def _refuse_one_orbit(run, traj, values, kind, what, why):
 
 def _escape(run, rec, traj, fit_from=0.1, **_):
     from .. import plotting
-    from ..analysis import santalo_constant, table_measure, velocity_dimension, wall_measure
     from ..dynamics import escape_times
     from ..model import Exit
     exp = run.experiment
@@ -370,32 +416,99 @@ def _escape(run, rec, traj, fit_from=0.1, **_):
     _refuse_one_orbit(run, traj, np.column_stack([path, exited, out.wall[sel]]), "escape", "an escape rate",
                       "every one leaves at the same moment")
     if not exited.any():
-        raise ValueError(f"none of the {len(sel)} trajectories reached an exit wall in {exp.run.collisions} "
-                         "collisions")
-    if not 0.0 <= fit_from < 1.0:
-        raise UserError(None, "--fit-from", f"escape: a quantile in [0, 1), got {fit_from}")
-    start = float(np.quantile(path[exited], fit_from)) if fit_from > 0 else 0.0
+        who = f"none of the {plural(len(sel), 'trajectory')} reached" if len(sel) > 1 else "the trajectory did not reach"
+        raise ValueError(f"{who} an exit wall in {plural(exp.run.collisions, 'collision')}")
+    if not 0.0 <= fit_from < 0.5:
+        raise UserError(None, "--fit-from", f"escape: a quantile in [0, 0.5), got {fit_from}")
     from ..dynamics import exponential_rate, survival
-    rate, err, k = exponential_rate(path, exited, start)
     s, S = survival(path, exited)
     walls = sorted({run.wall_names[w] for w in out.wall[sel][exited]})
-    expected = None
+    trapped = _trapped(run, path, exited)
+    # the fit window: the exit paths between the quantiles fit_from and 1 − fit_from, the transient before it and
+    # the few late exits after it left out (a tail of rare long stays bent the line away from the data); where
+    # survival levels off, of the trajectories that leave only (the trapped ones would add their whole path to
+    # the exposure: the rate of 4000 starts of a rough rectangle fell from 0.5 to 0.015)
+    leaving = path[exited]
+    start, stop = (float(np.quantile(leaving, q)) for q in (fit_from, 1.0 - fit_from))
+    if fit_from == 0:
+        start = 0.0
+    if trapped is None:
+        rate, err, _ = exponential_rate(path, exited, start, stop)
+    else:
+        rate, err, _ = exponential_rate(leaving, np.ones(len(leaving), bool), start, stop)
+    expected = None if trapped is not None else _small_hole_rate(run, exp)
+    censored = int(np.sum(~exited))
+    title = _title(run, f"escape through {', '.join(walls)} ({censored} still inside: censored)", traj, rec)
+    fig = plotting.escape_figure(s, S, rate, err, start, int(exited.sum()), len(sel), title,
+                                 unit="path length in (x, R√κ·θ) [L]", expected=expected, trapped=trapped, stop=stop)
+    said = f"escape rate γ = {rate:.4g} ± {err:.2g} per unit path (fitted over {start:.3g} ≤ s < {stop:.3g}"
+    said += ", the trajectories that leave)" if trapped is not None else ")"
+    if trapped is not None:
+        share, low, high = trapped
+        said += (f"; trapped share {100 * share:.3g} % (Wilson interval, z = 1: {100 * low:.3g}–{100 * high:.3g} %) "
+                 f"of {len(sel)} starts")
+    fig.rbx_result = said
+    return fig
+
+
+#: survival has levelled off when, over the later half of what the survivors were followed, the trajectories exit at
+#: most at this fraction of the rate they had before, and that shortfall is no chance (Poisson tail below PLATEAU_P)
+PLATEAU_RATIO, PLATEAU_P = 0.1, 1e-3
+
+
+def _trapped(run, path, exited):
+    """The trapped share -> (share, low, high) (the ``trapped_share`` observable: Wilson interval, z = 1) when
+    survival levels off, else None.
+
+    Levels off: the trajectories still inside at the end were followed over paths whose median is s_end; the
+    exits past s_end/2 are compared with those the rate before s_end/2 predicts for the exposure past it. A
+    table that traps (a share of orbits never reaching the exit) has almost none; an exponential tail, however
+    slow, has about as many as predicted."""
+    from scipy import stats
+    from ..analysis import wilson
+    from ..dynamics import exponential_rate
+    if exited.all() or not exited.any():
+        return None
+    half = 0.5 * float(np.median(path[~exited]))
+    early, _, k_early = exponential_rate(path, exited, 0.0, half)
+    late_exits = int(np.sum(exited & (path >= half)))
+    exposure = float(np.sum(np.maximum(path - half, 0.0)))
+    predicted = early * exposure
+    if k_early == 0 or late_exits > PLATEAU_RATIO * predicted or stats.poisson.cdf(late_exits, predicted) > PLATEAU_P:
+        return None
+    if len(path) == run.trajectories:       # the whole run: the observable of rbx sweep, the same numbers
+        from ..observables import PointRuns, get
+        value = get("trapped_share").compute(PointRuns(run.experiment, run), {})
+        return float(value.value), float(value.companions["low"]), float(value.companions["high"])
+    share, low, high = wilson(int(np.sum(~exited)), len(path))
+    return share, low, high
+
+
+#: the small-hole rate |hole|/(C_d·|table|) is drawn only for holes at most this share of the boundary: for a
+#: larger one (a whole wall of a rectangle) an orbit's next exit is not a rare event and the formula means nothing
+SMALL_HOLE = 0.1
+
+
+def _small_hole_rate(run, exp):
+    """(rate, label) of the small-hole escape rate, or None where it does not apply (a large hole, a table whose
+    measure is not computed)."""
+    from ..analysis import santalo_constant, table_measure, velocity_dimension, wall_measure
+    from ..model import Exit
     geom = run.geometry()
     try:
         volume, _ = table_measure(geom)
         holes = [w for w, r in enumerate(exp.wall_rules) if isinstance(r, Exit)]
         hole = sum(wall_measure(geom, w) for w in holes)
-        d = velocity_dimension(run.dimension)
-        # flux through the holes over the phase volume: |∂Q_hole|/(C_d·|Q|) per unit path (small holes)
-        expected = (hole / (santalo_constant(d) * volume),
-                    f"small-hole rate |hole|/({santalo_constant(d):.3g}·|table|) = "
-                    f"{hole / (santalo_constant(d) * volume):.4g}")
+        boundary = sum(wall_measure(geom, w) for w in range(len(geom.wall_list)))
     except (ValueError, ZeroDivisionError):
-        pass
-    censored = int(np.sum(~exited))
-    title = _title(run, f"escape through {', '.join(walls)} ({censored} still inside: censored)", traj, rec)
-    return plotting.escape_figure(s, S, rate, err, start, int(exited.sum()), len(sel), title,
-                                  unit="path length in (x, R√κ·θ) [L]", expected=expected)
+        return None
+    if not (np.isfinite(boundary) and 0 < hole <= SMALL_HOLE * boundary):
+        return None
+    d = velocity_dimension(run.dimension)
+    # flux through the holes over the phase volume: |∂Q_hole|/(C_d·|Q|) per unit path (small holes)
+    rate = hole / (santalo_constant(d) * volume)
+    return rate, (f"small-hole rate |hole|/({santalo_constant(d):.3g}·|table|) = {rate:.4g} "
+                  f"(hole {100 * hole / boundary:.2g} % of the boundary)")
 
 
 def _leaves(rule):
@@ -406,7 +519,7 @@ def _leaves(rule):
 def _birkhoff(run, rec, traj, wall=None, **_):
     from .. import analysis, plotting
     if run.dimension != 2:
-        raise UserError(run.path, None, "birkhoff needs a 2D run; for a 3D run use --kind poincare --plane ...")
+        raise UserError(run.path, None, "birkhoff needs a 2D run; this one is 3D: use --kind poincare --plane ...")
     run.require(["position", "velocity", "angular_velocity", "wall"], "the Birkhoff map")
     walls = run.read("wall", traj, rec)
     at = walls >= 0
@@ -427,8 +540,12 @@ def _birkhoff(run, rec, traj, wall=None, **_):
     panel = dict(y=sin_psi, ylabel="sin ψ = v·t/|v| (t: the counter-clockwise tangent) [–]", ylim=(-1.05, 1.05))
     if w_sel is not None:
         s0, length = analysis.wall_span(geom, w_sel)
-        panel.update(x=s - s0, xlabel=f"arc length along wall '{wall}' of the shrunk table [L]", xlim=(0.0, length),
+        panel.update(x=s - s0, xlabel=f"arc length along wall '{wall}' of the shrunk table [L]",
                      title=f"boundary map on wall '{wall}'")
+        if np.isfinite(length):
+            panel["xlim"] = (0.0, length)
+        else:   # an unbounded wall (the strip's): the axis spans the collisions, from where the wall's arc starts
+            panel["xlabel"] = f"position along wall '{wall}' (counter-clockwise) [L]"
     else:
         total = analysis.boundary_length(geom)
         if not np.isfinite(total):
@@ -442,7 +559,8 @@ def _birkhoff(run, rec, traj, wall=None, **_):
 def _poincare(run, rec, traj, plane="z=0.5", **_):
     from .. import analysis, plotting
     if run.dimension != 3:
-        raise UserError(run.path, None, "poincare needs a 3D run; for a 2D run use --kind birkhoff")
+        raise UserError(run.path, None, "poincare needs a 3D run (a table in three dimensions: plates, box, sphere, "
+                                        "cylinder, a 3D sinai or lorentz, …); this one is 2D: use --kind birkhoff")
     try:
         normal, offset = analysis.parse_plane(plane)
     except ValueError as exc:

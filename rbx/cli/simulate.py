@@ -17,7 +17,7 @@ import click
 
 from .common import (Command, Progress, UserError, check_cluster_options, check_memory, connect, display_path,
                      duration, hard_exit, parse_sets, pending_signal, quiet_option, report_and_exit, set_option,
-                     summary, user_errors, warn_repeated)
+                     setup_note, summary, user_errors, warn_repeated, watch_compiles)
 
 OVERRIDES = ("collisions", "trajectories", "seed")
 
@@ -118,6 +118,7 @@ def _simulate(config, out, overrides, changes, force, quiet, stop, cluster, bega
                 from None
         sim.cluster = on
         warn_repeated(cfg, overrides)       # after every refusal: a user error stays one line
+        watch_compiles()
         compile_kernels(sim)
         if stop.start_running():
             raise KeyboardInterrupt
@@ -148,6 +149,7 @@ def _resume(config, run_file, out, overrides, force, quiet, stop, cluster, began
     for note in r.notes:
         click.echo(f"rbx: {shown}: warning: {note}", err=True)
     with connect(cluster) as r.sim.cluster:
+        watch_compiles()
         compile_kernels(r.sim)
         if stop.start_running():
             raise KeyboardInterrupt
@@ -213,7 +215,7 @@ def _execute(sim, path, stop, quiet, done, start, began):
                    + (f" (resumed at {done})" if done else "")
                    + (f", {ended} of them ended earlier ({'an exit or ' if sim.rules.uses_exit else ''}no wall "
                       "ahead)" if ended else "")
-                   + f" in {duration(ran)} ({duration(progress.start - began)} setting up)")
+                   + f" in {duration(ran)} ({setup_note(progress.start - began)})")
     if ended and sim.geom.lattice is not None and not sim.rules.uses_exit:
         # a closed gas has no escape: a flight that met no scatterer within MAX_PERIODIC_FLIGHT cells was ended
         from ..geometry import MAX_PERIODIC_FLIGHT

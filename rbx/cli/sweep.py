@@ -5,7 +5,7 @@ import time
 import click
 
 from .common import (Command, UserError, display_path, duration, ending_on_signals, is_terminal, pending_signal,
-                     quiet_option, report_and_exit, summary, user_errors)
+                     plural, quiet_option, report_and_exit, summary, user_errors)
 
 
 class _StudyProgress:
@@ -65,8 +65,9 @@ def sweep(study, output, scheduler, resume, force, quiet, debug):
         report_and_exit(exc, debug)
     bar.close()
     points = int(ds["done"].size)
-    summary(quiet, f"wrote {display_path(output)}: {points} points × {ds.attrs['ensemble_trajectories']} "
-                   f"trajectories × {ds.attrs['ensemble_collisions']} collisions in "
+    summary(quiet, f"wrote {display_path(output)}: {plural(points, 'point')} × "
+                   f"{plural(int(ds.attrs['ensemble_trajectories']), 'trajectory')} × "
+                   f"{plural(int(ds.attrs['ensemble_collisions']), 'collision')} in "
                    f"{duration(time.perf_counter() - began)}")
 
 
@@ -181,7 +182,8 @@ def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=Non
     seconds = float(np.nansum(ds["wall_time"].values))
     panel = {"series": series, "references": references, "xlabel": f"{x} [{xunit}]",
              "ylabel": f"{y} [{unit}]", "logx": logx, "logy": logy}
-    title = (f"{ds.attrs.get('title', '')}\n{y} against {x} · {M} trajectories × {N} collisions per point · "
+    title = (f"{ds.attrs.get('title', '')}\n{y} against {x} · {plural(int(M), 'trajectory')} × "
+             f"{plural(int(N), 'collision')} per point · "
              f"{int(done.values.sum())} of {done.size} points · run time {duration(seconds)}")
     return panel, title
 
