@@ -3,8 +3,9 @@ PYTHON ?= python3
 VENV := .venv
 PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
+WARM := $(VENV)/.warmed-up
 
-.PHONY: test test-numba reproduce-figures bench stress gallery studies clean
+.PHONY: test test-numba reproduce-figures warm-up bench stress gallery studies notebook clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -29,7 +30,14 @@ RBX := $(VENV)/bin/rbx
 FIGURES := caustics circle periodic graph graphRandom plate roughrank histogram
 fig_data = $(if $(wildcard configs/experiments/$(1)/*.yaml),$(patsubst configs/experiments/%.yaml,data/%.h5,$(sort $(wildcard configs/experiments/$(1)/*.yaml))),data/$(1).h5)
 
-reproduce-figures: figures/README.md
+reproduce-figures: figures/README.md $(WARM)
+
+# the kernels of every example compiled ahead into the kernel cache (scripts/warm_up.py), so that the first run of an
+# example loads them instead of compiling for 10-40 s; done again when rbx's source or an example changes
+warm-up: $(WARM)
+$(WARM): scripts/warm_up.py $(wildcard configs/examples/*.yaml) $(wildcard rbx/*.py) | $(STAMP)
+	$(PY) scripts/warm_up.py
+	touch $@
 
 figures/README.md: $(FIGURES:%=figures/%.png) scripts/figures_readme.py
 	$(PY) scripts/figures_readme.py
@@ -72,6 +80,15 @@ gallery: $(STAMP)
 # three parameter studies (configs/studies/, rbx sweep): data/studies/*.nc, figures/studies/*.png, docs/studies.md
 studies: $(STAMP)
 	MPLBACKEND=Agg $(PY) scripts/studies.py
+
+# examples/api.ipynb in Jupyter (the notebook extra: pip install -e '.[notebook]')
+NOTEBOOK_STAMP := $(VENV)/.installed-notebook
+$(NOTEBOOK_STAMP): $(STAMP)
+	$(PY) -m pip install --quiet -e '.[dev,notebook]'
+	touch $(NOTEBOOK_STAMP)
+
+notebook: $(NOTEBOOK_STAMP)
+	$(VENV)/bin/jupyter notebook examples/api.ipynb
 
 clean:
 	rm -rf data runs figures/*.png figures/*.json

@@ -34,10 +34,13 @@ def tree(tmp_path):
     """A built tree: every file the pipeline knows, each older than what is made from it."""
     labels, configs = figures_and_configs()
     shutil.copy(os.path.join(ROOT, "Makefile"), tmp_path / "Makefile")
-    sources = ["pyproject.toml", "scripts/figlib.py", "scripts/figures_readme.py"] + configs + \
-        [f"scripts/fig_{x}.py" for x in labels]
+    examples = [os.path.join("configs", "examples", f) for f in sorted(os.listdir(os.path.join(ROOT, "configs",
+                                                                                               "examples")))]
+    sources = ["pyproject.toml", "scripts/figlib.py", "scripts/figures_readme.py", "scripts/warm_up.py",
+               "rbx/engine.py"] + configs + examples + [f"scripts/fig_{x}.py" for x in labels]
     data = [c.replace("configs/experiments/", "data/").replace(".yaml", ".h5") for c in configs]
-    made = [".venv/.installed"] + data + [f"figures/{x}.png" for x in labels] + ["figures/README.md"]
+    made = [".venv/.installed"] + data + [f"figures/{x}.png" for x in labels] + ["figures/README.md",
+                                                                                 ".venv/.warmed-up"]
     t = time.time() - 1000
     for i, rel in enumerate(sources + made):
         path = tmp_path / rel
@@ -72,3 +75,22 @@ def test_a_changed_config_re_simulates_that_run_only(tree):
     assert len(sims) == 1 and "configs/experiments/circle.yaml" in sims[0], cmds
     assert any("fig_circle.py" in c for c in cmds)
     assert not any(c.startswith("rm ") for c in cmds), cmds          # runs in data/ are never deleted
+
+
+def test_reproduce_figures_compiles_every_example_ahead(tree):
+    """The first run of an example after `make reproduce-figures` loads its kernels from the cache: the warm-up
+    (scripts/warm_up.py) is part of it, and runs again when an example or rbx's source changes, and only then."""
+    os.remove(tree / ".venv" / ".warmed-up")
+    cmds = dry_run(tree)
+    assert cmds == [".venv/bin/python scripts/warm_up.py", "touch .venv/.warmed-up"], cmds
+    subprocess.run(["touch", ".venv/.warmed-up"], cwd=tree, check=True)
+    assert dry_run(tree) == []
+    later = time.time()
+    for changed in ("configs/examples/strip.yaml", "rbx/engine.py"):
+        later += 100
+        os.utime(tree / changed, (later, later))
+        cmds = dry_run(tree)
+        assert cmds == [".venv/bin/python scripts/warm_up.py", "touch .venv/.warmed-up"], (changed, cmds)
+        assert not any("simulate" in c or "fig_" in c for c in cmds)
+        later += 100
+        os.utime(tree / ".venv" / ".warmed-up", (later, later))
