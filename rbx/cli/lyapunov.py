@@ -8,7 +8,7 @@ import numpy as np
 from .common import (Command, UserError, check_cluster_options, connect, duration, ending_on_signals, parse_sets,
                      pending_signal, plural, quiet_option, report_and_exit, set_option, summary, user_errors,
                      warn_repeated)
-from ..progress import compile_note
+from ..progress import compile_note, watch_compiles
 
 
 @click.command(cls=Command)
