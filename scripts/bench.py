@@ -1615,9 +1615,87 @@ def main(argv=None):
         skips = section("skips", section_skips)
     results = (rates, hand, process, fields, ens, jit, variants, peer, skips)
     write_document(args, cmd, results, time.perf_counter() - t0)
+    section_studies(args)    # appends its own table to the document
     log(f"wrote {args.out} in {time.perf_counter() - t0:.0f} s")
     return results
 
+
+def section_studies(args):
+    """Studies and explicit states (docs/studies.md): ``rbx.load`` of 10 000 explicit states (a mapping and a YAML
+    file), ``rbx.simulate`` of them for 1 collision each, and a sweep of 8 points of 10⁶ collisions against one
+    ``rbx.simulate`` of the same 8·10⁶ collisions (both written to their files). Each pair is timed in turn in
+    this process (interleaved), so a ratio is fair on a loaded machine; the wall times are not, and the CPU times
+    (``time.process_time``) are given beside them. Appends its table to ``args.out`` (after the document)."""
+    import warnings
+
+    import rbx
+    states = 1_000 if args.quick else 10_000
+    K, M, N = (2, 4, 100) if args.quick else (8, 100, 10_000)
+    repeats = max(3, args.repeats)
+    rng = np.random.default_rng(0)
+    xs, ys, a = rng.uniform(0.2, 1.8, states), rng.uniform(0.2, 0.8, states), rng.uniform(0, 2 * np.pi, states)
+    data = {"table": {"kind": "rectangle", "width": 2.0, "height": 1.0},
+            "boundary": {"default": {"rule": "constant", "rank": 0}}, "ball": {"radius": 0.1},
+            "initial": [{"position": [float(x), float(y)], "velocity": [float(np.cos(t)), float(np.sin(t))]}
+                        for x, y, t in zip(xs, ys, a)],
+            "run": {"collisions": 1, "trajectories": states}, "output": {"record": []}}
+    base = os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "configs", "examples", "sinai.yaml")
+    study = {"base": os.path.abspath(base), "set": {"initial": {"sample": "billiard"}},
+             "vary": {"ball.inertia": [round(0.1 * (i + 1), 2) for i in range(K)]}, "measure": ["energy_drift"],
+             "ensemble": {"trajectories": M, "collisions": N, "seed": 1}}
+    whole = rbx.load(os.path.abspath(base), {"initial": {"sample": "billiard"}, "run.trajectories": K * M,
+                                             "run.collisions": N, "output.record": ["velocity", "angular_velocity"],
+                                             "output.every": max(1, N // 20), "ball.inertia": 0.5})
+
+    def timed(fn):
+        w, c = time.perf_counter(), time.process_time()
+        out = fn()
+        return out, time.perf_counter() - w, time.process_time() - c
+    with tempfile.TemporaryDirectory(prefix="rbx-bench-studies-") as tmp, warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        path = os.path.join(tmp, "states.yaml")
+        with open(path, "w") as fh:
+            yaml.safe_dump(data, fh, default_flow_style=None)
+        exp = rbx.load(data)
+        rbx.simulate(exp)                                        # warm-up: the kernels from the cache
+        rbx.sweep(study, os.path.join(tmp, "s.nc"), force=True)
+        rbx.simulate(whole, output=os.path.join(tmp, "w.h5"), force=True)
+        rows = {k: [] for k in ("mapping", "file", "simulate", "sweep", "whole")}
+        for _ in range(repeats):
+            load0 = load1()
+            rows["mapping"].append(timed(lambda: rbx.load(data))[1:])
+            rows["file"].append(timed(lambda: rbx.load(path))[1:])
+            rows["simulate"].append(timed(lambda: rbx.simulate(exp))[1:])
+            rows["sweep"].append(timed(lambda: rbx.sweep(study, os.path.join(tmp, "s.nc"), force=True))[1:])
+            rows["whole"].append(timed(lambda: rbx.simulate(whole, output=os.path.join(tmp, "w.h5"),
+                                                            force=True))[1:])
+            log(f"studies  load {rows['mapping'][-1][0]:.3f}/{rows['file'][-1][0]:.3f} s, simulate "
+                f"{rows['simulate'][-1][0]:.3f} s, sweep/simulate {rows['sweep'][-1][0] / rows['whole'][-1][0]:.3f} "
+                f"(load {load0})")
+    med = {k: (statistics.median(w for w, _ in v), statistics.median(c for _, c in v)) for k, v in rows.items()}
+    pairs = [s[0] / w[0] for s, w in zip(rows["sweep"], rows["whole"])]
+    coll = f"{M * N:,}".replace(",", " ")
+    lines = [
+        "", "## Studies and explicit states", "",
+        f"`section_studies` of scripts/bench.py, {repeats} interleaved repeats (median), load average {load1()} "
+        "(2 cores): the wall times grow with the load, the CPU times (`time.process_time`) and the ratio of the "
+        "interleaved pair much less." + (" `--quick`: tiny sizes, the numbers mean nothing." if args.quick else ""),
+        "",
+        "| what | wall [s] | CPU [s] | target |", "|---|---|---|---|",
+        f"| `rbx.load` of {states:,} explicit states, a mapping | {med['mapping'][0]:.3f} | {med['mapping'][1]:.3f} "
+        "| ≤ 0.5 s |",
+        f"| `rbx.load` of {states:,} explicit states, a YAML file | {med['file'][0]:.3f} | {med['file'][1]:.3f} | "
+        "≤ 0.5 s |",
+        f"| `rbx.simulate` of them, 1 collision each | {med['simulate'][0]:.3f} | {med['simulate'][1]:.3f} | ≤ 1 s |",
+        f"| `rbx.sweep` of {K} points × {M} trajectories × {N} collisions ({coll} a point) into .nc | "
+        f"{med['sweep'][0]:.3f} | {med['sweep'][1]:.3f} | – |",
+        f"| one `rbx.simulate` of the same {K * M} × {N} collisions into .h5 | {med['whole'][0]:.3f} | "
+        f"{med['whole'][1]:.3f} | – |",
+        f"| sweep / simulate, interleaved (each pair: {', '.join(f'{p:.3f}' for p in pairs)}) | "
+        f"{statistics.median(pairs):.3f} | {med['sweep'][1] / med['whole'][1]:.3f} | ≤ 1.05 |", ""]
+    with open(args.out, "a", encoding="utf-8") as fh:
+        fh.write("\n".join(lines))
+    return med, pairs
 
 if __name__ == "__main__":
     main()
