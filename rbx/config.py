@@ -1104,7 +1104,8 @@ def start_groups(experiment):
         return None
     M = experiment.run.trajectories
     states = experiment.initial
-    rows = np.array([np.concatenate([np.ravel(np.asarray(s[k], float)) for k in STATE_KEYS]) for s in states])
+    rows = np.concatenate([np.array([s[k] for s in states], float).reshape(len(states), -1) for k in STATE_KEYS],
+                          axis=1)
     _, group = np.unique(rows, axis=0, return_inverse=True)
     group = np.ravel(group)
     return np.resize(group, M) if len(states) == 1 else group[:M]

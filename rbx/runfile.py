@@ -126,7 +126,12 @@ def config_yaml(cfg, path=None):
     resolved = cfg.resolved
     if path is not None:
         resolved = dict(resolved, output=dict(resolved.get("output") or {}, path=os.path.abspath(os.fspath(path))))
-    return yaml.safe_dump(_plain(resolved), sort_keys=False)
+    return yaml.dump(_plain(resolved), Dumper=_DUMPER, sort_keys=False)
+
+
+#: libyaml's emitter when there is one: the same text as yaml.safe_dump, in a third of the time (a config of
+#: 10 000 explicit states: 0.9 s -> 0.3 s)
+_DUMPER = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
 
 
 def _plain(x):
@@ -694,7 +699,7 @@ class Run:
     A file-backed run opens its file for each read; ``with run: …`` keeps it open for many reads (and gives
     ``run.h5``, the open ``h5py.File``)."""
 
-    def __init__(self, attrs, count, step, final, fields, path=None, arrays=None, experiment=None):
+    def __init__(self, attrs, count, step, final, fields, path=None, arrays=None, experiment=None, config=None):
         self.attrs = attrs
         self.path = path
         self.count, self.step = _frozen(count), _frozen(step)
@@ -710,7 +715,8 @@ class Run:
         self.complete = bool(attrs["complete"])
         source = path or "<run>"
         try:
-            self.config = yaml.safe_load(attrs["config"])
+            # an in-memory run is given its config already parsed (parsing it again took 2 s for 10 000 states)
+            self.config = yaml.safe_load(attrs["config"]) if config is None else config
         except yaml.YAMLError:
             raise FileError(source, "config", "the root attribute is not valid YAML") from None
         if not isinstance(self.config, dict) or not isinstance(self.config.get("table"), dict):
@@ -750,7 +756,7 @@ class Run:
         step = np.arange(nrec, dtype=np.int64) * experiment.output.every
         attrs = root_attrs(experiment, complete)
         return cls(attrs, count, step, sink.final or {}, [f for f in RECORD_FIELDS if f in arrays], arrays=arrays,
-                   experiment=experiment)
+                   experiment=experiment, config=_plain(experiment.resolved))
 
     # -- reading -----------------------------------------------------------------------------------------------
     def __enter__(self):
