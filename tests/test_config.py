@@ -386,3 +386,23 @@ def test_states_checked_in_bulk_read_as_one_by_one():
 
 def copy_of(data):
     return yaml.safe_load(yaml.safe_dump(data))
+
+
+def test_libyaml_reads_what_the_python_loader_reads():
+    # the config is read through libyaml when there is one: the same data, and a refused text is read again by
+    # the pure-Python loader, so that its message (line, column, problem) is the one users always saw
+    text = ("a: 010\nb: 0o17\nc: 0x1f\nd: 1_000_000\ne: 1e6\nf: 1:30\ng: .5\nh: [.inf, -.Inf, .nan]\ni: yes\n"
+            "j: 2001-12-14\nk: ~\nl: &x {m: [1, 2]}\nn: *x\no: {<<: *x, q: 3}\n")
+    fast, slow = config._load_yaml(text), yaml.load(text, Loader=config._Loader)
+    assert repr(fast) == repr(slow)
+    for bad in ("a: 1\na: 2\n", "a: [1, 2\n", "a: b: c\n", "x: " + "9" * 5000 + "\n"):
+        with pytest.raises(ConfigError) as fast_error:
+            config.parse_yaml(bad, "f.yaml")
+        try:
+            yaml.load(bad, Loader=config._Loader)
+        except yaml.YAMLError as exc:
+            mark = getattr(exc, "problem_mark", None)
+            assert f"line {mark.line + 1}, column {mark.column + 1}" in fast_error.value.problem
+            assert (getattr(exc, "problem", None) or str(exc).splitlines()[0]) in fast_error.value.problem
+        else:
+            pytest.fail(bad)
