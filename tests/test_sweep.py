@@ -143,8 +143,10 @@ def same(a, b):
 def test_a_killed_study_resumes_to_the_uninterrupted_result(tmp_path):
     import xarray as xr
     study = {"base": SINAI, "vary": {"ball.inertia": {"from": 0.1, "to": 1.0, "num": 10}},
-             "measure": ["lyapunov", "regular_share"], "ensemble": {"trajectories": 4, "collisions": 30000,
+             "measure": ["lyapunov", "regular_share"], "ensemble": {"trajectories": 4, "collisions": 100000,
                                                                     "seed": 4}}
+    # points of 0.1 s or more: the results file is written after the first point, then about once a second, so
+    # the run must last long enough after that first write for the kill to come mid-way
     text = yaml.safe_dump(study, sort_keys=False)
     (tmp_path / "study.yaml").write_text(text)
     whole = sweep(tmp_path / "study.yaml")          # also puts the kernels in the disk cache
@@ -165,7 +167,7 @@ def test_a_killed_study_resumes_to_the_uninterrupted_result(tmp_path):
         before = ds.load()
     assert 1 <= int(before["done"].sum()) < 10
     # a changed study is refused, in one line
-    (tmp_path / "study.yaml").write_text(text.replace("30000", "20000"))
+    (tmp_path / "study.yaml").write_text(text.replace("100000", "90000"))
     res = rbx_cli("sweep", "study.yaml", "-o", "out.nc", "--resume", cwd=tmp_path)
     assert res.returncode == 2 and len(res.stderr.splitlines()) == 1 and "--resume" in res.stderr, res.stderr
     (tmp_path / "study.yaml").write_text(text)
