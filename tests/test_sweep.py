@@ -145,7 +145,7 @@ def test_a_killed_study_resumes_to_the_uninterrupted_result(tmp_path):
     study = {"base": SINAI, "vary": {"ball.inertia": {"from": 0.1, "to": 1.0, "num": 10}},
              "measure": ["lyapunov", "regular_share"], "ensemble": {"trajectories": 4, "collisions": 100000,
                                                                     "seed": 4}}
-    # points of 0.1 s or more: the results file is written after the first point, then about once a second, so
+    # points of 0.1 s or more: the results file is written after the first point, then spaced by 20 writes' time, so
     # the run must last long enough after that first write for the kill to come mid-way
     text = yaml.safe_dump(study, sort_keys=False)
     (tmp_path / "study.yaml").write_text(text)
