@@ -4,7 +4,7 @@ first real run needs (``rbx simulate`` of it; ``rbx lyapunov`` too for the examp
 cache (``~/.cache/rbx`` or ``$NUMBA_CACHE_DIR``). The first run of an example then loads them from the cache
 instead of compiling for 10–40 s.
 
-    python scripts/warm_up.py [CONFIG.yaml ...]       # default: every configs/examples/*.yaml
+    python scripts/warm_up.py [CONFIG.yaml ...] [--jobs N]      # default: every configs/examples/*.yaml
 """
 import glob
 import os
@@ -16,7 +16,7 @@ ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 sys.path.insert(0, ROOT)
 
 import rbx  # noqa: E402
-from rbx.progress import duration, watch_compiles  # noqa: E402
+from rbx.progress import duration, plural, watch_compiles  # noqa: E402
 
 #: the examples whose first run is ``rbx lyapunov`` (the tangent loop: a kernel of its own)
 LYAPUNOV = ("lyapunov-sinai.yaml",)
@@ -34,16 +34,33 @@ def warm(config):
     return time.perf_counter() - began
 
 
-def main(argv=None):
-    configs = (argv if argv is not None else sys.argv[1:]) or \
-        sorted(glob.glob(os.path.join(ROOT, "configs", "examples", "*.yaml")))
+def _warm(config):
     watch_compiles()
+    return config, warm(config)
+
+
+def main(argv=None):
+    import argparse
+    import concurrent.futures
+    import multiprocessing
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("configs", nargs="*", help="example configs (default: every configs/examples/*.yaml)")
+    p.add_argument("--jobs", type=int, default=os.cpu_count() or 1,
+                   help="processes compiling at once (default: one per CPU; a compile uses one core)")
+    args = p.parse_args(argv)
+    configs = args.configs or sorted(glob.glob(os.path.join(ROOT, "configs", "examples", "*.yaml")))
     began = time.perf_counter()
-    for config in configs:
-        seconds = warm(config)
-        print(f"warm-up: {os.path.relpath(config, ROOT)}: {duration(seconds)}", flush=True)
-    print(f"warm-up: the kernels of {len(configs)} examples are in the cache ({duration(time.perf_counter() - began)})",
-          flush=True)
+    jobs = max(1, min(args.jobs, len(configs)))
+    if jobs == 1:
+        done = map(_warm, configs)
+    else:   # processes of their own (spawned: Numba and forks do not mix); a kernel two of them need is compiled
+        # once, the other waits on its lock in the cache and loads it (rbx._jit.compile_lock)
+        pool = concurrent.futures.ProcessPoolExecutor(jobs, mp_context=multiprocessing.get_context("spawn"))
+        done = (f.result() for f in concurrent.futures.as_completed([pool.submit(_warm, c) for c in configs]))
+    for config, seconds in done:
+        print(f"warm-up: {os.path.relpath(config)}: {duration(seconds)}", flush=True)
+    print(f"warm-up: the kernels of {plural(len(configs), 'example')} are in the cache "
+          f"({duration(time.perf_counter() - began)}, {jobs} at once)", flush=True)
     return 0
 
 
