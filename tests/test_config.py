@@ -393,8 +393,13 @@ def test_libyaml_reads_what_the_python_loader_reads():
     # the pure-Python loader, so that its message (line, column, problem) is the one users always saw
     text = ("a: 010\nb: 0o17\nc: 0x1f\nd: 1_000_000\ne: 1e6\nf: 1:30\ng: .5\nh: [.inf, -.Inf, .nan]\ni: yes\n"
             "j: 2001-12-14\nk: ~\nl: &x {m: [1, 2]}\nn: *x\no: {<<: *x, q: 3}\n")
+    text += ("p: !!binary aGVsbG8=\nq: !!set {a, b}\nr: !!omap [{x: 1}, {y: 2}]\ns: !!str 12\nt: '1e3'\nu: 1e3\n"
+             "v: -0.0\nw: 1_000.5\nx: &r [*r]\n")
     fast, slow = config._load_yaml(text), yaml.load(text, Loader=config._Loader)
     assert repr(fast) == repr(slow)
+    plain = yaml.safe_dump({"initial": [{"position": [0.1 * i, -0.0], "velocity": [1e-300, 2.5e10]}
+                                        for i in range(50)], "n": [None, True, "yes", 3]})
+    assert repr(config._load_yaml(plain)) == repr(yaml.load(plain, Loader=config._Loader))
     for bad in ("a: 1\na: 2\n", "a: [1, 2\n", "a: b: c\n", "x: " + "9" * 5000 + "\n"):
         with pytest.raises(ConfigError) as fast_error:
             config.parse_yaml(bad, "f.yaml")
