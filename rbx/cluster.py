@@ -58,6 +58,16 @@ SLICES_PER_THREAD = 4
 POLL = 0.1
 
 
+#: times the workers are asked for their rbx before the run (a worker lost meanwhile is left out)
+IDENTITY_TRIES = 3
+
+
+def _missing_install(exc):
+    """True if ``exc``, raised on a worker, says rbx (or a module it needs) cannot be imported or run there; not a
+    lost connection (a worker killed while it answered)."""
+    return isinstance(exc, (ImportError, AttributeError, SyntaxError, NameError))
+
+
 class ClusterError(RuntimeError):
     """The cluster failed during a run (a task failed, the scheduler went away): ``<key>: <problem>``."""
 
@@ -271,11 +281,7 @@ class Cluster:
     def check_workers(self):
         """Every worker runs rbx with the client's kernels; raises :class:`SchedulerUnreachable` otherwise."""
         mine = _worker_identity()
-        try:
-            theirs = self.client.run(_worker_identity)
-        except Exception as exc:   # noqa: BLE001 - typically rbx missing on a worker: its import fails there
-            raise SchedulerUnreachable(self.key, f"the workers cannot run rbx ({_first_line(exc)}); install this "
-                                                 f"rbx ({__version__}) where they run") from None
+        theirs = self._identities()
         for worker, ident in sorted(theirs.items()):
             if (ident.get("rbx"), ident.get("kernels")) != (mine["rbx"], mine["kernels"]):
                 what = (f"rbx {ident.get('rbx')}, this client rbx {mine['rbx']}" if ident.get("rbx") != mine["rbx"]
@@ -292,6 +298,38 @@ class Cluster:
                              for name, (value, worker) in sorted(differ.items()))
             sys.stderr.write(f"rbx: warning: {self.key}: the workers' platform differs from this client's ({said}):"
                              " the results are expected to be the local run's but are not guaranteed bit for bit\n")
+
+    def _identities(self, tries=IDENTITY_TRIES):
+        """Each worker's :func:`_worker_identity` -> {worker: identity}, from the workers that answer. A worker
+        lost meanwhile (killed, its connection closed: "Stream is closed") is left out, as Dask leaves it out
+        of the run; asked again if no worker answered. Only a worker that answered with an error of its own (rbx
+        or one of its modules not importable there) means rbx is missing: :class:`SchedulerUnreachable`."""
+        lost = None
+        for _ in range(tries):
+            try:
+                answers = self.client.run(_worker_identity, on_error="return")
+            except TypeError:          # a Dask without on_error: all or nothing
+                try:
+                    answers = self.client.run(_worker_identity)
+                except Exception as exc:   # noqa: BLE001 - sorted below
+                    answers = {"?": exc}
+            except Exception as exc:   # noqa: BLE001 - the scheduler's own connection to a worker, lost
+                lost = exc
+                continue
+            found = {}
+            for worker, answer in answers.items():
+                if not isinstance(answer, BaseException):
+                    found[worker] = answer
+                elif _missing_install(answer):
+                    raise SchedulerUnreachable(self.key, f"the workers cannot run rbx ({_first_line(answer)}); "
+                                                         f"install this rbx ({__version__}) where they run")
+                else:
+                    lost = answer
+            if found or not answers:        # no worker at all: the run waits for them (said by the caller)
+                return found
+        why = f" ({_first_line(lost)})" if lost is not None else ""
+        raise SchedulerUnreachable(self.key, f"no worker answered{why}: the workers were lost (killed, or the "
+                                             "network to them); start them again")
 
     # -- running -------------------------------------------------------------------------------------------------
     def slice_cuts(self, M, state_bytes):

@@ -231,7 +231,7 @@ def stream(sim, h5, tmp, path, *, fresh=True, progress=None, should_stop=None, w
                     complete = sim.run(sink, progress=progress, should_stop=should_stop, write_initial=write_initial)
                 finally:
                     with contextlib.suppress(Exception):   # an error writing must not hide the error itself
-                        sink.settle()
+                        sink.settle(complete)
                 h5.attrs["complete"] = bool(complete)
                 raised = False
         finally:

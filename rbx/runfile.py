@@ -1,17 +1,17 @@
-"""The run file (docs/reference.md §5): everything rbx writes to or reads from HDF5, in one module.
+"""The run file's schema (docs/reference.md §5): what rbx writes inside an HDF5 file and how it reads it back.
 
 Writing: the root attributes (:data:`ROOT_ATTRS`, one list for run files and return-angle files), the
 ``collisions/`` datasets made from :data:`rbx.model.FIELDS` (each with its ``units`` and ``description`` as dataset
 attributes, compressed as ``output.compression`` says: :func:`compression_options`), the streaming writer
-:class:`H5Sink`, the checkpoint digest (:func:`state_digest`), the ``OUT.h5.partial.new`` → ``OUT.h5.partial`` →
-``OUT.h5`` lifecycle (:func:`check_target`, :func:`create`, :func:`publish_new`, :func:`stream`; the file is
-written through a write-ahead journal, :mod:`rbx.journal`, so it changes only at checkpoints: :func:`open_journaled`,
-:func:`commit`, :func:`close_journal`) and the
-``returns/`` group of ``rbx histogram`` (:func:`write_returns`). Reading: one class, :class:`Run`, for ``rbx plot``,
-``rbx simulate --resume``, the figure scripts and the Python API (:func:`rbx.open`), and the same class holds a run
-made in memory (:func:`rbx.simulate` without ``output``); :func:`read_returns` reads ``returns/``. A file that is
-not what the caller needs raises :class:`FileError` (``<file>: <key>: <problem>``; the CLI prints it as one line
-and exits 2).
+:class:`H5Sink` (with the room each block needs reserved first), the checkpoint digest (:func:`state_digest`), the
+file opened through its write-ahead journal (:mod:`rbx.journal`: :func:`open_journaled`, :func:`commit`,
+:func:`close_journal`) and the ``returns/`` group of ``rbx histogram`` (:func:`fill_returns`). Which file is written
+and under which name (``OUT.h5.partial.new`` → ``OUT.h5.partial`` → ``OUT.h5``, the run lock, the resume) is
+:mod:`rbx.driver`'s. Reading: one class, :class:`Run`, for ``rbx plot``, ``rbx simulate --resume``, the figure
+scripts and the Python API (:func:`rbx.open`), and the same class holds a run made in memory (:func:`rbx.simulate`
+without ``output``); every dataset is checked against the layout before it is read (:func:`check_layout`);
+:func:`read_returns` reads ``returns/``. A file that is not what the caller needs raises :class:`FileError`
+(``<file>: <key>: <problem>``; the CLI prints it as one line and exits 2).
 
 Layout (T trajectories, N records; trajectory axis first):
 
@@ -27,7 +27,7 @@ Layout (T trajectories, N records; trajectory axis first):
 | ``collisions/step`` | (N,) | i8 | collision number of each record (0, every, 2·every, …) |
 | ``collisions/trajectory``, ``record``, ``axis``, ``axis2`` | (T,), (N,), (n,), (3,) | i8 / text | HDF5 dimension scales (:data:`SCALES`) naming the datasets' axes for netCDF readers (xarray with h5netcdf); files written before them have none, and nothing here reads them |
 | ``final/*`` | (T, …) | | the last state of every trajectory, its ``collisions`` and ``draws`` counts and ``alive`` flag (for ``--resume``); attributes ``sequence`` and ``digest`` (hash of the state, see :func:`state_digest`) |
-| ``final_previous/*`` | (T, …) | | the state one block earlier: each checkpoint writes over the older of the two (digest last), so a process killed at any instant leaves one verified state (:func:`latest_state` takes the newest that verifies); the newest is named ``final`` when the run stops |
+| ``final_previous/*`` | (T, …) | | the state one block earlier: each checkpoint writes over the older of the two (digest last), so a process killed at any instant leaves one verified state (:func:`latest_state` takes the newest that verifies); the newest is named ``final`` when the run stops, and a complete run keeps ``final`` alone |
 | ``returns/angle`` | (K,) | f8 | ``rbx histogram`` files only (no ``collisions/``): return angles φ; see :func:`write_returns` |
 
 The ``config`` attribute names the file written as ``output.path``. Only the fields in ``output.record`` are
@@ -366,21 +366,29 @@ class H5Sink:
         self.h5.flush()
         commit(self.h5)      # the file changes here, all at once: a kill before leaves the last checkpoint's
 
-    def settle(self):
+    def settle(self, complete=False):
         """Name the newest saved state ``final`` (and the other ``final_previous``), once the run stops writing
-        blocks: readers of ``final/`` then find the newest state there."""
+        blocks: readers of ``final/`` then find the newest state there. A ``complete`` run keeps ``final`` alone:
+        whether ``final_previous`` was there depended on how many checkpoints the run took (time, the machine, a
+        cluster's rounds), so two runs of one config differed in layout; an unfinished one keeps both, for a
+        resume."""
         if self.full:     # no room was reserved: leave HDF5's metadata alone (the readers find the newest anyway)
             return
         slots = {name: _slot_sequence(self.h5, name) for name in STATE_GROUPS}
-        if max(slots.values()) < 0 or slots["final"] == max(slots.values()):
+        if max(slots.values()) < 0:
             return
-        newest = max(slots, key=slots.get)
-        if "final" in self.h5:
-            self.h5.move("final", "final_swap" if newest != "final_swap" else "final_old")
-        self.h5.move(newest, "final")
-        for name in ("final_swap", "final_old"):
-            if name in self.h5 and "final_previous" not in self.h5:
-                self.h5.move(name, "final_previous")
+        if slots["final"] != max(slots.values()):
+            newest = max(slots, key=slots.get)
+            if "final" in self.h5:
+                self.h5.move("final", "final_swap" if newest != "final_swap" else "final_old")
+            self.h5.move(newest, "final")
+            for name in ("final_swap", "final_old"):
+                if name in self.h5 and "final_previous" not in self.h5:
+                    self.h5.move(name, "final_previous")
+        if complete:
+            for name in STATE_GROUPS + ("final_old",):
+                if name != "final" and name in self.h5:
+                    del self.h5[name]
         self.h5.flush()
 
 

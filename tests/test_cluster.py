@@ -501,3 +501,42 @@ def test_lyapunov_slices_need_a_scheduler(tmp_path):
     res = rbx("lyapunov", "lyap.yaml", "--json", "--slices", "2", cwd=tmp_path)
     assert res.returncode == 2 and not res.stdout
     assert res.stderr.strip() == "rbx: --slices: only with --scheduler (it cuts a run into tasks for a Dask cluster)"
+
+
+DIES_WHEN_ASKED = """
+import os
+import rbx.cluster
+
+
+def _die():
+    os.kill(os.getpid(), 9)      # SIGKILLed while it answers the client's question
+
+
+rbx.cluster._worker_identity = _die
+"""
+
+
+def test_a_worker_killed_while_the_client_checks_the_workers_is_left_out_not_taken_for_a_missing_install(tmp_path):
+    """A worker SIGKILLed about 3 s after the client started gave 'the workers cannot run rbx (… Stream is
+    closed); install this rbx (0.1.0) where they run', exit 2 (1 of 11 tries): the client asks every worker for
+    its rbx and kernels before the run, and one lost meanwhile failed the question. Here a worker (without a
+    nanny: it stays dead) is killed exactly when asked; the run goes on with the other worker, and its file is
+    the local run's, bit for bit, in the local run's layout (final/ alone, however many checkpoints)."""
+    cfg = scene("strip-random", 3000, 3, every=3)
+    local = simulate(tmp_path, cfg, "local.h5")
+    cluster = LocalDask(tmp_path / "dask", 1)
+    try:
+        (tmp_path / "dies.py").write_text(DIES_WHEN_ASKED)
+        cluster._start([sys.executable, "-m", "distributed.cli.dask_worker", cluster.address, "--nthreads", "1",
+                        "--name", "dies", "--no-nanny", "--preload", str(tmp_path / "dies.py"),
+                        "--local-directory", str(cluster.folder / "dies"), "--host", "127.0.0.1",
+                        "--no-dashboard", "--dashboard-address", "127.0.0.1:0"], "dies")
+        cluster.wait_for_workers(2)
+        doomed = cluster.procs[-1]
+        remote = simulate(tmp_path, cfg, "remote.h5", "--scheduler", cluster.address)
+        assert doomed.wait(timeout=60) == -signal.SIGKILL      # it was asked, and died
+    finally:
+        cluster.stop()
+    assert_same(remote, local)
+    with h5py.File(tmp_path / "remote.h5") as f:
+        assert sorted(f) == ["collisions", "final"]

@@ -371,3 +371,18 @@ def test_a_run_on_a_file_system_made_read_only_resumes_into_a_writable_folder(tm
         res = rbx_cli("simulate", "--resume", disk / "e.h5.partial", cwd=tmp_path)
         assert res.returncode == 2, res.stderr
         assert "cannot be resumed in place" in one_line(res)
+
+
+def test_a_complete_file_has_one_layout_however_many_checkpoints_its_run_took(tmp_path, monkeypatch):
+    """Whether a file held ``final_previous/`` depended on how many checkpoints its run took (one a second: on the
+    machine's speed, a cluster's rounds), so two uninterrupted runs of one config differed in layout. A complete
+    file holds ``final/`` alone; an interrupted one keeps both saved states for its resume."""
+    cfg = scene("strip-random", 3000, 2, 3, record=["time", "position"])
+    rbx.simulate(cfg, output=tmp_path / "once.h5")                  # one checkpoint, at the end
+    monkeypatch.setattr(simulation, "BLOCK_WORK", 300)
+    monkeypatch.setattr(simulation, "CHECKPOINT_SECONDS", 0)        # one after every block
+    rbx.simulate(cfg, output=tmp_path / "often.h5")
+    with h5py.File(tmp_path / "once.h5") as a, h5py.File(tmp_path / "often.h5") as b:
+        assert sorted(a) == sorted(b) == ["collisions", "final"]
+        assert sorted(a["final"]) == sorted(b["final"])
+    assert_same_records(read_run(tmp_path / "once.h5"), read_run(tmp_path / "often.h5"))
