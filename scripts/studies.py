@@ -231,7 +231,10 @@ as a point particle's, the centre uniform in the area of the shrunk table and th
 spin (docs/reference.md §4). With a specular rule this is the classic billiard in its invariant measure: the mean
 free path is then Santaló's πA/P of the shrunk table, the `mean_free_path` observable's companion
 `mean_free_path_santalo` (checked in `tests/test_point_particle.py`, with the disc's mean first flight 8r/3π and
-mean chord 16r/3π). `{{sample: billiard}}` starts on the walls instead, with spin.
+mean chord 16r/3π). `{{sample: billiard}}` starts on the walls instead, with spin, so the centre is slower:
+the specular Lorentz gas of study 2 diffuses at D = 0.069 ± 0.001 per unit time from a point particle's starts
+(Machta–Zwanzig's random walk between traps: 0.063; `tests/test_observables.py`) and at 0.058 from the
+billiard measure's.
 
 Observables: {', '.join(sorted(rbx.observables.REGISTRY) if hasattr(rbx, 'observables') else [])}.
 
