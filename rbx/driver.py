@@ -17,11 +17,14 @@ import dataclasses
 import errno
 import os
 import shutil
+import weakref
 
+import h5py
 import numpy as np
 import yaml
 
-from . import journal
+from . import continuation, journal
+from .config import loads
 from .locks import LockNotWritable, acquire_lock, lock_holder, lock_path, release_lock, taken_fresh
 from .locks import busy as _busy
 from .model import FIELD
@@ -154,7 +157,6 @@ def create(path, force=False):
 
 
 def _is_complete_run(path):
-    import h5py
     try:
         with h5py.File(path, "r") as f:
             return bool(f.attrs.get("complete", False))
@@ -280,7 +282,6 @@ def _store_path(h5, cfg, path):
 def trim(path):
     """Give back the room :meth:`H5Sink._reserve` allocated and HDF5 did not use: HDF5 cuts the file to its own
     end when it closes a file it opened for writing (it keeps a longer file it made longer itself)."""
-    import h5py
     with contextlib.suppress(Exception):
         with h5py.File(path, "r+"):
             pass
@@ -415,8 +416,6 @@ def prepare_resume(run_file, output=None, *, force=False, max_size=None, out_key
     (:func:`rbx.continuation.load`), the output (:func:`check_target`) and the size the run's file will reach
     against ``output.max_size`` (or ``max_size``: bytes or a text such as '50 GB', named by ``size_key``) and the
     free space. Raises :class:`FileError` or :class:`rbx.model.ConfigError`."""
-    from . import continuation
-    from .config import loads
     source = resumed_source(run_file)
     default = source[:-len(".partial")] if source.endswith(".partial") else source
     path = os.path.abspath(os.fspath(output)) if output else default
@@ -449,7 +448,6 @@ def prepare_resume(run_file, output=None, *, force=False, max_size=None, out_key
     if lock_path(path) != lock_path(source):
         # -o OTHER.h5: OTHER's own lock too, held to the final rename like a new run's, so that two resumes into
         # one OTHER cannot write one OTHER.h5.partial (with --force the second truncated it)
-        import weakref
         acquire_lock(path)
         sim.locks.append(weakref.finalize(sim, release_lock, path))
     if path != source:
@@ -494,7 +492,6 @@ def resume_to_file(r, *, progress=None, should_stop=None, report=None):
     of the source (unless resumed in place): if this attempt dies badly, the file it started from is intact.
     Raises :class:`DiskFull` when the copy finds no room (the source unchanged), OSError if writing fails
     midway."""
-    from . import continuation
     sim, tmp = r.sim, r.tmp
     try:
         if not r.in_place:

@@ -49,7 +49,7 @@ from . import journal
 from .locks import busy as _busy
 from .locks import lock_holder
 from .model import FIELD, FIELDS, RECORD_FIELDS, ConfigError
-from .paths import DiskFull, FileError, format_size
+from .paths import DiskFull, FileError, format_size, what_it_is
 # names that lived here before the locks and the driver had modules of their own, for code that reads them here
 from .locks import _process_start, acquire_lock, lock_path, release_held_locks, release_lock  # noqa: F401, E402
 from .paths import creation_path, display_path, temporary_path  # noqa: F401, E402
@@ -545,6 +545,9 @@ def _open_h5(path, mode="r"):
         raise FileError(path, None, "file not found")
     if os.path.isdir(path):
         raise FileError(path, None, "is a directory, not an HDF5 file")
+    what = what_it_is(os.path.realpath(path))
+    if what != "a regular file":       # a FIFO would block the read for ever; a device is no run
+        raise FileError(path, None, f"is {what}, not a regular file: not an HDF5 file")
     if journal.pending(path) and lock_holder(path) is None:
         # its run was killed inside a commit: finish it (the journal is whole, or it would not be there)
         try:

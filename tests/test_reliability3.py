@@ -386,3 +386,17 @@ def test_a_complete_file_has_one_layout_however_many_checkpoints_its_run_took(tm
         assert sorted(a) == sorted(b) == ["collisions", "final"]
         assert sorted(a["final"]) == sorted(b["final"])
     assert_same_records(read_run(tmp_path / "once.h5"), read_run(tmp_path / "often.h5"))
+
+
+def test_a_run_file_that_is_a_fifo_or_a_device_is_refused_saying_what_it_is(tmp_path):
+    """A run file must be a regular file, checked before anything opens it (a FIFO opened for reading waits for a
+    writer): one line saying what it is, exit 2, without waiting. (Before, h5py's signature check refused a FIFO as
+    'not an HDF5 file (or unreadable)'.)"""
+    os.mkfifo(tmp_path / "pipe.h5")
+    for args in (("plot", "pipe.h5", "--kind", "orbit"), ("simulate", "--resume", "pipe.h5"),
+                 ("plot", "/dev/zero", "--kind", "orbit")):
+        res = rbx_cli(*args, cwd=tmp_path, timeout=120)
+        assert res.returncode == 2, (args, res.stderr)
+        assert "not a regular file: not an HDF5 file" in one_line(res), res.stderr
+    with pytest.raises(rbx.FileError, match="pipe.h5: is a FIFO"):
+        rbx.open(tmp_path / "pipe.h5")
