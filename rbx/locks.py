@@ -140,7 +140,10 @@ def acquire_lock(path, warn=None):
                 raise busy(path, _own_holder())
             _HELD[lock][0] += 1
             return lock
-        os.makedirs(os.path.dirname(lock), exist_ok=True)
+        try:
+            os.makedirs(os.path.dirname(lock), exist_ok=True)
+        except OSError as exc:
+            raise _cannot(lock, exc, "make the folder of the run's lock file") from None
         for _ in range(5):
             try:
                 _create(lock)
