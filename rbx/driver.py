@@ -28,6 +28,7 @@ from .config import loads
 from .locks import LockNotWritable, acquire_lock, lock_holder, lock_path, release_lock, taken_fresh
 from .locks import busy as _busy
 from .model import FIELD
+from .progress import plural
 from .paths import (NO_ROOM, DiskFull, FileError, check_replaceable, creation_path, display_path, format_size,
                     temporary_path)
 from .runfile import (H5Sink, Run, _text, close_journal, commit, config_yaml, file_path, fill_returns, journal_of,
@@ -56,8 +57,9 @@ def check_size(cfg, path, key_file=None, written=0):
     if need > cfg.output.max_size:
         file, key = key_file or (cfg.source, "output.max_size")
         raise FileError(file, key, f"the run would write about {format_size(need)}{raw} "
-                                   f"({cfg.run.trajectories} trajectories × {cfg.run.collisions // cfg.output.every + 1}"
-                                   f" records of {', '.join(cfg.output.record)}), more than the limit "
+                                   f"({plural(cfg.run.trajectories, 'trajectory')} × "
+                                   f"{plural(cfg.run.collisions // cfg.output.every + 1, 'record')} of "
+                                   f"{', '.join(cfg.output.record)}), more than the limit "
                                    f"{format_size(cfg.output.max_size)}; raise output.max_size or --max-size if that "
                                    "is meant")
     folder = os.path.dirname(os.path.abspath(path)) or "."

@@ -854,7 +854,9 @@ class Run:
 
     def __repr__(self):
         where = self.path or "in memory"
-        return (f"<rbx.Run {where}: {self.table_kind}, {self.trajectories} trajectories × {self.records} records "
+        from .progress import plural
+        return (f"<rbx.Run {where}: {self.table_kind}, {plural(self.trajectories, 'trajectory')} × "
+                f"{plural(self.records, 'record')} "
                 f"of {', '.join(self.fields) or 'nothing'}{'' if self.complete else ', INCOMPLETE'}>")
 
     @property

@@ -191,6 +191,7 @@ def test_one_trajectory_is_singular(tmp_path):
     (tmp_path / "one.yaml").write_text(yaml.safe_dump(config))
     res = cli("simulate", "one.yaml", "-o", "one.h5", cwd=tmp_path)
     assert res.returncode == 0 and "1 trajectory × 50 collisions" in res.stderr, res.stderr
+    assert ": rectangle, 1 trajectory × 6 records of " in repr(rbx.open(str(tmp_path / "one.h5")))
     line = one_line(cli("plot", "one.h5", "--kind", "escape", cwd=tmp_path))
     assert "the trajectory did not reach an exit wall in 50 collisions" in line and "1 trajectories" not in line, line
 
