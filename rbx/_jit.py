@@ -23,6 +23,7 @@ import time
 import numba
 
 from . import _numba_hooks as hooks
+from . import model
 
 #: every module that defines kernels (tests/test_jit.py checks that each module under rbx/ importing this one is
 #: listed)
@@ -37,8 +38,7 @@ KERNEL_CONSTANTS = ("model",)
 def _compiled_constants():
     """What the kernels read from :data:`KERNEL_CONSTANTS` modules, as text: each record field's name (the order
     of ``engine.Records``) and its bit of the record mask."""
-    from .model import FIELDS
-    return repr([(f.name, int(f.bit)) for f in FIELDS])
+    return repr([(f.name, int(f.bit)) for f in model.FIELDS])
 
 
 def kernel_source_hash():

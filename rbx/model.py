@@ -16,6 +16,7 @@ How to add a record field: one :class:`Field` row in :data:`FIELDS` (its bit is 
 ``engine.write_record`` and its value in ``simulation.Simulation.current_record``; config, HDF5 layout, API and
 tests pick it up from the table.
 """
+import copy
 import dataclasses
 import math
 from dataclasses import dataclass, field
@@ -326,7 +327,6 @@ class Experiment:
     def to_dict(self):
         """The experiment as a config mapping (a deep copy of ``resolved``: tables and boundaries inlined, paths
         absolute), to edit and load again from any folder: ``rbx.load(d)``."""
-        import copy
         return copy.deepcopy(self.resolved)
 
 

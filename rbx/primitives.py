@@ -13,12 +13,19 @@ the index of the wall it belongs to and a row of packed float parameters:
 | ``FOCUS_ARC`` | 2D arc of radius ρ, centre kept inside (a focusing ``ccw`` arc shrunk by R) | c = [0:2], first and last radial directions [4:6], [8:10] (CCW), ρ = [12], span > 180° = [13] |
 | ``CYLINDER`` | 3D cylinder with axis ∥ z, centre kept inside | axis point c = [0:2], ρ = [12] |
 
-Each primitive's contract: its collision time (:func:`collision_time`: the closed form, the numerically stable
-root), its contact normal (:func:`contact_normal`, pointing into the free region), the snap of a contact point
-onto it (:func:`snap`), its normal's Jacobian (:func:`normal_jacobian`: the curvature, for the tangent map), the
-clearance of points (:meth:`Geometry.clearance`) and the sampling patch of its wall (``Wall.patches``, drawn by
-:mod:`rbx.sampling`). The parameters of a row are read through the named offsets :data:`P_POINT`,
-:data:`P_NORMAL`, :data:`P_TANGENT`, :data:`P_RADIUS` and :data:`P_WIDE`.
+Each primitive's contract — its collision time (the closed form, the numerically stable root), its contact
+normal (pointing into the free region), the snap of a contact point onto it, its normal's Jacobian (the
+curvature, for the tangent map), the clearance of points and the sampling patch of its wall — is one section
+below: the flat primitives (``HALFSPACE``, ``SEGMENT``), what the round ones share, then ``CONCAVE_ARC`` and
+``CYLINDER``, ``FOCUS_ARC``, ``CONVEX_ARC`` and ``SPHERE_OUT``. The kernels call them through
+:func:`collision_time`, :func:`contact_normal`, :func:`snap` and :func:`normal_jacobian`, which pick the section by
+the primitive's code. The parameters of a row are read through the named offsets :data:`P_POINT`,
+:data:`P_NORMAL`, :data:`P_TANGENT`, :data:`P_RADIUS` (:data:`P_LENGTH`) and :data:`P_WIDE`.
+
+How to add a primitive: a code; its section here (collision time, normal, snap, normal Jacobian) and its branch in
+the four dispatchers; its case in :func:`rbx.construction.add_pieces` (its parameter row, a ``Wall`` with a
+sampling patch), :func:`rbx.pieces.pieces_clearance`, :func:`rbx.construction.check_fit` and :mod:`rbx.drawing`;
+a wall-piece dataclass in :mod:`rbx.pieces`; then tests/reference.py and :mod:`rbx.precise`.
 
 A periodic cell is the ``lattice`` (lo, period) of the geometry: the kernel walks the cells a flight crosses and
 tests each cell's images (:func:`periodic_flight`).
@@ -156,32 +163,64 @@ def _row(n, p=(), nu=(), t=(), scalar=0.0):
     return r
 
 
+# ---- flat primitives: HALFSPACE (a line or plane, no ends) and SEGMENT (2D, with ends) --------------------------
+# collision time: max(d, 0)/−(v·ν) while moving into it, d = (a − p)·ν (a segment: the point within its length,
+#   ± tol); normal: ν = the row's P_NORMAL; snap: a −= ((a − p)·ν)ν; normal Jacobian: 0; clearance: (a − p)·ν
+#   (Geometry.clearance; the segments of a polygon: rbx.pieces._polygon_clearance); sampling patch: ('flat',
+#   origin, ν, [(tangent, length)]) (rbx.construction, drawn by rbx.sampling)
+
 @jit_hot
-def collision_time(code, params, k, a, v, tol, n):
-    """Flight time until the centre at ``a`` moving with ``v`` hits the primitive while moving into it -> t ≥ 0,
-    or inf if it never does. A centre a hair outside (rounding) and moving in is hit at t = 0.
-    The primitive is row ``k`` of ``params`` (indices, not a row view: views cost reference counting); ``n`` is
-    the dimension, passed in so that the kernels compile it as a constant."""
-    if code == HALFSPACE or code == SEGMENT:
-        vn = 0.0
-        d = 0.0
-        for i in range(n):
-            vn += v[i] * params[k, P_NORMAL + i]
-            d += (a[i] - params[k, i]) * params[k, P_NORMAL + i]
-        if vn >= 0.0:
-            return np.inf                      # parallel or leaving: a grazing flight never touches the wall
-        if code == HALFSPACE:
-            return max(d, 0.0) / -vn
-        if d < -tol:
-            return np.inf                      # the segment's line lies behind: another part of the table
-        t = max(d, 0.0) / -vn
-        s = 0.0
-        for i in range(2):
-            s += (a[i] + t * v[i] - params[k, i]) * params[k, P_TANGENT + i]
-        if s < -tol or s > params[k, P_LENGTH] + tol:
-            return np.inf
-        return t
-    # arcs: |a + t v − c|² = ρ²  <=>  |v|² t² + 2 b t + cc = 0 (a cylinder: in the plane across its axis)
+def _flat_time(code, params, k, a, v, tol, n):
+    vn = 0.0
+    d = 0.0
+    for i in range(n):
+        vn += v[i] * params[k, P_NORMAL + i]
+        d += (a[i] - params[k, i]) * params[k, P_NORMAL + i]
+    if vn >= 0.0:
+        return np.inf                      # parallel or leaving: a grazing flight never touches the wall
+    if code == HALFSPACE:
+        return max(d, 0.0) / -vn
+    if d < -tol:
+        return np.inf                      # the segment's line lies behind: another part of the table
+    t = max(d, 0.0) / -vn
+    s = 0.0
+    for i in range(2):
+        s += (a[i] + t * v[i] - params[k, i]) * params[k, P_TANGENT + i]
+    if s < -tol or s > params[k, P_LENGTH] + tol:
+        return np.inf
+    return t
+
+
+@jit_hot
+def _flat_normal(params, k, nu, n):
+    for i in range(n):
+        nu[i] = params[k, P_NORMAL + i]
+
+
+@jit_hot
+def _flat_snap(params, k, a, n):
+    d = 0.0
+    for i in range(n):
+        d += (a[i] - params[k, i]) * params[k, P_NORMAL + i]
+    for i in range(n):
+        a[i] -= d * params[k, P_NORMAL + i]
+
+
+# ---- round primitives, what they share: a circle or sphere of radius ρ = P_RADIUS about c = P_POINT (a cylinder:
+# across its axis, the first two coordinates). Normal ±(a − c)/|a − c| into the free region (− for a wall that
+# keeps the centre inside: CONCAVE_ARC, FOCUS_ARC, CYLINDER); snap: a = c + ρ(a − c)/|a − c|; normal Jacobian
+# ±(I − ûûᵀ)/|a − c|; clearance ρ − |a − c| inside, |a − c| − ρ outside; sampling patch ('arc', c, ρ, a0, a1, ±1)
+# in 2D (rbx.construction), the sphere and the cylinder by rbx.sampling's patches of pieces
+
+@jit_hot
+def _kept_inside(code):
+    return code == CONCAVE_ARC or code == FOCUS_ARC or code == CYLINDER
+
+
+@jit_hot
+def _round_terms(code, params, k, a, v, n):
+    """|a + t v − c|² = ρ²  <=>  |v|² t² + 2 b t + cc = 0 -> (b, cc = |a − c|², vv = |v|²) (a cylinder: in the
+    plane across its axis)."""
     b = 0.0
     cc = 0.0
     vv = 0.0
@@ -192,50 +231,125 @@ def collision_time(code, params, k, a, v, tol, n):
             b += dx * v[i]
             cc += dx * dx
             vv += v[i] * v[i]
-    rho = params[k, P_RADIUS]
-    if b >= 0.0 and (code == CONVEX_ARC or code == SPHERE_OUT):
-        return np.inf                            # moving away from a disc kept outside: never reaches it
-    # |a−c|² − ρ² without cancelling ρ² away: a centre on the circle (snapped, or just hit) gives 0 or a few ulp
-    # of ρ·|a−c|, where |a−c|² − ρ² would keep the rounding of the squares (a grazing flight needs the former)
-    cc = (np.sqrt(cc) - rho) * (np.sqrt(cc) + rho)
-    if code == CONCAVE_ARC or code == CYLINDER:
-        # The centre is inside the circle (a bounded table): one a hair outside by rounding is taken to be on it,
-        # else a grazing flight moving inward from there could miss the circle altogether and "escape".
-        if vv == 0.0:
+    return b, cc, vv
+
+
+@jit_hot
+def _round_normal(code, params, k, a, nu, n):
+    s = 0.0
+    m = 2 if code == CYLINDER else n
+    for i in range(n):          # constant indices (see _round_terms)
+        nu[i] = a[i] - params[k, i] if i < m else 0.0
+        s += nu[i] * nu[i]
+    s = 1.0 / np.sqrt(s)
+    if _kept_inside(code):
+        s = -s
+    for i in range(n):
+        nu[i] = nu[i] * s if i < m else 0.0
+
+
+@jit_hot
+def _round_jacobian(code, params, k, a, J, n):
+    m = 2 if code == CYLINDER else n
+    s = 0.0
+    for i in range(n):          # constant indices (see _round_terms)
+        if i < m:
+            s += (a[i] - params[k, i]) * (a[i] - params[k, i])
+    r = np.sqrt(s)
+    sign = -1.0 if _kept_inside(code) else 1.0
+    for i in range(n):
+        if i < m:
+            ui = (a[i] - params[k, i]) / r
+            for j in range(n):
+                if j < m:
+                    uj = (a[j] - params[k, j]) / r
+                    J[i, j] = sign * ((1.0 if i == j else 0.0) - ui * uj) / r
+
+
+@jit_hot
+def _round_snap(code, params, k, a, n):
+    m = 2 if code == CYLINDER else n
+    s = 0.0
+    for i in range(n):          # constant indices (see _round_terms)
+        if i < m:
+            s += (a[i] - params[k, i]) * (a[i] - params[k, i])
+    f = params[k, P_RADIUS] / np.sqrt(s)
+    for i in range(n):
+        if i < m:
+            a[i] = params[k, i] + f * (a[i] - params[k, i])
+
+
+# ---- CONCAVE_ARC (the circle table, a sphere from inside) and CYLINDER (its side): the centre kept inside ---------
+# collision time: the larger root, from a centre inside (one a hair outside by rounding is on the circle)
+
+@jit_hot
+def _inside_time(b, cc, vv):
+    # The centre is inside the circle (a bounded table): one a hair outside by rounding is taken to be on it, else
+    # a grazing flight moving inward from there could miss the circle altogether and "escape".
+    if vv == 0.0:
+        return np.inf
+    if cc > 0.0:
+        cc = 0.0
+    disc = b * b - vv * cc
+    if b > 0.0:
+        t = -cc / (b + np.sqrt(disc))         # stable form of the larger root
+    else:
+        t = (np.sqrt(disc) - b) / vv
+    return t                                 # ≥ 0; 0 for a centre on the circle moving out (or along it)
+
+
+# ---- FOCUS_ARC: a 2D arc kept inside (a focusing ``ccw`` arc shrunk by R), between its first and last radial
+# directions P_NORMAL, P_TANGENT (counter-clockwise; P_WIDE: it spans more than 180°)
+# collision time: the larger root, if the point lies on the arc (a centre outside its circle: a mushroom's stem)
+
+@jit_hot
+def _focus_time(params, k, a, v, tol, rho, b, cc, vv):
+    # leaving the disc through the arc between its radial directions: the larger root. In a non-convex table the
+    # centre may be outside this circle (a mushroom's stem): the larger root is then where the line leaves the
+    # disc, if it meets it at all
+    if vv == 0.0:
+        return np.inf
+    if 0.0 < cc <= 4.0 * tol * rho:
+        cc = 0.0                             # a hair outside by rounding (just hit, creeping along it): on it
+    disc = b * b - vv * cc
+    if disc < 0.0:
+        # from outside the circle: a line that misses it, or one tangent to it within rounding — a flight along a
+        # flat wall into its tangent joint with this arc, which must touch the arc there, not leave the table
+        if disc < -1e-12 * b * b:
             return np.inf
-        if cc > 0.0:
-            cc = 0.0
-        disc = b * b - vv * cc
-        if b > 0.0:
-            t = -cc / (b + np.sqrt(disc))         # stable form of the larger root
-        else:
-            t = (np.sqrt(disc) - b) / vv
-        return t                                 # ≥ 0; 0 for a centre on the circle moving out (or along it)
-    if code == FOCUS_ARC:
-        # leaving the disc through the arc between its radial directions: the larger root. In a non-convex table
-        # the centre may be outside this circle (a mushroom's stem): the larger root is then where the line
-        # leaves the disc, if it meets it at all
-        if vv == 0.0:
+        disc = 0.0
+    if b > 0.0:
+        t = -cc / (b + np.sqrt(disc))
+    else:
+        t = (np.sqrt(disc) - b) / vv
+    if t < 0.0:
+        if cc > 2.0 * tol * rho:
             return np.inf
-        if 0.0 < cc <= 4.0 * tol * rho:
-            cc = 0.0                             # a hair outside by rounding (just hit, creeping along it): on it
-        disc = b * b - vv * cc
-        if disc < 0.0:
-            # from outside the circle: a line that misses it, or one tangent to it within rounding — a flight along
-            # a flat wall into its tangent joint with this arc, which must touch the arc there, not leave the table
-            if disc < -1e-12 * b * b:
-                return np.inf
-            disc = 0.0
-        if b > 0.0:
-            t = -cc / (b + np.sqrt(disc))
-        else:
-            t = (np.sqrt(disc) - b) / vv
-        if t < 0.0:
-            if cc > 2.0 * tol * rho:
-                return np.inf
-            t = 0.0
-        return t if _in_arc(params, k, a, v, t, tol * rho) else np.inf
-    # CONVEX_ARC, SPHERE_OUT: entering the disc (sphere) kept outside; an arc only between its two normals
+        t = 0.0
+    return t if _in_arc(params, k, a, v, t, tol * rho) else np.inf
+
+
+@jit_hot
+def _in_arc(params, k, a, v, t, slack):
+    """Whether the point a + t v lies (within ``slack``) on the arc of primitive k: between its first and last
+    radial directions [P_NORMAL], [P_TANGENT] going counter-clockwise (both half-plane tests for an arc of at most
+    180°, either of them for a longer one)."""
+    mx = a[0] + t * v[0] - params[k, 0]
+    my = a[1] + t * v[1] - params[k, 1]
+    after_first = params[k, P_NORMAL] * my - params[k, P_NORMAL + 1] * mx >= -slack
+    before_last = mx * params[k, P_TANGENT + 1] - my * params[k, P_TANGENT] >= -slack
+    if params[k, P_WIDE] != 0.0:
+        return after_first or before_last
+    return after_first and before_last
+
+
+# ---- CONVEX_ARC (a 2D arc kept outside: a reflex joint rounded by R, a dispersing ``cw`` arc grown by R; between
+# its normals P_NORMAL, P_TANGENT) and SPHERE_OUT (a whole disc or sphere obstacle, kept outside)
+# collision time: the smaller root while moving towards the centre (an arc: the point on it)
+
+@jit_hot
+def _outside_time(code, params, k, a, v, tol, rho, b, cc, vv):
+    # entering the disc (sphere) kept outside; an arc only between its two normals
     if b >= 0.0:
         return np.inf
     disc = b * b - vv * cc
@@ -251,37 +365,37 @@ def collision_time(code, params, k, a, v, tol, n):
     return t if _in_arc(params, k, a, v, t, tol * rho) else np.inf
 
 
+# ---- every primitive: what the kernels call, by the primitive's code ----------------------------------------------
+
 @jit_hot
-def _in_arc(params, k, a, v, t, slack):
-    """Whether the point a + t v lies (within ``slack``) on the arc of primitive k: between its first and last
-    radial directions [P_NORMAL], [P_TANGENT] going counter-clockwise (both half-plane tests for an arc of at most 180°,
-    either of them for a longer one)."""
-    mx = a[0] + t * v[0] - params[k, 0]
-    my = a[1] + t * v[1] - params[k, 1]
-    after_first = params[k, P_NORMAL] * my - params[k, P_NORMAL + 1] * mx >= -slack
-    before_last = mx * params[k, P_TANGENT + 1] - my * params[k, P_TANGENT] >= -slack
-    if params[k, P_WIDE] != 0.0:
-        return after_first or before_last
-    return after_first and before_last
+def collision_time(code, params, k, a, v, tol, n):
+    """Flight time until the centre at ``a`` moving with ``v`` hits the primitive while moving into it -> t ≥ 0,
+    or inf if it never does. A centre a hair outside (rounding) and moving in is hit at t = 0.
+    The primitive is row ``k`` of ``params`` (indices, not a row view: views cost reference counting); ``n`` is
+    the dimension, passed in so that the kernels compile it as a constant."""
+    if code == HALFSPACE or code == SEGMENT:
+        return _flat_time(code, params, k, a, v, tol, n)
+    b, cc, vv = _round_terms(code, params, k, a, v, n)
+    rho = params[k, P_RADIUS]
+    if b >= 0.0 and (code == CONVEX_ARC or code == SPHERE_OUT):
+        return np.inf                            # moving away from a disc kept outside: never reaches it
+    # |a−c|² − ρ² without cancelling ρ² away: a centre on the circle (snapped, or just hit) gives 0 or a few ulp
+    # of ρ·|a−c|, where |a−c|² − ρ² would keep the rounding of the squares (a grazing flight needs the former)
+    cc = (np.sqrt(cc) - rho) * (np.sqrt(cc) + rho)
+    if code == CONCAVE_ARC or code == CYLINDER:
+        return _inside_time(b, cc, vv)
+    if code == FOCUS_ARC:
+        return _focus_time(params, k, a, v, tol, rho, b, cc, vv)
+    return _outside_time(code, params, k, a, v, tol, rho, b, cc, vv)
 
 
 @jit_hot
 def contact_normal(code, params, k, a, nu, n):
     """Unit normal at the contact point of the centre ``a`` on the primitive, pointing into the free region -> nu."""
     if code == HALFSPACE or code == SEGMENT:
-        for i in range(n):
-            nu[i] = params[k, P_NORMAL + i]
-        return
-    s = 0.0
-    m = 2 if code == CYLINDER else n
-    for i in range(n):          # constant indices (see collision_time)
-        nu[i] = a[i] - params[k, i] if i < m else 0.0
-        s += nu[i] * nu[i]
-    s = 1.0 / np.sqrt(s)
-    if code == CONCAVE_ARC or code == FOCUS_ARC or code == CYLINDER:
-        s = -s
-    for i in range(n):
-        nu[i] = nu[i] * s if i < m else 0.0
+        _flat_normal(params, k, nu, n)
+    else:
+        _round_normal(code, params, k, a, nu, n)
 
 
 @jit_hot
@@ -296,21 +410,20 @@ def normal_jacobian(code, params, k, a, J, n):
             J[i, j] = 0.0
     if code == HALFSPACE or code == SEGMENT:
         return
-    m = 2 if code == CYLINDER else n
-    s = 0.0
-    for i in range(n):          # constant indices (see collision_time)
-        if i < m:
-            s += (a[i] - params[k, i]) * (a[i] - params[k, i])
-    r = np.sqrt(s)
-    sign = -1.0 if (code == CONCAVE_ARC or code == FOCUS_ARC or code == CYLINDER) else 1.0
-    for i in range(n):
-        if i < m:
-            ui = (a[i] - params[k, i]) / r
-            for j in range(n):
-                if j < m:
-                    uj = (a[j] - params[k, j]) / r
-                    J[i, j] = sign * ((1.0 if i == j else 0.0) - ui * uj) / r
+    _round_jacobian(code, params, k, a, J, n)
 
+
+@jit_hot
+def snap(code, params, k, a, nu, n):
+    """Put the centre exactly on primitive ``k`` at contact (ν: its normal there): removes the rounding of the
+    flight along the normal. Half-space and segment: a −= ((a − p)·ν)ν; arcs: a = c + ρ(a − c)/|a − c|."""
+    if code == HALFSPACE or code == SEGMENT:
+        _flat_snap(params, k, a, n)
+    else:
+        _round_snap(code, params, k, a, n)
+
+
+# ---- the searches: the next primitive hit ------------------------------------------------------------------------
 
 @jit_hot
 def next_collision(codes, params, a, v, tol, n):
@@ -386,28 +499,6 @@ def slab_collision(params, a, v, n):
     if vn < 0.0:
         return max(a[n - 1] - params[0, n - 1], 0.0) / -vn, 0
     return np.inf, -1
-
-
-@jit_hot
-def snap(code, params, k, a, nu, n):
-    """Put the centre exactly on primitive ``k`` at contact (ν: its normal there): removes the rounding of the
-    flight along the normal. Half-space and segment: a −= ((a − p)·ν)ν; arcs: a = c + ρ(a − c)/|a − c|."""
-    if code == HALFSPACE or code == SEGMENT:
-        d = 0.0
-        for i in range(n):
-            d += (a[i] - params[k, i]) * params[k, P_NORMAL + i]
-        for i in range(n):
-            a[i] -= d * params[k, P_NORMAL + i]
-        return
-    m = 2 if code == CYLINDER else n
-    s = 0.0
-    for i in range(n):          # constant indices (see collision_time)
-        if i < m:
-            s += (a[i] - params[k, i]) * (a[i] - params[k, i])
-    f = params[k, P_RADIUS] / np.sqrt(s)
-    for i in range(n):
-        if i < m:
-            a[i] = params[k, i] + f * (a[i] - params[k, i])
 
 
 #: in a periodic table, a flight longer than this many times the cell's shortest side is taken to run along a
