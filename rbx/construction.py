@@ -83,6 +83,10 @@ def polygon(p, R, kind="polygon", names=None):
     turn = Ep[:, 0] * E[:, 1] - Ep[:, 1] * E[:, 0]            # vertex i: from edge i-1 to edge i; > 0 convex
     size = float(np.max(np.ptp(V, axis=0)))
     reflex = turn < -1e-14 * size * size
+    # edges on one line (a side cut into several walls): each is its own segment, never the half-space of the
+    # line, which would cover its neighbours (a flight meets the line once, and the lowest wall index took the hit)
+    shared_line = np.array([any(i != j and N[i] @ N[j] > 1 - 1e-12 and abs((V[j] - V[i]) @ N[i]) <= 1e-14 * size
+                                for j in range(m)) for i in range(m)])
 
     def offset_meet(i, j):  # intersection of the offset lines of edges i and j
         A = np.array([N[i], N[j]])
@@ -98,7 +102,7 @@ def polygon(p, R, kind="polygon", names=None):
         ends.append(V[j] + R * N[i] if reflex[j] else offset_meet(i, j))
     lengths = np.array([(e - s) @ T[i] for i, (s, e) in enumerate(zip(starts, ends))])
     walls = [_flat_wall(names[i], starts[i], N[i], [(T[i], max(lengths[i], 0.0))]) for i in range(m)]
-    if not reflex.any():
+    if not reflex.any() and not shared_line.any():
         g = _halfspaces(kind, 2, R, [(V[i], N[i]) for i in range(m)], walls, size, outline=V)
         g.shrunk_outline = np.array(starts)
         g.lengths = lengths
@@ -116,7 +120,7 @@ def polygon(p, R, kind="polygon", names=None):
         # an edge whose line has the whole polygon on its inner side (the L's four outer sides) is a half-space:
         # its line's crossing can never come before the flight leaves the table, so the smallest time is the same
         # without the segment's ends, and four axis-aligned ones make an axis box (Geometry.axis_box: closed form)
-        supporting = bool(np.all((V - V[i]) @ N[i] >= -1e-14 * size))
+        supporting = bool(np.all((V - V[i]) @ N[i] >= -1e-14 * size)) and not shared_line[i]
         codes.append(HALFSPACE if supporting else SEGMENT)
         wall_idx.append(i)
         rows.append(_row(2, starts[i], N[i], T[i], lengths[i]))

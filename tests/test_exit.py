@@ -139,3 +139,27 @@ def test_escape_rate_from_a_small_hole(gate):
     assert k > 1000 and np.all(out.path[~out.exited] >= 0.5 / expected)   # none censored inside the window
     assert abs(rate - expected) < 4 * err, (rate, err, expected)
     assert err < 0.05 * expected
+
+
+def test_an_edge_between_two_collinear_edges_of_a_polygon_is_hit():
+    """A polygon's side cut into collinear edges (here the left side: edge3, edge4, edge5) is three walls. Started
+    with the billiard measure, which the boundary map preserves, the share of collisions on a wall is its length
+    over the perimeter (of the table the centre moves in); the middle piece must get its share and, as an exit,
+    let trajectories leave. (Taking an edge as the half-space of its line, a fast path for an outer side, covered
+    the middle piece with its neighbours': it was never hit.)"""
+    vertices = [[0, 0], [2, 0], [2, 1.5], [0, 1.5], [0, 0.8], [0, 0.7]]
+    table = {"kind": "polygon", "vertices": vertices}
+    cfg = _config(table, SMOOTH, initial={"sample": "billiard"}, collisions=40, trajectories=3000, seed=5,
+                  record=["wall"])
+    run = rbx.simulate(cfg)
+    walls = list(rbx.load(cfg).wall_names)
+    hits = np.asarray(run.wall)[:, 1:].ravel()             # the collisions after the start
+    perimeter = 2 * (2 - 2 * R) + 2 * (1.5 - 2 * R)
+    share = 0.1 / perimeter
+    middle = walls.index("edge4")
+    observed = np.mean(hits == middle)
+    err = np.sqrt(share * (1 - share) / hits.size)
+    assert abs(observed - share) < 5 * err + 0.002, (observed, share)
+    opened = rbx.simulate(_config(table, SMOOTH, {"edge4": EXIT}, initial={"sample": "billiard"}, collisions=2000,
+                                  trajectories=200, seed=5, record=[]))
+    assert np.sum(opened.count < 2001) > 150
