@@ -123,9 +123,9 @@ class Progress:
     #: the bar's layout: ``simulate [#####     ]  42.0%  1.23M collisions/s  00:05  eta 00:07``
     FORMAT = "{desc} [{bar:30}] {percentage:5.1f}%  {rate_fmt}  {elapsed}  eta {remaining}"
 
-    def __init__(self, label, delay=2.0, quiet=False, start=0, trajectories=1, stream=None):
+    def __init__(self, label, delay=2.0, quiet=False, start=0, trajectories=1, stream=None, unit="collisions"):
         self.stream = sys.stderr if stream is None else stream
-        self.label, self.delay, self.first, self.trajectories = label, delay, start, trajectories
+        self.label, self.delay, self.first, self.trajectories, self.unit = label, delay, start, trajectories, unit
         self.quiet = quiet or not is_terminal(self.stream)
         self.start = time.perf_counter()
         self.bar = None
@@ -141,7 +141,7 @@ class Progress:
             columns, rows = _size(self.stream)
             # opened at the work done so far (a resumed run's too); the rate is tqdm's moving average of the
             # updates, so the work done before the bar appeared never counts in it
-            self.bar = tqdm(total=total * M, initial=done * M, desc=self.label, unit=" collisions", unit_scale=True,
+            self.bar = tqdm(total=total * M, initial=done * M, desc=self.label, unit=" " + self.unit, unit_scale=True,
                             file=self.stream, bar_format=self.FORMAT, ascii=" #", mininterval=0.5, smoothing=0.1,
                             ncols=columns, nrows=rows, leave=True)
             self.bar.start_t -= time.perf_counter() - self.start     # the elapsed time is the run's, not the bar's

@@ -1,39 +1,10 @@
 """``rbx sweep STUDY.yaml -o RESULTS.nc``: a parameter study (docs/studies.md; :mod:`rbx.study`)."""
-import sys
 import time
 
 import click
 
-from .common import (Command, UserError, display_path, duration, ending_on_signals, is_terminal, pending_signal,
+from .common import (Command, Progress, UserError, display_path, duration, ending_on_signals, pending_signal,
                      plural, quiet_option, report_and_exit, summary, user_errors)
-
-
-class _StudyProgress:
-    """One line over the whole study on a terminal: points done, elapsed, time left."""
-
-    def __init__(self, quiet):
-        self.quiet = quiet or not is_terminal(sys.stderr)
-        self.start = time.perf_counter()
-        self.first = None
-        self.shown = False
-
-    def __call__(self, done, total):
-        now = time.perf_counter() - self.start
-        if self.first is None:
-            self.first = done               # points a resumed study had already
-        if self.quiet:
-            return
-        rate = (done - self.first) / now if now > 0 and done > self.first else 0.0
-        eta = (total - done) / rate if rate > 0 else float("inf")
-        bar = "#" * int(30 * done / total) if total else ""
-        sys.stderr.write(f"\rsweep [{bar:<30}] {done}/{total} points  {duration(now)}  eta {duration(eta):<12}")
-        sys.stderr.flush()
-        self.shown = True
-
-    def close(self):
-        if self.shown:
-            sys.stderr.write("\n")
-            sys.stderr.flush()
 
 
 @click.command(cls=Command)
@@ -54,7 +25,7 @@ def sweep(study, output, scheduler, resume, force, quiet, debug):
     from ..api import StopFlag
     began = time.perf_counter()
     stop = StopFlag(pending=pending_signal)
-    bar = _StudyProgress(quiet)
+    bar = Progress("sweep", delay=0.0, quiet=quiet, unit="points")       # over the whole study
     try:
         if resume and force:
             raise UserError(None, "--resume", "give --resume or --force, not both")
