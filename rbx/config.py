@@ -30,6 +30,7 @@ import yaml
 from . import rules, tables
 from .model import (COMPRESSIONS, DEFAULT_MAX_SIZE, RECORD_FIELDS, SERVICES, VALIDATED, Ball, ConfigError, Constant,
                     Exit, Experiment, Hemisphere, Numerics, Output, Random, RunSettings, kappa_of)
+from .paths import config_file_problem
 from .rules import PROBABILITY_SUM_TOLERANCE, parse_rule  # noqa: F401 - the tolerance: read by the rules' checks
 
 SECTIONS = ("table", "boundary", "ball", "initial", "run", "output", "numerics")
@@ -307,6 +308,9 @@ def parse_yaml(text, file, key=None):
 
 def _read_yaml(path, key=None):
     try:
+        problem = config_file_problem(path)     # a device, a FIFO, a huge file: refused before it is read
+        if problem:
+            raise ConfigError(path, key, problem)
         with open(path, encoding="utf-8") as fh:
             text = fh.read()
     except FileNotFoundError:
