@@ -14,37 +14,55 @@ __all__ = ["lyapunov", "Lyapunov", "flow_jacobian", "escape_times", "Escape"]
 
 # ---- the tangent dynamics ------------------------------------------------------------------------------------------
 
+#: Benettin's re-orthonormalisation after at most this many collisions (and whenever a trajectory stops) …
+ORTHO_EVERY = 16
+#: … and as soon as the first tangent vector has grown by 2 since the last one (its squared length above 4): the
+#: diagonal of a product of triangular factors is the product of their diagonals, so the sums of the stretches'
+#: logarithms are the same in exact arithmetic as with a QR after every collision, and the columns, never let
+#: grow apart by more than about 2² before they are made orthonormal again, keep their rounding errors at the
+#: level of one QR per collision (docs/tangent-map.md: what it changes, measured on every example)
+ORTHO_GROWTH = 4.0
+
 class _Tangent:
     """M trajectories of an experiment as ``rbx simulate`` runs them (:class:`rbx.simulation.Simulation`: the same
     initial states, random streams, rules and numerical options) with tangent vectors beside them: the engine's
-    own loop with the bit ``S_TANGENT`` (:mod:`rbx.engine`, :mod:`rbx.tangent`), nothing recorded. The orientation
-    is followed (it is a tangent coordinate, and part of :func:`flow_jacobian`'s final state); it never changes
-    the orbit, so the orbit is the simulation's, bit for bit."""
+    own loop with the bit ``S_TANGENT`` (:mod:`rbx.engine`, :mod:`rbx.tangent`), nothing recorded. The state's
+    orientation is followed in 2D (one multiply-add; the loop is then the one :func:`flow_jacobian` compiles) and,
+    in 3D, only with ``orientation`` (:func:`flow_jacobian`'s final state) or when a rule reads it: the tangent
+    step turns the orientation's tangent coordinates itself, and the 3D update of the state's orientation cost
+    the rough box 55 ns per collision. It never changes the orbit, so the orbit is the simulation's, bit for bit.
+    ``vectors``: follow the first K tangent vectors only (default all d)."""
 
-    def __init__(self, exp, state=None):
+    def __init__(self, exp, state=None, vectors=None, orientation=False):
         from . import engine
         from .simulation import Simulation
         from .tangent import tangent_dimension
-        sim = self.sim = Simulation(exp, state=state, force_bits=engine.S_TANGENT | engine.S_ORIENT,
+        orient = engine.S_ORIENT if (exp.dimension == 2 or orientation) else 0
+        sim = self.sim = Simulation(exp, state=state, force_bits=engine.S_TANGENT | orient,
                                     drop_bits=engine.S_RECORD | engine.S_STOP_WALL)
         self.n, self.M = sim.n, sim.M
         self.d = tangent_dimension(self.n)
         self.groups = sim.kernel_groups()
         self.state = sim.state_group()
-        self.Y = np.repeat(np.eye(self.d)[None], self.M, axis=0)
-        self.sums = np.zeros((self.M, self.d))
+        K = self.d if vectors is None else int(vectors)
+        # the K tangent vectors are the rows of Y[j] (the first K coordinate axes at the start: the first K
+        # vectors of Benettin's method do not depend on the others, so K of them give the K leading exponents of
+        # the whole basis, bit for bit)
+        self.Y = np.repeat(np.eye(self.d)[None, :K], self.M, axis=0)
+        self.sums = np.zeros((self.M, K))
 
     def kernel(self):
         """What the kernel needs besides the trajectories' rows: the groups (Table, Rules, Settings) — the same for
         every trajectory, so a worker of a cluster gets them with each slice (:func:`_measure_slice`)."""
         return self.groups
 
-    def advance(self, stop, t_end=np.inf, ortho=True):
-        """Advance every live trajectory to ``stop`` collisions in all or to time ``t_end``."""
-        _advance(self.kernel(), self.state, self.Y, self.sums, stop, t_end, ortho)
+    def advance(self, stop, t_end=np.inf, ortho=None, grow=None):
+        """Advance every live trajectory to ``stop`` collisions in all or to time ``t_end`` (``ortho``, ``grow``:
+        :class:`rbx.engine.Tangent`'s, default :data:`ORTHO_EVERY`, :data:`ORTHO_GROWTH`)."""
+        _advance(self.kernel(), self.state, self.Y, self.sums, stop, t_end, ortho, grow)
 
 
-def _advance(kernel, state, Y, sums, stop, t_end=np.inf, ortho=True):
+def _advance(kernel, state, Y, sums, stop, t_end=np.inf, ortho=None, grow=None):
     """Advance the live trajectories of ``state`` (and their tangent vectors ``Y``, log-stretch sums ``sums``) to
     ``stop`` collisions in all or to time ``t_end``, on the engine's pool of threads
     (:func:`rbx.engine.run_advance_all`). Each trajectory's numbers depend only on its own rows (its random
@@ -56,7 +74,9 @@ def _advance(kernel, state, Y, sums, stop, t_end=np.inf, ortho=True):
     M, n = state.pos.shape
     stop = np.broadcast_to(np.asarray(stop, np.int64), (M,)).copy()
     t_end = np.broadcast_to(np.asarray(t_end, float), (M,)).copy()
-    tangent = engine.Tangent(Y=Y, sums=sums, t_end=t_end, ortho=bool(ortho))
+    ortho = ORTHO_EVERY if ortho is None else int(ortho)
+    grow = ORTHO_GROWTH if grow is None else float(grow)
+    tangent = engine.Tangent(Y=Y, sums=sums, t_end=t_end, ortho=ortho, grow=grow)
     out = engine.Records(**record_buffers((), n, M, 0))
     engine.run_advance_all(stop, table, rules, settings, state, out, tangent)
 
@@ -128,16 +148,20 @@ def flow_jacobian(experiment, t_end, *, collisions=None, trajectories=None, seed
     exp = _load(experiment, collisions, trajectories, seed)
     if state is not None:
         state = {k: np.array(v, copy=True) for k, v in state.items()}   # the kernels write into them
-    tan = _Tangent(exp, state)
-    tan.advance(exp.run.collisions, t_end, ortho=False)
+    tan = _Tangent(exp, state, orientation=True)
+    tan.advance(exp.run.collisions, t_end, ortho=0)
     from .physics import spin_vector
     st = tan.state
     final = {"time": st.time.copy(), "position": st.pos.copy(), "velocity": st.vel.copy(), "W": st.W.copy(),
              "angular_velocity": spin_vector(st.W), "theta": st.theta.copy(), "A": st.A.copy(),
              "collisions": st.ncoll.copy(), "alive": st.alive.copy(), "draws": st.draws.copy(),
              "last_wall": st.last_wall.copy(), "last_rank": st.last_rank.copy(), "compensation": st.comp.copy()}
-    return tan.Y.copy(), final
+    return np.ascontiguousarray(tan.Y.transpose(0, 2, 1)), final    # rows of Y: the columns of J
 
+
+#: what the result's time and collisions include (to_dict, rbx lyapunov's text)
+COUNTED = ("time and collisions of every trajectory after its warm-up (the warm-up excluded); an exit's contact "
+           "counts as a collision, as in rbx simulate, and the flight to it as time")
 
 #: a trajectory whose own λ₁ per unit time is below this is counted regular (:meth:`Lyapunov.regular_share`; the
 #: studies' ``regular_share`` observable takes the same default)
@@ -192,6 +216,7 @@ class Lyapunov:
                 "sum": float(np.sum(self.exponents)), "time": float(np.sum(self.time)),
                 "collisions": int(np.sum(self.collisions)), "trajectories": int(len(self.time)),
                 "segments": int(self.segment_times.shape[1]), "warmup": int(self.warmup),
+                "counted": COUNTED,
                 "coordinates": list(self.coordinates), "title": self.title,
                 "ended_early": int(np.sum(self.ended)) if self.ended is not None else 0,
                 "per_trajectory": [[finite(x) for x in row] for row in self.per_trajectory],
@@ -200,15 +225,19 @@ class Lyapunov:
 
 
 def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segments=10, warmup=None,
-             scheduler=None, slices=None):
+             scheduler=None, slices=None, exponents=None):
     """The Lyapunov spectrum of the flow, per unit time, largest first -> :class:`Lyapunov` (docs/reference.md §10).
 
     Benettin's method: d = 2(n + n(n−1)/2) tangent vectors (6 in 2D, 12 in 3D: position, orientation and their
     velocities) follow each trajectory of the experiment (its initial states, ``run.trajectories`` of them, its
-    rules and random streams), re-orthonormalised after every collision. The first ``warmup`` collisions (default
-    a tenth of ``run.collisions``) align the vectors and are not counted; the rest are cut into ``segments``
-    segments per trajectory whose spread gives ``stderr``. A trajectory that leaves by an exit wall or escapes to
-    infinity contributes the time it had.
+    rules and random streams), re-orthonormalised every few collisions (:data:`ORTHO_EVERY`, :data:`ORTHO_GROWTH`).
+    The first ``warmup`` collisions (default a tenth of ``run.collisions``) align the vectors and are not counted;
+    the rest are cut into ``segments`` segments per trajectory whose spread gives ``stderr``. A trajectory that
+    leaves by an exit wall or escapes to infinity contributes the time it had.
+
+    ``exponents``: K, follow K tangent vectors instead of d (1 ≤ K ≤ d): the K leading exponents, the same bits as
+    the first K of the whole spectrum (Benettin's k-th vector depends only on the ones before it); λ₁ alone
+    (K = 1) costs a fraction of the whole spectrum.
 
     ``experiment``: an :class:`~rbx.model.Experiment`, a config path or a dict; ``collisions``, ``trajectories``,
     ``seed`` override ``run.*``.
@@ -219,7 +248,7 @@ def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segme
     is the local one, bit for bit. An unreachable scheduler raises :class:`rbx.cluster.SchedulerUnreachable`, a
     task that fails :class:`rbx.cluster.ClusterError`."""
     from .analysis import scene_title
-    from .tangent import coordinate_names
+    from .tangent import coordinate_names, tangent_dimension
     exp = _load(experiment, collisions, trajectories, seed)
     segments = int(segments)
     if segments < 1:
@@ -232,13 +261,18 @@ def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segme
     if measured < segments:
         raise ValueError(f"{N} collisions leave {measured} after the warm-up: fewer than {segments} segments")
     cuts = warmup + np.round(np.linspace(0, measured, segments + 1)).astype(np.int64)
-    tan = _Tangent(exp)
+    d = tangent_dimension(exp.dimension)
+    if exponents is not None:
+        if isinstance(exponents, bool) or not isinstance(exponents, (int, np.integer)) or not 1 <= exponents <= d:
+            raise ValueError(f"exponents must be an integer from 1 to {d} (the dimension of the phase space), "
+                             f"not {exponents!r}")
+    tan = _Tangent(exp, vectors=exponents)
     if segments * tan.M < 2:
         # the error comes from the spread of the segments' estimates: one gives none (it was NaN, and --json wrote
         # NaN, which is not JSON)
         raise ValueError(f"one trajectory in one segment gives no error estimate: use segments ≥ 2 or more "
                          f"trajectories")
-    d = tan.d
+    d = tan.Y.shape[1]          # the vectors followed
     with _cluster(scheduler, slices) as cluster:
         if cluster is None:
             m = _measure(tan.kernel(), tan.state, tan.Y, tan.sums, cuts)

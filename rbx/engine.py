@@ -47,7 +47,7 @@ from .geometry import (HALFSPACE, SEGMENT, box_collision, contact_normal, normal
 from .model import FIELD, FIELDS
 from .physics import collide, collide_axis
 from .rules import EXIT, Rules, choose  # noqa: F401 - Rules: a group of the kernels, defined with the rules
-from .tangent import collision_tangent, flight_tangent, orthonormalise
+from .tangent import orthonormalise2, orthonormalise3, step2, step3
 from .trig import sincos
 
 # bits of the record mask (rbx.model.FIELDS), as module constants so that Numba compiles them in
@@ -149,14 +149,16 @@ assert Records._fields == tuple(f.name for f in FIELDS)
 
 class Tangent(NamedTuple):
     """Tangent vectors carried along the orbit (with ``S_TANGENT``; :mod:`rbx.tangent`, :mod:`rbx.dynamics`)."""
-    Y: np.ndarray           # (M, d, k): trajectory j's k tangent vectors are the columns of Y[j]
-    sums: np.ndarray        # (M, k): with ``ortho``, the sums of the logarithms of the stretches
+    Y: np.ndarray           # (M, K, d): trajectory j's K tangent vectors are the rows of Y[j] (each contiguous)
+    sums: np.ndarray        # (M, K): with ``ortho``, the sums of the logarithms of the stretches
     t_end: np.ndarray       # (M,): a trajectory stops in flight when its time reaches t_end[j] (inf: never)
-    ortho: bool             # re-orthonormalise the columns after every collision (Benettin), else Y is the Jacobian
+    ortho: int              # re-orthonormalise the rows every ``ortho`` collisions and when the trajectory stops
+                            # (Benettin); 0: never, Y is then the transposed Jacobian
+    grow: float             # … and as soon as the first vector's squared length exceeds this
 
 
 #: what the kernels get in every run without tangent vectors (the loop's tangent steps are compiled out)
-NO_TANGENT = Tangent(Y=np.zeros((0, 0, 0)), sums=np.zeros((0, 0)), t_end=np.zeros(0), ortho=False)
+NO_TANGENT = Tangent(Y=np.zeros((0, 0, 0)), sums=np.zeros((0, 0)), t_end=np.zeros(0), ortho=0, grow=np.inf)
 
 
 
@@ -377,16 +379,11 @@ def _make_kernel(spec):
         loc = stack_array(3, (n,))             # … its position relative to the image of the cell hit, …
         off = stack_array(3, (n,))             # … and that image's shift (loc = a − off); …
         ahead = stack_array(3, (n,))           # … and where the flight is looked at from
-        if TANGENT:                            # the tangent steps' scratch space (d ≤ 12 tangent coordinates)
+        if TANGENT:                            # what the tangent step reads besides the state
             vm = stack_array(3, (n,))          # (v, W) before the collision map
             Wm = stack_array(9, (n, n))
             Jn = stack_array(9, (n, n))        # the normal's derivative along the wall
-            Rot = stack_array(9, (3, 3))
-            Kf = stack_array(9, (3, 3))
-            tv = stack_array(12, (12,))
-            twork = stack_array(36, (12, n))
-            dW = stack_array(9, (n, n))
-            dWp = stack_array(9, (n, n))
+            period = tangent.ortho             # re-orthonormalise every so many collisions (0: never)
         alive = state.alive
         for j in range(j0, j1):
             if not alive[j]:
@@ -416,6 +413,7 @@ def _make_kernel(spec):
             if TANGENT:
                 Yj = tangent.Y[j]
                 t_end = tangent.t_end[j]
+                since = 0                       # collisions since the vectors were last re-orthonormalised
             while c < stop[j]:
                 # 1. next collision: the flight time and the primitive hit
                 if SLAB:
@@ -449,8 +447,20 @@ def _make_kernel(spec):
                     else:
                         rotate(Aj, Wj, tau, E, tmp)
                 if TANGENT:
-                    flight_tangent(Yj, tau, Wj, Rot, Kf, tv, n)
+                    # the flight's tangent step is taken with the collision's (one call); a flight that ends
+                    # without one (stopped at t_end, or at an exit below) takes it alone, after the vectors'
+                    # stretches up to the last collision are added
                     if in_flight:
+                        if since > 0:
+                            since = 0
+                            if N == 2:
+                                orthonormalise2(Yj, tangent.sums, j)
+                            else:
+                                orthonormalise3(Yj, tangent.sums, j)
+                        if N == 2:
+                            step2(Yj, tau, False, v, Wj, v, Wj, nu, Jn, False, R, kappa, 0, rules.basis, 0, 0)
+                        else:
+                            step3(Yj, tau, False, v, Wj, v, Wj, nu, Jn, False, R, kappa, 0, rules.basis, 0, 0)
                         t = t_end
                         if on & S_COMPENSATED:
                             comp[j, n] = 0.0
@@ -487,6 +497,17 @@ def _make_kernel(spec):
                 rk = rules.rank[node]
                 if EXIT_:
                     if rules.kind[node] == EXIT:          # a hole: the contact is the trajectory's last record
+                        if TANGENT:
+                            if since > 0:
+                                since = 0
+                                if N == 2:
+                                    orthonormalise2(Yj, tangent.sums, j)
+                                else:
+                                    orthonormalise3(Yj, tangent.sums, j)
+                            if N == 2:
+                                step2(Yj, tau, False, v, Wj, v, Wj, nu, Jn, False, R, kappa, 0, rules.basis, 0, 0)
+                            else:
+                                step3(Yj, tau, False, v, Wj, v, Wj, nu, Jn, False, R, kappa, 0, rules.basis, 0, 0)
                         c += 1
                         if on & S_RECORD:
                             until_record -= 1
@@ -500,14 +521,15 @@ def _make_kernel(spec):
                         vm[i] = v[i]
                         for k in range(n):
                             Wm[i, k] = Wj[i, k]
-                    if SLAB:
-                        for i in range(n):
-                            for k in range(n):
-                                Jn[i, k] = 0.0
-                    elif PERIODIC:
-                        normal_jacobian(codes[p], params, p, loc, Jn, n)
-                    else:
-                        normal_jacobian(codes[p], params, p, a, Jn, n)
+                    curved = False              # a flat wall: J = 0, not read
+                    if not SLAB:
+                        code = codes[p]
+                        if code != HALFSPACE and code != SEGMENT:
+                            curved = True
+                            if PERIODIC:
+                                normal_jacobian(code, params, p, loc, Jn, n)
+                            else:
+                                normal_jacobian(code, params, p, a, Jn, n)
                 # 5. collision map
                 # Without spin arithmetic (a specular-only scene) the map is called with rank 0, a constant: only its
                 # reflection is compiled. Every renorm_every-th rough collision, the factor onto the initial energy is
@@ -540,10 +562,20 @@ def _make_kernel(spec):
                 if f != 0.0:
                     scale_state(v, Wj, f, n)
                 if TANGENT:
-                    collision_tangent(Yj, vm, Wm, v, Wj, nu, Jn, R, kappa, map_rank, rules.basis, node, w, twork, dW, dWp,
-                                      n)
-                    if tangent.ortho:
-                        orthonormalise(Yj, tangent.sums, j, tv)
+                    if N == 2:
+                        g = step2(Yj, tau, True, vm, Wm, v, Wj, nu, Jn, curved, R, kappa, map_rank, rules.basis, node,
+                                  w)
+                    else:
+                        g = step3(Yj, tau, True, vm, Wm, v, Wj, nu, Jn, curved, R, kappa, map_rank, rules.basis, node,
+                                  w)
+                    if period > 0:
+                        since += 1
+                        if since == period or g > tangent.grow:
+                            since = 0
+                            if N == 2:
+                                orthonormalise2(Yj, tangent.sums, j)
+                            else:
+                                orthonormalise3(Yj, tangent.sums, j)
                 c += 1
                 # 6. record
                 if on & S_RECORD:
@@ -556,6 +588,12 @@ def _make_kernel(spec):
                     if w == settings.stop_wall:
                         state.alive[j] = False
                         break
+            if TANGENT:
+                if since > 0:                  # the stretches up to the last collision, before the next call
+                    if N == 2:
+                        orthonormalise2(Yj, tangent.sums, j)
+                    else:
+                        orthonormalise3(Yj, tangent.sums, j)
             for i in range(n):
                 state.pos[j, i] = a[i]
                 state.vel[j, i] = v[i]

@@ -12,13 +12,16 @@ Beside the state, tangent vectors (the columns of ``Y``) are carried through
 Tangent coordinates (d = 2(n + m), m = n(n−1)/2 spin components): ``[δa (n), δφ̂ (m), δv (n), δω̂ (m)]``, the
 orientation and spin scaled by c = R√κ (2D: x₀ = R√κ θ, v₀ = R√κ ω of the paper §2.6; 3D: the space-frame rotation
 vector δφ with δA = [δφ]×A, and ω) so that the kinetic energy is ½|(v, ω̂)|² and the collision map is orthogonal
-on (v, ω̂). With ``orthonormalise`` the columns are re-orthonormalised (Gram–Schmidt, twice) after every collision
-and the logarithms of the stretches are added to ``sums``: their growth per unit time is the Lyapunov spectrum.
+on (v, ω̂). The tangent vectors are the rows of ``Y`` (each contiguous); :func:`step2`/:func:`step3` take them through
+a flight and the collision at its end in one call. With ``orthonormalise2``/``3`` they are re-orthonormalised
+(Gram–Schmidt, twice) every few collisions (the engine decides when: ``engine.Tangent.ortho``, ``grow``) and the
+logarithms of the stretches are added to ``sums``: their growth per unit time is the Lyapunov spectrum.
 """
 import numpy as np
 
-from ._jit import jit_call, jit_hot
+from ._jit import jit_call, jit_hot, stack_array
 from .physics import project_roughness
+from .trig import sincos
 
 
 def tangent_dimension(n):
@@ -79,8 +82,9 @@ def flight_rotation(W, tau, Rot, K):
         c1 = tau * tau * (0.5 - phi * phi / 24.0)
         k2 = tau * tau * tau * (1.0 / 6.0 - phi * phi / 120.0)
     else:
-        s = np.sin(phi) / w
-        c1 = (1.0 - np.cos(phi)) / w2
+        cs, sn = sincos(phi)            # inline (rbx.trig): a libm call spills the step's registers
+        s = sn / w
+        c1 = (1.0 - cs) / w2
         k2 = (tau - s) / w2
     for i in range(3):
         for j in range(3):
@@ -92,133 +96,204 @@ def flight_rotation(W, tau, Rot, K):
             K[i, j] = tau * e + c1 * W[i, j] + k2 * ww
 
 
-@jit_call
-def flight_tangent(Y, tau, W, Rot, K, tmp, n):
-    """Carry the tangent vectors (columns of Y) through a free flight of duration τ (fixed τ: the change of the
-    flight time is the collision's δt)."""
-    m = n * (n - 1) // 2
-    d = Y.shape[1]
-    if n == 3:
-        flight_rotation(W, tau, Rot, K)
-    for k in range(d):
-        for i in range(n):
-            Y[i, k] += tau * Y[n + m + i, k]
-        if n == 2:
-            Y[2, k] += tau * Y[5, k]
-        else:
-            for i in range(3):
-                s = 0.0
-                for q in range(3):
-                    s += Rot[i, q] * Y[3 + q, k] + K[i, q] * Y[9 + q, k]
-                tmp[i] = s
-            for i in range(3):
-                Y[3 + i, k] = tmp[i]
+@jit_hot
+def _step(Y, tau, collide_too, vm, Wm, vp, Wp, nu, J, curved, R, kappa, rank, basis, node, wall, n):
+    """Carry the tangent vectors (the rows of Y) through a free flight of duration τ and then, if
+    ``collide_too``, through the collision at its end (docs/tangent-map.md):
 
-
-@jit_call
-def collision_tangent(Y, vm, Wm, vp, Wp, nu, J, R, kappa, rank, basis, node, wall, work, dW, dWp, n):
-    """Carry the tangent vectors (columns of Y) through a collision (docs/tangent-map.md):
-
+        flight:     δa += τ δv, δφ̂ ← e^{τW} δφ̂ + (∫₀^τ e^{uW} du) δω̂ (2D: δθ̂ += τ δω̂)    (fixed τ: the change
+                    of the flight time is the collision's δt)
         δt  = −(ν·δa)/(ν·v⁻)                               the change of the collision time
         z   = δx⁻ + f(x⁻) δt                                 the perturbation at the perturbed contact
         δx⁺ = DM·z − f(x⁺) δt,   DM = ∂M/∂(v, W) + ∂M/∂ν · ∂ν/∂a
 
-    ``vm``, ``Wm``: the state before the map; ``vp``, ``Wp``: after it; ``nu``, ``J``: the normal and its derivative
-    ∂ν_i/∂a_j at the contact; ``rank``, ``basis[node, wall]``: the rule applied there (as in
-    :func:`rbx.physics.collide`). ``work``: scratch (12, n); ``dW``, ``dWp``: scratch (n, n)."""
+    ``vm``, ``Wm``: the state before the map (and during the flight); ``vp``, ``Wp``: after it; ``nu``, ``J``: the
+    normal and its derivative ∂ν_i/∂a_j at the contact (``curved`` False: a flat wall, J = 0 and not read);
+    ``rank``, ``basis[node, wall]``: the rule applied there (as in :func:`rbx.physics.collide`). ``n`` a literal
+    (the 2D and 3D steps are compiled apart): every index into the step's own arrays is then a constant and they
+    live in registers, each vector is loaded once, taken through the flight and the collision, and stored once.
+    The arithmetic is the one of the per-coordinate formulas in docs/tangent-map.md, in the same order; what a
+    flat wall's J = 0 multiplies is left out (adding ±0 changes no bit but the sign of a zero)."""
     m = n * (n - 1) // 2
-    d = Y.shape[1]
+    d = 2 * (n + m)
+    K = Y.shape[0]
+    grown = 0.0
+    y = stack_array(12, (d,))           # one tangent vector
+    z = stack_array(3, (n,))            # δa at the perturbed contact
+    dnu = stack_array(3, (n,))          # δν
+    dvp = stack_array(3, (n,))          # δv'
+    w0 = stack_array(3, (3,))           # ω̂⁻, ω̂⁺, δω (scaled)
+    w4 = stack_array(3, (3,))
+    dw = stack_array(3, (3,))
+    work = stack_array(9, (3, n))       # rows: 1 δu → δp, 2 scratch (physics.project_roughness)
+    p = stack_array(3, (n,))            # P u⁻
+    dW = stack_array(9, (n, n))
+    dWp = stack_array(9, (n, n))
+    Rot = stack_array(9, (3, 3))
+    Kf = stack_array(9, (3, 3))
+    tmp = stack_array(3, (3,))
+    if n == 3:
+        flight_rotation(Wm, tau, Rot, Kf)
     c = R * np.sqrt(kappa)
     alpha2 = 2.0 * kappa / (1.0 + kappa)
     sc = 2.0 / ((1.0 + kappa) * R)
     vn = 0.0
-    for i in range(n):
-        vn += vm[i] * nu[i]
-    # rows of work: 0 ω̂⁻, 1 δu → δp, 2 scratch, 3 p = P u⁻, 4 ω̂⁺, 5 δa_z, 6 δν, 7 δv', 8 δω
-    spin_components(Wm, work[0], n)
-    spin_components(Wp, work[4], n)
-    for i in range(m):
-        work[0, i] *= c
-        work[4, i] *= c
-    if rank != 0:
+    if collide_too:
         for i in range(n):
-            s = 0.0
-            for q in range(n):
-                s += Wm[i, q] * nu[q]
-            work[1, i] = (vm[i] - vn * nu[i]) - R * s
-        if rank < n - 1:
-            project_roughness(work, rank, basis, node, wall, n)
-        for i in range(n):
-            work[3, i] = work[1, i]
-    for k in range(d):
-        na = 0.0
-        for i in range(n):
-            na += nu[i] * Y[i, k]
-        dt = -na / vn
-        for i in range(n):
-            work[5, i] = Y[i, k] + vm[i] * dt
+            vn += vm[i] * nu[i]
+        spin_components(Wm, w0, n)
+        spin_components(Wp, w4, n)
         for i in range(m):
-            Y[n + i, k] += work[0, i] * dt
-        # δν = J δa_z; δ(v·ν) = δv·ν + v·δν
-        dvn = 0.0
-        for i in range(n):
-            s = 0.0
-            for q in range(n):
-                s += J[i, q] * work[5, q]
-            work[6, i] = s
-        for i in range(n):
-            dvn += Y[n + m + i, k] * nu[i] + vm[i] * work[6, i]
-        for i in range(m):
-            work[8, i] = Y[2 * n + m + i, k]
-        spin_matrix_of(work[8], 1.0 / c, dW, n)
-        for i in range(n):
-            work[7, i] = Y[n + m + i, k] - 2.0 * dvn * nu[i] - 2.0 * vn * work[6, i]
-        for i in range(n):
-            for q in range(n):
-                dWp[i, q] = dW[i, q]
+            w0[i] *= c
+            w4[i] *= c
         if rank != 0:
-            # δu_t = δv − δ(v·ν)ν − (v·ν)δν − R(δW ν + W δν), projected like u_t
             for i in range(n):
                 s = 0.0
                 for q in range(n):
-                    s += dW[i, q] * nu[q] + Wm[i, q] * work[6, q]
-                work[1, i] = Y[n + m + i, k] - dvn * nu[i] - vn * work[6, i] - R * s
+                    s += Wm[i, q] * nu[q]
+                work[1, i] = (vm[i] - vn * nu[i]) - R * s
             if rank < n - 1:
                 project_roughness(work, rank, basis, node, wall, n)
             for i in range(n):
-                work[7, i] -= alpha2 * work[1, i]
-            # δW' = δW + s(δp νᵀ + p δνᵀ − δν pᵀ − ν δpᵀ)
+                p[i] = work[1, i]
+    for k in range(K):
+        for i in range(d):
+            y[i] = Y[k, i]
+        # the flight
+        for i in range(n):
+            y[i] += tau * y[n + m + i]
+        if n == 2:
+            y[2] += tau * y[5]
+        else:
+            for i in range(3):
+                s = 0.0
+                for q in range(3):
+                    s += Rot[i, q] * y[3 + q] + Kf[i, q] * y[9 + q]
+                tmp[i] = s
+            for i in range(3):
+                y[3 + i] = tmp[i]
+        if collide_too:
+            na = 0.0
+            for i in range(n):
+                na += nu[i] * y[i]
+            dt = -na / vn
+            for i in range(n):
+                z[i] = y[i] + vm[i] * dt
+            for i in range(m):
+                y[n + i] += w0[i] * dt
+            # δν = J δa_z; δ(v·ν) = δv·ν + v·δν
+            dvn = 0.0
+            if curved:
+                for i in range(n):
+                    s = 0.0
+                    for q in range(n):
+                        s += J[i, q] * z[q]
+                    dnu[i] = s
+                for i in range(n):
+                    dvn += y[n + m + i] * nu[i] + vm[i] * dnu[i]
+                for i in range(n):
+                    dvp[i] = y[n + m + i] - 2.0 * dvn * nu[i] - 2.0 * vn * dnu[i]
+            else:
+                for i in range(n):
+                    dnu[i] = 0.0
+                for i in range(n):
+                    dvn += y[n + m + i] * nu[i]
+                for i in range(n):
+                    dvp[i] = y[n + m + i] - 2.0 * dvn * nu[i]
+            for i in range(m):
+                dw[i] = y[2 * n + m + i]
+            spin_matrix_of(dw, 1.0 / c, dW, n)
             for i in range(n):
                 for q in range(n):
-                    dWp[i, q] += sc * (work[1, i] * nu[q] + work[3, i] * work[6, q]
-                                       - work[6, i] * work[3, q] - nu[i] * work[1, q])
-        for i in range(n):
-            Y[i, k] = work[5, i] - vp[i] * dt
-            Y[n + m + i, k] = work[7, i]
-        spin_components(dWp, work[8], n)
-        for i in range(m):
-            Y[n + i, k] -= work[4, i] * dt
-            Y[2 * n + m + i, k] = c * work[8, i]
+                    dWp[i, q] = dW[i, q]
+            if rank != 0:
+                # δu_t = δv − δ(v·ν)ν − (v·ν)δν − R(δW ν + W δν), projected like u_t
+                for i in range(n):
+                    s = 0.0
+                    if curved:
+                        for q in range(n):
+                            s += dW[i, q] * nu[q] + Wm[i, q] * dnu[q]
+                        work[1, i] = y[n + m + i] - dvn * nu[i] - vn * dnu[i] - R * s
+                    else:
+                        for q in range(n):
+                            s += dW[i, q] * nu[q]
+                        work[1, i] = y[n + m + i] - dvn * nu[i] - R * s
+                if rank < n - 1:
+                    project_roughness(work, rank, basis, node, wall, n)
+                for i in range(n):
+                    dvp[i] -= alpha2 * work[1, i]
+                # δW' = δW + s(δp νᵀ + p δνᵀ − δν pᵀ − ν δpᵀ)
+                if curved:
+                    for i in range(n):
+                        for q in range(n):
+                            dWp[i, q] += sc * (work[1, i] * nu[q] + p[i] * dnu[q] - dnu[i] * p[q]
+                                               - nu[i] * work[1, q])
+                else:
+                    for i in range(n):
+                        for q in range(n):
+                            dWp[i, q] += sc * (work[1, i] * nu[q] - nu[i] * work[1, q])
+            for i in range(n):
+                y[i] = z[i] - vp[i] * dt
+                y[n + m + i] = dvp[i]
+            spin_components(dWp, dw, n)
+            for i in range(m):
+                y[n + i] -= w4[i] * dt
+                y[2 * n + m + i] = c * dw[i]
+        for i in range(d):
+            Y[k, i] = y[i]
+        if k == 0:
+            for i in range(d):
+                grown += y[i] * y[i]
+    return grown
 
 
 @jit_call
-def orthonormalise(Y, sums, j, tmp):
-    """Gram–Schmidt twice on the columns of Y (QR: Y = QR, Y ← Q) and sums[j, k] += log R_kk."""
-    d = Y.shape[1]
-    for k in range(d):
+def step2(Y, tau, collide_too, vm, Wm, vp, Wp, nu, J, curved, R, kappa, rank, basis, node, wall):
+    """:func:`_step` in 2D (6 tangent coordinates), compiled once and called by every 2D loop."""
+    return _step(Y, tau, collide_too, vm, Wm, vp, Wp, nu, J, curved, R, kappa, rank, basis, node, wall, 2)
+
+
+@jit_call
+def step3(Y, tau, collide_too, vm, Wm, vp, Wp, nu, J, curved, R, kappa, rank, basis, node, wall):
+    """:func:`_step` in 3D (12 tangent coordinates), compiled once and called by every 3D loop."""
+    return _step(Y, tau, collide_too, vm, Wm, vp, Wp, nu, J, curved, R, kappa, rank, basis, node, wall, 3)
+
+
+@jit_hot
+def _orthonormalise(Y, sums, j, d):
+    """Gram–Schmidt twice on the rows of Y (K vectors of ``d`` coordinates, ``d`` a literal) and
+    sums[j, k] += log of row k's stretch (QR of Yᵀ: Yᵀ = QR, Yᵀ ← Q, sums += log R_kk)."""
+    K = Y.shape[0]
+    y = stack_array(12, (d,))
+    tmp = stack_array(12, (12,))
+    for k in range(K):
+        for i in range(d):
+            y[i] = Y[k, i]
         for _ in range(2):                              # "twice is enough" (Giraud et al.)
             for q in range(k):
                 s = 0.0
-                for i in range(Y.shape[0]):
-                    s += Y[i, q] * Y[i, k]
+                for i in range(d):
+                    s += Y[q, i] * y[i]
                 tmp[q] = s
             for q in range(k):
-                for i in range(Y.shape[0]):
-                    Y[i, k] -= tmp[q] * Y[i, q]
+                for i in range(d):
+                    y[i] -= tmp[q] * Y[q, i]
         s = 0.0
-        for i in range(Y.shape[0]):
-            s += Y[i, k] * Y[i, k]
+        for i in range(d):
+            s += y[i] * y[i]
         s = np.sqrt(s)
         sums[j, k] += np.log(s)
-        for i in range(Y.shape[0]):
-            Y[i, k] /= s
+        for i in range(d):
+            Y[k, i] = y[i] / s
+
+
+@jit_call
+def orthonormalise2(Y, sums, j):
+    """:func:`_orthonormalise` of 2D tangent vectors."""
+    _orthonormalise(Y, sums, j, 6)
+
+
+@jit_call
+def orthonormalise3(Y, sums, j):
+    """:func:`_orthonormalise` of 3D tangent vectors."""
+    _orthonormalise(Y, sums, j, 12)

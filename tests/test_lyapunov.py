@@ -389,3 +389,66 @@ def test_no_measurement_is_refused_not_reported_as_zero_or_nan(tmp_path):
         lines = r.stderr.strip().splitlines()
         assert r.returncode == 2 and len(lines) == 1 and words in lines[0], (r.returncode, r.stderr)
         assert "NaN" not in r.stdout and r.stdout.strip() == ""
+
+
+# ---- the leading exponents alone, and the re-orthonormalisation every few collisions -------------------------------
+
+ROUGH_SINAI = _scene(SINAI, ROUGH2, 3000, trajectories=2)
+SINAI3 = {"kind": "sinai", "size": [2.0, 1.5, 1.5], "radius": 0.3}
+
+
+@pytest.mark.parametrize("scene,K", [(ROUGH_SINAI, 1), (_scene(SINAI3, {"rule": "constant", "rank": 2}, 1500), 2)],
+                         ids=["sinai-rough-1", "sinai3d-rough-2"])
+def test_the_leading_exponents_alone_are_the_first_of_the_whole_spectrum(scene, K):
+    """K tangent vectors give the K leading exponents of the whole basis, bit for bit: Benettin's k-th vector
+    depends only on the ones before it, and the re-orthonormalisation is triggered by the first vector alone."""
+    whole = lyapunov(scene)
+    lead = lyapunov(scene, exponents=K)
+    assert len(lead.exponents) == K and lead.exponents[0] > 0.05
+    np.testing.assert_array_equal(lead.exponents, whole.exponents[:K])
+    np.testing.assert_array_equal(lead.stderr, whole.stderr[:K])
+    np.testing.assert_array_equal(lead.per_trajectory, whole.per_trajectory[:, :K])
+    np.testing.assert_array_equal(lead.time, whole.time)
+
+
+def test_reorthonormalising_every_few_collisions_gives_the_same_exponents(monkeypatch):
+    """Gram–Schmidt every few collisions (at most ORTHO_EVERY, and as soon as the first vector doubled) against
+    after every collision: the same orbit and, in exact arithmetic, the same sums (the diagonal of a product of
+    triangular factors is the product of their diagonals). In floating point λ₁ agrees to 1e-12; the exponents of
+    the nearly neutral directions move by what any change of rounding moves them (a third Gram–Schmidt pass moves
+    them as much; docs/tangent-map.md)."""
+    from rbx import dynamics
+    few = lyapunov(ROUGH_SINAI)
+    monkeypatch.setattr(dynamics, "ORTHO_EVERY", 1)
+    monkeypatch.setattr(dynamics, "ORTHO_GROWTH", np.inf)
+    each = lyapunov(ROUGH_SINAI)
+    np.testing.assert_array_equal(few.time, each.time)
+    assert few.exponents[0] == pytest.approx(each.exponents[0], rel=1e-12)
+    assert np.abs(few.exponents - each.exponents).max() < 1e-7 * each.exponents[0]
+    assert abs(np.sum(few.exponents) - np.sum(each.exponents)) < 1e-12 * each.exponents[0]
+
+
+@pytest.mark.parametrize("K", [0, 7, -1, 2.5, True])
+def test_the_number_of_exponents_is_checked(K):
+    with pytest.raises(ValueError, match="from 1 to 6"):
+        lyapunov(_scene(SINAI, SMOOTH, 100), exponents=K)
+
+
+def test_lyapunov_command_follows_k_vectors(tmp_path):
+    import subprocess
+    import sys
+    exe = os.path.join(os.path.dirname(sys.executable), "rbx")
+    path = tmp_path / "sinai.yaml"
+    path.write_text(json.dumps(ROUGH_SINAI))
+    r = subprocess.run([exe, "lyapunov", str(path), "--collisions", "600", "--exponents", "1", "--json"],
+                       capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    data = json.loads(r.stdout)
+    api = lyapunov(str(path), collisions=600, exponents=1)
+    assert data["exponents"] == [float(api.exponents[0])] and len(data["per_collision"]) == 1
+    assert "warm-up excluded" in data["counted"]
+    for bad in ("0", "7"):
+        r = subprocess.run([exe, "lyapunov", str(path), "--exponents", bad], capture_output=True, text=True,
+                           timeout=300)
+        lines = r.stderr.strip().splitlines()
+        assert r.returncode == 2 and len(lines) == 1 and "--exponents" in lines[0] and "from 1 to 6" in lines[0], r.stderr

@@ -21,6 +21,8 @@ from ..progress import compile_note, watch_compiles
               help="Segments per trajectory for the error estimate.")
 @click.option("--warmup", type=click.IntRange(0, None), help="Collisions not counted while the vectors align "
                                                               "(default: a tenth of the collisions).")
+@click.option("--exponents", type=int, metavar="K",
+              help="Follow K tangent vectors instead of all: the K leading exponents (K = 1: λ1 alone, the cheapest).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object (exponents, stderr, sum, time, …).")
 @click.option("--scheduler", metavar="ADDRESS",
               help="Follow the trajectories on the workers of a Dask cluster: its scheduler's address "
@@ -29,8 +31,8 @@ from ..progress import compile_note, watch_compiles
               help="With --scheduler: tasks, each a slice of the trajectories (default: 4 per worker thread).")
 @quiet_option
 @click.option("--debug", is_flag=True, help="Show a traceback with user errors.")
-def lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as_json, scheduler, slices, quiet,
-             debug):
+def lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, exponents, as_json, scheduler, slices,
+             quiet, debug):
     """The Lyapunov spectrum of the flow, per unit time, largest first, with standard errors.
 
     Benettin's method on the linearised dynamics (free flight, collision time, collision map with the wall's
@@ -43,12 +45,13 @@ def lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as_
     try:
         with ending_on_signals(stop):
             _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as_json, cluster,
-                      quiet or as_json, began)
+                      quiet or as_json, began, exponents)
     except UserError as exc:
         report_and_exit(exc, debug)
 
 
-def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as_json, cluster, quiet, began):
+def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as_json, cluster, quiet, began,
+              exponents=None):
     """``quiet``: no summary line (nor with --json: its output is the JSON object alone, for programs that read
     both streams)."""
     from ..cluster import ClusterError
@@ -68,10 +71,15 @@ def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as
         raise UserError(None, "--warmup", f"{warmup} leaves no collisions of the {N} to measure")
     if N - (N // 10 if warmup is None else warmup) < segments:
         raise UserError(None, "--segments", f"more segments ({segments}) than measured collisions")
+    from ..tangent import tangent_dimension
+    d = tangent_dimension(exp.dimension)
+    if exponents is not None and not 1 <= exponents <= d:
+        raise UserError(None, "--exponents", f"must be from 1 to {d} (the dimension of the phase space), "
+                                             f"not {exponents}")
     with connect(cluster) as on:     # an unreachable scheduler is a user error, said before any work
         watch_compiles()
         try:
-            result = spectrum(exp, segments=segments, warmup=warmup, scheduler=on)
+            result = spectrum(exp, segments=segments, warmup=warmup, scheduler=on, exponents=exponents)
         except ValueError as exc:   # every trajectory left the table (exits, a wedge's escapes) before measuring
             raise UserError(config, None, str(exc)) from None
         except ClusterError as exc:     # the cluster failed mid-run: not the user's input, exit 1
@@ -86,11 +94,15 @@ def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as
     click.echo(f"Lyapunov spectrum (per unit time): {result.title}")
     click.echo(f"{plural(len(result.time), 'trajectory')}, {plural(int(result.collisions.sum()), 'collision')} "
                f"measured over time "
-               f"{result.time.sum():.6g} (after {result.warmup} warm-up collisions each)")
+               f"{result.time.sum():.6g} (after {result.warmup} warm-up collisions each, which are not counted)")
     for k, (lam, err) in enumerate(zip(result.exponents, result.stderr), 1):
         click.echo(f"  λ{k:<2} = {lam: .6f} ± {err:.6f}")
-    click.echo(f"  sum = {result.exponents.sum(): .3e}")
-    click.echo(f"  λ1 per collision = {result.per_collision()[0]:.6f}")
+    if len(result.exponents) == d:
+        click.echo(f"  sum = {result.exponents.sum(): .3e}")
+    else:
+        click.echo(f"  (the {len(result.exponents)} leading of {d})")
+    per = ", ".join(f"λ{k} = {x:.6f}" for k, x in enumerate(result.per_collision(), 1))
+    click.echo(f"per collision: {per}")
     share, low, high = result.regular_share()
     if len(result.time) > 1:
         lam1 = result.per_trajectory[:, 0]
