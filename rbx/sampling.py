@@ -165,12 +165,23 @@ POINT_DRAWS = 8
 POINT_ROUNDS = 10_000
 
 
+def stream_keys(seed, trajectories, purpose):
+    """:func:`rbx.rng.stream_key` of each trajectory index in ``trajectories`` at once -> uint64 array, the same bits
+    (tests/test_fastpaths.py): one call per trajectory took 1.5 µs, 0.27 s of setting up 10⁵ short orbits."""
+    from .rng import _GOLDEN, _M1, _M2, _mix
+    mix = _mix.py_func                  # the same operations on uint64 arrays (wrapping, as the kernel's)
+    j = np.asarray(trajectories, dtype=np.uint64)
+    with np.errstate(over="ignore"):
+        k = mix(np.uint64(seed) + _GOLDEN)
+        k = mix(k ^ (j * _M1 + _GOLDEN))
+        return mix(k ^ (np.uint64(purpose) * _M2 + _GOLDEN))
+
+
 def _draws(seed, first, count, start, k, rows=None):
     """Draws ``start … start+k−1`` of the initial-state streams of trajectories ``first + rows`` (all ``count``
     of them when ``rows`` is None) -> (len(rows), k) array, the same numbers as :func:`rbx.rng.uniforms`."""
-    from .rng import stream_key
-    rows = np.arange(count) if rows is None else rows
-    keys = np.array([stream_key(seed, first + int(j), PURPOSE_INITIAL) for j in rows], dtype=np.uint64)
+    rows = np.arange(count) if rows is None else np.asarray(rows)
+    keys = stream_keys(seed, first + rows.astype(np.int64), PURPOSE_INITIAL)
     counter = np.arange(start, start + k, dtype=np.uint64) + np.uint64(1)
     with np.errstate(over="ignore"):
         z = keys[:, None] + counter[None, :] * np.uint64(0x9E3779B97F4A7C15)

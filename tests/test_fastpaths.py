@@ -270,3 +270,26 @@ def test_the_axis_map_in_the_kernel_gives_the_general_maps_records(name, monkeyp
     assert runs[0]["time"].shape == (3, 3001)       # the initial state and 3000 collisions
     for f in runs[0]:
         np.testing.assert_array_equal(runs[0][f], runs[1][f], err_msg=f)
+
+
+# ---- setting up many trajectories at once ---------------------------------------------------------------------------
+
+def test_the_stream_keys_at_once_are_the_keys_one_by_one():
+    from rbx.rng import PURPOSE_INITIAL, PURPOSE_RULES, stream_key
+    from rbx.sampling import stream_keys
+    for seed, first in ((0, 0), (12345, 0), (2 ** 62 + 7, 10 ** 9)):
+        for purpose in (PURPOSE_RULES, PURPOSE_INITIAL):
+            rows = np.arange(first, first + 500)
+            want = np.array([stream_key(seed, int(j), purpose) for j in rows], dtype=np.uint64)
+            np.testing.assert_array_equal(stream_keys(seed, rows, purpose), want)
+
+
+@pytest.mark.parametrize("n,shape", [(2, (9,)), (3, (9, 3)), (3, (9, 3, 3)), (2, (9, 2, 2))])
+def test_the_spin_matrices_at_once_are_the_matrices_one_by_one(n, shape):
+    from rbx.physics import spin_matrix
+    from rbx.simulation import spin_matrices
+    w = np.random.default_rng(1).normal(size=shape)
+    want = np.array([spin_matrix(x, n) for x in w]).reshape(9, n, n)
+    got = spin_matrices(w, 9, n)
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_array_equal(np.signbit(got), np.signbit(want))     # the zeros too
