@@ -73,7 +73,8 @@ stress: $(STAMP)
 	$(PY) -m pytest -q -n 2 -m heavy tests
 	$(PY) scripts/stress.py
 
-# every `rbx plot` kind on every example scene, from short runs: docs/gallery/*.png and docs/gallery.md
+# the plot kinds each example lists (its first line, `# plots: …`), from the example as it ships cut to 2000
+# collisions: docs/gallery/*.png, docs/gallery.md and the README's docs/quickstart.png
 gallery: $(STAMP)
 	MPLBACKEND=Agg $(PY) scripts/gallery.py
 
