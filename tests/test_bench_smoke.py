@@ -41,6 +41,9 @@ def test_bench_writes_its_document(tmp_path):
     assert proc.returncode == 0, proc.stderr[-3000:]
     text = out.read_text()
     assert "scripts/bench.py --quick" in text and "Machine:" in text and "numba" in text and "Engine:" in text
+    # the tangent loop against the engine, and many short orbits against one long one
+    assert "## The tangent loop against the engine, and many short orbits" in text
+    assert "| sinai | 6 |" in text and "| sampled starts | 1,000 × 100 |" in text and "| explicit states |" in text
     titles = ["## 1. Collisions per second", "## 2. Against a minimal hand-written loop", "## 3. Whole processes",
               "## 4. The cost of recording", "## 5. Ensembles and threads", "## 6. Compilation",
               "## 7. Numerical variants", "## 8. A public peer", "## 9. What each skip saves", "## What stands out"]
