@@ -39,7 +39,7 @@ def load(run, source, lock=True):
     has no saved state yet and the run starts over. Raises :class:`rbx.config.ConfigError` (naming ``source``)
     if the file does not hold a run that can be continued. Then call :func:`make_consistent` on a writable copy."""
     # the run's lock first (OUT.h5.lock for OUT.h5 and OUT.h5.partial): two resumes of one file, or a resume of a
-    # file a run still writes, would both write it. Held until rbx.runfile.stream ends (sim.locks).
+    # file a run still writes, would both write it. Held until rbx.driver.stream ends (sim.locks).
     if not lock:
         return _load(run, source)
     acquire_lock(run.path or source)
@@ -48,7 +48,7 @@ def load(run, source, lock=True):
     except BaseException:
         release_lock(run.path or source)
         raise
-    # released by rbx.runfile.stream when the run's file is done, or when the simulation is dropped without
+    # released by rbx.driver.stream when the run's file is done, or when the simulation is dropped without
     # running (a later check of --resume refused it)
     sim.locks.append(weakref.finalize(sim, release_lock, run.path or source))
     return sim, write_initial, done

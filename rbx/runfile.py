@@ -54,17 +54,6 @@ from .paths import DiskFull, FileError, format_size, what_it_is
 from .locks import _process_start, acquire_lock, lock_path, release_held_locks, release_lock  # noqa: F401, E402
 from .paths import creation_path, display_path, temporary_path  # noqa: F401, E402
 
-#: the run's lifecycle, now in :mod:`rbx.driver` (which imports this module): read here by older code
-_IN_DRIVER = ("estimated_size", "check_size", "check_target", "create", "publish_new", "stream", "publish",
-              "trim", "write_returns", "forget_second_name")
-
-
-def __getattr__(name):
-    if name in _IN_DRIVER:
-        from . import driver      # below this module's import: here, not at the top (driver imports runfile)
-        return getattr(driver, name)
-    raise AttributeError(f"module 'rbx.runfile' has no attribute '{name}'")
-
 SCHEMA_VERSION = 1
 CHUNK_BYTES = 1 << 18
 

@@ -112,8 +112,8 @@ class Simulation:
         self.drop_bits = int(drop_bits)
         #: a :class:`rbx.cluster.Cluster` to run the blocks on (None: this machine's threads)
         self.cluster = None
-        #: callables giving back the run locks (:func:`rbx.runfile.acquire_lock`) this run holds, called by
-        #: :func:`rbx.runfile.stream` when its file is done
+        #: callables giving back the run locks (:func:`rbx.locks.acquire_lock`) this run holds, called by
+        #: :func:`rbx.driver.stream` when its file is done
         self.locks = []
         #: a resumed run: the record chunks its kill tore, read from their raw bytes ({field: {offset: chunk}},
         #: :func:`rbx.resume.load`), written back by :func:`rbx.resume.make_consistent`

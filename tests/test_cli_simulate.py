@@ -132,7 +132,7 @@ def test_a_short_wide_run_makes_a_file_the_size_of_its_records(tmp_path):
 
 def _tiny_run(tmp_path, name, complete=True):
     import rbx
-    from rbx import runfile
+    from rbx import driver as runfile     # the run's file lifecycle
     out = tmp_path / name
     rbx.simulate(os.path.join(ROOT, "configs", "examples", "strip.yaml"), collisions=50, output=out)
     if not complete:
@@ -142,7 +142,7 @@ def _tiny_run(tmp_path, name, complete=True):
 
 
 def test_a_second_run_on_the_same_output_cannot_open_its_partial(tmp_path):
-    from rbx import runfile
+    from rbx import driver as runfile     # the run's file lifecycle
     first = runfile.create(str(tmp_path / "run.h5"))
     try:
         with pytest.raises(runfile.FileError) as info:
