@@ -461,9 +461,10 @@ def test_lyapunov_on_the_cluster_is_the_local_spectrum_bit_for_bit(which, slices
 
 
 def test_lyapunov_survives_a_worker_killed_mid_run(two, tmp_path):
-    """4 slices of 1 trajectory × 2·10⁵ collisions (~1 s each): a worker SIGKILLed while it runs one; Dask runs
-    that slice again and the spectrum is still the local one, bit for bit."""
-    cfg = dict(LYAPUNOV, run={"collisions": 200_000, "trajectories": 4, "seed": 2})
+    """4 slices of 1 trajectory × 5·10⁶ collisions (~1 s each: 2·10⁵ took ~0.03 s once the tangent loop ran at
+    ~0.13 µs a collision, and could end before the kill): a worker SIGKILLed while it runs one; Dask runs that
+    slice again and the spectrum is still the local one, bit for bit."""
+    cfg = dict(LYAPUNOV, run={"collisions": 5_000_000, "trajectories": 4, "seed": 2})
     local = lyapunov_json(tmp_path, cfg=cfg)
     two.wait_for_workers(2)
     pids = two.worker_pids()
