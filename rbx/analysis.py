@@ -17,7 +17,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from . import rules
+from . import rules, tables
 from .model import roughness_direction, rule_leaves
 
 # ---- the billiard measure (paper §2.7) -------------------------------------------------------------------------
@@ -290,7 +290,6 @@ def unbounded_axes(geom):
     """The coordinate axes along which the table extends without end -> set of axis indices: every axis of a
     periodic table (positions are unfolded), the directions of a 2D wall that is an infinite line (strip: x;
     wedge: both), the tangent axes of an unbounded plane (plates: x and y); none for a closed table."""
-    from . import tables
     n = geom.dimension
     if geom.lattice is not None:
         return set(range(n))
@@ -543,7 +542,6 @@ def _num(x):
 
 def describe_table(kind, t):
     """'in a 2 × 1 rectangle', 'between plates 1 apart', … (the ``phrase`` facet of the kind's record)."""
-    from . import tables
     try:
         return tables.kind(kind).phrase(t)
     except (KeyError, TypeError, ValueError):

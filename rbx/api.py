@@ -22,6 +22,16 @@ import threading
 import warnings
 from collections.abc import Mapping
 
+from . import config as cfgmod
+from . import driver
+from .cluster import connect
+from .config import repeated_orbits
+from .driver import check_size, prepare_resume, resume_to_file
+from .model import ConfigError, Experiment
+from .progress import Progress
+from .runfile import Run
+from .simulation import MemorySink, Simulation
+
 # nothing heavy at import: the CLI takes StopFlag from here before it installs its signal handlers
 __all__ = ["load", "simulate", "resume", "open"]
 
@@ -50,8 +60,6 @@ def load(config, overrides=None, *, base=None):
     path) are resolved from; default: the working folder. A mapping read from a config file (``yaml.safe_load``)
     needs ``base=`` that file; ``experiment.to_dict()`` gives one with its includes inlined and its paths absolute,
     which loads from any folder."""
-    from . import config as cfgmod
-    from .model import ConfigError, Experiment
     if overrides is not None and not isinstance(overrides, Mapping):
         raise TypeError(f"rbx.load: overrides is a mapping {{'ball.inertia': 0.2, …}}, not "
                         f"{type(overrides).__name__}")
@@ -80,7 +88,6 @@ def load(config, overrides=None, *, base=None):
 
 def _folder(base):
     """``base=``: a file (its folder) or a folder -> the folder, or None."""
-    from .model import ConfigError
     if base is None:
         return None
     path = os.path.abspath(os.path.expanduser(os.fspath(base)))
@@ -93,7 +100,6 @@ def _folder(base):
 
 def _api_keys(make):
     """Errors in overrides name the keyword argument (``collisions``), not the CLI option (``--collisions``)."""
-    from .model import ConfigError
     try:
         return make()
     except ConfigError as exc:
@@ -131,12 +137,9 @@ def simulate(experiment, *, collisions=None, trajectories=None, seed=None, outpu
     ``task_collisions`` (collisions per task) tune how the run is cut (docs/cluster.md). An unreachable scheduler
     raises :class:`rbx.cluster.SchedulerUnreachable`, a task that fails mid-run :class:`rbx.cluster.ClusterError`
     (a file then holds every round finished before, ``complete = False``)."""
-    from .runfile import Run
-    from .simulation import MemorySink, Simulation
     overrides = {k: v for k, v in (("collisions", collisions), ("trajectories", trajectories), ("seed", seed),
                                    ("max_size", max_size)) if v is not None}
     exp = load(experiment, overrides or None)
-    from .config import repeated_orbits     # here: importing rbx.api stays light
     repeated = repeated_orbits(exp)
     if repeated:
         warnings.warn(f"{exp.source}: {repeated}", RuntimeWarning, stacklevel=2)
@@ -184,8 +187,6 @@ def resume(path, *, output=None, force=False, max_size=None, progress=False, sch
     Raises :class:`FileError` or :class:`ConfigError` for a file that cannot be continued (in one line, naming
     the file and key), :class:`rbx.paths.DiskFull` when there is no room, KeyboardInterrupt after Ctrl-C (the
     file then holds the records so far, ``complete = False``)."""
-    from .driver import prepare_resume, resume_to_file
-    from .runfile import Run
     if scheduler is None and (slices is not None or task_collisions is not None):
         raise TypeError("slices and task_collisions cut a run for a cluster: give scheduler too")
     r = prepare_resume(path, output, force=force, max_size=max_size, out_key="output", size_key="max_size",
@@ -213,13 +214,11 @@ def resume(path, *, output=None, force=False, max_size=None, progress=False, sch
 
 def open(path):   # noqa: A001 - the name docs/reference.md §9 gives it
     """A run file read back -> :class:`Run`. Raises :class:`FileError` if ``path`` is not an rbx run file."""
-    from .runfile import Run
     return Run.open(os.fspath(path))
 
 
 def _progress(progress):
     if progress is True:
-        from .progress import Progress
         return Progress("simulate", delay=0.5)
     if progress is False or progress is None:
         return None
@@ -234,11 +233,9 @@ def check_target(path, force, experiment, key="output", file=None, force_hint="f
                  size_key=None):
     """Refuse to write ``path`` (see :func:`rbx.driver.check_target`), or a run whose file would exceed
     ``output.max_size`` or the free disk space (:func:`rbx.driver.check_size`): raises :class:`FileError`."""
-    from .driver import check_size
-    from .driver import check_target as check
-    check(path, force, key, file=file,
-          config_source=(experiment.source,) + tuple(experiment.includes) if experiment is not None else None,
-          partial_ok=partial_ok, force_hint=force_hint)
+    driver.check_target(path, force, key, file=file,
+                        config_source=(experiment.source,) + tuple(experiment.includes) if experiment is not None
+                        else None, partial_ok=partial_ok, force_hint=force_hint)
     if experiment is not None:
         check_size(experiment, path, size_key)
 
@@ -257,14 +254,12 @@ def cluster_for(scheduler, key, slices=None, task_collisions=None):
     naming ``key``."""
     if scheduler is None:
         return contextlib.nullcontext(None)
-    from .cluster import connect
     return connect(scheduler, key=key, slices=slices, task_collisions=task_collisions)
 
 
 def run_to_file(sim, path, *, progress=None, should_stop=None, report=None, force=False):
     """Run a new ``sim`` into ``path`` (:func:`rbx.driver.run_to_file`)."""
-    from .driver import run_to_file as run
-    return run(sim, path, progress=progress, should_stop=should_stop, report=report, force=force)
+    return driver.run_to_file(sim, path, progress=progress, should_stop=should_stop, report=report, force=force)
 
 
 class StopFlag:

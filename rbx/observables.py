@@ -15,8 +15,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .analysis import wilson
-from .dynamics import REGULAR_THRESHOLD
+from .analysis import santalo_constant, table_measure, unbounded_axes, velocity_dimension, wall_measure, wilson
+from .dynamics import REGULAR_THRESHOLD, escape_times, exponential_rate
+from .model import Exit, rule_leaves
 
 __all__ = ["Observable", "REGISTRY", "register", "get", "PointRuns", "Value"]
 
@@ -131,7 +132,6 @@ def _segment_sums(values, counts, segments):
 # ---- what a table has ------------------------------------------------------------------------------------------
 
 def exit_walls(experiment):
-    from .model import Exit, rule_leaves
     return [w for w, r in enumerate(experiment.wall_rules) if any(isinstance(x, Exit) for x in rule_leaves(r))]
 
 
@@ -153,7 +153,6 @@ def _lyapunov(runs, options):
 
 
 def _exponent_coords(experiment):
-    from .analysis import velocity_dimension
     return np.arange(1, 2 * velocity_dimension(experiment.dimension) + 1)
 
 
@@ -184,7 +183,6 @@ register(Observable(
 
 
 def _diffusion(runs, options):
-    from .analysis import unbounded_axes
     run, exp = runs.run, runs.experiment
     axes = sorted(unbounded_axes(exp.geometry()))
     seg = max(1, exp.run.collisions // int(options["segments"]))
@@ -199,7 +197,6 @@ def _diffusion(runs, options):
 
 
 def _bounded(exp, options):
-    from .analysis import unbounded_axes
     if not unbounded_axes(exp.geometry()):
         return f"the {exp.table_kind} table is bounded: no diffusion (it needs a periodic or open table)"
     return None
@@ -212,7 +209,6 @@ register(Observable(
 
 
 def _escape_rate(runs, options):
-    from .dynamics import escape_times, exponential_rate
     esc = escape_times(runs.run)
     if not esc.exited.any():
         return Value(math.nan, math.nan)
@@ -229,7 +225,6 @@ register(Observable(
 
 
 def _trapped_share(runs, options):
-    from .dynamics import escape_times
     esc = escape_times(runs.run)
     return _share(int(np.sum(~esc.exited)), len(esc.exited))
 
@@ -245,7 +240,6 @@ register(Observable(
 def kac_return_path(experiment):
     """Kac's lemma with Santaló's formula: the mean return path to the exit walls, C_d·|table|/|holes| (4A/ℓ for a
     disc), for billiard-measure starts on the holes when almost every state returns (docs/dynamics.md)."""
-    from .analysis import santalo_constant, table_measure, velocity_dimension, wall_measure
     geom = experiment.geometry()
     volume, _ = table_measure(geom)
     hole = sum(wall_measure(geom, w) for w in exit_walls(experiment))
@@ -253,7 +247,6 @@ def kac_return_path(experiment):
 
 
 def _return_path(runs, options):
-    from .dynamics import escape_times
     esc = escape_times(runs.run)
     p = esc.path[esc.exited]
     kac = kac_return_path(runs.experiment)
@@ -282,7 +275,6 @@ register(Observable(
 
 
 def _mean_free_path(runs, options):
-    from .analysis import santalo_constant, table_measure
     run, exp = runs.run, runs.experiment
     pos = np.asarray(run.position)[:, 1:]           # from the first collision (a start may be inside the table)
     d = np.linalg.norm(np.diff(pos, axis=1), axis=-1)

@@ -38,18 +38,30 @@ flushed and committed once a second (:data:`rbx.simulation.CHECKPOINT_SECONDS`) 
 so an interrupted run leaves a readable file with ``complete = False``.
 """
 import contextlib
+import datetime
+import errno
 import hashlib
 import os
+import platform
+import shlex
+import shutil
+import socket
+import sys
+from importlib import metadata
 
+import h5py
 import numpy as np
 import yaml
 
 from . import __version__
 from . import journal
+from .analysis import scene_title
+from .config import loads
 from .locks import busy as _busy
 from .locks import lock_holder
 from .model import FIELD, FIELDS, RECORD_FIELDS, ConfigError
 from .paths import DiskFull, FileError, format_size, what_it_is
+from .progress import plural
 # names that lived here before the locks and the driver had modules of their own, for code that reads them here
 from .locks import _process_start, acquire_lock, lock_path, release_held_locks, release_lock  # noqa: F401, E402
 from .paths import creation_path, display_path, temporary_path  # noqa: F401, E402
@@ -148,13 +160,7 @@ def root_attrs(cfg, complete, path=None):
 
 def provenance():
     """The values of :data:`PROVENANCE_ATTRS` for this process, now -> dict."""
-    import datetime
-    import platform
-    import shlex
-    import socket
-    import sys
 
-    import h5py
     values = {"created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
               "numba_version": _version("numba"), "numpy_version": np.__version__, "h5py_version": h5py.__version__,
               "hdf5_version": h5py.version.hdf5_version, "python_version": platform.python_version(),
@@ -175,7 +181,6 @@ def note_resume(h5, collisions):
 
 
 def _version(package):
-    from importlib import metadata
     try:
         return metadata.version(package)
     except metadata.PackageNotFoundError:
@@ -185,7 +190,6 @@ def _version(package):
 def write_root_attrs(h5, cfg, complete, path=None):
     """Write :data:`ROOT_ATTRS` (``path``: the file written, see :func:`config_yaml`) and
     :data:`PROVENANCE_ATTRS`."""
-    import h5py
     for k, v in root_attrs(cfg, complete, path).items():
         h5.attrs[k] = np.array(v, dtype=h5py.string_dtype()) if k == "wall_names" else v
     h5.attrs.update(provenance())
@@ -288,7 +292,6 @@ class H5Sink:
         file half-updated and h5py crashed (a segmentation fault) closing it. Checked, the run stops between
         blocks like an interrupted one: the last checkpoint is intact and the file can be resumed once there is
         space."""
-        import shutil
         need = chunk_bytes + self.state_bytes + DISK_MARGIN
         # the checkpoint's journal (rbx.journal), another file, holds what is rewritten in place: at most as much
         journal_bytes = need - DISK_MARGIN
@@ -307,7 +310,6 @@ class H5Sink:
         another program filling the disk after the check above cannot take it, so HDF5's writes do not meet
         ENOSPC (or EFBIG under a file size limit), which HDF5 does not survive (h5py then crashed closing the
         file). HDF5 writes its new chunks and metadata into this room; :func:`trim` gives back what is left."""
-        import errno
         jf = journal_of(self.h5)
         if jf is None:      # another file driver: the check above is all there is
             return
@@ -384,7 +386,6 @@ class H5Sink:
 def _make_scales(g, M, n):
     """The dimension scales :data:`SCALES` of ``collisions/``, attached to every dataset's axes (``trajectory``
     first, ``record`` second, then ``axis`` and ``axis2`` for a field's vector or matrix part)."""
-    import h5py
     tails = {len(g[name].shape) - 2 for name in g if name in FIELD}
     made = {"trajectory": g.create_dataset("trajectory", data=np.arange(M, dtype=np.int64)),
             "record": g.create_dataset("record", shape=(0,), maxshape=(None,), dtype=np.float32, chunks=(4096,))}
@@ -471,7 +472,6 @@ def open_journaled(path, create=False):
     file, exclusively; else an existing one, its pending journal applied first). Commit with :func:`commit`;
     :func:`close_journal` after closing the ``h5py.File``. OSError if it cannot; :class:`FileError` if its journal
     cannot be applied."""
-    import h5py
     try:
         jf = journal.JournaledFile(path, create=create)
     except journal.JournalError as exc:
@@ -528,7 +528,6 @@ def close_journal(h5, commit=True):
 
 def _open_h5(path, mode="r"):
     """Open an existing HDF5 file -> ``h5py.File``, or raise :class:`FileError` saying why not."""
-    import h5py
     path = str(path)
     if not os.path.exists(path):
         raise FileError(path, None, "file not found")
@@ -647,7 +646,6 @@ def _check_final(final, T, path):
 
 
 def _h5_dataset():
-    import h5py
     return h5py.Dataset
 
 
@@ -674,7 +672,6 @@ def _attr(v):
 def read_experiment(config_text, source):
     """The validated experiment of a stored ``config`` attribute -> :class:`rbx.model.Experiment`; a config that
     does not validate raises :class:`rbx.model.ConfigError` naming ``source`` and ``config: <key>``."""
-    from .config import loads
     if not isinstance(config_text, str):
         raise ConfigError(source, "config", "the root attribute is not YAML text")
     try:
@@ -843,7 +840,6 @@ class Run:
 
     def __repr__(self):
         where = self.path or "in memory"
-        from .progress import plural
         return (f"<rbx.Run {where}: {self.table_kind}, {plural(self.trajectories, 'trajectory')} × "
                 f"{plural(self.records, 'record')} "
                 f"of {', '.join(self.fields) or 'nothing'}{'' if self.complete else ', INCOMPLETE'}>")
@@ -862,7 +858,6 @@ class Run:
 
     def scene(self):
         """A title naming the scene and rule: 'disc (R = 0.1, κ = 0.5) in a 2 × 1 rectangle · rough'."""
-        from .analysis import scene_title
         return scene_title(self.experiment)
 
     def to_xarray(self):

@@ -24,13 +24,24 @@ import itertools
 import json
 import math
 import os
+import shlex
+import sys
 import time
+import warnings
 from collections.abc import Mapping
 
 import numpy as np
+import yaml
 
-from . import observables as obs
+from . import __version__, observables as obs
+from .analysis import scene_title, unbounded_axes
+from .api import cluster_for, load, simulate
+from .cluster import connect
+from .config import parse_yaml
+from .dynamics import lyapunov
+from .histogram import return_experiment
 from .model import ConfigError
+from .runfile import FileError, provenance
 
 __all__ = ["sweep", "load_study", "Study", "point_seed"]
 
@@ -83,7 +94,6 @@ class Study:
         return memo[key]
 
     def _experiment(self, point, fields, every):
-        from .api import load
         changes = dict(self.fixed)
         changes.update(point)
         changes.update({"run.trajectories": self.ensemble["trajectories"],
@@ -130,7 +140,6 @@ def _plain(v):
 def load_study(study, base=None):
     """A study file (YAML) or mapping -> :class:`Study`; a mistake raises :class:`rbx.ConfigError` naming the
     file and the key (``vary.ball.inertia``, ``measure.diffusion``, …)."""
-    from .config import parse_yaml
     if isinstance(study, Study):
         return study
     if isinstance(study, Mapping):
@@ -216,7 +225,6 @@ def load_study(study, base=None):
 
 def _duplicates(text, file):
     """Refuse a key given twice in one mapping, naming its dotted path (``vary.ball.inertia``)."""
-    import yaml
     try:
         root = yaml.compose(text, Loader=yaml.SafeLoader)
     except yaml.YAMLError:
@@ -243,7 +251,6 @@ def _canonical_base(base, folder):
     if isinstance(base, Mapping):
         return dict(base)
     try:
-        from .api import load
         return load(base).resolved
     except ConfigError:
         return base
@@ -324,7 +331,6 @@ def _measure(spec, fail):
 def _check_points(study):
     """Every point's experiment is built now (a bad value is refused before anything runs) and every observable
     is asked whether this table can give it."""
-    from .analysis import unbounded_axes
     need = _needs(study)
     for _, point in study.points():
         exp = study.experiment(point, need["fields"], need["every"])      # the one the run takes (kept)
@@ -361,10 +367,7 @@ def _needs(study):
 
 def run_point(study, point, scheduler=None):
     """Run one point and measure every observable -> ({name: Value}, collisions, seconds)."""
-    import warnings
 
-    from .api import simulate
-    from .dynamics import lyapunov
     need = _needs(study)
     began = time.perf_counter()
     exp = study.experiment(point, need["fields"], need["every"])
@@ -379,8 +382,6 @@ def run_point(study, point, scheduler=None):
             runs.lyapunov = lyapunov(exp, segments=need["segments"], warmup=need["warmup"], scheduler=scheduler)
             collisions += int(np.sum(runs.lyapunov.collisions))
         if need["returns"]:
-            from .api import cluster_for
-            from .histogram import return_experiment
             with cluster_for(scheduler, "scheduler") as on:
                 runs.returns = return_experiment(exp, cluster=on)
             collisions += int(np.sum(runs.returns.collisions))
@@ -444,7 +445,6 @@ def study_title(study, exp0=None):
     """What the whole study shows: the scene's title (:func:`rbx.analysis.scene_title`) with each word that
     changes from point to point given as its range over the points ('κ = 0.05–1'), then the varied keys and their
     ranges ('ball.inertia: 8 values, 0.05–1') -> str. (The first point's title alone named its κ as the study's.)"""
-    from .analysis import scene_title
     points = study.points()
     need = _needs(study)
     titles = [scene_title(study.experiment(p, need["fields"], need["every"])) for _, p in points]
@@ -477,11 +477,7 @@ def study_title(study, exp0=None):
 
 
 def _attrs(study, exp0):
-    import shlex
-    import sys
 
-    from . import __version__
-    from .runfile import provenance
     p = provenance()
     return {"rbx_study": 1, "study": study.source, "study_canonical": study.text, "study_digest": study.digest,
             "study_file": study.file or "", "title": study_title(study, exp0), "varied": json.dumps(study.keys),
@@ -551,7 +547,6 @@ def sweep(study, output=None, *, scheduler=None, resume=False, force=False, prog
     the points it lacks; a study whose canonical text changed is refused). ``scheduler``: a Dask scheduler
     address, scheduler file or ``distributed.Client`` that every point's runs use (the same numbers as a local
     run). ``progress(done, total)``: called after each point. A bad study raises :class:`rbx.ConfigError`."""
-    from .runfile import FileError
     st = load_study(study, base)
     points = st.points()
     need = _needs(st)
@@ -613,6 +608,5 @@ def _client(scheduler):
     """One Dask client for the whole study (each point's runs would otherwise connect anew)."""
     if scheduler is None or not isinstance(scheduler, (str, os.PathLike)):
         return scheduler
-    from .cluster import connect
     cluster = connect(scheduler, key="scheduler")
     return cluster.client

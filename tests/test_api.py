@@ -318,7 +318,7 @@ def test_a_run_larger_than_the_free_space_is_refused_before_writing(tmp_path, mo
     # within the limit and the space: written, and the estimate was not below what was written
     monkeypatch.undo()
     run = rbx.simulate(scene("strip-rough", collisions=20_000), output=out, max_size="10 MB")
-    from rbx.runfile import estimated_size
+    from rbx.driver import estimated_size
     assert run.complete and out.stat().st_size <= estimated_size(run.experiment)
 
 
