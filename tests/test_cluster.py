@@ -475,20 +475,30 @@ def test_lyapunov_survives_a_worker_killed_mid_run(two, tmp_path):
                             stderr=subprocess.PIPE, text=True)
     victim = None
     deadline = time.monotonic() + 120
+
+    def busy(c):
+        return [w for w, keys in c.processing().items() if any(str(k).startswith("rbx-lyapunov") for k in keys)]
     with two.client() as c:
         while victim is None:
             assert proc.poll() is None, proc.communicate()
             assert time.monotonic() < deadline, "no Lyapunov task ever ran"
-            busy = [w for w, keys in c.processing().items() if any(str(k).startswith("rbx-lyapunov") for k in keys)]
-            victim = busy[0] if busy else None
-            time.sleep(0.05)
-    time.sleep(0.3)                                        # into the task's work
-    os.kill(pids[victim], signal.SIGKILL)
+            found = busy(c)
+            if found:
+                time.sleep(0.3)                            # into the task's work, and still at it
+                victim = found[0] if found[0] in busy(c) else None
+            else:
+                time.sleep(0.05)
+        os.kill(pids[victim], signal.SIGKILL)
     out, err = proc.communicate(timeout=300)
     assert proc.returncode == 0, err
     assert json.loads(out) == local
-    log = two.log("scheduler")
-    assert f"Remove worker addr: {victim}" in log and log.count("Remove worker addr: ") > removed   # lost mid-run
+    # lost mid-run: the scheduler says so in its log, which it may write after the client has its answer
+    def lost(log):
+        return f"Remove worker addr: {victim}" in log and log.count("Remove worker addr: ") > removed
+    deadline = time.monotonic() + 60
+    while not lost(two.log("scheduler")) and time.monotonic() < deadline:
+        time.sleep(0.1)
+    assert lost(two.log("scheduler")), two.log("scheduler")[-2000:]
     two.wait_for_workers(2)                                 # its nanny starts it again, for the next tests
 
 
