@@ -45,6 +45,7 @@ from ._jit import compile_lock, hooks, jit_hot, jit_loop, stack_array
 from .geometry import (HALFSPACE, SEGMENT, box_collision, contact_normal, normal_jacobian, periodic_flight,
                        periodic_images, slab_collision, snap)
 from .model import FIELD, FIELDS
+from .primitives import P_NORMAL, P_POINT
 from .physics import collide, collide_axis
 from .rules import EXIT, Rules, choose  # noqa: F401 - Rules: a group of the kernels, defined with the rules
 from .tangent import orthonormalise2, orthonormalise3, step2, step3
@@ -96,7 +97,7 @@ def flat_axes(geom):
     out = np.full(len(geom.codes), -1, dtype=np.int64)
     for k, code in enumerate(geom.codes):
         if code in (HALFSPACE, SEGMENT):
-            nu = geom.params[k, 4:4 + n]
+            nu = geom.params[k, P_NORMAL:P_NORMAL + n]
             i = int(np.argmax(np.abs(nu)))
             if abs(nu[i]) == 1.0 and np.count_nonzero(nu) == 1:
                 out[k] = i
@@ -466,7 +467,7 @@ def _make_kernel(spec):
                             comp[j, n] = 0.0
                         break
                 if SLAB:
-                    a[n - 1] = params[p, n - 1]            # exactly on the wall: the normal coordinate is known
+                    a[n - 1] = params[p, P_POINT + n - 1]  # exactly on the wall: the normal coordinate is known
                     if on & S_COMPENSATED:
                         comp[j, n - 1] = 0.0
                 # 3. contact normal (a slab's is ±e_{n−1}, known from the wall: no lookup; the rule tree and snapping
