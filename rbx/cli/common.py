@@ -249,6 +249,18 @@ class Group(OneLineUsage, click.Group):
             args = ["--help"]
         return super().make_context(info_name, args, parent=parent, **extra)
 
+    def invoke(self, ctx):
+        # a Ctrl-C that reaches here came before the command installed its own handling (while it imported or set
+        # up): click would print 'Aborted!' and exit 1; rbx's entry point says 'interrupted' and exits 130
+        try:
+            return super().invoke(ctx)
+        except KeyboardInterrupt as exc:
+            raise Interrupted() from exc
+
+
+class Interrupted(BaseException):
+    """A Ctrl-C carried past click (which turns a KeyboardInterrupt into 'Aborted!', exit 1) to ``rbx.cli.main``."""
+
 
 # ---- the Dask cluster of --scheduler (simulate, histogram, lyapunov) ---------------------------------------
 

@@ -6,7 +6,7 @@ import sys
 import click
 
 from .. import __version__
-from .common import Group, note_interrupt
+from .common import Group, Interrupted, note_interrupt
 from .simulate import simulate
 from . import histogram, lyapunov, plot, sweep
 
@@ -39,6 +39,6 @@ def main():
         sys.exit(2)
     try:
         cli(prog_name="rbx")
-    except KeyboardInterrupt:   # Ctrl-C before a command installed its own handler (e.g. while importing)
+    except (KeyboardInterrupt, Interrupted):   # Ctrl-C before a command installed its own handler (importing)
         sys.stderr.write("rbx: interrupted\n")
         sys.exit(130)
