@@ -17,6 +17,7 @@ same messages as the YAML. A key is dotted (``ball.inertia``, ``boundary.walls.t
 unknown one is refused with a did-you-mean hint (``colisions``: did you mean 'run.collisions'?).
 """
 import copy
+import dataclasses
 import difflib
 import math
 import os
@@ -1104,7 +1105,6 @@ _PART_TYPES = {"ball": Ball, "run": RunSettings, "output": Output, "numerics": N
 
 def _plain_part(name, value, exp):
     """A part of an experiment (a dataclass or a tuple) as its config section."""
-    import dataclasses
     if name in _PART_TYPES:
         if not isinstance(value, _PART_TYPES[name]):
             raise ConfigError(None, name, f"expected an rbx.model.{_PART_TYPES[name].__name__} or a mapping of its "

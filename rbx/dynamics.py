@@ -9,6 +9,15 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from . import engine
+from .analysis import scene_title, wilson
+from .api import cluster_for, load
+from .cluster import Cluster
+from .engine import State
+from .physics import spin_vector
+from .simulation import Simulation, record_buffers
+from .tangent import coordinate_names, tangent_dimension
+
 __all__ = ["lyapunov", "Lyapunov", "flow_jacobian", "escape_times", "Escape"]
 
 
@@ -38,9 +47,6 @@ class _Tangent:
     ``vectors``: follow the first K tangent vectors only (default all d)."""
 
     def __init__(self, exp, state=None, vectors=None, orientation=False):
-        from . import engine
-        from .simulation import Simulation
-        from .tangent import tangent_dimension
         orient = engine.S_ORIENT if (exp.dimension == 2 or orientation) else 0
         sim = self.sim = Simulation(exp, state=state, force_bits=engine.S_TANGENT | orient,
                                     drop_bits=engine.S_RECORD | engine.S_STOP_WALL)
@@ -74,8 +80,6 @@ def _advance(kernel, state, Y, sums, stop, t_end=np.inf, ortho=None, grow=None):
     (:func:`rbx.engine.run_advance_all`). Each trajectory's numbers depend only on its own rows (its random
     stream is keyed by its global index, in ``state.keys``): not on the thread count, nor on which other
     trajectories share the arrays."""
-    from . import engine
-    from .simulation import record_buffers
     table, rules, settings = kernel
     M, n = state.pos.shape
     stop = np.broadcast_to(np.asarray(stop, np.int64), (M,)).copy()
@@ -124,7 +128,6 @@ class _SliceTask:
 def _measure_slice(task):
     """Runs on a worker: :func:`_measure` on one slice -> its per-trajectory arrays. A pure function of the task
     (a worker lost mid-task: Dask runs it again elsewhere, with the same result)."""
-    from .engine import State
 
     def own(x):       # writable copies: Dask may hand read-only arrays, another type to Numba (a new compile)
         return np.array(x) if isinstance(x, np.ndarray) else x
@@ -136,7 +139,6 @@ def _measure_slice(task):
 
 
 def _load(experiment, collisions=None, trajectories=None, seed=None):
-    from .api import load
     overrides = {k: v for k, v in (("collisions", collisions), ("trajectories", trajectories), ("seed", seed))
                  if v is not None}
     return load(experiment, overrides or None)
@@ -158,7 +160,6 @@ def flow_jacobian(experiment, t_end, *, collisions=None, trajectories=None, seed
         state = {k: np.array(v, copy=True) for k, v in state.items()}   # the kernels write into them
     tan = _Tangent(exp, state, orientation=True)
     tan.advance(exp.run.collisions, t_end, ortho=0)
-    from .physics import spin_vector
     st = tan.state
     final = {"time": st.time.copy(), "position": st.pos.copy(), "velocity": st.vel.copy(), "W": st.W.copy(),
              "angular_velocity": spin_vector(st.W), "theta": st.theta.copy(), "A": st.A.copy(),
@@ -207,7 +208,6 @@ class Lyapunov:
     def regular_share(self, threshold=REGULAR_THRESHOLD):
         """The share of trajectories whose own λ₁ (per unit time) is below ``threshold`` — regular orbits, which a
         rough table can trap beside chaotic ones — with its Wilson interval (z = 1) -> (share, low, high)."""
-        from .analysis import wilson
         lam1 = self.per_trajectory[:, 0]
         ok = np.isfinite(lam1)
         return wilson(int(np.sum(lam1[ok] < threshold)), int(np.sum(ok)))
@@ -255,8 +255,6 @@ def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segme
     ``distributed.Client``; ``slices``: tasks (slices of trajectories; default 4 per worker thread). The result
     is the local one, bit for bit. An unreachable scheduler raises :class:`rbx.cluster.SchedulerUnreachable`, a
     task that fails :class:`rbx.cluster.ClusterError`."""
-    from .analysis import scene_title
-    from .tangent import coordinate_names, tangent_dimension
     exp = _load(experiment, collisions, trajectories, seed)
     segments = int(segments)
     if segments < 1:
@@ -317,10 +315,8 @@ def _cluster(scheduler, slices):
     """The cluster of ``scheduler`` as a context manager (:func:`rbx.api.cluster_for`: connected now, closed at the
     end; None for a local run); a :class:`rbx.cluster.Cluster` already connected (the CLI's) is used as it is."""
     if scheduler is not None:
-        from .cluster import Cluster
         if isinstance(scheduler, Cluster):
             return contextlib.nullcontext(scheduler)
-    from .api import cluster_for
     return cluster_for(scheduler, "scheduler", slices)
 
 

@@ -9,6 +9,7 @@ again from that thread is allowed (a resume takes its file's lock twice), from a
 refused like another process's (two ``rbx.simulate(…, force=True)`` in two threads lost both runs). Locks still
 held when the process exits are removed (``atexit``; :func:`release_held_locks` for an exit that skips it).
 """
+import atexit
 import contextlib
 import errno
 import os
@@ -255,7 +256,6 @@ def _at_exit():
     and the end of the run). Not in a forked child: its parent holds them."""
     if _EXIT_HOOK:
         return
-    import atexit
     owner = os.getpid()
 
     def release_all():

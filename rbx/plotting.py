@@ -8,6 +8,8 @@ velocities; a step is one collision.
 import contextlib
 import functools
 import os
+import re
+import textwrap
 
 import matplotlib
 import numpy as np
@@ -98,8 +100,6 @@ TITLE_EM = 0.6
 def _break_lines(text, room, separators=(" · ", "; ")):
     """``text`` with each of its lines broken to at most ``room`` characters: at a separator first (kept at the
     end of the line it closes), else between words."""
-    import re
-    import textwrap
     pattern = "(" + "|".join(re.escape(sep) for sep in separators) + ")"
     out = []
     for line in text.split("\n"):

@@ -5,6 +5,7 @@ Memory stays flat: a block holds at most a few million values whatever the run's
 """
 import copy
 import time
+from concurrent.futures import ThreadPoolExecutor, wait
 
 import numpy as np
 
@@ -283,7 +284,6 @@ class Simulation:
                     progress(done, total)
             return
 
-        from concurrent.futures import ThreadPoolExecutor, wait
         bufs = [self.block_buffers(per), self.block_buffers(per)]
         pool = ThreadPoolExecutor(1, thread_name_prefix="rbx-block")
         previous = self.frozen()          # the state the file accounts for once the last block handed out is written
