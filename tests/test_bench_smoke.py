@@ -125,7 +125,13 @@ def test_undoing_a_skip_keeps_the_orbit(i):
         np.testing.assert_allclose(finals[1][f], finals[0][f], rtol=1e-9, atol=1e-12, err_msg=f)
 
 
-@pytest.mark.parametrize("scene,rule", list(bench.HAND))
+#: the hand loops make test checks (each compiles a loop of its own, and rbx's for the scene): a rule tree, a random
+#: rule, a dispersing arc, periodic cells, a 3D box; make stress checks every one
+QUICK_HAND = (("strip", "hemisphere"), ("plates", "random"), ("sinai", "rough"), ("lorentz", "rough"), ("box", "rough"))
+
+
+@pytest.mark.parametrize("scene,rule", [pytest.param(*pair, marks=() if pair in QUICK_HAND else pytest.mark.heavy)
+                                        for pair in bench.HAND])
 def test_hand_written_loops_agree_with_rbx(scene, rule):
     from rbx.simulation import run_in_memory
     N = bench.HAND_CHECK_COLLISIONS.get(scene, 1000)
