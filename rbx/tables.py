@@ -3,24 +3,17 @@
 A :class:`TableKind` holds every facet of a kind: its dimension, its parameters and their checks, the walls it
 is made of (:func:`walls`: pieces of lines, planes and circles in the table's own coordinates, before shrinking
 by the ball's radius), the builder of the shrunk table the engine runs on (``build``: a function of
-:mod:`rbx.geometry`), the "ball fits" check, a length scale for tolerances, a phrase for titles, how to draw it
+:mod:`rbx.construction`), the "ball fits" check, a length scale for tolerances, a phrase for titles, how to draw it
 in the plane, and example parameters for the tests. The config loader, the engine's geometry, the plots, the
 titles, the precise (mpmath) loop and the tests' reference loop all go through this registry; none names a kind.
 ``tests/test_tables.py`` fails when a registered kind lacks a facet.
 
-How to add a table kind: write its geometry builder in :mod:`rbx.geometry` (most kinds are made of the existing
+How to add a table kind: write its builder in :mod:`rbx.construction` (most kinds are made of the existing
 primitives), then one :func:`register` call here with its facets, and its tests (a catalog scene in
 ``tests/catalog.py``).
 
-Wall pieces (:func:`walls`) are plain data whose numbers the precise loop can evaluate at its own precision: a
-direction is a tuple of numbers or ``("deg", θ)``, the unit vector at angle θ (degrees) from the x axis.
-
-| piece | meaning |
-|---|---|
-| :class:`Line` | 2D flat wall {point + s·direction, s_min ≤ s ≤ s_max}, inward ``normal`` |
-| :class:`Plane` | 3D flat wall through ``point`` with inward ``normal`` and tangent axes; contact points bounded by the box ``[lo, hi]`` of the table (±inf: unbounded) |
-| :class:`Circle` | 2D round table (the inside of the circle), one wall |
-| :class:`Polygon` | 2D closed boundary through ``vertices`` (counter-clockwise), wall i the edge from vertex i to i+1; reflex vertices are rounded by R in the shrunk table |
+A kind's walls are wall pieces (:mod:`rbx.pieces`: plain data the precise loop can evaluate at its own precision),
+re-exported here.
 """
 import dataclasses
 import math
