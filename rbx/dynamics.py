@@ -224,12 +224,17 @@ class Lyapunov:
                 "sum": float(np.sum(self.exponents)), "time": float(np.sum(self.time)),
                 "collisions": int(np.sum(self.collisions)), "trajectories": int(len(self.time)),
                 "segments": int(self.segment_times.shape[1]), "warmup": int(self.warmup),
-                "counted": COUNTED,
+                "counted": COUNTED, "mean_over": MEAN_OVER,
                 "coordinates": list(self.coordinates), "title": self.title,
                 "ended_early": int(np.sum(self.ended)) if self.ended is not None else 0,
                 "per_trajectory": [[finite(x) for x in row] for row in self.per_trajectory],
                 "regular_share": {"threshold": REGULAR_THRESHOLD, "share": finite(share), "low": finite(low),
                                   "high": finite(high)}}
+
+
+#: what the pooled exponents and their errors average over (the JSON output says it beside them)
+MEAN_OVER = ("every trajectory, regular and chaotic alike, weighted by its measured time; each trajectory's own "
+             "exponents are in per_trajectory, and the share of regular ones in regular_share")
 
 
 def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segments=10, warmup=None,

@@ -464,6 +464,7 @@ def test_lyapunov_command_follows_k_vectors(tmp_path):
     api = lyapunov(str(path), collisions=600, exponents=1)
     assert data["exponents"] == [float(api.exponents[0])] and len(data["per_collision"]) == 1
     assert "warm-up excluded" in data["counted"]
+    assert "regular and chaotic alike" in data["mean_over"]    # the pooled mean says what it pools
     for bad in ("0", "7"):
         r = subprocess.run([exe, "lyapunov", str(path), "--exponents", bad], capture_output=True, text=True,
                            timeout=300)

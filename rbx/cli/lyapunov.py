@@ -109,6 +109,9 @@ def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as
         regular, measured = int(np.sum(lam1[np.isfinite(lam1)] < REGULAR_THRESHOLD)), int(np.sum(np.isfinite(lam1)))
         click.echo(f"regular orbits (own λ1 < {REGULAR_THRESHOLD}): {regular} of {measured}, share {share:.3f} "
                    f"(Wilson interval {low:.3f} … {high:.3f})")
+        if 0 < regular < measured:
+            click.echo("the exponents above pool the regular and the chaotic orbits; each orbit's own exponents: "
+                       "--json (per_trajectory)")
     if result.ended is not None and result.ended.any():
         click.echo(f"{plural(int(result.ended.sum()), 'trajectory')} left the table (an exit or an escape) before "
                    "the end")
