@@ -41,6 +41,7 @@ from .config import parse_yaml
 from .dynamics import lyapunov
 from .histogram import return_experiment
 from .model import ConfigError
+from .paths import check_replaceable, config_file_problem
 from .runfile import FileError, provenance
 
 __all__ = ["sweep", "load_study", "Study", "point_seed"]
@@ -150,13 +151,22 @@ def load_study(study, base=None):
     else:
         file = os.path.abspath(os.fspath(study))
         try:
+            problem = config_file_problem(file)      # a device, a FIFO, a huge file: refused before it is read
+            if problem:
+                raise ConfigError(file, None, problem)
             with open(file, encoding="utf-8") as fh:
                 text = fh.read()
         except FileNotFoundError:
             raise ConfigError(file, None, "file not found") from None
         except IsADirectoryError:
             raise ConfigError(file, None, "is a directory, not a study file") from None
-        _duplicates(text, file)
+        except PermissionError:
+            raise ConfigError(file, None, "cannot read the file: permission denied") from None
+        except UnicodeDecodeError:
+            raise ConfigError(file, None, "not a text (UTF-8) file") from None
+        except OSError as exc:
+            raise ConfigError(file, None, f"cannot read the file: {exc.strerror or exc}") from None
+        _duplicates(text, file)                 # names the dotted key given twice (the parser says only the line)
         data = parse_yaml(text, file)
         if not isinstance(data, Mapping):
             raise ConfigError(file, None, "a study file is a mapping with base, vary, measure, ensemble")
@@ -229,9 +239,12 @@ def _duplicates(text, file):
         root = yaml.compose(text, Loader=yaml.SafeLoader)
     except yaml.YAMLError:
         return                      # parse_yaml says where the syntax is wrong
-    stack = [(root, "")]
+    stack, visited = [(root, "")], set()
     while stack:
         node, path = stack.pop()
+        if id(node) in visited:     # an alias: its node is checked once (walked each time, aliases multiply)
+            continue
+        visited.add(id(node))
         if isinstance(node, yaml.MappingNode):
             seen = set()
             for k, v in node.value:
@@ -569,8 +582,10 @@ def sweep(study, output=None, *, scheduler=None, resume=False, force=False, prog
                     return ds
         elif not force:
             for p in (output, partial):
-                if os.path.exists(p):
+                if os.path.lexists(p):
                     raise FileError(p, None, "exists: --force starts the study again, --resume continues it")
+        for p in (output, partial):       # replaced only if a regular file: never a device, a FIFO or a link
+            check_replaceable(p, "-o", None)
         os.makedirs(os.path.dirname(output), exist_ok=True)
     if ds is None:
         ds = _empty(st, exp0)

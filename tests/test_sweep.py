@@ -256,3 +256,21 @@ def test_the_title_says_what_the_whole_study_varies(specular):
     text = study_title(two)
     assert "κ = 0.1–1" in text and "radius 0.2–0.4" in text
     assert text.endswith("varied: ball.inertia: 2 values, 0.1–1; table.radius: 3 values, 0.2–0.4")
+
+
+def test_a_study_file_is_checked_for_what_it_is_and_its_output_replaces_only_regular_files(tmp_path):
+    """A study file that is a device or a FIFO was read without bound (22 GB of /dev/zero) or waited on for ever, a
+    bomb of aliases hung the duplicate-key walk, and ``-o X --force`` replaced a device or a link by a file."""
+    os.mkfifo(tmp_path / "fifo.yaml")
+    laughs = "a: &a [1, 1, 1, 1, 1, 1, 1, 1, 1]\n" + "".join(
+        f"{c}: &{c} [{', '.join(['*' + p] * 9)}]\n" for p, c in zip("abcdefgh", "bcdefghi"))
+    (tmp_path / "laughs.yaml").write_text(laughs)
+    for study, words in (("/dev/zero", "not a regular file"), ("fifo.yaml", "not a regular file"),
+                         ("laughs.yaml", "alias")):
+        res = rbx_cli("sweep", study, "-o", "out.nc", cwd=tmp_path)
+        assert res.returncode == 2 and res.stderr.count("\n") == 1 and words in res.stderr, res.stderr
+    (tmp_path / "study.yaml").write_text(yaml.safe_dump(specular_study(trajectories=2, collisions=50)))
+    os.symlink(tmp_path / "nowhere" / "x.nc", tmp_path / "dangling.nc")
+    res = rbx_cli("sweep", "study.yaml", "-o", "dangling.nc", "--force", cwd=tmp_path)
+    assert res.returncode == 2 and "symbolic link" in res.stderr and res.stderr.count("\n") == 1, res.stderr
+    assert os.path.islink(tmp_path / "dangling.nc")
