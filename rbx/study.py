@@ -598,7 +598,12 @@ def sweep(study, output=None, *, scheduler=None, resume=False, force=False, prog
             progress(finished, total)
         written, cost = None, 0.0       # when the file was last written, and how long that took
         for index, point in todo:
-            values, collisions, seconds = run_point(st, point, scheduler=client)
+            try:
+                values, collisions, seconds = run_point(st, point, scheduler=client)
+            except MemoryError:
+                raise ConfigError(st.file, "ensemble.trajectories",
+                                  f"{st.ensemble['trajectories']} trajectories of a point do not fit in this "
+                                  "machine's memory: fewer per point") from None
             _store(ds, index, st, values, collisions, seconds, st.seed(point))
             finished += 1
             if output is not None and finished < total and (

@@ -274,3 +274,12 @@ def test_a_study_file_is_checked_for_what_it_is_and_its_output_replaces_only_reg
     res = rbx_cli("sweep", "study.yaml", "-o", "dangling.nc", "--force", cwd=tmp_path)
     assert res.returncode == 2 and "symbolic link" in res.stderr and res.stderr.count("\n") == 1, res.stderr
     assert os.path.islink(tmp_path / "dangling.nc")
+
+
+def test_an_ensemble_too_large_for_memory_is_one_line(tmp_path):
+    study = specular_study(trajectories=10**12, collisions=100)
+    study["vary"] = {"table.radius": [0.3]}
+    (tmp_path / "study.yaml").write_text(yaml.safe_dump(study))
+    res = rbx_cli("sweep", "study.yaml", "-o", "out.nc", cwd=tmp_path)
+    assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
+    assert "ensemble.trajectories" in res.stderr and "memory" in res.stderr and "Traceback" not in res.stderr
