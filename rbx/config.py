@@ -307,13 +307,16 @@ def parse_yaml(text, file, key=None):
     return data
 
 
-def _read_yaml(path, key=None):
+def read_text(path, key=None):
+    """The text of the YAML file at ``path`` (a config or a study), or :class:`ConfigError`: a device, a FIFO or a
+    huge file is refused before it is read (:func:`rbx.paths.config_file_problem`), and every failure to read is
+    one line naming the file."""
     try:
         problem = config_file_problem(path)     # a device, a FIFO, a huge file: refused before it is read
         if problem:
             raise ConfigError(path, key, problem)
         with open(path, encoding="utf-8") as fh:
-            text = fh.read()
+            return fh.read()
     except FileNotFoundError:
         raise ConfigError(path, key, "file not found") from None
     except IsADirectoryError:
@@ -324,6 +327,10 @@ def _read_yaml(path, key=None):
         raise ConfigError(path, key, "not a text (UTF-8) file") from None
     except OSError as exc:
         raise ConfigError(path, key, f"cannot read the file: {exc.strerror or exc}") from None
+
+
+def _read_yaml(path, key=None):
+    text = read_text(path, key)
     data = parse_yaml(text, path)
     if data is None:
         raise ConfigError(path, None, "the file is empty (expected a YAML mapping)")

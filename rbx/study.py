@@ -37,11 +37,11 @@ from . import __version__, observables as obs
 from .analysis import scene_title, unbounded_axes
 from .api import cluster_for, load, simulate
 from .cluster import connect
-from .config import parse_yaml
+from .config import parse_yaml, read_text
 from .dynamics import lyapunov
 from .histogram import return_experiment
 from .model import ConfigError
-from .paths import check_replaceable, config_file_problem
+from .paths import check_replaceable
 from .runfile import FileError, provenance
 
 __all__ = ["sweep", "load_study", "Study", "point_seed"]
@@ -150,22 +150,7 @@ def load_study(study, base=None):
             folder = os.path.dirname(folder)
     else:
         file = os.path.abspath(os.fspath(study))
-        try:
-            problem = config_file_problem(file)      # a device, a FIFO, a huge file: refused before it is read
-            if problem:
-                raise ConfigError(file, None, problem)
-            with open(file, encoding="utf-8") as fh:
-                text = fh.read()
-        except FileNotFoundError:
-            raise ConfigError(file, None, "file not found") from None
-        except IsADirectoryError:
-            raise ConfigError(file, None, "is a directory, not a study file") from None
-        except PermissionError:
-            raise ConfigError(file, None, "cannot read the file: permission denied") from None
-        except UnicodeDecodeError:
-            raise ConfigError(file, None, "not a text (UTF-8) file") from None
-        except OSError as exc:
-            raise ConfigError(file, None, f"cannot read the file: {exc.strerror or exc}") from None
+        text = read_text(file)
         _duplicates(text, file)                 # names the dotted key given twice (the parser says only the line)
         data = parse_yaml(text, file)
         if not isinstance(data, Mapping):
