@@ -447,6 +447,9 @@ def prepare_resume(run_file, output=None, *, force=False, max_size=None, out_key
     finally:
         if locked:
             release_lock(source)
+    # the output must be a file rbx may replace, before the run: a link or a device was refused only at the final
+    # rename, after the whole run, with exit 0 (the records left in the .partial)
+    check_replaceable(path, out_key if output else None)
     if lock_path(path) != lock_path(source):
         # -o OTHER.h5: OTHER's own lock too, held to the final rename like a new run's, so that two resumes into
         # one OTHER cannot write one OTHER.h5.partial (with --force the second truncated it)

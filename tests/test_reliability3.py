@@ -400,3 +400,25 @@ def test_a_run_file_that_is_a_fifo_or_a_device_is_refused_saying_what_it_is(tmp_
         assert "not a regular file: not an HDF5 file" in one_line(res), res.stderr
     with pytest.raises(rbx.FileError, match="pipe.h5: is a FIFO"):
         rbx.open(tmp_path / "pipe.h5")
+
+
+def test_resuming_into_a_symbolic_link_is_refused_before_any_work(tmp_path):
+    """The run's own file a link to an unfinished run elsewhere: the resume computed the whole run, then refused
+    the link at the final rename and exited 0, the records left in the .partial."""
+    import subprocess
+    import sys
+    from pathlib import Path
+    import h5py
+    import rbx
+    root = Path(__file__).resolve().parents[1]
+    victim = tmp_path / "elsewhere.h5"
+    rbx.simulate(str(root / "configs" / "examples" / "strip.yaml"), collisions=50, output=victim)
+    with h5py.File(victim, "r+") as f:
+        f.attrs["complete"] = False
+    before = victim.read_bytes()
+    (tmp_path / "link.h5").symlink_to(victim)
+    res = subprocess.run([str(Path(sys.executable).with_name("rbx")), "simulate", "--resume", "link.h5"],
+                         cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 2 and res.stderr.count("\n") == 1 and "symbolic link" in res.stderr, res.stderr
+    assert not (tmp_path / "link.h5.partial").exists() and (tmp_path / "link.h5").is_symlink()
+    assert victim.read_bytes() == before
