@@ -283,3 +283,42 @@ def test_an_ensemble_too_large_for_memory_is_one_line(tmp_path):
     res = rbx_cli("sweep", "study.yaml", "-o", "out.nc", cwd=tmp_path)
     assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
     assert "ensemble.trajectories" in res.stderr and "memory" in res.stderr and "Traceback" not in res.stderr
+
+
+@pytest.mark.parametrize("vary, key, words", [
+    # one range of 10¹² values: np.linspace asked for 8 TB before anything was checked
+    ("{ball.inertia: {from: 0.1, to: 1, num: 1000000000000}}", "vary.ball.inertia.num", "1000000000000 values"),
+    # 1000 × 1000 points, every one refused: the grid was built (10⁶ points) before its first point was checked
+    ("{ball.inertia: {from: 0.1, to: 1, num: 1000}, table.radius: {from: 0.8, to: 0.9, num: 1000}}", "vary",
+     "1000 × 1000 = 1000000 points"),
+])
+def test_a_huge_grid_is_refused_before_it_is_built(vary, key, words, tmp_path):
+    from rbx.study import MAX_POINTS
+    (tmp_path / "big.yaml").write_text(f"{BASE}vary: {vary}\nmeasure: [mean_free_path]\n{ENSEMBLE}")
+    res = rbx_cli("sweep", "big.yaml", "-o", "out.nc", cwd=tmp_path)
+    assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
+    assert res.stderr.startswith(f"rbx: big.yaml: {key}: ") and words in res.stderr, res.stderr
+    assert f"at most {MAX_POINTS}" in res.stderr
+    with pytest.raises(rbx.ConfigError) as err:         # the API's error, the same words
+        sweep(tmp_path / "big.yaml")
+    assert err.value.key == key and words in str(err.value)
+    # zip: true varies the keys together: 1000 points, under the bound (then the radius is refused, point 1)
+    (tmp_path / "zip.yaml").write_text(f"{BASE}vary: {vary}\nzip: true\nmeasure: [mean_free_path]\n{ENSEMBLE}")
+    if key == "vary":
+        with pytest.raises(rbx.ConfigError, match="overlaps") as err:
+            load_study(tmp_path / "zip.yaml")
+        assert err.value.key == "vary.table.radius"
+
+
+def test_a_base_that_is_not_a_regular_file_is_named_as_such(tmp_path):
+    # base: /dev/zero was "no such config"; a device, a FIFO, a directory are said as rbx simulate says them
+    os.mkfifo(tmp_path / "fifo.yaml")
+    (tmp_path / "folder").mkdir()
+    for base, words in (("/dev/zero", "/dev/zero is a character device, not a regular file"),
+                        ("fifo.yaml", "fifo.yaml is a FIFO (named pipe), not a regular file"),
+                        ("folder", "folder is a directory"), ("nowhere.yaml", "no such config: nowhere.yaml")):
+        (tmp_path / "s.yaml").write_text(f"base: {base}\nvary: {{ball.inertia: [0.1]}}\nmeasure: [lyapunov]\n"
+                                         f"{ENSEMBLE}")
+        res = rbx_cli("sweep", "s.yaml", "-o", "out.nc", cwd=tmp_path)
+        assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
+        assert res.stderr.startswith("rbx: s.yaml: base: ") and words in res.stderr, res.stderr
