@@ -4,8 +4,9 @@ the return-angle experiment), what the table must have (an exit wall, an unbound
 companion numbers, and the function from a point's runs to a value and a standard error. The sweep, the results
 file and ``rbx plot --kind sweep`` read these records and name no observable.
 
-How to add an observable: one ``register(Observable(...))`` call below (and a test against a closed form or an
-independent estimate in tests/test_sweep.py).
+How to add an observable: one ``register(Observable(...))`` call below, with its words and symbol for the axes
+(``label``, ``symbol``; :func:`variable_label`), and a test against a closed form or an independent estimate in
+tests/test_sweep.py.
 
 Errors are standard errors (1σ) unless the record says otherwise: a share's is the half-width of its Wilson
 interval at z = 1 (its bounds are the companions ``<name>_low``/``<name>_high``); a p-value has none (NaN).
@@ -19,7 +20,8 @@ from .analysis import santalo_constant, table_measure, unbounded_axes, velocity_
 from .dynamics import REGULAR_THRESHOLD, escape_times, exponential_rate
 from .model import Exit, rule_leaves
 
-__all__ = ["Observable", "REGISTRY", "register", "get", "PointRuns", "Value"]
+__all__ = ["Observable", "REGISTRY", "register", "get", "PointRuns", "Value", "PARAMETERS", "axis_label",
+           "variable_label", "parameter_label"]
 
 
 @dataclass(frozen=True)
@@ -29,6 +31,8 @@ class Companion:
     unit: str
     description: str
     dim: str | None = None          # an extra dimension (its coordinate from ``Observable.coords``)
+    label: str = ""                 # what it is in a few words, for an axis ("Kac's mean return path")
+    symbol: str = ""                # its symbol ("4A/ℓ")
 
 
 @dataclass
@@ -71,6 +75,8 @@ class Observable:
     coords: object = None           # experiment -> coordinate values of ``dim`` (and of companions' dims)
     problem: object = None
     error: str = "standard error"
+    label: str = ""                 # what it is in a few words, for an axis ("Lyapunov exponent"); default: the name
+    symbol: str = ""                # its symbol ("λ₁"), beside the words on an axis
 
     @property
     def simulate(self):
@@ -87,6 +93,56 @@ def register(observable):
 
 def get(name):
     return REGISTRY[name]
+
+
+# ---- how numbers are named on a figure --------------------------------------------------------------------------
+
+#: the config keys a study varies most, as a physicist writes them: key -> (words, symbol, unit). R is the ball's
+#: radius everywhere in rbx (docs/reference.md §1), so a table's radius is r. A key not listed is shown as itself.
+PARAMETERS = {
+    "ball.inertia": ("moment of inertia", "κ", "1"),
+    "ball.radius": ("ball radius", "R", "L"),
+    "table.radius": ("table radius", "r", "L"),
+    "table.width": ("table width", "w", "L"),
+    "table.height": ("table height", "h", "L"),
+    "table.length": ("table length", "a", "L"),
+    "table.cap_radius": ("cap radius", "r", "L"),
+    "table.stem_width": ("stem width", "w", "L"),
+    "table.stem_height": ("stem height", "h", "L"),
+    "run.collisions": ("collisions per trajectory", "N", "collision"),
+    "run.trajectories": ("trajectories", "M", "1"),
+}
+
+
+def axis_label(words, symbol, unit):
+    """An axis label as a physicist writes it: 'Lyapunov exponent λ₁ [1/T]'; no unit for a pure number."""
+    text = " ".join(t for t in (words, symbol) if t)
+    return f"{text} [{unit}]" if unit and unit != "1" else text
+
+
+def parameter_label(key, unit=None):
+    """The axis label of a varied config key ('moment of inertia κ'), or the key itself with ``unit`` when the key
+    is not in :data:`PARAMETERS` -> (label, symbol: 'κ' or the key)."""
+    if key in PARAMETERS:
+        words, symbol, known = PARAMETERS[key]
+        return axis_label(words, symbol, known), symbol
+    return axis_label(key, "", unit), key
+
+
+def variable_label(name, unit=None, units=True):
+    """The axis label of a results file's variable: an observable ('Lyapunov exponent λ₁ [1/T]') or one of its
+    companions ('<name>_<suffix>'), else the name itself with ``unit`` -> (label, short: the symbol 'λ₁', else the
+    words, else the name); ``units=False``: the label without its unit (a legend entry)."""
+    if name in REGISTRY:
+        rec = REGISTRY[name]
+        words = rec.label or name.replace("_", " ")
+        return axis_label(words, rec.symbol, rec.unit if units else None), rec.symbol or words
+    for rec in REGISTRY.values():
+        for c in rec.companions:
+            if name == f"{rec.name}_{c.suffix}":
+                words = c.label or c.description.split(":")[0]
+                return axis_label(words, c.symbol, c.unit if units else None), c.symbol or words
+    return axis_label(name, "", unit if units else None), name
 
 
 # ---- statistics ------------------------------------------------------------------------------------------------
@@ -159,12 +215,16 @@ def _exponent_coords(experiment):
 register(Observable(
     "lyapunov", "1/T", "largest Lyapunov exponent λ₁ of the flow per unit time (rbx.lyapunov: Benettin's method, "
     "the error from segments and trajectories)", _lyapunov, tangent=True,
-    options={"spectrum": False, "segments": 10, "warmup": None},
-    companions=(Companion("per_collision", "1/collision", "λ₁ per collision (λ₁ · mean time between collisions)"),
-                Companion("per_collision_stderr", "1/collision", "standard error of λ₁ per collision"),
+    options={"spectrum": False, "segments": 10, "warmup": None}, label="Lyapunov exponent", symbol="λ₁",
+    companions=(Companion("per_collision", "1/collision", "λ₁ per collision (λ₁ · mean time between collisions)",
+                          label="Lyapunov exponent per collision", symbol="λ₁⟨τ⟩"),
+                Companion("per_collision_stderr", "1/collision", "standard error of λ₁ per collision",
+                          label="standard error of", symbol="λ₁⟨τ⟩"),
                 Companion("spectrum", "1/T", "the Lyapunov spectrum per unit time, largest first "
-                                             "(with spectrum: true)", dim="exponent"),
-                Companion("spectrum_stderr", "1/T", "standard errors of the spectrum", dim="exponent")),
+                                             "(with spectrum: true)", dim="exponent",
+                          label="Lyapunov exponents", symbol="λᵢ"),
+                Companion("spectrum_stderr", "1/T", "standard errors of the spectrum", dim="exponent",
+                          label="standard error of", symbol="λᵢ")),
     coords=lambda exp: {"exponent": _exponent_coords(exp)}))
 
 
@@ -177,6 +237,7 @@ def _regular_share(runs, options):
 register(Observable(
     "regular_share", "1", "share of trajectories whose own λ₁ is below the threshold (per unit time): regular "
     "(trapped) orbits", _regular_share, tangent=True, options={"threshold": REGULAR_THRESHOLD},
+    label="share of regular orbits (λ₁ below the threshold)",
     companions=(Companion("low", "1", "Wilson interval, lower bound (z = 1)"),
                 Companion("high", "1", "Wilson interval, upper bound (z = 1)")),
     error="half-width of the Wilson interval (z = 1)"))
@@ -205,7 +266,8 @@ def _bounded(exp, options):
 register(Observable(
     "diffusion", "L²/T", "diffusion coefficient per unit time, ⟨|Δx|²⟩ = 2k·D·t over the k unbounded axes, from "
     "the displacements over segments of each trajectory (run.collisions/segments collisions each)", _diffusion,
-    fields=("time", "position"), unbounded=True, options={"segments": 20}, problem=_bounded))
+    fields=("time", "position"), unbounded=True, options={"segments": 20}, problem=_bounded,
+    label="diffusion coefficient", symbol="D"))
 
 
 def _escape_rate(runs, options):
@@ -221,7 +283,7 @@ def _escape_rate(runs, options):
 register(Observable(
     "escape_rate", "1/L", "exponential escape rate through the exit walls per unit path in (x, R√κ·θ), fitted on "
     "paths beyond the fit_from quantile of the exits (censored trajectories count as exposure)", _escape_rate,
-    final=True, exit=True, options={"fit_from": 0.1}))
+    final=True, exit=True, options={"fit_from": 0.1}, label="escape rate", symbol="γ"))
 
 
 def _trapped_share(runs, options):
@@ -231,7 +293,7 @@ def _trapped_share(runs, options):
 
 register(Observable(
     "trapped_share", "1", "share of trajectories that never reach an exit wall within the run", _trapped_share,
-    final=True, exit=True,
+    final=True, exit=True, label="share never reaching the exit",
     companions=(Companion("low", "1", "Wilson interval, lower bound (z = 1)"),
                 Companion("high", "1", "Wilson interval, upper bound (z = 1)")),
     error="half-width of the Wilson interval (z = 1)"))
@@ -267,11 +329,15 @@ def _on_exit_wall(exp, options):
 register(Observable(
     "return_path", "L", "mean path in (x, R√κ·θ) of the trajectories started with the billiard measure on the exit "
     "wall until they return to it (those that do within the run)", _return_path, final=True, exit=True,
-    problem=_on_exit_wall,
-    companions=(Companion("kac", "L", "Kac/Santaló: C_d·|table|/|hole| (4A/ℓ for a disc)"),
-                Companion("ratio", "1", "mean return path / Kac's value"),
-                Companion("ratio_stderr", "1", "standard error of the ratio"),
-                Companion("unreturned", "1", "share of trajectories that did not return within the run"))))
+    problem=_on_exit_wall, label="mean return path", symbol="⟨ℓ⟩",
+    companions=(Companion("kac", "L", "Kac/Santaló: C_d·|table|/|hole| (4A/ℓ for a disc)",
+                          label="Kac's mean return path"),
+                Companion("ratio", "1", "mean return path / Kac's value",
+                          label="mean return path / Kac's"),
+                Companion("ratio_stderr", "1", "standard error of the ratio",
+                          label="standard error of the mean return path / Kac's"),
+                Companion("unreturned", "1", "share of trajectories that did not return within the run",
+                          label="share not returned within the run"))))
 
 
 def _mean_free_path(runs, options):
@@ -291,9 +357,10 @@ def _mean_free_path(runs, options):
 
 register(Observable(
     "mean_free_path", "L", "the centre's mean distance between consecutive collisions", _mean_free_path,
-    fields=("position",), every_collision=True, options={"segments": 10},
+    fields=("position",), every_collision=True, options={"segments": 10}, label="mean free path", symbol="⟨ℓ⟩",
     companions=(Companion("santalo", "L", "Santaló's mean free path of a point in the shrunk table: "
-                                          "πA/P in 2D (4V/S in 3D)"),)))
+                                          "πA/P in 2D (4V/S in 3D)",
+                          label="Santaló's mean free path", symbol="πA/P"),)))
 
 
 def _wall_share(runs, options):
@@ -313,7 +380,7 @@ def _wall_share(runs, options):
 
 register(Observable(
     "wall_share", "1", "share of the collisions made on each wall", _wall_share, fields=("wall",),
-    every_collision=True, options={"segments": 10}, dim="wall",
+    every_collision=True, options={"segments": 10}, dim="wall", label="share of the collisions on the wall",
     coords=lambda exp: {"wall": np.array(exp.wall_names, dtype=object)}))
 
 
@@ -336,8 +403,10 @@ def _on_a_wall(exp, options):
 register(Observable(
     "return_angle_ks", "1", "Kolmogorov–Smirnov p-value of the return angles to the sampled wall against the "
     "billiard measure's law sin^(d−1) φ (rbx histogram)", _return_angle_ks, returns=True, problem=_on_a_wall,
-    companions=(Companion("statistic", "1", "the KS statistic"),
-                Companion("returned", "1", "share of the samples that returned within the run")),
+    label="KS p-value of the return angles", symbol="p",
+    companions=(Companion("statistic", "1", "the KS statistic", label="KS statistic of the return angles"),
+                Companion("returned", "1", "share of the samples that returned within the run",
+                          label="share returned within the run")),
     error="none (a p-value)"))
 
 
@@ -361,4 +430,6 @@ def _energy_drift(runs, options):
 
 register(Observable(
     "energy_drift", "1", "health check: mean relative change of the kinetic energy over the run", _energy_drift,
-    fields=("velocity", "angular_velocity"), companions=(Companion("max", "1", "largest relative change"),)))
+    fields=("velocity", "angular_velocity"), label="energy drift", symbol="|ΔE|/E",
+    companions=(Companion("max", "1", "largest relative change", label="largest energy drift",
+                          symbol="max |ΔE|/E"),)))

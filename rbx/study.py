@@ -485,9 +485,9 @@ def _empty(study, exp0):
 
 
 def _key_unit(key):
-    units = {"ball.inertia": "1", "ball.radius": "L", "table.radius": "L", "table.width": "L",
-             "table.height": "L", "table.length": "L", "run.collisions": "collision"}
-    return units.get(key, "L" if key.startswith("table.") else "1")
+    if key in obs.PARAMETERS:
+        return obs.PARAMETERS[key][2]
+    return "L" if key.startswith("table.") else "1"
 
 
 _PUNCT = "(),;:"

@@ -322,3 +322,37 @@ def test_a_base_that_is_not_a_regular_file_is_named_as_such(tmp_path):
         res = rbx_cli("sweep", "s.yaml", "-o", "out.nc", cwd=tmp_path)
         assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
         assert res.stderr.startswith("rbx: s.yaml: base: ") and words in res.stderr, res.stderr
+
+
+def test_the_sweep_plot_names_its_axes_as_a_physicist_would(specular, tmp_path):
+    # the axes said "table.radius [L]" and "lyapunov [1/T]": config keys and registry names, not symbols
+    from rbx import observables
+    from rbx.cli.sweep import open_results, sweep_panel
+    from rbx.plotting import sweep_figure
+    _, path = specular
+    ds = open_results(str(path))
+    panel, title = sweep_panel(ds, "lyapunov")
+    fig = sweep_figure([panel], title)
+    ax = fig.axes[0]
+    assert ax.get_xlabel() == "table radius r [L]" and ax.get_ylabel() == "Lyapunov exponent λ₁ [1/T]"
+    assert "λ₁ against r · 4 trajectories" in title
+    panel, _ = sweep_panel(ds, "mean_free_path")
+    assert panel["ylabel"] == "mean free path ⟨ℓ⟩ [L]"
+    assert [r["label"] for r in panel["references"]] == ["Santaló's mean free path πA/P"]
+    assert sweep_panel(ds, "energy_drift")[0]["ylabel"] == "energy drift |ΔE|/E"        # a pure number: no unit
+    assert sweep_panel(ds, "lyapunov_per_collision")[0]["ylabel"] == \
+        "Lyapunov exponent per collision λ₁⟨τ⟩ [1/collision]"
+    # one line per value of a second key, named by its symbol; a key without a symbol is shown as itself
+    two = sweep({"base": SINAI, "vary": {"ball.inertia": [0.2, 0.6], "boundary.default.rank": [0, 1]},
+                 "measure": ["mean_free_path"], "ensemble": {"trajectories": 1, "collisions": 50}})
+    panel, title = sweep_panel(two, x="boundary.default.rank")
+    assert panel["xlabel"] == "boundary.default.rank"
+    assert [s["label"] for s in panel["series"]] == ["κ = 0.2", "κ = 0.6"]
+    assert "⟨ℓ⟩ against boundary.default.rank" in title
+    # every observable of the registry, and each companion, is named in words (never by its registry name)
+    for name, rec in observables.REGISTRY.items():
+        assert observables.variable_label(name)[0].split(" [")[0] != name
+        for c in rec.companions:
+            assert observables.variable_label(f"{name}_{c.suffix}")[0] != f"{name}_{c.suffix}"
+    res = rbx_cli("plot", path, "--kind", "sweep", "-o", "l.png", cwd=tmp_path)      # the CLI draws the same
+    assert res.returncode == 0 and (tmp_path / "l.png").stat().st_size > 10_000, res.stderr

@@ -103,6 +103,8 @@ def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=Non
     import json
 
     import numpy as np
+
+    from ..observables import parameter_label, variable_label
     varied = json.loads(ds.attrs["varied"])
     measured = json.loads(ds.attrs["measure"])
     y = y or measured[0]
@@ -120,6 +122,12 @@ def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=Non
                                      "value of one other is drawn; select with a study of fewer keys")
     unit = var.attrs.get("units", "")
     xunit = ds[x].attrs.get("units", "")
+    ylabel, ysym = variable_label(y, unit)             # symbols and units from the registry: 'λ₁ [1/T]'
+    xlabel, xsym = parameter_label(x, xunit)            # a known config key as a symbol: 'κ'
+    if other and other[0] in varied:
+        osym = parameter_label(other[0])[1]
+    else:
+        osym = other[0] if other else None
     xs = ds[x].values
     done = ds["done"]
     series, references = [], []
@@ -139,7 +147,7 @@ def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=Non
         err = error(sel)
         if err is not None:
             err = err[..., keep]
-        name = f"{other[0]} = {_fmt(ds[other[0]].values[sel[other[0]]])}" if other else (label or y)
+        name = f"{osym} = {_fmt(ds[other[0]].values[sel[other[0]]])}" if other else (label or ysym)
         series.append({"x": xs[keep], "y": pick(var, sel)[keep], "err": err, "label": name})
         for comp in ds.data_vars:
             c = ds[comp]
@@ -147,13 +155,13 @@ def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=Non
                     and not comp.endswith("_stderr") and c.attrs.get("units") == unit
                     and set(c.dims) <= set(var.dims)):
                 references.append({"x": xs[keep], "y": pick(c, sel)[keep],
-                                   "label": c.attrs.get("description", comp).split(":")[0] if k == 0 else None,
+                                   "label": variable_label(comp, units=False)[0] if k == 0 else None,
                                    "color": "0.3" if len(lines) == 1 else f"C{k}"})
     M, N = ds.attrs["ensemble_trajectories"], ds.attrs["ensemble_collisions"]
     seconds = float(np.nansum(ds["wall_time"].values))
-    panel = {"series": series, "references": references, "xlabel": f"{x} [{xunit}]",
-             "ylabel": f"{y} [{unit}]", "logx": logx, "logy": logy}
-    title = (f"{ds.attrs.get('title', '')}\n{y} against {x} · {plural(int(M), 'trajectory')} × "
+    panel = {"series": series, "references": references, "xlabel": xlabel, "ylabel": ylabel, "logx": logx,
+             "logy": logy}
+    title = (f"{ds.attrs.get('title', '')}\n{ysym} against {xsym} · {plural(int(M), 'trajectory')} × "
              f"{plural(int(N), 'collision')} per point · "
              f"{int(done.values.sum())} of {done.size} points · run time {duration(seconds)}")
     return panel, title
