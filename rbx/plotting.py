@@ -420,6 +420,18 @@ def orbit3d_figure(paths, geom, title, labels=None, points_only=False, stride=1)
 # ---- phase portraits -------------------------------------------------------------------------------------------
 
 
+#: the ink of a scatter panel: its markers' areas add up to about this many pt² (a quarter of a 4 × 4 inch panel), so
+#: that 80 000 points (the box example's phase portrait) leave its structure visible; 2 pt² each covered the panel
+#: twice over, one blot
+SCATTER_INK = 20000.0
+
+
+def marker_area(n):
+    """The marker area [pt²] of a scatter panel of ``n`` points: a few points stand out (36 pt² at most), many are
+    small enough to add up to :data:`SCATTER_INK` (0.25 pt² at least: a pixel at 150 dpi)."""
+    return float(np.clip(SCATTER_INK / max(n, 1), 0.25, 36.0))
+
+
 @styled
 def phase_figure(panels, colour, title, colour_label, categorical=True, labels=None):
     """Scatter panels sharing one colouring. ``panels``: list of dicts with ``x``, ``y``, ``xlabel``, ``ylabel``
@@ -436,12 +448,14 @@ def phase_figure(panels, colour, title, colour_label, categorical=True, labels=N
     else:
         norm = Normalize(float(np.min(colour)) if len(colour) else 0.0, float(np.max(colour)) if len(colour) else 1.0)
         rgba = colormaps["viridis"](norm(colour))
-    ms = float(np.clip(30000.0 / max(len(colour), 1), 2.0, 36.0))  # marker area [pt²]: a few points stand out
     axes = []
     for spec in panels:
         ax = fig.add_subplot(1, len(panels), len(axes) + 1)
         sel = spec.get("select")
-        ax.scatter(spec["x"], spec["y"], c=rgba if sel is None else rgba[sel], s=ms, lw=0, rasterized=True)
+        x, y, c = np.asarray(spec["x"]), np.asarray(spec["y"]), rgba if sel is None else rgba[sel]
+        # drawn in a shuffled order, so that no trajectory (the last one) covers the others
+        order = np.random.default_rng(0).permutation(len(x))
+        ax.scatter(x[order], y[order], c=c[order], s=marker_area(len(x)), lw=0, rasterized=True)
         for v in spec.get("vlines", ()):
             ax.axvline(v, color="0.6", lw=0.6, ls=":")
         for slope, label in spec.get("lines", ()):
@@ -450,9 +464,9 @@ def phase_figure(panels, colour, title, colour_label, categorical=True, labels=N
         axes.append(ax)
     if categorical and labels and len(keys) <= MAX_LEGEND:
         for i, k in enumerate(keys):
-            axes[-1].plot([], [], "o", color=_colour(i), ms=min(4.0, np.sqrt(ms)), label=labels[i])
+            axes[-1].plot([], [], "o", color=_colour(i), ms=3.0, label=labels[i])
     elif categorical and len(keys) > 1:       # too many to list: say what the colours are
-        axes[-1].plot([], [], "o", color=_colour(0), ms=min(4.0, np.sqrt(ms)),
+        axes[-1].plot([], [], "o", color=_colour(0), ms=3.0,
                       label=f"colour: trajectory\n({len(keys)}, not listed)")
     if any(spec.get("lines") for spec in panels) or (categorical and len(keys) > 1):
         legend_outside(axes[-1], markerscale=1.0)

@@ -652,3 +652,28 @@ def test_trajectory_colours_are_not_grey_and_are_explained_when_not_listed():
              for t in lg.get_texts()]
     assert any("colour: trajectory" in t and "16" in t for t in texts), texts
     assert readable(fig) == []
+
+
+def test_the_box_phase_portrait_says_what_each_panel_shows_and_leaves_its_structure_visible(tmp_path):
+    """The box example's phase portrait (8 × 10 000 collisions) had two panels titled alike and markers of 2 pt²
+    each, drawn trajectory after trajectory: the markers covered the panels twice over and the last trajectory
+    hid the others."""
+    config = os.path.join(os.path.dirname(__file__), "..", "configs", "examples", "box.yaml")
+    h5 = tmp_path / "box.h5"
+    result = CliRunner().invoke(cli, ["simulate", config, "-o", str(h5), "--quiet"])
+    assert result.exit_code == 0, result.output
+    fig = make_figure(str(h5), "phase")
+    axes = [ax for ax in fig.axes if ax.get_label() != "<colorbar>"]
+    titles = [ax.get_title() for ax in axes]
+    assert len(axes) == 2 and len(set(titles)) == 2, titles
+    assert "e₁" in titles[0].split("\n")[0] and "e₂" in titles[1].split("\n")[0]
+    fig.canvas.draw()
+    for ax in axes:
+        (dots,) = [c for c in ax.collections if len(c.get_offsets()) > 1000]
+        n = len(dots.get_offsets())
+        box = ax.get_window_extent()
+        area = box.width * box.height * (72.0 / fig.dpi) ** 2          # pt²
+        assert n >= 70_000 and n * float(dots.get_sizes()[0]) < 0.5 * area   # ink under half the panel
+        last = np.unique(dots.get_facecolors()[-2000:], axis=0)          # the points drawn last, on top
+        assert len(last) == 8                                            # come from every trajectory
+    assert readable(fig) == []

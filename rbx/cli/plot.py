@@ -298,10 +298,11 @@ def _phase(run, rec, traj, colour="trajectory", **_):
                                    select=on, xlabel=f"position along wall '{name}' [L]",
                                    ylabel="sin ψ = v·e/|v|, e along the wall [–]", ylim=(-1.05, 1.05),
                                    title=f"boundary map on wall '{name}'"))
-    for x, y, xn, yn in analysis.spin_planes(wall, nu, vel, spin, run.radius, run.kappa, tangents):
+    planes = analysis.spin_planes(wall, nu, vel, spin, run.radius, run.kappa, tangents)
+    for k, (x, y, xn, yn) in enumerate(planes):
         lim = 1.15 * float(np.max(np.abs(np.concatenate([x, y])))) or 1.0
         panel = dict(x=x, y=y, xlabel=f"{xn} [L/T]", ylabel=f"{yn} [L/T]", equal=True, xlim=(-lim, lim),
-                     ylim=(-lim, lim), title="tangential velocity against spin at collisions")
+                     ylim=(-lim, lim), title=SPIN_PLANE_TITLES[len(planes)][k])
         if run.dimension == 2:
             panel["lines"] = [(-np.sqrt(run.kappa), "no slip: v·t + Rω = 0")]
         else:
@@ -312,6 +313,14 @@ def _phase(run, rec, traj, colour="trajectory", **_):
                                  _title(run, "phase portrait at collisions", traj, rec),
                                  colour_label="collision step", categorical=categorical,
                                  labels=[f"trajectory {j}" for j in traj])
+
+
+#: what each spin panel of the phase portrait shows (2D: one plane; 3D: one per tangent axis of the wall, whose
+#: panels were both titled "tangential velocity against spin at collisions")
+SPIN_PLANE_TITLES = {
+    1: ("tangential velocity against spin at collisions",),
+    2: ("velocity along e₁ against spin about e₂\n(e₁: the wall's first tangent axis)",
+        "velocity along e₂ against spin about e₁\n(e₂ = ν × e₁, ν the wall's normal)")}
 
 
 def _normals_3d(geom, wall, pos):
