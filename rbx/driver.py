@@ -20,48 +20,48 @@ import shutil
 import weakref
 
 import h5py
-import numpy as np
 import yaml
 
 from . import continuation, journal
 from .config import loads
 from .locks import LockNotWritable, acquire_lock, lock_holder, lock_path, release_lock, taken_fresh
 from .locks import busy as _busy
-from .model import FIELD
 from .progress import plural
 from .paths import (NO_ROOM, DiskFull, FileError, check_replaceable, creation_path, display_path, format_size,
                     temporary_path)
-from .runfile import (H5Sink, Run, _text, close_journal, commit, config_yaml, file_path, fill_returns, journal_of,
-                      open_journaled)
+from .runfile import (H5Sink, Run, _text, close_journal, commit, config_yaml, data_bytes, file_path, fill_returns,
+                      journal_of, open_journaled)
 
 # ---- the .partial lifecycle --------------------------------------------------------------------------------------
 
+#: HDF5's metadata, the root attributes (the config's text) and the dimension scales, generously
+METADATA_BYTES = 512 << 10
+
+
 def estimated_size(cfg):
-    """Bytes a run of ``cfg`` writes, about: every recorded field of every record of every trajectory (a trajectory
-    may end early, so this is the most), the final state, and chunk rounding across trajectories -> int."""
-    M, n = cfg.run.trajectories, cfg.dimension
-    records = cfg.run.collisions // cfg.output.every + 1
-    per_record = sum(FIELD[f].size(n) * np.dtype(FIELD[f].dtype).itemsize for f in cfg.output.record)
-    state = M * (4 * n + n * n + 9 + 8) * 8                 # final/: the state and its counters, generously
-    steps = records * 8 if cfg.output.record else 0          # collisions/step
-    return int(M * records * per_record * 1.05 + steps + state + (1 << 20))
+    """Bytes a run of ``cfg`` writes, about: every chunk of every recorded field (a trajectory may end early, so
+    this is the most; chunks are allocated whole, :func:`rbx.runfile.data_bytes`), the two saved states, and
+    HDF5's metadata -> int."""
+    return data_bytes(cfg) + METADATA_BYTES
 
 
-def check_size(cfg, path, key_file=None, written=0):
+def check_size(cfg, path, key_file=None, written=0, option="max_size="):
     """Refuse a run whose file would be larger than ``output.max_size`` or than the free space where it goes:
     raises :class:`FileError` before anything is written. ``key_file``: (file, key) the limit is named by;
-    ``written``: bytes of the file already on that disk (a run resumed in place: only the rest must fit)."""
+    ``written``: bytes of the file already on that disk (a run resumed in place: only the rest must fit);
+    ``option``: how the caller raises the limit (``max_size=`` in Python, ``--max-size`` on the command line)."""
     need = estimated_size(cfg)
     # compression: the size before it (what it saves depends on the numbers, unknown before the run)
     raw = "" if cfg.output.compression == "none" else " before compression"
     if need > cfg.output.max_size:
         file, key = key_file or (cfg.source, "output.max_size")
+        how = f"give a larger {option}" if key in ("--max-size", "max_size") else \
+            f"raise output.max_size or give {option}"
         raise FileError(file, key, f"the run would write about {format_size(need)}{raw} "
                                    f"({plural(cfg.run.trajectories, 'trajectory')} × "
                                    f"{plural(cfg.run.collisions // cfg.output.every + 1, 'record')} of "
                                    f"{', '.join(cfg.output.record)}), more than the limit "
-                                   f"{format_size(cfg.output.max_size)}; raise output.max_size or --max-size if that "
-                                   "is meant")
+                                   f"{format_size(cfg.output.max_size)}; {how} if that is meant")
     folder = os.path.dirname(os.path.abspath(path)) or "."
     while not os.path.isdir(folder) and os.path.dirname(folder) != folder:
         folder = os.path.dirname(folder)                   # the folder is made later: ask its nearest parent
@@ -468,7 +468,8 @@ def prepare_resume(run_file, output=None, *, force=False, max_size=None, out_key
     else:
         key_file = (source, "config: output.max_size")
     written = os.path.getsize(source) if in_place else 0
-    check_size(cfg, path, key_file, written=written)
+    check_size(cfg, path, key_file, written=written,
+               option=size_key if size_key.startswith("--") else f"{size_key}=")
     notes = [note] if note else []
     for field, chunks in sim.torn_chunks.items():
         notes.append(f"collisions/{field}: {len(chunks)} chunk(s) of the last saved records failed their checksum "

@@ -9,9 +9,10 @@ through (:func:`rbx.runfile.open_journaled`). It splits the file at ``committed`
   commits: a write there goes to an overlay of pages in memory, and reads see the overlay;
 - bytes *at or above* it are written to the file at once: no committed structure points there yet.
 
-:meth:`JournaledFile.commit` (at each checkpoint, after HDF5's flush) writes the overlay to ``FILE.journal.tmp``
-with a CRC-32, renames it to ``FILE.journal`` (the commit point: a rename is atomic), copies the pages into the
-file, and removes the journal. A kill at any instant leaves one of two files: the last commit (no journal, or a
+:meth:`JournaledFile.commit` (at each checkpoint, after HDF5's flush) writes the overlay's pages that differ from
+the file (HDF5 rewrites a chunk whole for a few records) to ``FILE.journal.tmp`` with a CRC-32, renames it to
+``FILE.journal`` (the commit point: a rename is atomic), copies the pages into the file, and removes the
+journal. A kill at any instant leaves one of two files: the last commit (no journal, or a
 ``.journal.tmp`` that changes nothing and that the next writer removes), or the new one (a whole ``.journal``
 that :func:`recover` copies in again before the file is next opened: copying it twice writes the same bytes).
 The journal names its file by inode; rbx removes journals left without their file before it makes a new one.
@@ -254,11 +255,11 @@ class JournaledFile:
         file stays at its last commit."""
         if self.failure is not None:
             raise self.failure
-        if not self.overlay:      # nothing below ``committed`` changed: what HDF5 wrote past it is the commit
+        pages = _changed(self.fd, self.overlay) if self.overlay else []
+        if not pages:      # nothing below ``committed`` changed: what HDF5 wrote past it is the commit
             self._commit_at(self.size)
             return 0
         st = os.fstat(self.fd)
-        pages = sorted(self.overlay)
         parts = [MAGIC + HEADER.pack(st.st_ino, st.st_dev, self.size, len(pages)) +
                  struct.pack(f"<{len(pages)}Q", *pages)] + [self.overlay[k] for k in pages]
         crc = 0
@@ -356,6 +357,26 @@ def _write_all(fd, parts, offset):
             views.pop(0)
         if done:
             views[0] = views[0][done:]
+
+
+def _changed(fd, overlay):
+    """The pages of ``overlay`` whose bytes differ from the file's, sorted -> list of page numbers. HDF5 rewrites a
+    partly filled chunk whole (its checksum covers it all), so most pages of a chunk a block adds a few records
+    to are written unchanged: only the changed ones are journalled (the room a checkpoint's journal takes then
+    follows the records written, not the chunks touched: rbx.runfile.H5Sink asks for that much)."""
+    pages = sorted(overlay)
+    changed = []
+    i = 0
+    while i < len(pages):
+        j = i + 1
+        while j < len(pages) and pages[j] == pages[j - 1] + 1 and j - i < 256:
+            j += 1
+        on_disk = os.pread(fd, (j - i) * PAGE, pages[i] * PAGE)
+        for n, k in enumerate(pages[i:j]):
+            if on_disk[n * PAGE:(n + 1) * PAGE] != overlay[k]:
+                changed.append(k)
+        i = j
+    return changed
 
 
 def _apply(fd, pages, overlay):

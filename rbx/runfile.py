@@ -207,6 +207,41 @@ def compression_options(compression):
     return {"compression": name, "shuffle": True}
 
 
+def chunk_shape(M, records, per):
+    """The chunks of a record dataset of ``M`` trajectories × ``records`` records of ``per`` bytes each ->
+    (trajectories, records) per chunk: ~:data:`CHUNK_BYTES`, never longer along the records than the run, so a
+    short run's chunks span more trajectories instead (64 × 256 records allocated per trajectory made 20 000
+    trajectories × 3 collisions a 577 MB file for 5.3 MB of records)."""
+    rchunk = min(records, max(1, CHUNK_BYTES // (min(M, 64) * per)))
+    tchunk = min(M, max(1, CHUNK_BYTES // (rchunk * per)))
+    return tchunk, rchunk
+
+
+#: the chunk length of ``collisions/step`` (and of the ``record`` scale)
+STEP_CHUNK = 4096
+
+
+def data_bytes(cfg):
+    """Bytes the chunks of a run's file take once it is complete (every chunk allocated whole, with its checksum),
+    its ``count`` and its two saved states: the file but for HDF5's metadata and the attributes -> int."""
+    M, n = cfg.run.trajectories, cfg.dimension
+    records = cfg.run.collisions // cfg.output.every + 1
+    total = 0
+    for name in cfg.output.record:
+        f = FIELD[name]
+        per = f.size(n) * np.dtype(f.dtype).itemsize
+        tc, rc = chunk_shape(M, records, per)
+        total += -(-M // tc) * -(-records // rc) * (tc * rc * per + 4)
+    if cfg.output.record:
+        total += -(-records // STEP_CHUNK) * (STEP_CHUNK * 8 + 4)       # collisions/step
+    return total + M * 8 * 2 + 2 * state_bytes(M, n)                      # count, the trajectory scale
+
+
+def state_bytes(M, n):
+    """Bytes of one saved state of ``M`` trajectories in dimension ``n`` (``final/``), generously."""
+    return M * (4 * n + n * n + 9 + 8) * 8
+
+
 class H5Sink:
     """Streams the records of a :class:`rbx.simulation.Simulation` into an open HDF5 file (``fresh``: a new file,
     whose attributes and datasets are created here; else a file being resumed). ``path``: the file the run
@@ -224,19 +259,14 @@ class H5Sink:
             for name in cfg.output.record:
                 f = FIELD[name]
                 tail = f.shape(n)
-                per = int(np.prod(tail or (1,))) * np.dtype(f.dtype).itemsize
-                # chunks of ~CHUNK_BYTES, never longer along the records than the run: a short run's chunks
-                # span more trajectories instead (64 × 256 records allocated per trajectory made 20 000
-                # trajectories × 3 collisions a 577 MB file for 5.3 MB of records)
-                rchunk = min(records, max(1, CHUNK_BYTES // (min(M, 64) * per)))
-                tchunk = min(M, max(1, CHUNK_BYTES // (rchunk * per)))
+                tchunk, rchunk = chunk_shape(M, records, f.size(n) * np.dtype(f.dtype).itemsize)
                 # fletcher32: a checksum per chunk, checked on every read, so that changed bytes on disk are an
                 # error rather than silently different numbers
                 ds = g.create_dataset(name, shape=(M, 0) + tail, maxshape=(M, None) + tail, dtype=f.dtype,
                                       chunks=(tchunk, rchunk) + tail, fillvalue=f.fill, fletcher32=True, **filters)
                 ds.attrs["units"], ds.attrs["description"] = f.units, f.description
             g.create_dataset("count", data=np.zeros(M, np.int64))
-            g.create_dataset("step", shape=(0,), maxshape=(None,), dtype=np.int64, chunks=(4096,))
+            g.create_dataset("step", shape=(0,), maxshape=(None,), dtype=np.int64, chunks=(STEP_CHUNK,))
             for name, (units, text) in INDEX_DATASETS.items():
                 g[name].attrs["units"], g[name].attrs["description"] = units, text
             _make_scales(g, M, n)
@@ -244,11 +274,16 @@ class H5Sink:
         self.g = h5["collisions"]
         #: datasets a write can add a chunk of CHUNK_BYTES to (the scales' are small, or never grow)
         self.chunked = sum(1 for name in self.g if name not in SCALES)
-        self._growing = None     # the growing datasets' chunks (:meth:`_chunk_bytes`), read once
+        self._growing = None     # the growing datasets' chunks (:meth:`_block_room`), read once
         if not fresh:
             _extend_record_scale(self.g)      # resume cut the records back (or emptied them)
-        #: bytes of one saved state, twice over (the new one is written beside the last), for the space check
-        self.state_bytes = 2 * M * (4 * n + n * n + 9 + 8) * 8
+        #: bytes of one saved state (a checkpoint writes one, over the older of the two slots or as a new one)
+        self.state_bytes = state_bytes(M, n)
+        #: records in the file at its last commit: a chunk holding one of them lies below the commit, and a block
+        #: that adds records to it goes through the journal (rbx.journal); chunks made since are written in place
+        self._committed_records = 0 if fresh else int(self.g["step"].shape[0])
+        #: bytes the next commit's journal holds, about: the pages of committed chunks the blocks since changed
+        self._journal_due = 0
         #: room was reserved in the file beyond HDF5's end (:meth:`_reserve`): :func:`trim` the file once closed
         self.reserved = False
         #: the last check found no room: nothing more is written (not even the final renames, see :meth:`settle`)
@@ -258,7 +293,9 @@ class H5Sink:
         g = self.g
         b = next(iter(block.values())).shape[1]
         start = g["step"].shape[0]
-        self._check_space(self._chunk_bytes(start, b))
+        new, rewritten = self._block_room(start, b)
+        self._journal_due += rewritten + self._count_bytes()
+        self._check_space(new, self._journal_due, self._next_slot()[1])
         for f, arr in block.items():
             ds = g[f]
             ds.resize(start + b, axis=1)
@@ -268,42 +305,78 @@ class H5Sink:
         _extend_record_scale(g)
         g["count"][...] = g["count"][...] + nrec
 
-    def _chunk_bytes(self, start, b):
-        """Bytes of every chunk that writing records ``start`` … ``start + b − 1`` touches (each dataset's chunks
-        along the trajectories × those along the records the block spans; a checksum of 4 bytes each): the most
-        the block can make HDF5 allocate, or rewrite. A tiny run's chunks are tiny: the room asked for follows
-        them (it was two chunks of :data:`CHUNK_BYTES` per dataset: 3.4 MB for a run of 10 collisions)."""
-        if self._growing is None:      # (chunk bytes, chunk length along the records, chunks across) per dataset
-            self._growing = []
+    def _count_bytes(self):
+        """Bytes of ``count`` (rewritten with each block, in place) in whole pages."""
+        return (-(-self.g["count"].nbytes // journal.PAGE) + 1) * journal.PAGE
+
+    def _block_room(self, start, b):
+        """What writing records ``start`` … ``start + b − 1`` adds -> (bytes of new chunks, bytes the journal takes).
+
+        A chunk none of whose records is written yet is new: HDF5 allocates it whole (checksum included) past the
+        file's end, written in place, never journalled. A chunk holding records written before the last commit is
+        rewritten whole by HDF5, in place, through the journal, which keeps only the pages that changed
+        (:func:`rbx.journal._changed`): per trajectory row of the chunk, the pages the block's records in it
+        span (and one for the checksum). So a block asks for its records (× the chunk rounding), not for two
+        whole chunks per dataset doubled (3.4 MB for a run of 10 collisions; a 10 000-collision run on a 3 MB
+        disk never finished)."""
+        if self._growing is None:      # (chunk bytes, chunk length along the records, chunks across,
+            self._growing = []         #  rows per chunk, bytes of one record of one row) per dataset
             for name in self.g:
                 ds = self.g[name]
                 if not ds.chunks or ds.maxshape[0 if ds.ndim == 1 else 1] is not None:
                     continue      # a dataset that never grows (count, the fixed scales)
                 if name == "record" and DIMENSION_ONLY in _text(ds.attrs.get("NAME", b"")):
                     continue      # a scale without values: nothing is written
-                across = 1 if ds.ndim == 1 else -(-ds.shape[0] // ds.chunks[0])
+                one_d = ds.ndim == 1
+                across = 1 if one_d else -(-ds.shape[0] // ds.chunks[0])
+                rows = 1 if one_d else ds.chunks[0]
+                per_record = ds.dtype.itemsize * int(np.prod(ds.chunks[1 if one_d else 2:]))
                 self._growing.append((int(np.prod(ds.chunks)) * ds.dtype.itemsize + 4,
-                                      ds.chunks[0 if ds.ndim == 1 else 1], across))
-        return sum((-(-(start + b) // rc) - start // rc) * across * per for per, rc, across in self._growing)
+                                      ds.chunks[0 if one_d else 1], across, rows, per_record))
+        page = journal.PAGE
+        new = rewritten = 0
+        for per, rc, across, rows, per_record in self._growing:
+            first_new, end = -(-start // rc), -(-(start + b) // rc)
+            new += max(0, end - first_new) * across * per
+            if start % rc and start // rc * rc < self._committed_records:
+                k = min(b, rc - start % rc)              # the block's records in the committed chunk
+                pages = min(-(-per // page) + 1, rows * (-(-(k * per_record) // page) + 1) + 1)
+                rewritten += across * pages * page
+        return new, rewritten
 
-    def _check_space(self, chunk_bytes):
-        """Stop with :class:`DiskFull` before a write the disk has no room for (the chunks the block touches,
-        :meth:`_chunk_bytes`, the state and a margin for HDF5's metadata): HDF5 meeting ENOSPC mid-write left the
-        file half-updated and h5py crashed (a segmentation fault) closing it. Checked, the run stops between
-        blocks like an interrupted one: the last checkpoint is intact and the file can be resumed once there is
-        space."""
-        need = chunk_bytes + self.state_bytes + DISK_MARGIN
-        # the checkpoint's journal (rbx.journal), another file, holds what is rewritten in place: at most as much
-        journal_bytes = need - DISK_MARGIN
+    def _next_slot(self):
+        """The group the next checkpoint writes its state into -> (name, whether it exists: rewritten in place)."""
+        slots = {name: _slot_sequence(self.h5, name) for name in STATE_GROUPS}
+        newest = max(slots, key=slots.get) if max(slots.values()) >= 0 else None
+        target = next(name for name in ("final_previous", "final", "final_swap") if name != newest)
+        return target, target in self.h5
+
+    def _check_space(self, new_bytes, journal_bytes, in_place):
+        """Stop with :class:`DiskFull` before a write the disk has no room for: HDF5 meeting ENOSPC mid-write left
+        the file half-updated and h5py crashed (a segmentation fault) closing it. The room is what the write
+        really takes: ``new_bytes`` of new chunks in the file, the next checkpoint's state (a new slot in the
+        file, or rewritten in place through the journal: ``in_place``), the next commit's journal
+        (``journal_bytes``, another file) and a margin for HDF5's metadata in each; room the file reserved
+        already and did not use counts as free. Checked, the run stops between blocks like an interrupted one:
+        the last checkpoint is intact and the file can be resumed once there is space."""
+        file_bytes = new_bytes + (0 if in_place else self.state_bytes) + DISK_MARGIN
+        journal_bytes = journal_bytes + (self.state_bytes if in_place else 0) + DISK_MARGIN
+        folder = os.path.dirname(os.path.abspath(file_path(self.h5))) or "."
         try:
-            free = shutil.disk_usage(os.path.dirname(os.path.abspath(file_path(self.h5))) or ".").free
+            free = shutil.disk_usage(folder).free
         except OSError:
             free = None
-        if free is not None and free < need + journal_bytes:
+        jf = journal_of(self.h5)
+        spare = 0
+        if jf is not None:     # room reserved by the last block's check and not used by HDF5 yet
+            with contextlib.suppress(OSError):
+                spare = max(0, os.fstat(jf.fd).st_blocks * 512 - jf.size)
+        if free is not None and free + spare < file_bytes + journal_bytes:
             self.full = True
             raise DiskFull(f"the disk is full: {format_size(free)} free, the next block needs about "
-                           f"{format_size(need + journal_bytes)}")
-        self._reserve(need)
+                           f"{format_size(file_bytes + journal_bytes - spare)} (its records "
+                           f"{format_size(new_bytes)}, the checkpoint's journal {format_size(journal_bytes)})")
+        self._reserve(file_bytes)
 
     def _reserve(self, need):
         """Allocate the room for the next writes in the file itself, past what HDF5 uses (``posix_fallocate``):
@@ -340,9 +413,9 @@ class H5Sink:
         sequence = max(slots.values()) + 1
         newest = max(slots, key=slots.get) if max(slots.values()) >= 0 else None
         target = next(name for name in ("final_previous", "final", "final_swap") if name != newest)
+        self._check_space(0, self._journal_due, target in self.h5)
         fin = self.h5.require_group(target)
         state = sim.final_state()
-        self._check_space(0)
         for k, v in state.items():
             v = np.asarray(v)
             ds = fin.get(k)               # one lookup: group access is most of a checkpoint's Python time
@@ -356,6 +429,7 @@ class H5Sink:
         fin.attrs["digest"] = state_digest(state)     # last: until it is written the group does not verify
         self.h5.flush()
         commit(self.h5)      # the file changes here, all at once: a kill before leaves the last checkpoint's
+        self._committed_records, self._journal_due = int(self.g["step"].shape[0]), 0
 
     def settle(self, complete=False):
         """Name the newest saved state ``final`` (and the other ``final_previous``), once the run stops writing

@@ -92,7 +92,8 @@ def simulate(config, out, collisions, trajectories, seed, sets, max_size, resume
 
 def _simulate(config, out, overrides, changes, force, quiet, stop, cluster, began):
     from .. import config as cfgmod
-    from ..api import check_target, compile_kernels, run_to_file
+    from ..api import compile_kernels, run_to_file
+    from ..driver import check_size, check_target
     from ..simulation import Simulation
 
     if config is None:
@@ -107,8 +108,9 @@ def _simulate(config, out, overrides, changes, force, quiet, stop, cluster, bega
         raise UserError(config, "output.path", "no output file: give output.path in the config or -o OUT.h5")
     key = "-o" if out else "output.path"
     check_memory(cfg, overrides)
-    check_target(path, force, cfg, key=key, file=None if out else cfg.source, force_hint="--force",
-                 size_key=(None, "--max-size") if overrides["max_size"] is not None else None)
+    check_target(path, force, key, file=None if out else cfg.source, force_hint="--force",
+                 config_source=(cfg.source,) + tuple(cfg.includes))
+    check_size(cfg, path, (None, "--max-size") if overrides["max_size"] is not None else None, option="--max-size")
     with connect(cluster) as on:           # first: an unreachable scheduler is said before any work
         try:
             sim = Simulation(cfg)
