@@ -191,10 +191,10 @@ def resume(path, *, output=None, force=False, max_size=None, progress=False, sch
         raise TypeError("slices and task_collisions cut a run for a cluster: give scheduler too")
     r = prepare_resume(path, output, force=force, max_size=max_size, out_key="output", size_key="max_size",
                        force_hint="force=True")
-    if r.state != "continue":
-        return Run.open(r.path if r.state == "renamed" else r.source)
     for note in r.notes:
         warnings.warn(f"{r.source}: {note}", RuntimeWarning, stacklevel=2)
+    if r.state != "continue":
+        return Run.open(r.path if r.state == "renamed" else r.source)
     bar = _progress(progress)
     stop = StopFlag()
     try:

@@ -20,6 +20,7 @@ import shutil
 import weakref
 
 import h5py
+import numpy as np
 import yaml
 
 from . import continuation, journal
@@ -28,7 +29,7 @@ from .locks import LockNotWritable, acquire_lock, lock_holder, lock_path, releas
 from .locks import busy as _busy
 from .progress import plural
 from .paths import (NO_ROOM, DiskFull, FileError, check_replaceable, creation_path, display_path, format_size,
-                    temporary_path)
+                    temporary_path, what_it_is)
 from .runfile import (H5Sink, Run, _text, close_journal, commit, config_yaml, data_bytes, file_path, fill_returns,
                       journal_of, open_journaled)
 
@@ -426,8 +427,20 @@ def prepare_resume(run_file, output=None, *, force=False, max_size=None, out_key
     # the source's lock before its file is read: a run still writing it is named in one line (reading a file that
     # HDF5 is writing can fail as "damaged"); continuation.load holds it on for the run
     locked = _lock_source(source, in_place)
+    notes = []
+    own = False          # the output is the run's own earlier file, which this continuation replaces
     try:
         run = Run.open(source)
+        if not run.complete and not in_place and path == default and locked and os.path.lexists(tmp) and not force:
+            # OUT.h5 and OUT.h5.partial, and no live run holds their lock (this one does): a resume of OUT.h5 into
+            # its .partial was killed. Go on from the further of the two (said in a note), or say what to do
+            run.close()
+            source, note = _leftover_partial(source, tmp, path, force_hint)
+            notes += [note] if note else []
+            in_place = own = tmp == source
+            run = Run.open(source)
+        elif in_place and not force and os.path.isfile(path) and not os.path.islink(path):
+            own = _continues(source, path)      # --resume OUT.h5.partial beside the OUT.h5 it continues
         if run.complete:
             run.close()
             if not source.endswith(".partial"):
@@ -435,8 +448,8 @@ def prepare_resume(run_file, output=None, *, force=False, max_size=None, out_key
             if output and path != default:
                 raise FileError(None, out_key, f"{display_path(source)} holds a complete run that was not yet "
                                                "renamed; resume it without -o to rename it to its own output")
-            finish_complete(source, path, force)
-            return Resumption("renamed", source, path)
+            finish_complete(source, path, force or own)
+            return Resumption("renamed", source, path, notes=notes)
         note = continuation.version_note(run)
         with run:
             try:
@@ -456,7 +469,7 @@ def prepare_resume(run_file, output=None, *, force=False, max_size=None, out_key
         acquire_lock(path)
         sim.locks.append(weakref.finalize(sim, release_lock, path))
     if path != source:
-        check_target(path, force, out_key, partial_ok=in_place, force_hint=force_hint)
+        check_target(path, force or own, out_key, partial_ok=in_place, force_hint=force_hint)
     if os.path.exists(tmp) and not force and not in_place:
         raise FileError(tmp, None, f"exists: another run may be writing it, or an earlier one was killed; remove "
                                    f"it or use {force_hint}")
@@ -470,13 +483,83 @@ def prepare_resume(run_file, output=None, *, force=False, max_size=None, out_key
     written = os.path.getsize(source) if in_place else 0
     check_size(cfg, path, key_file, written=written,
                option=size_key if size_key.startswith("--") else f"{size_key}=")
-    notes = [note] if note else []
+    notes += [note] if note else []
     for field, chunks in sim.torn_chunks.items():
         notes.append(f"collisions/{field}: {len(chunks)} chunk(s) of the last saved records failed their checksum "
                      "(torn by the kill while HDF5 rewrote them): the saved records were read from the raw bytes "
                      "of the chunks")
-    return Resumption("continue", source, path, tmp, in_place, force or path == source, sim, write_initial, done,
-                      notes)
+    return Resumption("continue", source, path, tmp, in_place, force or own or path == source, sim, write_initial,
+                      done, notes)
+
+
+def _identity(run):
+    """What one run keeps through its resumes: its first start (when, where), its scene and its config but for the
+    file it names as its output (a resume into -o OTHER names OTHER)."""
+    config = dict(run.config)
+    config["output"] = {k: v for k, v in (config.get("output") or {}).items() if k != "path"}
+    return (run.attrs.get("created"), run.attrs.get("host"), run.dimension, run.table_kind, config)
+
+
+def _collisions(run):
+    """Collisions each trajectory of ``run`` made, by its saved state (zeros when none was saved) -> array."""
+    made = run.final.get("collisions")
+    return np.zeros(run.trajectories, np.int64) if made is None else np.asarray(made, np.int64)
+
+
+def _continues(partial, path):
+    """Whether ``partial`` holds the run in ``path`` (an unfinished one) as far or further: a resume of ``path``
+    into ``partial`` made it (a copy of ``path``, continued). Either unreadable: False."""
+    try:
+        a, b = Run.open(partial), Run.open(path)
+    except FileError:
+        return False
+    return (not b.complete and _identity(a) == _identity(b) and a.trajectories == b.trajectories
+            and bool(np.all(_collisions(a) >= _collisions(b))))
+
+
+def _is_prefix(part, whole):
+    """Whether the bytes of file ``part`` are the first bytes of file ``whole`` (a copy a kill cut short)."""
+    try:
+        if os.path.getsize(part) > os.path.getsize(whole):
+            return False
+        with open(part, "rb") as a, open(whole, "rb") as b:
+            while True:
+                x = a.read(1 << 20)
+                if x != b.read(len(x)):
+                    return False
+                if not x:
+                    return True
+    except OSError:
+        return False
+
+
+def _leftover_partial(source, tmp, path, force_hint):
+    """``--resume OUT.h5`` finds ``OUT.h5.partial`` and no live run holding their lock: what a resume of OUT.h5
+    killed left (it works on a copy of OUT.h5 at OUT.h5.partial; SIGKILLed, both stay, with a stale lock) ->
+    (the file to go on from, a note for the user or None). The further of the two is resumed: the .partial
+    when it holds this run as far or further (it then replaces OUT.h5 when it ends); OUT.h5 when the .partial
+    is a copy cut short, or lies behind (it is removed: every record in it is in OUT.h5). A .partial of another
+    run is never touched: :class:`FileError` saying what to do. (It said "another run may be writing it" and
+    asked for --force, which copied OUT.h5 over the further .partial.)"""
+    show, shown = display_path(tmp), display_path(source)
+    what = what_it_is(tmp)
+    if what != "a regular file":
+        raise FileError(tmp, None, f"is {what}, not a regular file: remove it to resume {shown}")
+    if _continues(tmp, source):
+        done = int(_collisions(Run.open(tmp)).max(initial=0))
+        return tmp, (f"resumed in place of {shown}: the copy a killed resume of {shown} left, further along "
+                     f"(collision {done}); it replaces {shown} when it ends")
+    ahead = _continues(source, tmp)
+    if ahead or _is_prefix(tmp, source):
+        os.remove(tmp)
+        journal.discard(tmp)
+        return source, (f"removed {show}, {'a copy of it cut short' if not ahead else 'an earlier copy of it'} by a "
+                        "killed resume; every record in it is in " + shown)
+    again = (f"rbx simulate --resume {show} {force_hint}" if force_hint.startswith("--") else
+             f"rbx.resume({show!r}, {force_hint})")
+    raise FileError(tmp, None, f"holds another run than {shown} (its run was killed: no run holds the lock); "
+                               f"to continue that run, replacing {display_path(path)} when it ends: {again}; to "
+                               f"continue {shown}: remove {show}")
 
 
 def _lock_source(source, in_place):

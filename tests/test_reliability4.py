@@ -49,3 +49,79 @@ def test_runs_that_fit_a_small_disk_finish_and_resume_there(tmp_path):
         assert resumed.returncode == 0, resumed.stderr
         assert sorted(p.name for p in disk.iterdir()) == ["run.h5"]
         assert_same_records(read_run(disk / "run.h5"), read_run(tmp_path / "ref.h5"))
+
+
+# ---- a kill during a resume into the run's own file ---------------------------------------------------------------
+
+#: ``python -c`` running the CLI with small blocks, a checkpoint after each, sending itself SIG after checkpoint AT
+SELF_SIGNAL = ("import os, sys, rbx.simulation as s, rbx.runfile as f; s.BLOCK_WORK = 3000; s.CHECKPOINT_SECONDS = 0; "
+               "c = f.H5Sink.checkpoint; n = [0]\n"
+               "def cp(self, sim):\n"
+               "    c(self, sim); n[0] += 1\n"
+               "    if n[0] == {at}: os.kill(os.getpid(), {sig})\n"
+               "f.H5Sink.checkpoint = cp\n"
+               "from rbx.cli.main import main; sys.argv[0] = 'rbx'; main()")
+
+
+def signalled(folder, sig, at, *args):
+    res = subprocess.run([sys.executable, "-c", SELF_SIGNAL.format(at=at, sig=int(sig)), *map(str, args)],
+                         cwd=folder, capture_output=True, text=True, timeout=900)
+    return res.returncode
+
+
+def interrupted_then_killed_resume(folder):
+    """``k.h5`` interrupted (Ctrl-C: complete = false), then ``rbx simulate --resume k.h5`` SIGKILLed after it
+    checkpointed further: k.h5, k.h5.partial (the resume's copy, further along) and a stale lock -> the bytes of
+    k.h5."""
+    for f in folder.glob("k.h5*"):
+        f.unlink()
+    assert signalled(folder, signal.SIGINT, 3, "simulate", "exp.yaml", "-o", "k.h5", "--quiet") == 130
+    assert signalled(folder, signal.SIGKILL, 3, "simulate", "--resume", "k.h5", "--quiet") == -signal.SIGKILL
+    assert sorted(p.name for p in folder.glob("k.h5*")) == ["k.h5", "k.h5.lock", "k.h5.partial"]
+    return (folder / "k.h5").read_bytes()
+
+
+def test_a_resume_killed_while_continuing_the_run_in_its_own_file_is_resumed(tmp_path):
+    """SIGKILL during ``rbx simulate --resume k.h5`` (k.h5 interrupted: the resume works on a copy, k.h5.partial)
+    left k.h5 and k.h5.partial; the next ``--resume k.h5`` said "exists: another run may be writing it" though no
+    run held the lock, and asked for --force (which copied k.h5 over the further .partial); ``--resume
+    k.h5.partial`` said "k.h5: exists; use --force". Either resume now goes on from the further file, the records
+    those of the uninterrupted run; a copy cut short by the kill is removed (its records are all in k.h5), and a
+    .partial of another run is left alone, in one line saying how to continue either."""
+    write_config(tmp_path, strip_random(30_000, trajectories=3, every=7, record=("time", "position", "wall")))
+    res = rbx_cli("simulate", "exp.yaml", "-o", "ref.h5", "--quiet", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    reference = read_run(tmp_path / "ref.h5")
+    for resumed in ("k.h5", "k.h5.partial"):
+        interrupted_then_killed_resume(tmp_path)
+        res = rbx_cli("simulate", "--resume", resumed, "--quiet", cwd=tmp_path)
+        assert res.returncode == 0, (resumed, res.stderr)
+        if resumed == "k.h5":
+            assert "k.h5.partial: warning: resumed in place of k.h5: the copy a killed resume of k.h5 left, " \
+                   "further along" in one_line(res), res.stderr
+        assert sorted(p.name for p in tmp_path.glob("k.h5*")) == ["k.h5"], resumed
+        assert_same_records(read_run(tmp_path / "k.h5"), reference)
+    # the API: the same code
+    interrupted_then_killed_resume(tmp_path)
+    with pytest.warns(RuntimeWarning, match="resumed in place of"):
+        assert rbx.resume(tmp_path / "k.h5").complete
+    assert_same_records(read_run(tmp_path / "k.h5"), reference)
+    # killed while it copied k.h5: the .partial is the first bytes of k.h5
+    original = interrupted_then_killed_resume(tmp_path)
+    (tmp_path / "k.h5.partial").write_bytes(original[:len(original) // 2])
+    res = rbx_cli("simulate", "--resume", "k.h5", "--quiet", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert "warning: removed k.h5.partial, a copy of it cut short by a killed resume" in one_line(res)
+    assert_same_records(read_run(tmp_path / "k.h5"), reference)
+    # the .partial of another run (a new run of another seed with --force, killed): nothing is touched
+    interrupted_then_killed_resume(tmp_path)
+    (tmp_path / "k.h5.partial").unlink()
+    assert signalled(tmp_path, signal.SIGKILL, 3, "simulate", "exp.yaml", "-o", "k.h5", "--seed", 5, "--force",
+                     "--quiet") == -signal.SIGKILL
+    before = {p.name: p.read_bytes() for p in tmp_path.glob("k.h5*") if p.name != "k.h5.lock"}
+    res = rbx_cli("simulate", "--resume", "k.h5", cwd=tmp_path)
+    assert res.returncode == 2, res.stderr
+    assert one_line(res) == ("rbx: k.h5.partial: holds another run than k.h5 (its run was killed: no run holds the "
+                             "lock); to continue that run, replacing k.h5 when it ends: rbx simulate --resume "
+                             "k.h5.partial --force; to continue k.h5: remove k.h5.partial")
+    assert {p.name: p.read_bytes() for p in tmp_path.glob("k.h5*") if p.name != "k.h5.lock"} == before

@@ -141,6 +141,8 @@ def _resume(config, run_file, out, overrides, force, quiet, stop, cluster, began
                                                "settings stored in its file")
     r = prepare_resume(run_file, out, force=force, max_size=overrides["max_size"])
     shown = display_path(r.source)
+    for note in r.notes:
+        click.echo(f"rbx: {shown}: warning: {note}", err=True)
     if r.state == "complete":
         click.echo(f"rbx: {shown}: the run is complete; nothing to resume", err=True)
         return 0
@@ -148,8 +150,6 @@ def _resume(config, run_file, out, overrides, force, quiet, stop, cluster, began
         click.echo(f"rbx: {shown}: the run was complete (stopped before its rename): renamed to "
                    f"{display_path(r.path)}", err=True)
         return 0
-    for note in r.notes:
-        click.echo(f"rbx: {shown}: warning: {note}", err=True)
     with connect(cluster) as r.sim.cluster:
         watch_compiles()
         compile_kernels(r.sim)
