@@ -189,6 +189,19 @@ def resume(path, *, output=None, force=False, max_size=None, progress=False, sch
     file then holds the records so far, ``complete = False``)."""
     if scheduler is None and (slices is not None or task_collisions is not None):
         raise TypeError("slices and task_collisions cut a run for a cluster: give scheduler too")
+    named = {}
+    for name, value in (("path", path), ("output", output)):
+        if value is None and name == "output":
+            continue
+        if not isinstance(value, (str, bytes, os.PathLike)):
+            # as rbx.load does: os.fspath's own words ('expected str, bytes or os.PathLike object') or worse (a
+            # bytes path: 'endswith first arg must be bytes…') came from deep inside
+            raise TypeError(f"rbx.resume: {name} is the path of a run file (a str or os.PathLike), not "
+                            f"{type(value).__name__}")
+        named[name] = os.fsdecode(os.fspath(value))     # a bytes path as the str the rest of rbx reads
+        if not named[name].strip():
+            raise ValueError(f"rbx.resume: {name} is empty: give the path of a run file")
+    path, output = named["path"], named.get("output")
     r = prepare_resume(path, output, force=force, max_size=max_size, out_key="output", size_key="max_size",
                        force_hint="force=True")
     for note in r.notes:

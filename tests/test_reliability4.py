@@ -125,3 +125,39 @@ def test_a_resume_killed_while_continuing_the_run_in_its_own_file_is_resumed(tmp
                              "lock); to continue that run, replacing k.h5 when it ends: rbx simulate --resume "
                              "k.h5.partial --force; to continue k.h5: remove k.h5.partial")
     assert {p.name: p.read_bytes() for p in tmp_path.glob("k.h5*") if p.name != "k.h5.lock"} == before
+
+
+# ---- the API's arguments -------------------------------------------------------------------------------------------
+
+def test_the_api_says_what_a_path_argument_must_be_and_names_its_own_keywords(tmp_path):
+    """``rbx.resume(None)``, ``rbx.resume(5)`` gave os.fspath's TypeError from deep inside, ``rbx.resume(b"…")``
+    'endswith first arg must be bytes'; a size limit met through the API was to be raised with ``--max-size``.
+    The API now names its argument and what it takes (a TypeError, as rbx.load's), reads a bytes path as the path
+    it is, and a limit met through it names ``max_size=``; the command line names ``--max-size``."""
+    from tests.test_reliability3 import killed_run
+    reference = killed_run(tmp_path)
+    for args, kw, said in (((None,), {}, "path is the path of a run file (a str or os.PathLike), not NoneType"),
+                           ((5,), {}, "path is the path of a run file (a str or os.PathLike), not int"),
+                           (("run.h5",), {"output": 5}, "output is the path of a run file (a str or os.PathLike), "
+                                                        "not int")):
+        with pytest.raises(TypeError) as info:
+            rbx.resume(*args, **kw)
+        assert str(info.value) == f"rbx.resume: {said}"
+    with pytest.raises(rbx.FileError) as info:
+        rbx.resume(os.fsencode(tmp_path / "run.h5.partial"), max_size="1KB")
+    assert "give a larger max_size= if that is meant" in str(info.value) and "--max-size" not in str(info.value)
+    run = rbx.resume(os.fsencode(tmp_path / "run.h5.partial"))
+    assert run.complete and run.path == str(tmp_path / "run.h5")
+    assert_same_records(read_run(tmp_path / "run.h5"), reference)
+    cfg = strip_random(10**9, trajectories=3, every=1, record=("time",))
+    for kw, said in (({}, "exp.yaml: output.max_size: the run would write about 32 GB"),
+                     ({"max_size": "1KB"}, "max_size: the run would write about 32 GB")):
+        with pytest.raises(rbx.FileError) as info:
+            rbx.simulate(write_config(tmp_path, cfg), output=tmp_path / "big.h5", **kw)
+        assert said in str(info.value) and "max_size= if that is meant" in str(info.value), str(info.value)
+        assert "--max-size" not in str(info.value)
+    for option, said in (((), "raise output.max_size or give --max-size if that is meant"),
+                         (("--max-size", "1KB"), "give a larger --max-size if that is meant")):
+        res = rbx_cli("simulate", "exp.yaml", "-o", "big.h5", *option, cwd=tmp_path)
+        assert res.returncode == 2 and said in one_line(res), res.stderr
+    assert not list(tmp_path.glob("big.h5*"))
