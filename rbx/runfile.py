@@ -683,6 +683,16 @@ def check_layout(f, path):
     def fail(name, problem):
         raise FileError(path, f"collisions/{name}", f"{problem} (a damaged or crafted file)")
 
+    for group in ("collisions",) + STATE_GROUPS:
+        for name, ds in (f[group].items() if isinstance(f.get(group), h5py.Group) else ()):
+            where = f"{group}/{name}"
+            if not isinstance(ds, h5py.Dataset):
+                raise FileError(path, where, "is not a dataset (a damaged or crafted file)")
+            if ds.is_virtual or ds.external:
+                # its values would be read from other files, which rbx never wrote (and a reader trusts)
+                raise FileError(path, where, f"is an HDF5 {'virtual' if ds.is_virtual else 'external'} dataset: "
+                                             "its values lie in other files; a run file holds its own (a crafted "
+                                             "file)")
     count, step = g["count"], g["step"]
     if count.ndim != 1 or count.dtype.kind not in "iu":
         fail("count", f"has shape {count.shape} and dtype {count.dtype}; the layout says (T,) integers")
@@ -709,14 +719,40 @@ def check_layout(f, path):
     c = count[...]
     if c.size and (c.min() < 0 or c.max() > N):
         fail("count", f"holds {int(c.min())} … {int(c.max())}; the layout says 0 … {N} (the records)")
+    try:
+        every = int(((yaml.safe_load(_text(f.attrs["config"])) or {}).get("output") or {}).get("every", 1) or 1)
+    except Exception:   # noqa: BLE001 - said by the reader
+        every = None
+    if every is not None and N:
+        s = step[...]
+        wrong = np.nonzero(s != np.arange(N, dtype=np.int64) * every)[0]
+        if wrong.size:
+            fail("step", f"holds {int(s[wrong[0]])} at record {int(wrong[0])}; the layout says record × output.every "
+                         f"({int(wrong[0]) * every})")
 
 
-def _check_final(final, T, path):
-    """The saved state read from ``final/``: one row per trajectory in every array."""
+def _check_final(final, T, path, walls=None):
+    """The saved state read from ``final/``: one row per trajectory in every array; the state of every running
+    trajectory finite, its counters not negative, its last wall one of the table's ``walls`` (or −1)."""
     for k, v in final.items():
         if np.ndim(v) == 0 or np.shape(v)[0] != T:
             raise FileError(path, f"final/{k}", f"has shape {np.shape(v)}; the layout says {T} trajectories first "
                                                 "(a damaged or crafted file)")
+    alive = np.asarray(final.get("alive", np.ones(T, bool))).astype(bool)
+    for k, v in final.items():
+        v = np.asarray(v)
+        if v.dtype.kind == "f":
+            ok = np.isfinite(v[alive]).reshape(int(alive.sum()), -1).all(axis=1)
+            problem = "is not finite for a running trajectory"
+        elif k in ("collisions", "draws"):
+            ok, problem = v >= 0, "is negative"
+        elif k == "last_wall" and walls is not None:
+            ok, problem = (v >= -1) & (v < walls), f"names no wall of the table (0 … {walls - 1}, or −1)"
+        else:
+            continue
+        if not np.all(ok):
+            j = int(np.nonzero(alive)[0][np.argmin(ok)]) if v.dtype.kind == "f" else int(np.argmin(ok))
+            raise FileError(path, f"final/{k}", f"{problem}: trajectory {j} (a damaged or crafted file)")
 
 
 def _h5_dataset():
@@ -810,7 +846,7 @@ class Run:
                 fields = [k for k in RECORD_FIELDS if k in g]
                 check_layout(f, path)
                 final, _, _ = latest_state(f)
-                _check_final(final, len(g["count"]), path)
+                _check_final(final, len(g["count"]), path, len(attrs["wall_names"]))
                 return cls(attrs, g["count"][...], g["step"][...], final, fields, path=path)
             except FileError:
                 raise
@@ -889,9 +925,46 @@ class Run:
         with self._reading() as g:
             ds = g[field]
             start, stop, stride = records.indices(ds.shape[1])
+            data = ds[idx, start:stop]
             if stride != 1:
-                return ds[idx, start:stop][:, ::stride]
-            return ds[idx, start:stop]
+                data = data[:, ::stride]
+        self._check_values(field, data, np.arange(self.trajectories)[idx],
+                           np.arange(start, stop, stride)[:data.shape[1]])
+        return data
+
+    def _check_values(self, name, data, rows, records):
+        """Refuse values no run writes in what was just read (``data``: trajectories ``rows`` × ``records``): a
+        number that is not finite within the records a trajectory wrote (``count``), a wall index that names no
+        wall of the table, a rank below −1. Only what is read is checked, as it is read: a file is never read
+        whole for it. Raises :class:`FileError` naming the dataset, the trajectory and the record."""
+        if data.size == 0:
+            return
+        if data.dtype.kind == "f":
+            ok = np.isfinite(data)
+            if ok.ndim > 2:
+                ok = ok.reshape(ok.shape[:2] + (-1,)).all(axis=2)
+            if ok.all():
+                return
+            bad = ~ok & (records[None, :] < self.count[rows][:, None])     # past count: NaN, as written
+            what = "a number that is not finite"
+            if not bad.any():
+                return
+        elif name == "wall":
+            bad = (data < -1) | (data >= len(self.wall_names))
+            what = f"a wall index the table does not have (its {len(self.wall_names)} walls are 0 … " \
+                   f"{len(self.wall_names) - 1}; −1 before the first collision)"
+        elif name == "rank":
+            bad = data < -1
+            what = "a roughness rank below −1"
+        else:
+            return
+        if bad.any():
+            j, r = (int(x) for x in np.argwhere(bad)[0])
+            value = data[j, r]
+            shown = value.tolist() if np.ndim(value) else value.item()
+            raise FileError(self.path, f"collisions/{name}", f"holds {shown} at trajectory {int(rows[j])}, record "
+                                                             f"{int(records[r])}: {what}; no run writes that (a "
+                                                             "damaged or crafted file)")
 
     def __getattr__(self, name):
         if name in FIELD and not name.startswith("_"):
@@ -901,11 +974,13 @@ class Run:
             if name not in self._arrays:
                 with self._reading() as g:
                     try:
-                        self._arrays[name] = _frozen(g[name][...])
+                        data = g[name][...]
                     except MemoryError:
                         raise FileError(self.path, f"collisions/{name}",
                                         f"{g[name].nbytes / 1e9:.3g} GB do not fit in the free memory: read a part "
                                         f"with run.read('{name}', trajectories, records)") from None
+                self._check_values(name, data, np.arange(self.trajectories), np.arange(self.records))
+                self._arrays[name] = _frozen(data)
             return self._arrays[name]
         raise AttributeError(f"'Run' object has no attribute '{name}'")
 

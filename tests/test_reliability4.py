@@ -161,3 +161,103 @@ def test_the_api_says_what_a_path_argument_must_be_and_names_its_own_keywords(tm
         res = rbx_cli("simulate", "exp.yaml", "-o", "big.h5", *option, cwd=tmp_path)
         assert res.returncode == 2 and said in one_line(res), res.stderr
     assert not list(tmp_path.glob("big.h5*"))
+
+
+# ---- run files holding values no run writes --------------------------------------------------------------------------
+
+def _virtual(g):
+    """``collisions/time`` made an HDF5 virtual dataset whose values lie in another file."""
+    other = os.path.join(os.path.dirname(g.file.filename), "other.h5")
+    shape = g["time"].shape
+    with h5py.File(other, "w") as f:
+        f["x"] = g["time"][...]              # the run's own values: only where they lie is wrong
+    layout = h5py.VirtualLayout(shape=shape, dtype="f8")
+    layout[...] = h5py.VirtualSource(other, "x", shape=shape)
+    del g["time"]
+    g.create_virtual_dataset("time", layout, fillvalue=np.nan)
+
+
+def _external(g):
+    """``collisions/time`` made an HDF5 dataset whose raw values lie in another file."""
+    raw = os.path.join(os.path.dirname(g.file.filename), "raw.bin")
+    shape = g["time"].shape
+    g["time"][...].tofile(raw)
+    del g["time"]
+    g.create_dataset("time", shape=shape, dtype="f8", external=[(raw, 0, h5py.h5f.UNLIMITED)])
+
+
+def _set(name, at, value):
+    return lambda g: g[name].__setitem__(at, value)
+
+
+#: case -> (the change to collisions/, a plot kind that reads it, what the one line says)
+BAD_VALUES = {
+    "a position at inf": (_set("position", (0, 7, 0), np.inf), "orbit",
+                          "collisions/position: holds [inf, 0.9] at trajectory 0, record 7: a number that is not "
+                          "finite"),
+    "a wall index 99": (_set("wall", (1, 9), 99), "phase",
+                        "collisions/wall: holds 99 at trajectory 1, record 9: a wall index the table does not have "
+                        "(its 2 walls are 0 … 1; −1 before the first collision)"),
+    "a NaN time": (_set("time", (0, 3), np.nan), "diffusion",
+                   "collisions/time: holds nan at trajectory 0, record 3: a number that is not finite"),
+    "a virtual dataset": (_virtual, "orbit", "collisions/time: is an HDF5 virtual dataset: its values lie in other "
+                                             "files"),
+    "an external dataset": (_external, "orbit", "collisions/time: is an HDF5 external dataset: its values lie in "
+                                                "other files"),
+    "a step out of line": (_set("step", 5, 77), "orbit",
+                           "collisions/step: holds 77 at record 5; the layout says record × output.every (5)"),
+}
+
+
+@pytest.mark.parametrize("case", list(BAD_VALUES))
+def test_a_run_file_holding_values_no_run_writes_is_refused_in_one_line(case, tmp_path):
+    """Run files with positions at inf, a wall index 99 (the table has 2 walls), a NaN time, or records held in
+    other files (an HDF5 virtual or external dataset) opened without complaint, and were drawn. What is read is
+    checked as it is read (numbers finite within the records a trajectory wrote, wall indices among the table's
+    walls; the datasets' storage and ``step`` when the file opens): rbx.FileError from the API, one line and exit
+    2 from ``rbx plot``."""
+    change, kind, said = BAD_VALUES[case]
+    path = tmp_path / "bad.h5"
+    rbx.simulate(strip_random(500, trajectories=2, every=1, record=ALL), output=path)
+    with h5py.File(path, "r+") as f:
+        change(f["collisions"])
+    with pytest.raises(rbx.FileError) as info:
+        run = rbx.open(path)
+        [getattr(run, field) for field in run.fields]
+    assert str(info.value).startswith(f"{path}: {said}"), str(info.value)
+    res = rbx_cli("plot", path, "--kind", kind, "-o", tmp_path / "x.png", cwd=tmp_path)
+    assert res.returncode == 2, res.stderr
+    assert one_line(res).startswith(f"rbx: bad.h5: {said}"), res.stderr
+    assert not (tmp_path / "x.png").exists()
+
+
+def test_a_resume_refuses_records_held_elsewhere_and_a_state_naming_a_wall_the_table_lacks(tmp_path):
+    """A killed run's file whose ``collisions/time`` is an HDF5 virtual or external dataset (its values, the run's
+    own, lying in another file) gave a TypeError traceback from the resume ('Only chunked datasets can be
+    resized'); a saved state whose last wall is 99 (the strip has 2 walls), its digest made to match, was refused
+    as 'the last records are not the saved state (the process was killed while writing)'. Each is one line
+    naming the dataset, exit 2, the file left as it was."""
+    from rbx.runfile import state_digest
+    from tests.test_reliability3 import killed_run
+    killed_run(tmp_path)
+    rbx.open(tmp_path / "run.h5.partial")        # applies a journal a kill may have left, before h5py edits it
+
+    def last_wall(f):
+        for group in ("final", "final_previous"):
+            if group in f:
+                f[group]["last_wall"][1] = 99
+                state = {k: f[group][k][...] for k in f[group]}     # crafted whole: its digest made to match
+                f[group].attrs["digest"] = state_digest(state)
+
+    for change, said in ((lambda f: _virtual(f["collisions"]), "collisions/time: is an HDF5 virtual dataset"),
+                         (lambda f: _external(f["collisions"]), "collisions/time: is an HDF5 external dataset"),
+                         (last_wall, "final/last_wall: names no wall of the table (0 … 1, or −1): trajectory 1")):
+        bad = tmp_path / "bad.h5.partial"
+        bad.write_bytes((tmp_path / "run.h5.partial").read_bytes())
+        with h5py.File(bad, "r+") as f:
+            change(f)
+        before = bad.read_bytes()
+        res = rbx_cli("simulate", "--resume", bad, cwd=tmp_path)
+        assert res.returncode == 2, res.stderr
+        assert one_line(res).startswith(f"rbx: bad.h5.partial: {said}"), res.stderr
+        assert bad.read_bytes() == before and not (tmp_path / "bad.h5").exists()
