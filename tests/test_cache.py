@@ -106,3 +106,40 @@ def test_the_front_end_of_an_inlined_helper_is_made_once():
     copied before Numba changes it), so the second kernel of a process does not run the helpers' front end again."""
     from numba.core.inline_closurecall import InlineWorker
     assert getattr(InlineWorker.run_untyped_passes, "rbx_reuse", False)
+
+
+def test_the_blocks_of_an_inlined_helper_share_one_copy_of_its_scope(monkeypatch):
+    """_numba_hooks (inline): Numba copies an inlined helper's IR block by block, each with a deep copy of the whole
+    scope of its own; with the hook the blocks of one copy share one copy of the scope, as the blocks of a helper
+    made afresh do, and the compiled function computes what Python does."""
+    import numba
+    from numba.core.inline_closurecall import InlineWorker
+    copies = []
+    inline_ir = InlineWorker.inline_ir
+
+    def spy(self, *args, **kwargs):
+        made = inline_ir(self, *args, **kwargs)
+        copies.append(made[0])                  # the callee's IR as copied, before it was changed
+        return made
+
+    monkeypatch.setattr(InlineWorker, "inline_ir", spy)
+
+    @numba.njit(inline="always")
+    def helper(x):
+        if x > 1.0:
+            y = x * 2.0
+        else:
+            y = x - 3.0
+        for _ in range(3):
+            y = y + 0.5
+        return y
+
+    @numba.njit
+    def caller(x):
+        return helper(x) + helper(x + 1.0)
+
+    assert [caller(x) for x in (0.5, 2.0)] == [caller.py_func(x) for x in (0.5, 2.0)]
+    assert len(copies) == 2
+    for ir in copies:
+        assert len(ir.blocks) > 2
+        assert len({id(block.scope) for block in ir.blocks.values()}) == 1
