@@ -143,10 +143,11 @@ def same(a, b):
 def test_a_killed_study_resumes_to_the_uninterrupted_result(tmp_path):
     import xarray as xr
     study = {"base": SINAI, "vary": {"ball.inertia": {"from": 0.1, "to": 1.0, "num": 10}},
-             "measure": ["lyapunov", "regular_share"], "ensemble": {"trajectories": 4, "collisions": 100000,
+             "measure": ["lyapunov", "regular_share"], "ensemble": {"trajectories": 4, "collisions": 400000,
                                                                     "seed": 4}}
-    # points of 0.1 s or more: the results file is written after the first point, then spaced by 20 writes' time, so
-    # the run must last long enough after that first write for the kill to come mid-way
+    # points of 0.3 s or more: the results file is first written once the points took 20 writes' time (about a
+    # second), then spaced as much again, so the run (3 s) lasts long enough after that first write for the kill to
+    # come mid-way
     text = yaml.safe_dump(study, sort_keys=False)
     (tmp_path / "study.yaml").write_text(text)
     whole = sweep(tmp_path / "study.yaml")          # also puts the kernels in the disk cache
@@ -167,7 +168,7 @@ def test_a_killed_study_resumes_to_the_uninterrupted_result(tmp_path):
         before = ds.load()
     assert 1 <= int(before["done"].sum()) < 10
     # a changed study is refused, in one line
-    (tmp_path / "study.yaml").write_text(text.replace("100000", "90000"))
+    (tmp_path / "study.yaml").write_text(text.replace("400000", "390000"))
     res = rbx_cli("sweep", "study.yaml", "-o", "out.nc", "--resume", cwd=tmp_path)
     assert res.returncode == 2 and len(res.stderr.splitlines()) == 1 and "--resume" in res.stderr, res.stderr
     (tmp_path / "study.yaml").write_text(text)
@@ -356,3 +357,22 @@ def test_the_sweep_plot_names_its_axes_as_a_physicist_would(specular, tmp_path):
             assert observables.variable_label(f"{name}_{c.suffix}")[0] != f"{name}_{c.suffix}"
     res = rbx_cli("plot", path, "--kind", "sweep", "-o", "l.png", cwd=tmp_path)      # the CLI draws the same
     assert res.returncode == 0 and (tmp_path / "l.png").stat().st_size > 10_000, res.stderr
+
+
+def test_a_short_study_writes_its_results_once_and_they_read_back_identical(tmp_path, monkeypatch):
+    """The results file was written after the first point whatever it cost (a point of 10⁶ collisions took about as
+    long as the write): a write now waits until the points since the start took WRITE_SPACING writes' time."""
+    import xarray as xr
+
+    from rbx import study as study_module
+    monkeypatch.setattr(study_module, "FIRST_WRITE_COST", 1e6, raising=False)   # no write earned before the end
+    monkeypatch.setattr(study_module, "_write_cost", None, raising=False)
+    out = tmp_path / "out.nc"
+    seen = []
+    ds = sweep({**specular_study(trajectories=2, collisions=200), "vary": {"table.radius": [0.2, 0.25, 0.3]}}, out,
+               progress=lambda done, total: seen.append((done, os.path.exists(f"{out}.partial"))))
+    assert seen == [(0, False), (1, False), (2, False), (3, False)]
+    assert out.exists() and not os.path.exists(f"{out}.partial")
+    with xr.open_dataset(out, engine="h5netcdf") as back:
+        assert back.load().identical(ds)        # values, dtypes, coordinates, units and the study's attributes
+        assert back["wall"].values.tolist() == list(ds["wall"].values) and back["wall_share"].dims[-1] == "wall"

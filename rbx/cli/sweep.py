@@ -10,7 +10,7 @@ from .common import (Command, Progress, UserError, display_path, duration, endin
 @click.command(cls=Command)
 @click.argument("study", metavar="STUDY.yaml", type=click.Path(dir_okay=False))
 @click.option("-o", "--output", required=True, type=click.Path(dir_okay=False), metavar="RESULTS.nc",
-              help="The results file (NetCDF; written as RESULTS.nc.partial after every point, renamed at the end).")
+              help="The results file (NetCDF; written as RESULTS.nc.partial as points finish, renamed at the end).")
 @click.option("--scheduler", metavar="ADDRESS",
               help="Run every point's trajectories on a Dask cluster: its scheduler's address (tcp://HOST:PORT) or "
                    "scheduler file (docs/cluster.md). Same numbers as a local run.")
