@@ -469,10 +469,13 @@ def prepare_resume(run_file, output=None, *, force=False, max_size=None, out_key
         acquire_lock(path)
         sim.locks.append(weakref.finalize(sim, release_lock, path))
     if path != source:
-        check_target(path, force or own, out_key, partial_ok=in_place, force_hint=force_hint)
-    if os.path.exists(tmp) and not force and not in_place:
-        raise FileError(tmp, None, f"exists: another run may be writing it, or an earlier one was killed; remove "
-                                   f"it or use {force_hint}")
+        check_target(path, force or own, out_key, partial_ok=True, force_hint=force_hint)
+    if os.path.lexists(tmp) and not force and not in_place:
+        # this resume holds the output's lock: no live run writes tmp, a killed one left it
+        again = (f"rbx simulate --resume {display_path(tmp)}" if force_hint.startswith("--") else
+                 f"rbx.resume({display_path(tmp)!r})")
+        raise FileError(tmp, None, f"exists, left by a run that was killed (no run holds its lock): continue that "
+                                   f"run with {again}; or remove it, or use {force_hint} to write this one over it")
     # every limit a new run has: output.max_size (or the one given now) and the free space, for the whole file
     cfg = sim.cfg
     if max_size is not None:

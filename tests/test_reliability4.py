@@ -87,7 +87,9 @@ def test_a_resume_killed_while_continuing_the_run_in_its_own_file_is_resumed(tmp
     run held the lock, and asked for --force (which copied k.h5 over the further .partial); ``--resume
     k.h5.partial`` said "k.h5: exists; use --force". Either resume now goes on from the further file, the records
     those of the uninterrupted run; a copy cut short by the kill is removed (its records are all in k.h5), and a
-    .partial of another run is left alone, in one line saying how to continue either."""
+    .partial of another run is left alone, in one line saying how to continue either. Killed while it continued
+    k.h5 into ``-o o.h5``, the same resume said "another run may be writing" o.h5.partial: it says it was
+    killed and how to continue it."""
     write_config(tmp_path, strip_random(30_000, trajectories=3, every=7, record=("time", "position", "wall")))
     res = rbx_cli("simulate", "exp.yaml", "-o", "ref.h5", "--quiet", cwd=tmp_path)
     assert res.returncode == 0, res.stderr
@@ -113,6 +115,18 @@ def test_a_resume_killed_while_continuing_the_run_in_its_own_file_is_resumed(tmp
     assert res.returncode == 0, res.stderr
     assert "warning: removed k.h5.partial, a copy of it cut short by a killed resume" in one_line(res)
     assert_same_records(read_run(tmp_path / "k.h5"), reference)
+    # killed while it continued k.h5 into -o o.h5: the same resume says how to go on, and that does
+    interrupted_then_killed_resume(tmp_path)
+    (tmp_path / "k.h5.partial").unlink()
+    assert signalled(tmp_path, signal.SIGKILL, 3, "simulate", "--resume", "k.h5", "-o", "o.h5", "--quiet") == -9
+    res = rbx_cli("simulate", "--resume", "k.h5", "-o", "o.h5", cwd=tmp_path)
+    assert res.returncode == 2, res.stderr
+    assert one_line(res) == ("rbx: o.h5.partial: exists, left by a run that was killed (no run holds its lock): "
+                             "continue that run with rbx simulate --resume o.h5.partial; or remove it, or use "
+                             "--force to write this one over it")
+    res = rbx_cli("simulate", "--resume", "o.h5.partial", "--quiet", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert_same_records(read_run(tmp_path / "o.h5"), reference)
     # the .partial of another run (a new run of another seed with --force, killed): nothing is touched
     interrupted_then_killed_resume(tmp_path)
     (tmp_path / "k.h5.partial").unlink()
