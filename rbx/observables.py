@@ -237,7 +237,7 @@ def _regular_share(runs, options):
 register(Observable(
     "regular_share", "1", "share of trajectories whose own λ₁ is below the threshold (per unit time): regular "
     "(trapped) orbits", _regular_share, tangent=True, options={"threshold": REGULAR_THRESHOLD},
-    label="share of regular orbits (λ₁ below the threshold)",
+    label="share of regular orbits",
     companions=(Companion("low", "1", "Wilson interval, lower bound (z = 1)"),
                 Companion("high", "1", "Wilson interval, upper bound (z = 1)")),
     error="half-width of the Wilson interval (z = 1)"))
