@@ -159,7 +159,7 @@ CASES = {
                          "more than the limit"),
     "max-size-too-small": ({}, None, ["--max-size", "1 kB"], None, "--max-size", "more than the limit 1 kB"),
     "max-size-compressed": ({}, setp("output.compression", "gzip:4"), ["--max-size", "1 kB"], None, "--max-size",
-                            "MB before compression (2 trajectories"),
+                            "kB before compression (2 trajectories"),
     "max-size-option-bad": ({}, None, ["--max-size", "lots"], None, "--max-size", "expected a size"),
     "max-size-key-bad": ({}, setp("output.max_size", -3), [], "exp.yaml", "output.max_size", "positive"),
     "velocity-zero": ({}, setp("initial.velocity", [0, 0]), [], "exp.yaml", "initial.velocity", "non-zero"),
