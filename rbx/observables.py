@@ -109,8 +109,6 @@ PARAMETERS = {
     "table.cap_radius": ("cap radius", "r", "L"),
     "table.stem_width": ("stem width", "w", "L"),
     "table.stem_height": ("stem height", "h", "L"),
-    "run.collisions": ("collisions per trajectory", "N", "collision"),
-    "run.trajectories": ("trajectories", "M", "1"),
 }
 
 

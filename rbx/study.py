@@ -180,12 +180,16 @@ def load_study(study, base=None):
     if not isinstance(fixed, Mapping):
         fail("set", "a mapping of dotted config keys to values")
     fixed = {str(k): v for k, v in fixed.items()}
+    for key, value in fixed.items():
+        _not_the_studys(key, value, f"set.{key}", fail)
     zipped = data.get("zip", False)
     if not isinstance(zipped, bool):
         fail("zip", f"true or false, not {zipped!r}")
     vary = data["vary"]
     if not isinstance(vary, Mapping) or not vary:
         fail("vary", "a mapping of dotted config keys to lists of values or {from, to, num, scale}")
+    for key in vary:
+        _not_the_studys(str(key), None, f"vary.{key}", fail)
     _check_size(vary, zipped, fail)         # before any value is made: 10⁷ points took 4.3 GB to build
     keys, values = [], []
     for key, spec in vary.items():
@@ -233,6 +237,34 @@ def _base_problem(path, given):
     except OSError as exc:
         return f"cannot read {given}: {exc.strerror or exc}"
     return f"{given} {problem}" if problem else None
+
+
+#: the config keys a study sets at every point itself (so a value in ``vary`` or ``set`` would be overwritten without
+#: a word: ``vary: {run.collisions: [...]}`` ran every point with ensemble.collisions) -> where they come from
+STUDY_SETS = {"run.trajectories": "ensemble.trajectories", "run.collisions": "ensemble.collisions",
+              "run.seed": "ensemble.seed (each point's seed derives from it)",
+              "output.record": "the observables (what they need is recorded)",
+              "output.every": "the observables (what they need is recorded)"}
+
+
+def _not_the_studys(key, value, where, fail):
+    """Refuse a ``vary`` or ``set`` key the study sets itself at every point (:data:`STUDY_SETS`): the key, a key
+    inside it, or a mapping (``set: {run: {collisions: 5}}``) that holds one."""
+    for reserved, source in STUDY_SETS.items():
+        inside = reserved.startswith(key + ".")
+        if key == reserved or key.startswith(reserved + ".") or (
+                inside and isinstance(value, Mapping) and _holds(value, reserved[len(key) + 1:])):
+            fail(where, f"set at every point by the study from {source}: change it there" if
+                 reserved.startswith("run.") else f"set at every point by the study from {source}")
+        if inside and value is None:        # a varied parent key (vary: {run: ...}) would replace it
+            fail(where, f"holds {reserved}, which the study sets at every point from {source}")
+
+
+def _holds(mapping, dotted):
+    head, _, rest = dotted.partition(".")
+    if head not in mapping:
+        return False
+    return not rest or (isinstance(mapping[head], Mapping) and _holds(mapping[head], rest))
 
 
 #: the most points a study may have: each point's experiment is built and checked before anything runs (~3 ms and

@@ -219,6 +219,14 @@ BAD = {
     "diffusion-bounded": ("vary: {ball.inertia: [0.1]}\nmeasure: [diffusion]\n", "measure.diffusion", "bounded"),
     "escape-no-exit": ("vary: {ball.inertia: [0.1]}\nmeasure: [escape_rate]\n", "measure.escape_rate", "exit"),
     "value-refused": ("vary: {table.radius: [0.4, 0.9]}\nmeasure: [lyapunov]\n", "vary.table.radius", "overlaps"),
+    # keys the study sets at every point itself: the study overwrote them without a word (every point ran the
+    # ensemble's collisions, whatever run.collisions was varied over)
+    "vary-collisions": ("vary: {run.collisions: [100, 200]}\nmeasure: [mean_free_path]\n", "vary.run.collisions",
+                        "ensemble.collisions"),
+    "set-seed": ("set: {run: {seed: 3}}\nvary: {ball.inertia: [0.1]}\nmeasure: [mean_free_path]\n", "set.run",
+                 "ensemble.seed"),
+    "set-record": ("set: {output.record: [time]}\nvary: {ball.inertia: [0.1]}\nmeasure: [mean_free_path]\n",
+                   "set.output.record", "observables"),
 }
 
 
