@@ -48,7 +48,7 @@ from .model import FIELD, FIELDS
 from .primitives import P_NORMAL, P_POINT
 from .physics import collide, collide_axis
 from .rules import EXIT, Rules, choose  # noqa: F401 - Rules: a group of the kernels, defined with the rules
-from .tangent import orthonormalise2, orthonormalise3, step2, step3
+from .tangent import last_flight, orthonormalise, step
 from .trig import sincos
 
 # bits of the record mask (rbx.model.FIELDS), as module constants so that Numba compiles them in
@@ -452,16 +452,7 @@ def _make_kernel(spec):
                     # without one (stopped at t_end, or at an exit below) takes it alone, after the vectors'
                     # stretches up to the last collision are added
                     if in_flight:
-                        if since > 0:
-                            since = 0
-                            if N == 2:
-                                orthonormalise2(Yj, tangent.sums, j)
-                            else:
-                                orthonormalise3(Yj, tangent.sums, j)
-                        if N == 2:
-                            step2(Yj, tau, False, v, Wj, v, Wj, nu, Jn, False, R, kappa, 0, rules.basis, 0, 0)
-                        else:
-                            step3(Yj, tau, False, v, Wj, v, Wj, nu, Jn, False, R, kappa, 0, rules.basis, 0, 0)
+                        since = last_flight(Yj, tangent.sums, j, since, tau, v, Wj, nu, Jn, R, kappa, rules.basis, n)
                         t = t_end
                         if on & S_COMPENSATED:
                             comp[j, n] = 0.0
@@ -499,16 +490,8 @@ def _make_kernel(spec):
                 if EXIT_:
                     if rules.kind[node] == EXIT:          # a hole: the contact is the trajectory's last record
                         if TANGENT:
-                            if since > 0:
-                                since = 0
-                                if N == 2:
-                                    orthonormalise2(Yj, tangent.sums, j)
-                                else:
-                                    orthonormalise3(Yj, tangent.sums, j)
-                            if N == 2:
-                                step2(Yj, tau, False, v, Wj, v, Wj, nu, Jn, False, R, kappa, 0, rules.basis, 0, 0)
-                            else:
-                                step3(Yj, tau, False, v, Wj, v, Wj, nu, Jn, False, R, kappa, 0, rules.basis, 0, 0)
+                            since = last_flight(Yj, tangent.sums, j, since, tau, v, Wj, nu, Jn, R, kappa, rules.basis,
+                                                n)
                         c += 1
                         if on & S_RECORD:
                             until_record -= 1
@@ -563,20 +546,12 @@ def _make_kernel(spec):
                 if f != 0.0:
                     scale_state(v, Wj, f, n)
                 if TANGENT:
-                    if N == 2:
-                        g = step2(Yj, tau, True, vm, Wm, v, Wj, nu, Jn, curved, R, kappa, map_rank, rules.basis, node,
-                                  w)
-                    else:
-                        g = step3(Yj, tau, True, vm, Wm, v, Wj, nu, Jn, curved, R, kappa, map_rank, rules.basis, node,
-                                  w)
+                    g = step(Yj, tau, True, vm, Wm, v, Wj, nu, Jn, curved, R, kappa, map_rank, rules.basis, node, w, n)
                     if period > 0:
                         since += 1
                         if since == period or g > tangent.grow:
                             since = 0
-                            if N == 2:
-                                orthonormalise2(Yj, tangent.sums, j)
-                            else:
-                                orthonormalise3(Yj, tangent.sums, j)
+                            orthonormalise(Yj, tangent.sums, j, n)
                 c += 1
                 # 6. record
                 if on & S_RECORD:
@@ -591,10 +566,7 @@ def _make_kernel(spec):
                         break
             if TANGENT:
                 if since > 0:                  # the stretches up to the last collision, before the next call
-                    if N == 2:
-                        orthonormalise2(Yj, tangent.sums, j)
-                    else:
-                        orthonormalise3(Yj, tangent.sums, j)
+                    orthonormalise(Yj, tangent.sums, j, n)
             for i in range(n):
                 state.pos[j, i] = a[i]
                 state.vel[j, i] = v[i]

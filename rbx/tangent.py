@@ -297,3 +297,32 @@ def orthonormalise2(Y, sums, j):
 def orthonormalise3(Y, sums, j):
     """:func:`_orthonormalise` of 3D tangent vectors."""
     _orthonormalise(Y, sums, j, 12)
+
+
+@jit_hot
+def step(Y, tau, collide_too, vm, Wm, vp, Wp, nu, J, curved, R, kappa, rank, basis, node, wall, n):
+    """:func:`step2` or :func:`step3`, for the dimension ``n`` (a constant of the calling loop)."""
+    if n == 2:
+        return step2(Y, tau, collide_too, vm, Wm, vp, Wp, nu, J, curved, R, kappa, rank, basis, node, wall)
+    return step3(Y, tau, collide_too, vm, Wm, vp, Wp, nu, J, curved, R, kappa, rank, basis, node, wall)
+
+
+@jit_hot
+def orthonormalise(Y, sums, j, n):
+    """:func:`orthonormalise2` or :func:`orthonormalise3`, for the dimension ``n``."""
+    if n == 2:
+        orthonormalise2(Y, sums, j)
+    else:
+        orthonormalise3(Y, sums, j)
+
+
+@jit_hot
+def last_flight(Y, sums, j, since, tau, v, W, nu, J, R, kappa, basis, n):
+    """The tangent step of a flight that ends without a collision map (the stop at the end time, or an exit): the
+    stretches of the ``since`` collisions taken since the last re-orthonormalisation are added first (so that
+    they are not mixed with the flight's), then the flight alone -> 0, the collisions since."""
+    if since > 0:
+        orthonormalise(Y, sums, j, n)
+    step(Y, tau, False, v, W, v, W, nu, J, False, R, kappa, 0, basis, 0, 0, n)
+    return 0
+
