@@ -82,8 +82,10 @@ class Simulation:
         M = self.M = cfg.run.trajectories
         self.record = cfg.output.record
         self.mask = sum(FIELD[f].bit for f in self.record)
-        # the orientation is followed only when a hemisphere rule or the recorded field needs it (docs/reference.md §7)
-        self.follow_orientation = self.rules.uses_orientation or "orientation" in self.record
+        # the orientation is followed in 2D (θ += τ·ω, one multiply-add a flight: a kernel of its own without it
+        # would be one more compile for every 2D scene that records it) and in 3D only when a hemisphere rule or the
+        # recorded field needs it (the rotation costs a 3 × 3 product a flight) (docs/reference.md §7)
+        self.follow_orientation = n == 2 or self.rules.uses_orientation or "orientation" in self.record
         self.keys = stream_keys(cfg.run.seed, np.arange(M), PURPOSE_RULES)
         if state is None:
             state = self._initial_state()

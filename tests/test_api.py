@@ -339,3 +339,19 @@ def test_changed_bytes_on_disk_are_a_clear_error_not_other_numbers(tmp_path):
     with pytest.raises(rbx.FileError) as info:
         run.velocity
     assert "damaged" in str(info.value) and str(out) in str(info.value)
+
+
+def test_the_2d_orientation_is_followed_whether_or_not_it_is_recorded():
+    """The final θ of a rough 2D run is the orbit's, recorded or not (it was left at its initial value when
+    nothing asked for it), and it is θ₀ + Σ ω τ over the flights: each record's θ is the last one's plus the
+    spin after that collision times the flight time to this one."""
+    exp = rbx.load(os.path.join(ROOT, "configs", "examples", "sinai.yaml"))
+    kept = rbx.simulate(rbx.load(exp, {"output.record": ["time", "angular_velocity", "orientation"]}),
+                        collisions=300, trajectories=2, seed=4)
+    plain = rbx.simulate(rbx.load(exp, {"output.record": ["time"]}), collisions=300, trajectories=2, seed=4)
+    np.testing.assert_array_equal(plain.final["orientation"], kept.final["orientation"])
+    np.testing.assert_array_equal(kept.final["orientation"], kept.orientation[:, -1])
+    theta, omega, t = kept.orientation[...], kept.angular_velocity[...], kept.time[...]
+    assert np.ptp(omega) > 0.1                       # the spin changes at collisions: a rough table
+    step = theta[:, 1:] - (theta[:, :-1] + omega[:, :-1] * np.diff(t, axis=1))
+    assert np.all(np.abs(step) <= 1e-12 * (1 + np.abs(theta[:, 1:]))), np.abs(step).max()
