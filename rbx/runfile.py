@@ -313,7 +313,7 @@ class H5Sink:
         return self._count_pages
 
     def _block_room(self, start, b):
-        """What writing records ``start`` … ``start + b − 1`` adds -> (bytes of new chunks, bytes the journal takes).
+        """What writing records ``start`` … ``start + b − 1`` adds -> (bytes of new chunks, bytes journalled).
 
         A chunk none of whose records is written yet is new: HDF5 allocates it whole (checksum included) past the
         file's end, written in place, never journalled. A chunk holding records written before the last commit is
