@@ -857,7 +857,12 @@ class Run:
                 final, _, _ = latest_state(f)
                 _check_final(final, len(g["count"]), path, len(attrs["wall_names"]))
                 run = cls(attrs, g["count"][...], g["step"][...], final, fields, path=path)
-                _check_step(run.step, run.every, path)
+                # an unfinished run's records past its saved state may be a block a kill cut short (written before
+                # the journal): a resume drops them, a reader is not refused for them
+                upto = run.records if run.complete else \
+                    min(run.records, 1 + int(np.max(final["collisions"], initial=-1)) // run.every) \
+                    if "collisions" in final else 0
+                _check_step(run.step[:upto], run.every, path)
                 return run
             except FileError:
                 raise
