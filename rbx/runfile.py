@@ -751,7 +751,7 @@ def _check_final(final, T, path, walls=None):
     for k, v in final.items():
         v = np.asarray(v)
         if v.dtype.kind == "f":
-            ok = np.isfinite(v[alive]).reshape(int(alive.sum()), -1).all(axis=1)
+            ok = np.isfinite(v[alive]).reshape(int(alive.sum()), int(np.prod(v.shape[1:]))).all(axis=1)
             problem = "is not finite for a running trajectory"
         elif k in ("collisions", "draws"):
             ok, problem = v >= 0, "is negative"

@@ -7,6 +7,10 @@ rbx.dynamics.escape_times, docs/dynamics.md).
   metric) is 4A/ℓ for a disc with spin in 2D (A: the area the centre moves in, ℓ: the hole's length).
 - The escape rate from a small hole approaches ℓ/(4A) per unit path.
 """
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -163,3 +167,19 @@ def test_an_edge_between_two_collinear_edges_of_a_polygon_is_hit():
     opened = rbx.simulate(_config(table, SMOOTH, {"edge4": EXIT}, initial={"sample": "billiard"}, collisions=2000,
                                   trajectories=200, seed=5, record=[]))
     assert np.sum(opened.count < 2001) > 150
+
+
+def test_a_run_file_in_which_every_trajectory_has_left_reads_back(tmp_path):
+    """A file whose trajectories all ended at the exit (none left running) opens, through the API and
+    `rbx plot --kind escape`: its saved state was once refused as damaged, the check of the running trajectories'
+    state failing on an empty set."""
+    out = tmp_path / "gone.h5"
+    cfg = _config(RECTANGLE, SMOOTH, {"left": EXIT}, initial={"sample": "billiard"}, collisions=2000, trajectories=3)
+    run = rbx.simulate(cfg, output=str(out))
+    again = rbx.open(str(out))
+    assert not np.any(again.final["alive"]) and not np.any(run.final["alive"])
+    np.testing.assert_array_equal(again.final["position"], run.final["position"])
+    assert np.all(escape_times(again).exited)
+    plot = subprocess.run([str(Path(sys.executable).with_name("rbx")), "plot", str(out), "--kind", "escape",
+                           "-o", str(tmp_path / "gone.png")], capture_output=True, text=True, timeout=300)
+    assert plot.returncode == 0 and (tmp_path / "gone.png").stat().st_size > 0, plot.stderr
