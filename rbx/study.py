@@ -45,7 +45,7 @@ from .model import ConfigError
 from .paths import check_replaceable, config_file_problem
 from .runfile import FileError, provenance
 
-__all__ = ["sweep", "load_study", "Study", "point_seed"]
+__all__ = ["sweep", "load_study", "Study", "point_seed", "StudyInterrupted"]
 
 STUDY_KEYS = ("base", "set", "vary", "zip", "measure", "ensemble")
 ENSEMBLE_KEYS = ("trajectories", "collisions", "seed")
@@ -692,6 +692,7 @@ def sweep(study, output=None, *, scheduler=None, resume=False, force=False, prog
     done = ds["done"].values
     todo = [(i, p) for i, p in points if not done[i]]
     total, finished = len(points), len(points) - len(todo)
+    stored = finished       # the finished points the results file on disk holds
     client = _client(scheduler)
     try:
         if progress is not None:
@@ -709,9 +710,17 @@ def sweep(study, output=None, *, scheduler=None, resume=False, force=False, prog
             if output is not None and finished < total and (
                     time.perf_counter() - written >= WRITE_SPACING * (_write_cost or FIRST_WRITE_COST)):
                 _write(ds, partial)
-                written = time.perf_counter()
+                written, stored = time.perf_counter(), finished
             if progress is not None:
                 progress(finished, total)
+    except BaseException as exc:
+        # the points finished since the last write are kept too (a Ctrl-C, a lost cluster, a point that failed):
+        # --resume then runs only the others
+        if output is not None and finished > stored:
+            _write_held(ds, partial)
+        if isinstance(exc, KeyboardInterrupt) and output is not None:
+            raise StudyInterrupted(*kept_points(partial, st.digest), total) from None
+        raise
     finally:
         if client is not None and client is not scheduler:
             client.close()
@@ -720,6 +729,45 @@ def sweep(study, output=None, *, scheduler=None, resume=False, force=False, prog
         _write(ds, partial)
         os.replace(partial, output)
     return ds
+
+
+class StudyInterrupted(KeyboardInterrupt):
+    """A study stopped by a signal: ``path`` (None: nothing of the study written) holds ``kept`` of its ``total``
+    points, which ``resume=True`` (``rbx sweep --resume``) continues."""
+
+    def __init__(self, path, kept, total):
+        super().__init__(path, kept, total)
+        self.path, self.kept, self.total = path, kept, total
+
+
+def kept_points(path, digest=None):
+    """The finished points a results file holds -> (path, number), or (None, 0) when there is no such file (or it
+    is another study's, or unreadable)."""
+    if not os.path.exists(path):
+        return None, 0
+    try:
+        ds = _read(path)
+    except Exception:
+        return None, 0
+    if digest is not None and ds.attrs.get("study_digest") != digest:
+        return None, 0
+    return path, int(ds["done"].values.astype(bool).sum())
+
+
+def _write_held(ds, path):
+    """:func:`_write`, with SIGINT and SIGTERM held off meanwhile (a second Ctrl-C would cut the write short) and a
+    failure let pass: the file on disk then stays as it was (the write replaces it whole or not at all)."""
+    import signal
+    import threading
+    main = threading.current_thread() is threading.main_thread()
+    old = {s: signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGTERM)} if main else {}
+    try:
+        _write(ds, path)
+    except Exception:
+        pass
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
 
 
 def _client(scheduler):

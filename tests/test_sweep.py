@@ -185,6 +185,33 @@ def test_a_killed_study_resumes_to_the_uninterrupted_result(tmp_path):
     assert res.returncode == 2 and len(res.stderr.splitlines()) == 1 and "--force" in res.stderr
 
 
+def test_a_study_stopped_by_ctrl_c_says_what_it_kept_and_how_to_continue(tmp_path):
+    import xarray as xr
+    study = {"base": SINAI, "vary": {"ball.inertia": {"from": 0.1, "to": 1.0, "num": 10}},
+             "measure": ["lyapunov"], "ensemble": {"trajectories": 4, "collisions": 400000, "seed": 4}}
+    (tmp_path / "study.yaml").write_text(yaml.safe_dump(study, sort_keys=False))
+    partial = tmp_path / "out.nc.partial"
+    proc = subprocess.Popen([RBX, "sweep", "study.yaml", "-o", "out.nc"], cwd=tmp_path, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    while not partial.exists():
+        assert proc.poll() is None, proc.communicate()
+        time.sleep(0.01)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=600)
+    assert proc.returncode == 130, err
+    with xr.open_dataset(partial) as ds:
+        kept = int(ds["done"].sum())
+    assert 1 <= kept < 10
+    assert err.splitlines() == [
+        f"rbx: out.nc.partial: interrupted by SIGINT after {kept} of 10 points; the file holds those {kept}. "
+        "Continue with: rbx sweep study.yaml -o out.nc --resume"], err
+    res = rbx_cli("sweep", "study.yaml", "-o", "out.nc", "--resume", cwd=tmp_path)
+    assert res.returncode == 0 and f"({10 - kept} run now, {kept} before)" in res.stderr, res.stderr
+    # a finished study resumed has nothing to do, and says so
+    res = rbx_cli("sweep", "study.yaml", "-o", "out.nc", "--resume", cwd=tmp_path)
+    assert res.returncode == 0 and res.stderr == "rbx: nothing to do: out.nc holds all 10 points of the study\n"
+
+
 def test_a_dask_cluster_gives_the_local_numbers(tmp_path):
     pytest.importorskip("distributed")
     from tests.test_cluster import LocalDask

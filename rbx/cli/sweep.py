@@ -1,10 +1,12 @@
 """``rbx sweep STUDY.yaml -o RESULTS.nc``: a parameter study (docs/studies.md; :mod:`rbx.study`)."""
+import shlex
+import signal
 import time
 
 import click
 
-from .common import (Command, Progress, UserError, display_path, duration, ending_on_signals, pending_signal,
-                     plural, quiet_option, report_and_exit, summary, user_errors)
+from .common import (Command, Progress, UserError, display_path, duration, ending_on_signals, hard_exit,
+                     pending_signal, plural, quiet_option, report_and_exit, summary, user_errors)
 
 
 @click.command(cls=Command)
@@ -23,23 +25,53 @@ def sweep(study, output, scheduler, resume, force, quiet, debug):
     """Run the study STUDY.yaml: the observables of `measure` at every point of `vary`, an ensemble per point,
     with standard errors, into RESULTS.nc (xarray.open_dataset reads it)."""
     from ..api import StopFlag
+    from ..study import StudyInterrupted
     began = time.perf_counter()
     stop = StopFlag(pending=pending_signal)
     bar = Progress("sweep", delay=0.0, quiet=quiet, unit="points")       # over the whole study
+    counts = []                         # (finished, total) as the study reports them: the first is where it began
+
+    def progress(finished, total):
+        counts.append((finished, total))
+        bar(finished, total)
+    interrupted = None
     try:
         if resume and force:
             raise UserError(None, "--resume", "give --resume or --force, not both")
         with ending_on_signals(stop):
-            ds = _sweep(study, output, scheduler, resume, force, bar)
+            try:
+                ds = _sweep(study, output, scheduler, resume, force, progress)
+            except StudyInterrupted as exc:
+                stop.running = True     # a second signal now only notes itself: the line below is printed
+                interrupted = exc
     except UserError as exc:
         bar.close()
         report_and_exit(exc, debug)
     bar.close()
+    if interrupted is not None:
+        _interrupted(interrupted, stop.signum or signal.SIGINT, study)
     points = int(ds["done"].size)
+    if not counts or counts[0][0] == counts[0][1]:
+        summary(quiet, f"nothing to do: {display_path(output)} holds all {plural(points, 'point')} of the study")
+        return
+    ran = counts[-1][0] - counts[0][0]
     summary(quiet, f"wrote {display_path(output)}: {plural(points, 'point')} × "
                    f"{plural(int(ds.attrs['ensemble_trajectories']), 'trajectory')} × "
-                   f"{plural(int(ds.attrs['ensemble_collisions']), 'collision')} in "
-                   f"{duration(time.perf_counter() - began)}")
+                   f"{plural(int(ds.attrs['ensemble_collisions']), 'collision')}"
+                   + (f" ({ran} run now, {counts[0][0]} before)" if counts[0][0] else "") +
+                   f" in {duration(time.perf_counter() - began)}")
+
+
+def _interrupted(exc, signum, study):
+    """The line of a study stopped by a signal: what its results file keeps and how to continue; exit 128 + signum."""
+    name = signal.Signals(signum).name
+    if exc.path is None or exc.kept == 0:
+        click.echo(f"rbx: interrupted by {name} before any point of the study finished; nothing written", err=True)
+    else:
+        click.echo(f"rbx: {display_path(exc.path)}: interrupted by {name} after {exc.kept} of "
+                   f"{plural(exc.total, 'point')}; the file holds those {exc.kept}. Continue with: "
+                   f"rbx sweep {shlex.quote(study)} -o {shlex.quote(display_path(exc.path[:-len('.partial')]))} --resume", err=True)
+    hard_exit(128 + int(signum))
 
 
 def _sweep(study, output, scheduler, resume, force, progress):
