@@ -57,7 +57,85 @@ def arguments(description):
     p = argparse.ArgumentParser(description=description.strip().splitlines()[0])
     p.add_argument("data", nargs="+", help="HDF5 files written by rbx simulate (or rbx histogram)")
     p.add_argument("-o", "--output", required=True, help="figure to write (PNG); the JSON record goes beside it")
-    return p.parse_args()
+    args = p.parse_args()
+    for path in args.data:
+        problem = made_from_its_config(path)
+        if problem:
+            print(f"rbx: {problem}", file=sys.stderr)
+            sys.exit(2)
+    return args
+
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+#: settings that change how a run is stored, not its numbers
+STORAGE_KEYS = ("output.path", "output.max_size", "output.compression")
+#: the keys named first when they differ: what a shortened or re-seeded run changes
+RUN_KEYS = ("run.trajectories", "run.collisions", "run.seed")
+
+
+def made_from_its_config(path):
+    """Whether the data file ``path`` at the Makefile's place (``data/<x>.h5`` or ``data/<label>/<x>.h5``) is the
+    run of the config the Makefile makes it from (``configs/experiments/<x>.yaml``) as that config stands: the
+    config stored in the file (its root attribute ``config``) against the config read now, every key but where the
+    file was written (:data:`STORAGE_KEYS`), and the run complete -> None, or the problem in one line
+    ``<file>: <key>: <problem>``. (``rbx histogram … --trajectories 300`` writes data/histogram.h5 by default, and
+    the paper's figure was then drawn from 300 samples with its checks passing.) A file elsewhere (a test's
+    shortened run) is not checked."""
+    import h5py
+    import yaml
+
+    import rbx
+    data = os.path.join(ROOT, "data")
+    full = os.path.abspath(path)
+    if os.path.commonpath([full, data]) != data:
+        return None
+    rel = os.path.relpath(full, data)
+    config = os.path.join(ROOT, "configs", "experiments", os.path.splitext(rel)[0] + ".yaml")
+    if not os.path.exists(config):
+        return None
+    shown = os.path.relpath(full, ROOT)
+    again = f"make it again: rm {shown} && make reproduce-figures"
+    if not os.path.exists(full):
+        return f"{shown}: no such file: make it with make reproduce-figures"
+    try:
+        with h5py.File(full, "r") as f:
+            stored = f.attrs.get("config")
+            complete = f.attrs.get("complete")
+        stored = yaml.safe_load(stored.decode() if isinstance(stored, bytes) else stored)
+        if not isinstance(stored, dict):
+            raise ValueError("no config")
+    except Exception:
+        return None         # not a run file: the script's reader says what it is
+    if complete is not None and not bool(complete):
+        return (f"{shown}: complete: the run was interrupted (complete = false): continue it with rbx simulate "
+                f"--resume {shown}, or {again}")
+    wanted = rbx.load(config).to_dict()
+    got, want = _flat(stored), _flat(wanted)
+    keys = [k for k in RUN_KEYS if got.get(k) != want.get(k)]
+    keys += sorted(k for k in set(got) | set(want) if k not in STORAGE_KEYS and k not in RUN_KEYS
+                   and got.get(k) != want.get(k))
+    if not keys:
+        return None
+    k = keys[0]
+    more = f" (and {len(keys) - 1} other key{'s' if len(keys) > 2 else ''})" if len(keys) > 1 else ""
+    return (f"{shown}: {k}: {_short(got.get(k))} in this file, {_short(want.get(k))} in "
+            f"{os.path.relpath(config, ROOT)}, which the figure is made from{more}: {again}")
+
+
+def _flat(mapping, prefix=""):
+    out = {}
+    for k, v in mapping.items():
+        key = f"{prefix}{k}"
+        if isinstance(v, dict) and v:
+            out.update(_flat(v, key + "."))
+        else:
+            out[key] = v
+    return out
+
+
+def _short(value, width=40):
+    text = "(none)" if value is None else json.dumps(value, ensure_ascii=False, default=str)
+    return text if len(text) <= width else text[:width - 1] + "…"
 
 
 class Figure:

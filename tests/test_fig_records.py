@@ -48,3 +48,48 @@ def test_periodic_gap_panel_draws_a_negative_gap_with_its_sign():
     assert np.nanmin(drawn) > 1e-12                                          # not clipped to a floor
     assert "-3e-11" in ax.get_title() and "never crossed" not in ax.get_title()
     assert "from collision 501" in [t.get_text() for t in ax.get_legend().get_texts()][1]
+
+
+def _tree(tmp_path):
+    """A copy of the repository's configs and figure scripts, so that the data/ they check is the copy's."""
+    import shutil
+    for folder in ("configs", "scripts"):
+        shutil.copytree(os.path.join(ROOT, folder), tmp_path / folder)
+    (tmp_path / "data").mkdir()
+    return tmp_path
+
+
+def _run(args, cwd):
+    import subprocess
+    return subprocess.run(args, cwd=cwd, capture_output=True, text=True, timeout=600,
+                          env={**os.environ, "MPLBACKEND": "Agg"})
+
+
+def test_a_figure_refuses_data_not_made_with_its_configs_own_run_settings(tmp_path):
+    tree = _tree(tmp_path)
+    rbx = os.path.join(os.path.dirname(sys.executable), "rbx")
+    config = "configs/experiments/histogram.yaml"
+    script = [sys.executable, "scripts/fig_histogram.py", "data/histogram.h5", "-o", "figures/histogram.png"]
+    # rbx histogram's --data defaults to the config's output.path: data/histogram.h5, of 300 samples
+    res = _run([rbx, "histogram", config, "-o", "h.png", "--trajectories", "300", "--quiet"], tree)
+    assert res.returncode == 0 and (tree / "data" / "histogram.h5").exists(), res.stderr
+    res = _run(script, tree)
+    assert res.returncode == 2 and not (tree / "figures" / "histogram.png").exists(), res.stdout + res.stderr
+    assert res.stderr.splitlines() == [
+        "rbx: data/histogram.h5: run.trajectories: 300 in this file, 100000 in configs/experiments/histogram.yaml, "
+        "which the figure is made from: make it again: rm data/histogram.h5 && make reproduce-figures"], res.stderr
+    # another seed, or another key, is named too
+    res = _run([rbx, "histogram", config, "-o", "h.png", "--force", "--quiet", "--set", "run.trajectories=300",
+                "--set", "run.seed=7", "--set", "ball.inertia=0.3"], tree)
+    assert res.returncode == 0, res.stderr
+    res = _run(script, tree)
+    assert res.returncode == 2 and "data/histogram.h5: run.trajectories: 300 in this file" in res.stderr
+    assert "(and 2 other keys)" in res.stderr and len(res.stderr.splitlines()) == 1, res.stderr
+    # the config as it stands: the figure is drawn (here of 300 samples, the config's own number)
+    text = (tree / config).read_text()
+    (tree / config).write_text(text.replace("trajectories: 100000", "trajectories: 300"))
+    res = _run([rbx, "histogram", config, "-o", "h.png", "--force", "--quiet"], tree)
+    assert res.returncode == 0, res.stderr
+    res = _run(script, tree)
+    assert res.returncode in (0, 1) and "rbx:" not in res.stderr, res.stdout + res.stderr
+    assert (tree / "figures" / "histogram.png").exists()
