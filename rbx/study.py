@@ -471,7 +471,18 @@ def run_point(study, point, scheduler=None):
                 runs.returns = return_experiment(exp, cluster=on)
             collisions += int(np.sum(runs.returns.collisions))
     values = {name: obs.get(name).compute(runs, options) for name, options in study.measure}
+    if need["tangent"]:
+        lam1 = runs.lyapunov.per_trajectory[:, 0]
+        lam1 = lam1[np.isfinite(lam1)]
+        values["lyapunov_orbits"] = int(lam1.size)
+        values["lyapunov_regular"] = int(np.sum(lam1 < _threshold(study)))
     return values, collisions, time.perf_counter() - began
+
+
+def _threshold(study):
+    """The own λ₁ below which an orbit counts as regular: regular_share's threshold when measured, else its
+    default."""
+    return float(dict(study.measure).get("regular_share", {}).get("threshold", obs.REGULAR_THRESHOLD))
 
 
 # ---- the results file -----------------------------------------------------------------------------------------------
@@ -506,6 +517,15 @@ def _empty(study, exp0):
     for dim, vals in extra.items():
         coords[dim] = xr.Variable((dim,), np.asarray(vals, dtype=str) if np.asarray(vals).dtype == object
                                   else np.asarray(vals))
+    if _needs(study)["tangent"]:
+        thr = _threshold(study)
+        data["lyapunov_orbits"] = xr.Variable(dims, np.zeros(shape, np.int64), {
+            "units": "trajectory", "description": "trajectories whose own λ₁ was measured (those that left the "
+                                                  "table before any collision was counted have none)"})
+        data["lyapunov_regular"] = xr.Variable(dims, np.zeros(shape, np.int64), {
+            "units": "trajectory", "threshold": thr,
+            "description": f"of those, the regular ones: own λ₁ below {thr:g} per unit time (the point's λ₁ pools "
+                           "them with the chaotic ones)"})
     data["collisions"] = xr.Variable(dims, np.zeros(shape, np.int64),
                                      {"units": "collision", "description": "collisions run at the point (all runs)"})
     data["wall_time"] = xr.Variable(dims, np.full(shape, np.nan), {"units": "s", "description":
@@ -588,6 +608,9 @@ def _store(ds, index, study, values, collisions, seconds, seed):
             key = f"{name}_{suffix}"
             if key in ds:
                 put(key, x)
+    for name in ("lyapunov_orbits", "lyapunov_regular"):
+        if name in values and name in ds:
+            put(name, values[name])
     put("collisions", collisions)
     put("wall_time", seconds)
     put("seed", seed)

@@ -411,3 +411,28 @@ def test_a_short_study_writes_its_results_once_and_they_read_back_identical(tmp_
     with xr.open_dataset(out, engine="h5netcdf") as back:
         assert back.load().identical(ds)        # values, dtypes, coordinates, units and the study's attributes
         assert back["wall"].values.tolist() == list(ds["wall"].values) and back["wall_share"].dims[-1] == "wall"
+
+
+def test_the_lyapunov_sweep_plot_says_it_pools_regular_and_chaotic_orbits(specular, tmp_path):
+    # rbx lyapunov says that its λ₁ pools the regular orbits with the chaotic ones; the sweep plot of λ₁ said nothing
+    import xarray as xr
+
+    from rbx.cli.sweep import open_results, sweep_panel
+    study = {"base": SINAI, "vary": {"ball.inertia": {"from": 0.1, "to": 1.0, "num": 6}}, "measure": ["lyapunov"],
+             "ensemble": {"trajectories": 8, "collisions": 20000, "seed": 4}}
+    (tmp_path / "study.yaml").write_text(yaml.safe_dump(study, sort_keys=False))
+    res = rbx_cli("sweep", "study.yaml", "-o", "out.nc", "--quiet", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    with xr.open_dataset(tmp_path / "out.nc") as ds:
+        measured, regular = ds["lyapunov_orbits"].values, ds["lyapunov_regular"].values
+    assert (measured == 8).all() and 0 < (regular > 0).sum() < 6      # some points have regular orbits, not all
+    _, title = sweep_panel(open_results(str(tmp_path / "out.nc")), "lyapunov")
+    share = round(100 * regular.max() / 8)
+    assert title.splitlines()[-1] == (
+        f"λ₁ pools each point's 8 orbits, regular and chaotic alike: {(regular > 0).sum()} of 6 points have regular "
+        f"ones (own λ₁ < 0.02), up to {share}% of their orbits")
+    res = rbx_cli("plot", "out.nc", "--kind", "sweep", "--y", "lyapunov", "-o", "l.png", cwd=tmp_path)
+    assert res.returncode == 0 and (tmp_path / "l.png").exists(), res.stderr
+    # the specular table's orbits are all chaotic, and the title says so
+    _, title = sweep_panel(open_results(str(specular[1])), "lyapunov")
+    assert title.splitlines()[-1] == "λ₁ pools each point's 4 orbits; none is regular (own λ₁ < 0.02)"

@@ -196,7 +196,42 @@ def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=Non
     title = (f"{ds.attrs.get('title', '')}\n{ysym} against {xsym} · {plural(int(M), 'trajectory')} × "
              f"{plural(int(N), 'collision')} per point · "
              f"{int(done.values.sum())} of {done.size} points · run time {duration(seconds)}")
+    if y == "lyapunov" or y.startswith("lyapunov_per_collision") or y.startswith("lyapunov_spectrum"):
+        title += "\n" + pooled_note(ds, ysym, int(M))
     return panel, title
+
+
+def pooled_note(ds, ysym, M):
+    """What a point's λ₁ is an average of, as the results file lets one say it: every orbit of the point pooled,
+    regular and chaotic alike, and how many were regular (``lyapunov_regular`` of ``lyapunov_orbits``, or the
+    ``regular_share`` measured beside it) -> one line for the title. (``rbx lyapunov`` says it; the plot did not.)"""
+    import numpy as np
+    done = ds["done"].values.astype(bool)
+    points = int(done.sum())
+    pooled = f"{ysym} pools each point's {plural(M, 'orbit')}"
+    if "lyapunov_orbits" in ds and "lyapunov_regular" in ds:
+        measured = ds["lyapunov_orbits"].values[done]
+        regular = ds["lyapunov_regular"].values[done]
+        thr = float(ds["lyapunov_regular"].attrs.get("threshold", np.nan))
+        fewer = int(np.sum(measured < M))
+        if fewer:
+            pooled += (f" (at {fewer} of {points} points only {int(measured.min())}–{int(measured.max())}: the "
+                       "others left the table first)")
+        mixed = int(np.sum(regular > 0))
+        if not mixed:
+            return f"{pooled}; none is regular (own {ysym} < {thr:g})"
+        share = regular / np.maximum(measured, 1)
+        return (f"{pooled}, regular and chaotic alike: {mixed} of {points} points have regular ones (own {ysym} < "
+                f"{thr:g}), up to {100 * float(share.max()):.0f}% of their orbits")
+    if "regular_share" in ds:
+        share = ds["regular_share"].values[done]
+        share = share[np.isfinite(share)]
+        mixed = int(np.sum(share > 0))
+        if not mixed:
+            return f"{pooled}; none is regular (regular_share 0)"
+        return (f"{pooled}, regular and chaotic alike: {mixed} of {share.size} points have regular ones, up to "
+                f"{100 * float(share.max()):.0f}% of their orbits")
+    return f"{pooled}, regular and chaotic alike (how many were regular: measure regular_share)"
 
 
 def _fmt(v):
