@@ -205,6 +205,11 @@ class Lyapunov:
         collisions = float(np.sum(self.collisions))
         return self.exponents * (float(np.sum(self.time)) / collisions) if collisions > 0 else self.exponents * np.nan
 
+    def measured(self):
+        """The trajectories that have their own exponents: a trajectory that left the table (an exit, an escape)
+        during its warm-up measured nothing (its row of ``per_trajectory`` is NaN) -> int."""
+        return int(np.sum(np.isfinite(self.per_trajectory[:, 0])))
+
     def regular_share(self, threshold=REGULAR_THRESHOLD):
         """The share of trajectories whose own λ₁ (per unit time) is below ``threshold`` — regular orbits, which a
         rough table can trap beside chaotic ones — with its Wilson interval (z = 1) -> (share, low, high)."""
@@ -223,6 +228,7 @@ class Lyapunov:
                 "per_collision": [finite(x) for x in self.per_collision()],
                 "sum": float(np.sum(self.exponents)), "time": float(np.sum(self.time)),
                 "collisions": int(np.sum(self.collisions)), "trajectories": int(len(self.time)),
+                "measured": self.measured(),
                 "segments": int(self.segment_times.shape[1]), "warmup": int(self.warmup),
                 "counted": COUNTED, "mean_over": MEAN_OVER,
                 "coordinates": list(self.coordinates), "title": self.title,

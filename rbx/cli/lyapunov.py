@@ -92,7 +92,10 @@ def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as
         click.echo(json.dumps(result.to_dict()))
         return
     click.echo(f"Lyapunov spectrum (per unit time): {result.title}")
-    click.echo(f"{plural(len(result.time), 'trajectory')}, {plural(int(result.collisions.sum()), 'collision')} "
+    M, measured = len(result.time), result.measured()
+    unmeasured = (f" ({M - measured} of them left the table during their warm-up and measured nothing)"
+                  if measured < M else "")
+    click.echo(f"{plural(M, 'trajectory')}{unmeasured}, {plural(int(result.collisions.sum()), 'collision')} "
                f"measured over time "
                f"{result.time.sum():.6g} (after {result.warmup} warm-up collisions each, which are not counted)")
     for k, (lam, err) in enumerate(zip(result.exponents, result.stderr), 1):
@@ -106,8 +109,10 @@ def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as
     share, low, high = result.regular_share()
     if len(result.time) > 1:
         lam1 = result.per_trajectory[:, 0]
-        regular, measured = int(np.sum(lam1[np.isfinite(lam1)] < REGULAR_THRESHOLD)), int(np.sum(np.isfinite(lam1)))
-        click.echo(f"regular orbits (own λ1 < {REGULAR_THRESHOLD}): {regular} of {measured}, share {share:.3f} "
+        regular = int(np.sum(lam1[np.isfinite(lam1)] < REGULAR_THRESHOLD))
+        of = (f"{regular} of the {measured} measured (the other {M - measured} left the table during their "
+              "warm-up)" if measured < M else f"{regular} of {measured}")
+        click.echo(f"regular orbits (own λ1 < {REGULAR_THRESHOLD}): {of}, share {share:.3f} "
                    f"(Wilson interval {low:.3f} … {high:.3f})")
         if 0 < regular < measured:
             click.echo("the exponents above pool the regular and the chaotic orbits; each orbit's own exponents: "
