@@ -296,12 +296,14 @@ def draw_table_3d(ax, geom, lo, hi):
 # ---- orbits ----------------------------------------------------------------------------------------------------
 
 
-def _first(k, stride):
+def _first(k, stride, trajectories=2):
     """What the drawn part of a long orbit is: its first k flights as lines, or, when the records skip collisions
-    (``stride`` > 1: no straight flight joins them), its first k records as points."""
+    (``stride`` > 1: no straight flight joins them), its first k records as points; of each of the ``trajectories``
+    drawn, or of the one."""
+    of = "each trajectory" if trajectories > 1 else "the trajectory"
     if stride > 1:
-        return f"points: the first {k} records of each trajectory (one every {stride} collisions)"
-    return f"lines: the first {k} collisions of each trajectory"
+        return f"points: the first {k} records of {of} (one every {stride} collisions)"
+    return f"lines: the first {k} collisions of {of}"
 
 
 @styled
@@ -347,7 +349,7 @@ def orbit_figure(paths, geom, title, labels=None, points_only=False, stride=1):
         ax.set_xlabel("x [L] (not to scale)")
         ax.set_ylabel("y [L]")
     if k is not None:
-        ax.set_title(f"{_first(k, stride if points_only else 1)}; grey: the whole run")
+        ax.set_title(f"{_first(k, stride if points_only else 1, len(shown))}; grey: the whole run")
     if labels and len(paths) <= MAX_LEGEND:
         legend_outside(ax, "below" if ratio < 0.5 else "right")
     return fig

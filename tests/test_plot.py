@@ -677,3 +677,20 @@ def test_the_box_phase_portrait_says_what_each_panel_shows_and_leaves_its_struct
         last = np.unique(dots.get_facecolors()[-2000:], axis=0)          # the points drawn last, on top
         assert len(last) == 8                                            # come from every trajectory
     assert readable(fig) == []
+
+
+def test_an_orbit_of_one_trajectory_is_not_called_each_trajectory(tmp_path):
+    # the subtitle said "the first … collisions of each trajectory" of a run of one trajectory
+    exe = os.path.join(os.path.dirname(sys.executable), "rbx")
+    titles = {}
+    for m in (1, 2):
+        h5, png = tmp_path / f"s{m}.h5", tmp_path / f"s{m}.png"
+        r = subprocess.run([exe, "simulate", os.path.join(EXAMPLES, "sinai.yaml"), "-o", str(h5), "--collisions",
+                            "3000", "--trajectories", str(m), "--quiet"], capture_output=True, text=True, timeout=300)
+        assert r.returncode == 0, r.stderr
+        r = subprocess.run([exe, "plot", str(h5), "--kind", "orbit", "-o", str(png)], capture_output=True,
+                           text=True, timeout=300)
+        assert r.returncode == 0 and png.exists(), r.stderr
+        titles[m] = " ".join(make_figure(str(h5), "orbit").axes[0].get_title().split())
+    assert titles[1].startswith("lines: the first ") and " collisions of the trajectory; grey" in titles[1], titles
+    assert " collisions of each trajectory; grey" in titles[2], titles
