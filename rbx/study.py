@@ -524,8 +524,8 @@ def _empty(study, exp0):
                                                   "table before any collision was counted have none)"})
         data["lyapunov_regular"] = xr.Variable(dims, np.zeros(shape, np.int64), {
             "units": "trajectory", "threshold": thr,
-            "description": f"of those, the regular ones: own λ₁ below {thr:g} per unit time (the point's λ₁ pools "
-                           "them with the chaotic ones)"})
+            "description": f"of those, the regular ones: own λ₁ below {thr:g} per unit time (the point's λ₁ "
+                           "pools them with the chaotic ones)"})
     data["collisions"] = xr.Variable(dims, np.zeros(shape, np.int64),
                                      {"units": "collision", "description": "collisions run at the point (all runs)"})
     data["wall_time"] = xr.Variable(dims, np.full(shape, np.nan), {"units": "s", "description":

@@ -414,7 +414,7 @@ def test_a_short_study_writes_its_results_once_and_they_read_back_identical(tmp_
 
 
 def test_the_lyapunov_sweep_plot_says_it_pools_regular_and_chaotic_orbits(specular, tmp_path):
-    # rbx lyapunov says that its λ₁ pools the regular orbits with the chaotic ones; the sweep plot of λ₁ said nothing
+    # rbx lyapunov says that its λ₁ pools the regular orbits with the chaotic ones; the sweep plot said nothing
     import xarray as xr
 
     from rbx.cli.sweep import open_results, sweep_panel

@@ -44,6 +44,13 @@ def sweep(study, output, scheduler, resume, force, quiet, debug):
             except StudyInterrupted as exc:
                 stop.running = True     # a second signal now only notes itself: the line below is printed
                 interrupted = exc
+            except KeyboardInterrupt:
+                # while the study was set up: a resumed study's file is as it was, and is said to be kept
+                kept = _kept(output) if resume else None
+                if kept is None:
+                    raise
+                stop.running = True
+                interrupted = kept
     except UserError as exc:
         bar.close()
         report_and_exit(exc, debug)
@@ -62,15 +69,34 @@ def sweep(study, output, scheduler, resume, force, quiet, debug):
                    f" in {duration(time.perf_counter() - began)}")
 
 
+def _kept(output):
+    """The results file a resume would continue and what it holds -> StudyInterrupted(path, kept, total), or None."""
+    import os
+
+    from ..study import StudyInterrupted, _read, partial_path
+    for path in (partial_path(output), output):
+        if os.path.exists(path):
+            try:
+                done = _read(path)["done"].values
+            except Exception:
+                return None
+            return StudyInterrupted(path, int(done.astype(bool).sum()), int(done.size)) if done.any() else None
+    return None
+
+
 def _interrupted(exc, signum, study):
     """The line of a study stopped by a signal: what its results file keeps and how to continue; exit 128 + signum."""
     name = signal.Signals(signum).name
     if exc.path is None or exc.kept == 0:
-        click.echo(f"rbx: interrupted by {name} before any point of the study finished; nothing written", err=True)
+        click.echo(f"rbx: interrupted by {name}; no finished point to keep, nothing written", err=True)
+    elif not exc.path.endswith(".partial"):
+        click.echo(f"rbx: {display_path(exc.path)}: interrupted by {name}; the file holds all {exc.total} points, "
+                   "as it did", err=True)
     else:
         click.echo(f"rbx: {display_path(exc.path)}: interrupted by {name} after {exc.kept} of "
                    f"{plural(exc.total, 'point')}; the file holds those {exc.kept}. Continue with: "
-                   f"rbx sweep {shlex.quote(study)} -o {shlex.quote(display_path(exc.path[:-len('.partial')]))} --resume", err=True)
+                   f"rbx sweep {shlex.quote(study)} -o {shlex.quote(display_path(exc.path[:-len('.partial')]))} "
+                   "--resume", err=True)
     hard_exit(128 + int(signum))
 
 
