@@ -436,3 +436,14 @@ def test_the_lyapunov_sweep_plot_says_it_pools_regular_and_chaotic_orbits(specul
     # the specular table's orbits are all chaotic, and the title says so
     _, title = sweep_panel(open_results(str(specular[1])), "lyapunov")
     assert title.splitlines()[-1] == "λ₁ pools each point's 4 orbits; none is regular (own λ₁ < 0.02)"
+
+
+def test_a_results_file_without_the_orbit_counts_says_only_what_it_can(specular, tmp_path):
+    # a file written before the counts were kept: the regular share measured beside λ₁, or nothing about it
+    from rbx.cli.sweep import open_results, pooled_note
+    ds = open_results(str(specular[1])).drop_vars(["lyapunov_orbits", "lyapunov_regular"])
+    assert pooled_note(ds, "λ₁", 4) == ("λ₁ pools each point's 4 orbits, regular and chaotic alike (how many were "
+                                        "regular: measure regular_share)")
+    ds["regular_share"] = ds["lyapunov"] * 0 + [0.0, 0.25]
+    assert pooled_note(ds, "λ₁", 4) == ("λ₁ pools each point's 4 orbits, regular and chaotic alike: 1 of 2 points "
+                                        "have regular ones, up to 25% of their orbits")
