@@ -28,8 +28,8 @@ from .config import loads
 from .locks import LockNotWritable, acquire_lock, lock_holder, lock_path, release_lock, taken_fresh
 from .locks import busy as _busy
 from .progress import plural
-from .paths import (NO_ROOM, DiskFull, FileError, check_replaceable, creation_path, display_path, format_size,
-                    temporary_path, what_it_is)
+from .paths import (NO_ROOM, DiskFull, FileError, check_own_names, check_replaceable, creation_path, display_path,
+                    format_size, temporary_path, what_it_is)
 from .runfile import (H5Sink, Run, _text, close_journal, commit, config_yaml, data_bytes, file_path, fill_returns,
                       journal_of, open_journaled)
 
@@ -82,6 +82,7 @@ def check_target(path, force, key, file=None, config_source=None, partial_ok=Fal
     a run may still be writing its ``.partial``. Raises :class:`FileError`; ``key``/``file`` name where the path
     came from (``-o``, ``output.path``, ``output``), ``force_hint`` how to force (``--force``, ``force=True``)."""
     show = display_path(path)
+    check_own_names(path)        # before the lock is read: a FIFO named as the lock would block its read
     holder = lock_holder(path)
     if holder is not None:
         raise _busy(path, holder)
@@ -424,6 +425,10 @@ def prepare_resume(run_file, output=None, *, force=False, max_size=None, out_key
     path = os.path.abspath(os.fspath(output)) if output else default
     tmp = temporary_path(path)
     in_place = tmp == source
+    # rbx's own files beside the source and the output (the .partial, its journal, the lock) must be nothing or
+    # regular files before any is opened or written: a .partial that is a link was written through with --force
+    for out in {default, path}:
+        check_own_names(out)
     # the source's lock before its file is read: a run still writing it is named in one line (reading a file that
     # HDF5 is writing can fail as "damaged"); continuation.load holds it on for the run
     locked = _lock_source(source, in_place)

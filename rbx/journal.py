@@ -27,10 +27,14 @@ It guards against a process being killed, not against the machine losing power: 
 the disk).
 """
 import contextlib
+import errno
 import math
 import os
+import stat
 import struct
 import zlib
+
+from .paths import what_it_is
 
 #: the overlay's page size: a write below ``committed`` copies the pages it touches
 PAGE = 4096
@@ -393,11 +397,27 @@ def _apply(fd, pages, overlay):
 
 def _read_journal(jpath):
     """-> (inode, device, size, {page: bytes}); JournalError if it is not a whole journal."""
-    with open(jpath, "rb") as fh:
+    try:
+        fd = os.open(jpath, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0))
+    except OSError as exc:
+        if exc.errno != errno.ELOOP and not os.path.islink(jpath):
+            raise
+        fd = None
+    if fd is None or not stat.S_ISREG(os.fstat(fd).st_mode):
+        # never read: a FIFO would wait for a writer for ever, a link may lead anywhere (/dev/zero)
+        if fd is not None:
+            os.close(fd)
+        raise JournalError(f"is {what_it_is(jpath)}, not a journal rbx wrote: rbx keeps a file's journal under "
+                           f"this name and reads it before the file; remove it (or rename it), then run again")
+    with os.fdopen(fd, "rb") as fh:
         raw = fh.read()
     at = len(MAGIC) + HEADER.size
-    if not raw.startswith(MAGIC) or len(raw) < at + CRC.size:
-        raise JournalError("is not an rbx journal (or is cut short)")
+    if not raw.startswith(MAGIC[:len(raw)]) or not raw:
+        raise JournalError(f"is not a journal rbx wrote ({len(raw)} bytes that do not begin as one); rbx keeps "
+                           f"{os.path.basename(jpath[:-len('.journal')])}'s journal under this name and reads it "
+                           "before that file: move it elsewhere (or rename it), then run again")
+    if len(raw) < at + CRC.size:
+        raise JournalError("is an rbx journal cut short (damaged)")
     body, (crc,) = raw[:-CRC.size], CRC.unpack(raw[-CRC.size:])
     if zlib.crc32(body) != crc:
         raise JournalError("is damaged (its checksum does not match)")

@@ -14,11 +14,12 @@ import contextlib
 import errno
 import os
 import socket
+import stat
 import sys
 import threading
 import time
 
-from .paths import NO_ROOM, DiskFull, FileError, display_path, lock_path
+from .paths import NO_ROOM, DiskFull, FileError, display_path, format_size, lock_path, what_it_is
 
 __all__ = ["lock_path", "acquire_lock", "release_lock", "lock_holder", "release_held_locks", "busy",
            "LockNotWritable", "taken_fresh"]
@@ -48,13 +49,45 @@ def _lock_text():
             f"started: {time.strftime('%Y-%m-%d %H:%M:%S %z')}\nprocess_start: {_process_start(os.getpid())}\n")
 
 
+#: the most a lock file rbx writes can hold (host, pid, start: about 100 bytes); a larger file is not a lock
+MAX_LOCK_BYTES = 4096
+
+
+class NotALock(FileError):
+    """A file under a lock's name that no run wrote and that rbx will not take over: not a regular file (a FIFO,
+    a directory, a link), or larger than a lock can be (a run's file written under that name)."""
+
+
 def _read_lock(lock):
-    """A lock file's fields -> dict (empty when it cannot be read, or holds no pid: not a lock a run wrote)."""
+    """A lock file's fields -> dict (empty when it cannot be read, or holds no pid: not a lock a run wrote; a lock
+    of bytes that are not text, a damaged one: ``{'damaged': '…'}``). Raises :class:`NotALock` for what is not a
+    lock file (never opened as one: a FIFO would block the read for ever)."""
     try:
-        with open(lock) as fh:
-            text = fh.read(4096)
+        fd = os.open(lock, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0))
+    except OSError as exc:
+        if exc.errno == errno.ELOOP or os.path.islink(lock):
+            raise NotALock(display_path(lock), None, f"is {what_it_is(lock)}, not a lock file rbx made: remove it "
+                                                     "(rbx does not write through links)") from None
+        return {}
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode):
+            raise NotALock(display_path(lock), None, f"is {what_it_is(lock)}, not a lock file rbx made: remove it")
+        if st.st_size > MAX_LOCK_BYTES:
+            raise NotALock(display_path(lock), None, f"is a file of {format_size(st.st_size)}, not a lock rbx made "
+                                                     f"(a lock holds a few lines); rbx keeps its run's lock under "
+                                                     "this name: move the file elsewhere, then run again")
+        data = os.read(fd, MAX_LOCK_BYTES)
+    except NotALock:
+        raise
     except OSError:
         return {}
+    finally:
+        os.close(fd)
+    try:
+        text = data.decode()
+    except UnicodeDecodeError:
+        return {"damaged": f"{len(data)} bytes that are not a lock's text"}
     fields = {}
     for line in text.splitlines():
         key, _, value = line.partition(":")
@@ -115,7 +148,7 @@ def lock_holder(path):
     if not os.path.lexists(lock):
         return None
     fields = _read_lock(lock)
-    if not fields or _is_stale(fields) or fields.get("pid") == str(os.getpid()):
+    if not fields or "damaged" in fields or _is_stale(fields) or fields.get("pid") == str(os.getpid()):
         return None
     return _holder(fields)
 
@@ -153,7 +186,7 @@ def acquire_lock(path, warn=None):
                 if not fields:         # a lock written by an rbx without whole locks, this instant: look again
                     time.sleep(0.05)
                     fields = _read_lock(lock)
-                if not fields or _is_stale(fields):
+                if not fields or "damaged" in fields or _is_stale(fields):
                     _take_over(lock, fields, warn)
                     continue
                 raise busy(path, _holder(fields)) from None
@@ -221,7 +254,8 @@ def _take_over(lock, fields, warn):
         os.remove(aside)
         return
     os.remove(aside)
-    what = (f"a stale lock ({_holder(fields)}, a process that no longer runs: killed?)" if fields else
+    what = (f"a damaged lock ({fields['damaged']}: no run's)" if "damaged" in fields else
+            f"a stale lock ({_holder(fields)}, a process that no longer runs: killed?)" if fields else
             "an empty lock (left by a run that could not write it: a full disk?)")
     message = f"{display_path(lock)}: warning: {what} was taken over"
     if warn is None:
@@ -243,7 +277,11 @@ def release_lock(path):
 
 
 def _remove_own_lock(lock):
-    if _read_lock(lock).get("pid") == str(os.getpid()):
+    try:
+        fields = _read_lock(lock)
+    except NotALock:         # not ours any more: left alone
+        return
+    if fields.get("pid") == str(os.getpid()):
         with contextlib.suppress(OSError):
             os.remove(lock)
 

@@ -121,6 +121,27 @@ def check_replaceable(path, key=None, file=None):
                                "a file name such as run.h5")
 
 
+def own_names(path):
+    """The files rbx makes beside a run's output ``path`` and writes or reads itself: its ``.partial``, the
+    ``.partial.new`` of a new run, the journals of these and of the output, and the run's lock -> list of paths."""
+    tmp = temporary_path(path)
+    new = creation_path(path)
+    return [tmp, new, f"{path}.journal", f"{tmp}.journal", f"{new}.journal", lock_path(path)]
+
+
+def check_own_names(path):
+    """Raise :class:`FileError` unless each file rbx makes beside ``path`` (:func:`own_names`) is nothing yet or a
+    regular file: rbx writes only through names it made, never through a symbolic link someone put there
+    (``--resume OUT.h5 --force`` with ``OUT.h5.partial`` a link wrote HDF5 over the link's target), and never
+    opens a FIFO (the open waits for a writer for ever) or reads a directory as a journal or a lock."""
+    for own in own_names(path):
+        what = what_it_is(own)
+        if what is None or what == "a regular file":
+            continue
+        raise FileError(display_path(own), None, f"is {what}, not a regular file; rbx keeps its own files under this name and "
+                                   "writes nothing through it: remove it (or rename it), then run again")
+
+
 def config_file_problem(path, limit=MAX_CONFIG_BYTES):
     """Why the file at ``path`` is not one to read a config from -> None (a regular file of at most ``limit``
     bytes), or the problem: a device (``/dev/zero`` was read without bound), a FIFO (reading it waited for ever),

@@ -1,0 +1,145 @@
+"""Fifth round: what lies under rbx's own names beside a run's output (the ``.partial``, ``.partial.new``, the
+journals, the lock) is looked at before it is opened or written: a link is never written through, a FIFO never
+opened, a directory or a file of another kind named for what it is, each in one line."""
+import os
+import subprocess
+from pathlib import Path
+
+import h5py
+import pytest
+
+import rbx
+from tests.test_interrupt import assert_same_records, read_run
+from tests.test_reliability3 import killed_run, one_line, rbx_cli
+
+#: a guard against a hang, not a bound: each command below is refused before it computes anything
+HANG = 300
+
+
+def _refused(res, name, *words):
+    assert res.returncode == 2, (res.returncode, res.stderr)
+    line = one_line(res)
+    assert line.startswith(f"rbx: {name}: "), line
+    for w in words:
+        assert w in line, line
+    return line
+
+
+@pytest.mark.parametrize("how", ["in place", "into -o"])
+def test_a_resume_with_force_never_writes_through_a_partial_that_is_a_link(how, tmp_path):
+    """``--resume OUT.h5 --force`` (or ``--resume SRC -o OUT.h5 --force``) with ``OUT.h5.partial`` a symbolic
+    link wrote the run's HDF5 over the link's target and made OUT.h5 the link."""
+    ref = killed_run(tmp_path, out="src.h5")
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious data\n")
+    if how == "in place":
+        # an interrupted OUT.h5 (the killed run's .partial under its own name) beside a .partial that is a link
+        os.rename(tmp_path / "src.h5.partial", tmp_path / "out.h5")
+        args = ["--resume", "out.h5"]
+    else:
+        args = ["--resume", "src.h5.partial", "-o", "out.h5"]
+    os.symlink("victim.txt", tmp_path / "out.h5.partial")
+    res = rbx_cli("simulate", *args, "--force", "--quiet", cwd=tmp_path, timeout=HANG)
+    _refused(res, "out.h5.partial", "symbolic link to victim.txt")
+    assert victim.read_text() == "precious data\n"
+    assert os.readlink(tmp_path / "out.h5.partial") == "victim.txt"
+    # with the link gone, the same command finishes the run as an uninterrupted one
+    os.remove(tmp_path / "out.h5.partial")
+    res = rbx_cli("simulate", *args, "--force", "--quiet", cwd=tmp_path, timeout=HANG)
+    assert res.returncode == 0, res.stderr
+    assert not (tmp_path / "out.h5").is_symlink()
+    assert_same_records(read_run(tmp_path / "out.h5"), ref)
+
+
+@pytest.mark.parametrize("name", ["run.h5.partial.new", "run.h5.partial.journal", "run.h5.lock"])
+def test_a_resume_refuses_a_link_under_its_own_names(name, tmp_path):
+    killed_run(tmp_path)
+    victim = tmp_path / "victim.txt"
+    victim.write_text("precious data\n")
+    if (tmp_path / name).exists():
+        os.remove(tmp_path / name)
+    os.symlink("victim.txt", tmp_path / name)
+    res = rbx_cli("simulate", "--resume", "run.h5", "--force", "--quiet", cwd=tmp_path, timeout=HANG)
+    _refused(res, name, "symbolic link to victim.txt")
+    assert victim.read_text() == "precious data\n"
+
+
+@pytest.mark.parametrize("name", ["run.h5.partial.journal", "run.h5.lock"])
+@pytest.mark.parametrize("command", ["resume", "fresh"])
+def test_a_fifo_under_a_journal_or_lock_name_is_refused_not_opened(name, command, tmp_path):
+    """A FIFO named as the journal or the lock blocked the run until it was killed."""
+    killed_run(tmp_path)
+    if command == "fresh":
+        os.remove(tmp_path / "run.h5.partial")
+    if (tmp_path / name).exists():
+        os.remove(tmp_path / name)
+    os.mkfifo(tmp_path / name)
+    args = ["--resume", "run.h5"] if command == "resume" else ["exp.yaml", "-o", "run.h5"]
+    res = rbx_cli("simulate", *args, "--quiet", cwd=tmp_path, timeout=HANG)
+    _refused(res, name, "a FIFO (named pipe)")
+    assert (tmp_path / name).is_fifo()
+
+
+def test_a_fifo_or_directory_named_as_a_files_journal_is_named_when_the_file_is_opened(tmp_path):
+    """``rbx.open`` reads a file's journal first: a FIFO there blocked, a directory was reported as the file
+    needing a write."""
+    killed_run(tmp_path)
+    journal = tmp_path / "run.h5.partial.journal"
+    os.mkfifo(journal)
+    with pytest.raises(rbx.FileError, match="a FIFO"):
+        rbx.open(str(tmp_path / "run.h5.partial"))
+    os.remove(journal)
+    journal.mkdir()
+    with pytest.raises(rbx.FileError) as err:
+        rbx.open(str(tmp_path / "run.h5.partial"))
+    assert err.value.file.endswith("run.h5.partial.journal") and "is a directory" in err.value.problem
+    res = rbx_cli("simulate", "--resume", "run.h5", "--quiet", cwd=tmp_path, timeout=HANG)
+    line = _refused(res, "run.h5.partial.journal", "a directory")
+    assert "needs to write" not in line
+
+
+def test_a_lock_that_is_not_text_is_taken_over_as_damaged(tmp_path):
+    """A lock of bytes that are not UTF-8 was a UnicodeDecodeError traceback on every run of its output."""
+    killed_run(tmp_path)
+    (tmp_path / "run.h5.lock").write_bytes(b"\xff\xfe garbage\x89")
+    res = rbx_cli("simulate", "--resume", "run.h5", "--quiet", cwd=tmp_path, timeout=HANG)
+    assert res.returncode == 0, res.stderr
+    assert "Traceback" not in res.stderr
+    warnings = [x for x in res.stderr.splitlines() if x.startswith("rbx:")]
+    assert len(warnings) == 1 and "run.h5.lock: warning: a damaged lock" in warnings[0], res.stderr
+    assert not (tmp_path / "run.h5.lock").exists()
+    # a fresh run over it, and one with --force over a complete output, the same
+    (tmp_path / "run.h5.lock").write_bytes(b"\x89HDF\r\n\x1a\n\xff")
+    res = rbx_cli("simulate", "exp.yaml", "-o", "run.h5", "--force", "--quiet", cwd=tmp_path, timeout=HANG)
+    assert res.returncode == 0 and "a damaged lock" in res.stderr and "Traceback" not in res.stderr, res.stderr
+
+
+def test_a_run_file_under_a_lock_name_is_neither_a_traceback_nor_removed(tmp_path):
+    """``rbx simulate c.yaml -o i.h5.lock --force`` wrote a run file under i.h5's lock name: every later run of
+    i.h5 was a traceback. The file is not a lock: it is named, and kept."""
+    killed_run(tmp_path, out="i.h5")
+    res = rbx_cli("simulate", "exp.yaml", "-o", "i.h5.lock", "--force", "--quiet", cwd=tmp_path, timeout=HANG)
+    if res.returncode == 0:        # an output under another output's lock name may be refused outright
+        before = (tmp_path / "i.h5.lock").read_bytes()
+        for args in (["--resume", "i.h5"], ["exp.yaml", "-o", "i.h5", "--force"]):
+            res = rbx_cli("simulate", *args, "--quiet", cwd=tmp_path, timeout=HANG)
+            _refused(res, "i.h5.lock", "not a lock rbx made", "move the file elsewhere")
+        assert (tmp_path / "i.h5.lock").read_bytes() == before
+    else:
+        _refused(res, "i.h5.lock")
+
+
+def test_an_unrelated_file_named_as_a_journal_is_named_with_what_to_do(tmp_path):
+    """``-o x.h5.journal`` beside a complete x.h5 made ``rbx.open('x.h5')`` refuse it as 'is not an rbx journal
+    (or is cut short)'."""
+    killed_run(tmp_path)
+    (tmp_path / "x.h5.journal").write_text("notes of the day\n")
+    os.rename(tmp_path / "ref.h5", tmp_path / "x.h5")
+    with pytest.raises(rbx.FileError) as err:
+        rbx.open(str(tmp_path / "x.h5"))
+    assert err.value.file.endswith("x.h5.journal")
+    assert "not a journal rbx wrote" in err.value.problem and "x.h5's journal" in err.value.problem
+    assert "move it elsewhere" in err.value.problem
+    os.rename(tmp_path / "x.h5.journal", tmp_path / "notes.txt")
+    with rbx.open(str(tmp_path / "x.h5")) as run:
+        assert run.complete
