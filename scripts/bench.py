@@ -1649,7 +1649,11 @@ def main(argv=None):
     ap.add_argument("--process-collisions", type=_positive,
                     help="collisions of each whole-process run (section 3); default 10⁹, quick 10⁵")
     ap.add_argument("--tangent-only", action="store_true",
-                    help="run only the tangent-loop and short-orbit rows and append them to --out")
+                    help="run only the tangent-loop and short-orbit rows and put them in --out (in place of "
+                         "the ones there)")
+    ap.add_argument("--studies-only", action="store_true",
+                    help="run only the studies and explicit-states rows and put them in --out (in place of the "
+                         "ones there)")
     ap.add_argument("--out", default=os.path.join(os.path.dirname(os.path.abspath(__file__)), "..", "docs",
                                                   "benchmarks.md"))
     args = ap.parse_args(argv)
@@ -1665,8 +1669,11 @@ def main(argv=None):
     t0 = time.perf_counter()
     numba.set_num_threads(1)
     args.loads = {}
-    if args.tangent_only:
-        section_tangent(args)
+    if args.tangent_only or args.studies_only:
+        if args.studies_only:
+            section_studies(args)
+        if args.tangent_only:
+            section_tangent(args)
         return None
 
     def section(name, fn, *a):
@@ -1845,8 +1852,7 @@ def section_tangent(args):
     for name, M, N, setup, run in short:
         out.append(f"| {name} | {M:,} × {N:,} | {setup:.3f} s | {run:.3f} s | {(setup + run) / whole:.2f} |")
     out.append("")
-    with open(args.out, "a") as fh:
-        fh.write("\n".join(out))
+    append_section(args.out, out)
     log("\n".join(out))
     return tan, short
 
@@ -1924,9 +1930,26 @@ def section_studies(args):
         f"{med['whole'][1]:.3f} | – |",
         f"| sweep / simulate, interleaved (each pair: {', '.join(f'{p:.3f}' for p in pairs)}) | "
         f"{statistics.median(pairs):.3f} | {med['sweep'][1] / med['whole'][1]:.3f} | ≤ 1.05 |", ""]
-    with open(args.out, "a", encoding="utf-8") as fh:
-        fh.write("\n".join(lines))
+    append_section(args.out, lines)
     return med, pairs
+
+
+def append_section(path, lines):
+    """Append a section (``lines``, its title the first that starts with '## ') to the document ``path``, in place
+    of a section of that title already there (a re-run of one section replaces its table, not adds a second)."""
+    title = next(line for line in lines if line.startswith("## "))
+    with open(path, encoding="utf-8") as fh:
+        kept = fh.read().split("\n")
+    if title in kept:
+        start = kept.index(title)
+        end = next((i for i in range(start + 1, len(kept)) if kept[i].startswith("## ")), len(kept))
+        while start > 0 and not kept[start - 1].strip():
+            start -= 1
+        kept = kept[:start] + kept[end:]
+    while kept and not kept[-1].strip():
+        kept.pop()
+    with open(path, "w", encoding="utf-8") as fh:
+        fh.write("\n".join(kept + lines) + "\n")
 
 if __name__ == "__main__":
     main()

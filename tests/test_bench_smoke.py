@@ -167,3 +167,16 @@ def test_a_missing_peer_is_reported_not_fatal(monkeypatch):
     monkeypatch.setitem(sys.modules, "billiards", None)      # as if not installed: `import billiards` fails
     version, reason, measured = bench.section_peer(None, {})
     assert version is None and reason.startswith("not installed") and measured == {}
+
+
+def test_a_section_run_again_replaces_its_table_in_the_document(tmp_path):
+    """`--studies-only` / `--tangent-only` put their section in place of the one the document holds, so that a
+    re-run leaves one table per section, the newest."""
+    doc = tmp_path / "b.md"
+    doc.write_text("# Bench\n\n## 1. Collisions per second\n\n| a |\n\n## Studies and explicit states\n\nold\n\n"
+                   "## The tangent loop against the engine, and many short orbits\n\nold tangent\n")
+    bench.append_section(str(doc), ["", "## Studies and explicit states", "", "new", ""])
+    text = doc.read_text()
+    assert text.count("## Studies and explicit states") == 1 and "\nnew\n" in text and "\nold\n" not in text
+    assert "## 1. Collisions per second\n\n| a |" in text and "old tangent" in text
+    assert text.index("old tangent") < text.index("\nnew\n")      # the section moved to the end
