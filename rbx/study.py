@@ -214,9 +214,10 @@ def load_study(study, base=None):
         if isinstance(v, bool) or not isinstance(v, int) or v < lo:
             fail(f"ensemble.{k}", f"expected an integer ≥ {lo}, got {v!r}")
         ens[k] = int(v)
-    canonical = {"base": _canonical_base(base_value, folder), "set": fixed, "vary": {k: [_plain(x) for x in v]
-                 for k, v in zip(keys, values)}, "zip": zipped, "measure": [[n, o] for n, o in measure],
-                 "ensemble": ens}
+    first = {k: _plain(v[0]) for k, v in zip(keys, values)}
+    canonical = {"base": _canonical_base(base_value, folder, fixed, first), "set": fixed,
+                 "vary": {k: [_plain(x) for x in v] for k, v in zip(keys, values)}, "zip": zipped,
+                 "measure": [[n, o] for n, o in measure], "ensemble": ens}
     text = json.dumps(canonical, sort_keys=True, separators=(",", ":"), default=str, ensure_ascii=False)
     study_obj = Study(file=file, folder=folder, base=base_value, fixed=fixed, keys=keys, values=values, zip=zipped,
                       measure=measure, ensemble=ens, text=text, digest=hashlib.sha256(text.encode()).hexdigest(),
@@ -330,15 +331,20 @@ def _duplicates(text, file):
             stack.extend((v, path) for v in node.value)
 
 
-def _canonical_base(base, folder):
-    """The base as it will be run: its resolved config (includes inlined), so that a changed base file changes
-    the study's digest too."""
-    if isinstance(base, Mapping):
-        return dict(base)
-    try:
-        return load(base).resolved
-    except ConfigError:
-        return base
+def _canonical_base(base, folder, fixed=None, first=None):
+    """The base as it will be run: its resolved config (the files it includes inlined) with the study's ``set``
+    applied — or, if it is valid only then, with the ``first`` point's values too — so that a changed base file,
+    a table file an inline base names or one that ``set`` names, changes the study's digest too (a resume would
+    otherwise mix points of two scenes)."""
+    fixed = dict(fixed or {})
+    for changes in (fixed, {**fixed, **(first or {})}):
+        try:
+            if isinstance(base, Mapping):
+                return load(dict(base), changes, base=folder).resolved
+            return load(base, changes).resolved
+        except ConfigError:
+            continue
+    return dict(base) if isinstance(base, Mapping) else base
 
 
 def _number(x, key, fail):

@@ -447,3 +447,31 @@ def test_a_results_file_without_the_orbit_counts_says_only_what_it_can(specular,
     ds["regular_share"] = ds["lyapunov"] * 0 + [0.0, 0.25]
     assert pooled_note(ds, "λ₁", 4) == ("λ₁ pools each point's 4 orbits, regular and chaotic alike: 1 of 2 points "
                                         "have regular ones, up to 25% of their orbits")
+
+
+@pytest.mark.parametrize("form", ["inline base", "set names the table", "base valid only with set"])
+def test_a_table_file_the_study_names_anywhere_is_in_its_digest(tmp_path, form):
+    """A --resume refuses a study whose scene changed: the digest covers the table file an inline base names, one
+    that `set:` names and a base file that is complete only with `set:`, not only the study's own text (a resume
+    mixed points of two radii, exit 0)."""
+    from rbx.study import load_study
+    (tmp_path / "tab.yaml").write_text("{kind: sinai, size: [2.0, 1.5], radius: 0.4}\n")
+    scene = {"boundary": {"default": {"rule": "constant", "rank": 0}}, "ball": {"radius": 0.1},
+             "initial": {"sample": "billiard"}}
+    head = {"vary": {"ball.inertia": [0.2, 0.5]}, "measure": ["mean_free_path"],
+            "ensemble": {"trajectories": 4, "collisions": 100, "seed": 1}}
+    if form == "inline base":
+        study = {"base": {"table": "tab.yaml", **scene}, **head}
+    else:
+        base = dict(scene, table={"kind": "rectangle", "width": 2.0, "height": 1.0})
+        if form == "base valid only with set":
+            del base["initial"]
+        (tmp_path / "base.yaml").write_text(yaml.safe_dump(base))
+        fixed = {"table": "tab.yaml"} if form == "set names the table" else {"initial": {"sample": "billiard"},
+                                                                           "table": "tab.yaml"}
+        study = {"base": "base.yaml", "set": fixed, **head}
+    (tmp_path / "study.yaml").write_text(yaml.safe_dump(study))
+    before = load_study(str(tmp_path / "study.yaml")).digest
+    assert load_study(str(tmp_path / "study.yaml")).digest == before
+    (tmp_path / "tab.yaml").write_text("{kind: sinai, size: [2.0, 1.5], radius: 0.3}\n")
+    assert load_study(str(tmp_path / "study.yaml")).digest != before
