@@ -42,7 +42,8 @@ from .config import parse_yaml, read_text
 from .dynamics import lyapunov
 from .histogram import return_experiment
 from .model import ConfigError
-from .paths import check_replaceable, config_file_problem
+from .locks import acquire_lock, release_lock
+from .paths import check_own_names, check_replaceable, config_file_problem
 from .runfile import FileError, provenance
 
 __all__ = ["sweep", "load_study", "Study", "point_seed", "StudyInterrupted"]
@@ -688,15 +689,35 @@ def sweep(study, output=None, *, scheduler=None, resume=False, force=False, prog
     renamed at the end; an existing one is refused unless ``force`` (start again) or ``resume`` (compute only
     the points it lacks; a study whose canonical text changed is refused). ``scheduler``: a Dask scheduler
     address, scheduler file or ``distributed.Client`` that every point's runs use (the same numbers as a local
-    run). ``progress(done, total)``: called after each point. A bad study raises :class:`rbx.ConfigError`."""
+    run). ``progress(done, total)``: called after each point. A bad study raises :class:`rbx.ConfigError`.
+
+    The results file is written under the run lock ``output.lock`` that ``rbx simulate`` takes too: a second
+    sweep, or a run, writing the same file is refused, naming the one that holds it."""
+    if output is None:
+        return _sweep(study, None, scheduler, resume, force, progress, base)
+    output = os.path.abspath(os.fspath(output))
+    check_own_names(output)        # a FIFO named as the lock would block its read
+    acquire_lock(output)
+    try:
+        return _sweep(study, output, scheduler, resume, force, progress, base)
+    finally:
+        release_lock(output)
+
+
+def _sweep(study, output, scheduler, resume, force, progress, base):
     st = load_study(study, base)
     points = st.points()
     need = _needs(st)
     exp0 = st.experiment(points[0][1], need["fields"], need["every"])
     ds = None
     if output is not None:
-        output = os.path.abspath(os.fspath(output))
         partial = partial_path(output)
+        for p in (output, partial):      # never over the study, its base or a file they include
+            for f, what in ((st.file, "the study file"), (exp0.source, "the study's base config"),
+                            *((f, "a file the study's base includes") for f in exp0.includes)):
+                if f and os.path.isfile(f) and os.path.exists(p) and os.path.samefile(p, f):
+                    raise FileError(p, "-o", f"is {what}: give the results a file of their own, such as "
+                                             "results.nc")
         if resume:
             source = partial if os.path.exists(partial) else output if os.path.exists(output) else None
             if source is not None:

@@ -475,3 +475,42 @@ def test_a_table_file_the_study_names_anywhere_is_in_its_digest(tmp_path, form):
     assert load_study(str(tmp_path / "study.yaml")).digest == before
     (tmp_path / "tab.yaml").write_text("{kind: sinai, size: [2.0, 1.5], radius: 0.3}\n")
     assert load_study(str(tmp_path / "study.yaml")).digest != before
+
+
+def test_the_results_never_replace_the_study_or_a_file_it_reads(tmp_path):
+    """`-o` naming the study file, or a table file its base includes, is refused even with --force, in one line,
+    and the file is left as it was (it was overwritten with NetCDF)."""
+    (tmp_path / "tab.yaml").write_text("{kind: sinai, size: [2.0, 1.5], radius: 0.4}\n")
+    study = {"base": {"table": "tab.yaml", "boundary": {"default": {"rule": "constant", "rank": 0}},
+                      "ball": {"radius": 0.1}, "initial": {"sample": "billiard"}},
+             "vary": {"ball.radius": [0.05, 0.1]}, "measure": ["mean_free_path"],
+             "ensemble": {"trajectories": 2, "collisions": 50, "seed": 1}}
+    (tmp_path / "study.yaml").write_text(yaml.safe_dump(study))
+    for target, what in (("study.yaml", "the study file"), ("tab.yaml", "a file the study's base includes")):
+        before = (tmp_path / target).read_bytes()
+        res = rbx_cli("sweep", "study.yaml", "-o", target, "--force", cwd=tmp_path)
+        assert res.returncode == 2 and len(res.stderr.splitlines()) == 1 and what in res.stderr, res.stderr
+        assert (tmp_path / target).read_bytes() == before
+
+
+def test_a_results_file_another_run_is_writing_is_refused(tmp_path):
+    """A sweep takes the run lock of its results file, as `rbx simulate` does: with another process holding it
+    (a second sweep, or a run writing that name), `rbx sweep --force` is refused in one line naming the holder
+    and writes nothing; once the holder is gone it runs (two sweeps at once both said 'wrote', or one gave a
+    BlockingIOError traceback)."""
+    (tmp_path / "study.yaml").write_text(yaml.safe_dump(specular_study(trajectories=2, collisions=100)))
+    holder = subprocess.Popen([sys.executable, "-c", "import sys; from rbx.locks import acquire_lock; "
+                               "acquire_lock(sys.argv[1]); print('held', flush=True); sys.stdin.read()",
+                               str(tmp_path / "out.nc")], stdin=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        res = rbx_cli("sweep", "study.yaml", "-o", "out.nc", "--force", cwd=tmp_path)
+        assert res.returncode == 2 and len(res.stderr.splitlines()) == 1, res.stderr
+        assert f"pid {holder.pid}" in res.stderr, res.stderr
+        assert not (tmp_path / "out.nc").exists() and not (tmp_path / "out.nc.partial").exists()
+    finally:
+        holder.stdin.close()
+        holder.wait(timeout=60)
+    res = rbx_cli("sweep", "study.yaml", "-o", "out.nc", "--quiet", cwd=tmp_path)
+    assert res.returncode == 0 and (tmp_path / "out.nc").exists(), res.stderr
+    assert not (tmp_path / "out.nc.lock").exists()
