@@ -170,7 +170,10 @@ def test_a_killed_study_resumes_to_the_uninterrupted_result(tmp_path):
     # a changed study is refused, in one line
     (tmp_path / "study.yaml").write_text(text.replace("400000", "390000"))
     res = rbx_cli("sweep", "study.yaml", "-o", "out.nc", "--resume", cwd=tmp_path)
-    assert res.returncode == 2 and len(res.stderr.splitlines()) == 1 and "--resume" in res.stderr, res.stderr
+    # the killed sweep's lock is stale: taken over with a warning (as rbx simulate does), then the one-line refusal
+    warning, error = res.stderr.splitlines()
+    assert "warning: a stale lock" in warning and "was taken over" in warning, res.stderr
+    assert res.returncode == 2 and "--resume" in error and "changed" in error, res.stderr
     (tmp_path / "study.yaml").write_text(text)
     res = rbx_cli("sweep", "study.yaml", "-o", "out.nc", "--resume", "--quiet", cwd=tmp_path)
     assert res.returncode == 0, res.stderr
