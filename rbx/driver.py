@@ -603,15 +603,27 @@ def resume_to_file(r, *, progress=None, should_stop=None, report=None):
                            f"({display_path(r.source)} is unchanged)") from None
         raise FileError(tmp, None, f"cannot write: {exc.strerror or exc}") from None
     try:
-        continuation.make_consistent(h5, sim, r.write_initial)
+        try:
+            continuation.make_consistent(h5, sim, r.write_initial)
+        except (KeyError, ValueError, RuntimeError) as exc:
+            # HDF5 refusing to change the file's structure ("message not aligned"): the file is torn, as a kill
+            # while a checkpoint's journal was copied in leaves it once the journal is gone
+            raise FileError(display_path(r.source), None, f"its HDF5 structure is damaged ({_reason(exc)}): "
+                                                          "it cannot be continued; run the config again") from None
     except BaseException:
-        h5.close()
+        with contextlib.suppress(Exception):
+            h5.close()
         close_journal(h5, commit=False)        # the file as it was: nothing of the attempt reaches it
         if not r.in_place:
             os.remove(tmp)
         raise
     return stream(sim, h5, tmp, r.path, fresh=False, write_initial=r.write_initial, replace=r.force,
                   progress=progress, should_stop=should_stop, report=report)
+
+
+def _reason(exc):
+    """An exception's own words (a KeyError's without the quotes its str adds)."""
+    return str(exc.args[0] if isinstance(exc, KeyError) and exc.args else exc).strip()
 
 
 def finish_complete(partial, path, force=False):

@@ -453,9 +453,11 @@ def recover(path):
     try:
         st = os.fstat(fd)
         if (st.st_ino, st.st_dev) != (ino, dev):
-            raise JournalError(f"was written for another file (inode {ino}, this file's is {st.st_ino}): a copy, or "
-                               "a journal left by an earlier run; remove it to read the file as of its previous "
-                               "checkpoint")
+            raise JournalError(f"was written for another file (inode {ino}, this file's is {st.st_ino}): the folder "
+                               "was copied or moved to another disk since its run was killed while saving a "
+                               "checkpoint, or the journal is an earlier run's. Without its journal the file may be "
+                               "torn (half of a checkpoint): do not remove it to read the file; resume the run where "
+                               "it was killed, or run the config again")
         _apply(fd, sorted(pages), pages)
         if st.st_size < size:
             os.ftruncate(fd, size)

@@ -143,3 +143,57 @@ def test_an_unrelated_file_named_as_a_journal_is_named_with_what_to_do(tmp_path)
     os.rename(tmp_path / "x.h5.journal", tmp_path / "notes.txt")
     with rbx.open(str(tmp_path / "x.h5")) as run:
         assert run.complete
+
+
+KILL_MID_APPLY = """
+import os, signal, sys
+import rbx.simulation as s
+s.BLOCK_WORK = 3000
+s.CHECKPOINT_SECONDS = 0
+import rbx.journal as j
+seen = [0]
+real = j._apply
+def _apply(fd, pages, overlay):
+    seen[0] += 1
+    if seen[0] == {at}:
+        real(fd, pages[:len(pages) // 2], overlay)     # half of the checkpoint's pages copied in, then killed
+        os.kill(os.getpid(), signal.SIGKILL)
+    return real(fd, pages, overlay)
+j._apply = _apply
+from rbx.cli.main import main
+sys.argv[0] = "rbx"
+main()
+"""
+
+
+def test_a_journal_of_a_copied_folder_is_not_said_to_be_removable_and_a_torn_file_is_one_line(tmp_path):
+    """A run killed while its checkpoint's journal was copied in, its folder then copied (new inodes): the journal
+    was refused with the advice to remove it 'to read the file as of its previous checkpoint' — false, the file
+    without it is torn — and the resume of the torn file was a KeyError traceback."""
+    import shutil
+    import sys
+    from tests.test_interrupt import strip_random, write_config
+    first = tmp_path / "first"
+    first.mkdir()
+    write_config(first, strip_random(300_000, trajectories=3, every=3))
+    killed = subprocess.run([sys.executable, "-c", KILL_MID_APPLY.replace("{at}", "5"), "simulate", "exp.yaml",
+                             "-o", "o.h5", "--quiet"], cwd=first, capture_output=True, text=True, timeout=900)
+    assert killed.returncode == -9, killed.stderr
+    assert (first / "o.h5.partial.journal").exists()
+    copy = tmp_path / "copy"
+    shutil.copytree(first, copy)
+    res = rbx_cli("simulate", "--resume", "o.h5", "--quiet", cwd=copy, timeout=HANG)
+    line = _refused(res, "o.h5.partial.journal", "written for another file", "copied")
+    assert "as of its previous checkpoint" not in line and "do not remove it" in line
+    # removed all the same: the torn file's resume is one line, not a traceback
+    os.remove(copy / "o.h5.partial.journal")
+    res = rbx_cli("simulate", "--resume", "o.h5", "-o", "other.h5", "--quiet", cwd=copy, timeout=HANG)
+    assert "Traceback" not in res.stderr, res.stderr
+    if res.returncode != 0:
+        assert res.returncode == 2, res.stderr
+        errors = [x for x in res.stderr.splitlines() if x.startswith("rbx:") and ": warning:" not in x]
+        assert len(errors) == 1 and "run the config again" in errors[0], res.stderr
+    assert not (copy / "other.h5.partial").exists()
+    # the run where it was killed, with its journal, resumes
+    res = rbx_cli("simulate", "--resume", "o.h5", "--quiet", cwd=first, timeout=HANG)
+    assert res.returncode == 0, res.stderr
