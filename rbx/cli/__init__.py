@@ -1,8 +1,10 @@
 """The click layer: one module per command, heavy imports inside the command bodies so ``--help`` is instant.
 
-Ctrl-C while the command line is still being imported (the first tenth of a second) ends the process with exit
-code 130 and one line instead of a KeyboardInterrupt traceback; :func:`rbx.cli.main.main` puts Python's own
-handler back once everything is imported, and the commands install theirs.
+Ctrl-C (or SIGTERM) while the command line is still being imported (the first tenth of a second; seconds on a
+loaded machine) ends the process with exit code 128 + the signal and the one line a command's set-up phase gives
+("interrupted by SIGINT; nothing written") instead of a KeyboardInterrupt traceback; :func:`rbx.cli.main.main`
+puts its own handler for both in place once everything is imported, and the
+commands install theirs.
 """
 import os as _os
 import signal as _signal
@@ -10,9 +12,13 @@ import sys as _sys
 
 
 def _interrupted_while_starting(signum, frame):
-    _sys.stderr.write("rbx: interrupted\n")
+    _sys.stderr.write(f"rbx: interrupted by {_signal.Signals(signum).name}; nothing written\n")
     _os._exit(128 + signum)
 
 
 if _signal.getsignal(_signal.SIGINT) is _signal.default_int_handler:
     _signal.signal(_signal.SIGINT, _interrupted_while_starting)
+# SIGTERM only in the command itself (`rbx`, `python -m rbx`), not in a process that imports the CLI to call it
+if _signal.getsignal(_signal.SIGTERM) == _signal.SIG_DFL and \
+        _os.path.basename(_sys.argv[0] if _sys.argv else "") in ("rbx", "__main__.py"):
+    _signal.signal(_signal.SIGTERM, _interrupted_while_starting)

@@ -121,10 +121,11 @@ _PENDING = []
 
 
 def note_interrupt(signum, frame):
-    """SIGINT's handler from :func:`rbx.cli.main.main` until a command installs its own: KeyboardInterrupt, and a
-    note of the signal (:func:`pending_signal`, which each command's :class:`rbx.api.StopFlag` reads). The
-    KeyboardInterrupt alone can be lost: raised inside a callback (a ctypes callback of LLVM's, a finaliser) it
-    is printed as "Exception ignored" and dropped, and the command then ran as if nothing had come."""
+    """SIGINT's and SIGTERM's handler from :func:`rbx.cli.main.main` until a command installs its own:
+    KeyboardInterrupt, and a note of the signal (:func:`pending_signal`, which each command's
+    :class:`rbx.api.StopFlag` reads). The KeyboardInterrupt alone can be lost: raised inside a callback (a ctypes
+    callback of LLVM's, a finaliser) it is printed as "Exception ignored" and dropped, and the command then ran as
+    if nothing had come."""
     _PENDING.append(signum)
     raise KeyboardInterrupt
 

@@ -6,7 +6,7 @@ import sys
 import click
 
 from .. import __version__
-from .common import Group, Interrupted, note_interrupt
+from .common import Group, Interrupted, note_interrupt, pending_signal
 from .simulate import simulate
 from . import histogram, lyapunov, plot, sweep
 
@@ -27,6 +27,8 @@ cli.add_command(__import__("rbx.cli.animate", fromlist=["animate"]).animate)
 def main():
     # imported: Ctrl-C is a KeyboardInterrupt again, and noted, so that a command sees it even where it was lost
     signal.signal(signal.SIGINT, note_interrupt)
+    if signal.getsignal(signal.SIGTERM) is not signal.SIG_IGN:      # SIGTERM too, until a command installs its own
+        signal.signal(signal.SIGTERM, note_interrupt)
     try:
         os.getcwd()
     except OSError:   # deleted under us: relative paths mean nothing, and Numba's compiler needs it too
@@ -40,5 +42,7 @@ def main():
     try:
         cli(prog_name="rbx")
     except (KeyboardInterrupt, Interrupted):   # Ctrl-C before a command installed its own handler (importing)
-        sys.stderr.write("rbx: interrupted\n")
-        sys.exit(130)
+        # nothing is written before a command's own handlers are in: the same line as a command's set-up phase
+        sys.stderr.write(f"rbx: interrupted by {signal.Signals(pending_signal() or signal.SIGINT).name}; "
+                         "nothing written\n")
+        sys.exit(128 + int(pending_signal() or signal.SIGINT))
