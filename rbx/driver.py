@@ -89,6 +89,11 @@ def check_target(path, force, key, file=None, config_source=None, partial_ok=Fal
     if os.path.isdir(path) and not os.path.islink(path):
         raise FileError(file, key, f"{show} is a directory; give a file name such as run.h5")
     check_replaceable(path, key, file)       # a device, FIFO, socket or link: never replaced, even with force
+    for suffix, what in ((".lock", "lock"), (".journal", "journal"), (".partial.new", "new file")):
+        if path.endswith(suffix) and len(os.path.basename(path)) > len(suffix):
+            # rbx's own name for another output's file: written with --force it would replace a live run's lock
+            raise FileError(file, key, f"{show} is the name rbx gives {display_path(path[:-len(suffix)])}'s "
+                                       f"{what}; give another name, such as run.h5")
     sources = [config_source] if isinstance(config_source, str) else list(config_source or ())
     for i, source in enumerate(sources):
         if source and os.path.exists(path) and os.path.exists(source) and os.path.samefile(path, source):

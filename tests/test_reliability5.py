@@ -118,15 +118,18 @@ def test_a_run_file_under_a_lock_name_is_neither_a_traceback_nor_removed(tmp_pat
     """``rbx simulate c.yaml -o i.h5.lock --force`` wrote a run file under i.h5's lock name: every later run of
     i.h5 was a traceback. The file is not a lock: it is named, and kept."""
     killed_run(tmp_path, out="i.h5")
-    res = rbx_cli("simulate", "exp.yaml", "-o", "i.h5.lock", "--force", "--quiet", cwd=tmp_path, timeout=HANG)
-    if res.returncode == 0:        # an output under another output's lock name may be refused outright
-        before = (tmp_path / "i.h5.lock").read_bytes()
-        for args in (["--resume", "i.h5"], ["exp.yaml", "-o", "i.h5", "--force"]):
-            res = rbx_cli("simulate", *args, "--quiet", cwd=tmp_path, timeout=HANG)
-            _refused(res, "i.h5.lock", "not a lock rbx made", "move the file elsewhere")
-        assert (tmp_path / "i.h5.lock").read_bytes() == before
-    else:
-        _refused(res, "i.h5.lock")
+    for name in ("i.h5.lock", "i.h5.journal", "i.h5.partial.new"):
+        was = (tmp_path / name).read_bytes() if (tmp_path / name).exists() else None    # the killed run's lock
+        res = rbx_cli("simulate", "exp.yaml", "-o", name, "--force", "--quiet", cwd=tmp_path, timeout=HANG)
+        _refused(res, "-o", f"{name} is the name rbx gives i.h5's")
+        assert ((tmp_path / name).read_bytes() if (tmp_path / name).exists() else None) == was
+    os.remove(tmp_path / "i.h5.lock")
+    os.rename(tmp_path / "ref.h5", tmp_path / "i.h5.lock")       # a run file put there by hand
+    before = (tmp_path / "i.h5.lock").read_bytes()
+    for args in (["--resume", "i.h5"], ["exp.yaml", "-o", "i.h5", "--force"]):
+        res = rbx_cli("simulate", *args, "--quiet", cwd=tmp_path, timeout=HANG)
+        _refused(res, "i.h5.lock", "not a lock rbx made", "move the file elsewhere")
+    assert (tmp_path / "i.h5.lock").read_bytes() == before
 
 
 def test_an_unrelated_file_named_as_a_journal_is_named_with_what_to_do(tmp_path):
