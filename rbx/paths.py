@@ -138,8 +138,9 @@ def check_own_names(path):
         what = what_it_is(own)
         if what is None or what == "a regular file":
             continue
-        raise FileError(display_path(own), None, f"is {what}, not a regular file; rbx keeps its own files under this name and "
-                                   "writes nothing through it: remove it (or rename it), then run again")
+        raise FileError(display_path(own), None, f"is {what}, not a regular file; rbx keeps its own files under "
+                                                 "this name and writes nothing through it: remove it (or rename "
+                                                 "it), then run again")
 
 
 def config_file_problem(path, limit=MAX_CONFIG_BYTES):
