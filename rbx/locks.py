@@ -12,6 +12,7 @@ held when the process exits are removed (``atexit``; :func:`release_held_locks` 
 import atexit
 import contextlib
 import errno
+import glob
 import os
 import socket
 import stat
@@ -254,6 +255,12 @@ def _take_over(lock, fields, warn):
         os.remove(aside)
         return
     os.remove(aside)
+    if fields.get("pid", "").isdigit():
+        # the file a killed run wrote its lock in before linking it (``_create``): its process is gone, so is its use
+        for left in glob.glob(f"{glob.escape(lock)}.new.{fields['pid']}.*"):
+            with contextlib.suppress(OSError):
+                if os.path.isfile(left) and not os.path.islink(left):
+                    os.remove(left)
     what = (f"a damaged lock ({fields['damaged']}: no run's)" if "damaged" in fields else
             f"a stale lock ({_holder(fields)}, a process that no longer runs: killed?)" if fields else
             "an empty lock (left by a run that could not write it: a full disk?)")

@@ -200,3 +200,17 @@ def test_a_journal_of_a_copied_folder_is_not_said_to_be_removable_and_a_torn_fil
     # the run where it was killed, with its journal, resumes
     res = rbx_cli("simulate", "--resume", "o.h5", "--quiet", cwd=first, timeout=HANG)
     assert res.returncode == 0, res.stderr
+
+
+def test_the_stale_lock_of_a_killed_run_is_taken_over_with_the_file_it_was_written_in(tmp_path):
+    """A run killed right after it linked its lock left ``OUT.h5.lock.new.PID.TID`` for ever: the next runs took
+    the stale lock over but never removed it."""
+    killed_run(tmp_path)
+    fields = dict(line.split(": ", 1) for line in (tmp_path / "run.h5.lock").read_text().splitlines())
+    left = tmp_path / f"run.h5.lock.new.{fields['pid']}.139805260827520"
+    os.link(tmp_path / "run.h5.lock", left)
+    other = tmp_path / "run.h5.lock.new.1.7"        # another process's (pid 1 runs): not touched
+    other.write_text("x")
+    res = rbx_cli("simulate", "--resume", "run.h5", "--quiet", cwd=tmp_path, timeout=HANG)
+    assert res.returncode == 0 and "warning: a stale lock" in res.stderr, res.stderr
+    assert not left.exists() and other.exists()
