@@ -104,8 +104,11 @@ def check_target(path, force, key, file=None, config_source=None, partial_ok=Fal
         raise FileError(path, None, f"exists; use {force_hint} to overwrite it")
     tmp = temporary_path(path)
     if os.path.exists(tmp) and not force and not partial_ok:
-        raise FileError(tmp, None, "exists: another run may be writing it, or an earlier one was killed "
-                                   f"(try: rbx simulate --resume {display_path(tmp)}); remove it or use {force_hint}")
+        # no live run holds the lock (checked above): a killed run left it
+        again = (f"rbx simulate --resume {display_path(tmp)}" if force_hint.startswith("--") else
+                 f"rbx.resume({display_path(tmp)!r})")
+        raise FileError(tmp, None, f"exists, left by a run that was killed (no run holds its lock): continue that "
+                                   f"run with {again}; or remove it, or use {force_hint} to start this one over it")
 
 
 def forget_second_name(tmp, path):

@@ -214,3 +214,14 @@ def test_the_stale_lock_of_a_killed_run_is_taken_over_with_the_file_it_was_writt
     res = rbx_cli("simulate", "--resume", "run.h5", "--quiet", cwd=tmp_path, timeout=HANG)
     assert res.returncode == 0 and "warning: a stale lock" in res.stderr, res.stderr
     assert not left.exists() and other.exists()
+
+
+def test_a_new_run_beside_a_killed_runs_partial_says_it_was_killed(tmp_path):
+    """``rbx simulate c.yaml -o o.h5`` beside a killed run's ``o.h5.partial`` (its lock stale) said 'another run
+    may be writing it, or an earlier one was killed': the lock tells which."""
+    killed_run(tmp_path)
+    res = rbx_cli("simulate", "exp.yaml", "-o", "run.h5", "--quiet", cwd=tmp_path, timeout=HANG)
+    line = _refused(res, "run.h5.partial", "left by a run that was killed",
+                    "continue that run with rbx simulate --resume run.h5.partial")
+    assert "may be writing" not in line
+    assert (tmp_path / "run.h5.partial").exists()
