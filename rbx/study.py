@@ -20,7 +20,9 @@ Dask cluster: ``scheduler=``). The results file (NetCDF, h5netcdf) is rewritten 
 renamed to ``OUT`` at the end; ``resume=True`` computes only the points it lacks, and refuses a
 study whose canonical text changed (``study_digest``).
 """
+import contextlib
 import hashlib
+import io
 import itertools
 import json
 import math
@@ -43,7 +45,7 @@ from .dynamics import lyapunov
 from .histogram import return_experiment
 from .model import ConfigError
 from .locks import acquire_lock, release_lock
-from .paths import check_own_names, check_replaceable, config_file_problem
+from .paths import DiskFull, check_own_names, check_replaceable, config_file_problem, display_path
 from .runfile import FileError, provenance
 
 __all__ = ["sweep", "load_study", "Study", "point_seed", "StudyInterrupted"]
@@ -637,16 +639,25 @@ _write_cost = None          # the last write's time in this process
 
 
 def _write(ds, path):
-    """Write ``ds`` to ``path`` atomically: a temporary file in the same folder, flushed to disk, renamed."""
+    """Write ``ds`` to ``path`` atomically: made in memory, written to a temporary file in the same folder,
+    flushed to disk, renamed. A write that fails (a full disk, a file-size limit) leaves ``path`` as it was and
+    raises :class:`rbx.paths.DiskFull` (HDF5 itself never meets the failure: made on the disk, a full disk gave an
+    h5py traceback, then a segmentation fault as the half-written file was closed)."""
     global _write_cost
     began = time.perf_counter()
     tmp = f"{path}.tmp"
-    _to_netcdf(ds, tmp)
-    fd = os.open(tmp, os.O_RDONLY)
+    image = io.BytesIO()
+    _to_netcdf(ds, image)
     try:
-        os.fsync(fd)
-    finally:
-        os.close(fd)
+        with open(tmp, "wb") as fh:
+            fh.write(image.getbuffer())
+            fh.flush()
+            os.fsync(fh.fileno())
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            os.remove(tmp)
+        raise DiskFull(f"{display_path(path)}: cannot write the study's results ({exc.strerror or exc}); "
+                       f"{display_path(path)} is as it was: free some room and continue with --resume") from None
     os.replace(tmp, path)
     _write_cost = time.perf_counter() - began
 

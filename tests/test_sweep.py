@@ -517,3 +517,18 @@ def test_a_results_file_another_run_is_writing_is_refused(tmp_path):
     res = rbx_cli("sweep", "study.yaml", "-o", "out.nc", "--quiet", cwd=tmp_path)
     assert res.returncode == 0 and (tmp_path / "out.nc").exists(), res.stderr
     assert not (tmp_path / "out.nc.lock").exists()
+
+
+def test_a_study_that_cannot_write_its_results_stops_in_one_line(tmp_path):
+    """A full disk or a file-size limit (ulimit -f) when the results are written: one line, exit 1, no traceback
+    and no half-written file (it was an h5py traceback, then a segmentation fault); with room again, --resume
+    finishes the study."""
+    (tmp_path / "study.yaml").write_text(yaml.safe_dump(specular_study(trajectories=2, collisions=100)))
+    limited = subprocess.run(["bash", "-c", f"trap '' XFSZ; ulimit -f 8; exec {RBX} sweep study.yaml -o out.nc "
+                              "--quiet"], cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert limited.returncode == 1, limited.stderr
+    assert "Traceback" not in limited.stderr and len(limited.stderr.splitlines()) == 1, limited.stderr
+    assert "cannot write the study's results" in limited.stderr and "--resume" in limited.stderr
+    assert not (tmp_path / "out.nc").exists() and not (tmp_path / "out.nc.partial.tmp").exists()
+    res = rbx_cli("sweep", "study.yaml", "-o", "out.nc", "--resume", "--quiet", cwd=tmp_path)
+    assert res.returncode == 0 and (tmp_path / "out.nc").exists(), res.stderr

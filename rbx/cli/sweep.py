@@ -102,6 +102,7 @@ def _interrupted(exc, signum, study):
 
 def _sweep(study, output, scheduler, resume, force, progress):
     from ..cluster import ClusterError, SchedulerUnreachable
+    from ..paths import DiskFull
     from ..study import sweep as run
     with user_errors():
         try:
@@ -112,6 +113,9 @@ def _sweep(study, output, scheduler, resume, force, progress):
             raise UserError(study, None, str(exc)) from None
         except ClusterError as exc:
             click.echo(f"rbx: {exc}; the points finished before are in {display_path(output)}.partial", err=True)
+            raise SystemExit(1) from None
+        except DiskFull as exc:          # as rbx simulate's full disk: one line, exit 1
+            click.echo(f"rbx: {exc}", err=True)
             raise SystemExit(1) from None
 
 
