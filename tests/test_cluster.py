@@ -460,6 +460,7 @@ def test_lyapunov_on_the_cluster_is_the_local_spectrum_bit_for_bit(which, slices
     assert tasks_seen(cluster) >= 1                                # the workers did run it
 
 
+@pytest.mark.heavy
 def test_lyapunov_survives_a_worker_killed_mid_run(two, tmp_path):
     """4 slices of 1 trajectory × 5·10⁶ collisions (~1 s each: 2·10⁵ took ~0.03 s once the tangent loop ran at
     ~0.13 µs a collision, and could end before the kill): a worker SIGKILLed while it runs one; Dask runs that
@@ -531,6 +532,7 @@ rbx.cluster._worker_identity = _die
 """
 
 
+@pytest.mark.heavy
 def test_a_worker_killed_while_the_client_checks_the_workers_is_left_out_not_taken_for_a_missing_install(tmp_path):
     """A worker SIGKILLed about 3 s after the client started gave 'the workers cannot run rbx (… Stream is
     closed); install this rbx (0.1.0) where they run', exit 2 (1 of 11 tries): the client asks every worker for

@@ -438,7 +438,7 @@ def wait_until_loaded(proc, library, timeout=300):
 
 
 @pytest.mark.parametrize("delay, sig", [(0.0, signal.SIGINT), (0.0, signal.SIGTERM), (1.5, signal.SIGINT),
-                                          (1.5, signal.SIGTERM)])
+                                        pytest.param(1.5, signal.SIGTERM, marks=pytest.mark.heavy)])
 def test_ctrl_c_in_histogram_and_while_starting_is_one_line_and_130(tmp_path, delay, sig):
     # 10⁷ samples: a long experiment, so the signal lands while setting up (importing numba, loading kernels:
     # delay 0 after numba's first library is mapped) or running; click used to print 'Aborted!' and exit 1, and

@@ -196,6 +196,7 @@ def test_one_trajectory_is_singular(tmp_path):
     assert "the trajectory did not reach an exit wall in 50 collisions" in line and "1 trajectories" not in line, line
 
 
+@pytest.mark.heavy
 def test_a_200_frame_gif_is_small(tmp_path):
     res = cli("simulate", os.path.join(EXAMPLES, "circle.yaml"), "-o", "c.h5", "--collisions", "300", "--quiet",
               cwd=tmp_path)
