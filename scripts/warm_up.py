@@ -2,7 +2,7 @@
 of ``configs/examples/`` is loaded and run for one collision in memory, which compiles the kernel variants its
 first real run needs (``rbx simulate`` of it; ``rbx lyapunov`` too for the examples made for it) into the kernel
 cache (``~/.cache/rbx`` or ``$NUMBA_CACHE_DIR``). The first run of an example then loads them from the cache
-instead of compiling for 10–40 s.
+instead of compiling for several seconds (3–7 s a kernel variant on this project's 2-core machines).
 
     python scripts/warm_up.py [CONFIG.yaml ...] [--jobs N]      # default: every configs/examples/*.yaml
 """
