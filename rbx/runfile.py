@@ -1018,7 +1018,13 @@ class Run:
         """The validated :class:`rbx.model.Experiment` of the stored config (raises ConfigError if it does not
         validate with this rbx)."""
         if self._experiment is None:
-            self._experiment = read_experiment(self.attrs["config"], self.path or "<run>")
+            exp = read_experiment(self.attrs["config"], self.path or "<run>")
+            if list(exp.wall_names) != list(self.wall_names):   # what collisions/wall indexes: the plots read both
+                raise FileError(self.path or "<run>", "wall_names",
+                                f"the root attribute names {len(self.wall_names)} walls "
+                                f"({', '.join(map(str, self.wall_names))}), the stored config's table "
+                                f"{len(exp.wall_names)} ({', '.join(exp.wall_names)}): a damaged or crafted file")
+            self._experiment = exp
         return self._experiment
 
     def geometry(self):

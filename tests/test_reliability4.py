@@ -275,3 +275,21 @@ def test_a_resume_refuses_records_held_elsewhere_and_a_state_naming_a_wall_the_t
         assert res.returncode == 2, res.stderr
         assert one_line(res).startswith(f"rbx: bad.h5.partial: {said}"), res.stderr
         assert bad.read_bytes() == before and not (tmp_path / "bad.h5").exists()
+
+
+def test_a_run_file_whose_wall_names_disagree_with_its_config_is_refused_in_one_line(tmp_path):
+    """A run file whose root attribute ``wall_names`` lists 3 walls for the strip's 2: ``rbx plot --kind phase``
+    gave an IndexError traceback (the records' wall index read against the config's table). Reading the file's
+    experiment compares the two: rbx.FileError naming ``wall_names``, one line and exit 2 from the plot."""
+    path = tmp_path / "walls.h5"
+    rbx.simulate(strip_random(200, trajectories=2, every=1, record=ALL), output=path)
+    with h5py.File(path, "r+") as f:
+        f.attrs["wall_names"] = np.array(["bottom", "top", "left"], dtype=h5py.string_dtype())
+    with pytest.raises(rbx.FileError) as info:
+        rbx.open(path).experiment
+    assert str(info.value).startswith(f"{path}: wall_names: the root attribute names 3 walls"), str(info.value)
+    for kind in ("phase", "orbit"):
+        res = rbx_cli("plot", path, "--kind", kind, "-o", tmp_path / "x.png", cwd=tmp_path)
+        assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
+        assert one_line(res).startswith("rbx: walls.h5: wall_names:"), res.stderr
+    assert not (tmp_path / "x.png").exists()
