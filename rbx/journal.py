@@ -27,14 +27,12 @@ It guards against a process being killed, not against the machine losing power: 
 the disk).
 """
 import contextlib
-import errno
 import math
 import os
-import stat
 import struct
 import zlib
 
-from .paths import what_it_is
+from .paths import open_regular
 
 #: the overlay's page size: a write below ``committed`` copies the pages it touches
 PAGE = 4096
@@ -397,17 +395,9 @@ def _apply(fd, pages, overlay):
 
 def _read_journal(jpath):
     """-> (inode, device, size, {page: bytes}); JournalError if it is not a whole journal."""
-    try:
-        fd = os.open(jpath, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0))
-    except OSError as exc:
-        if exc.errno != errno.ELOOP and not os.path.islink(jpath):
-            raise
-        fd = None
-    if fd is None or not stat.S_ISREG(os.fstat(fd).st_mode):
-        # never read: a FIFO would wait for a writer for ever, a link may lead anywhere (/dev/zero)
-        if fd is not None:
-            os.close(fd)
-        raise JournalError(f"is {what_it_is(jpath)}, not a journal rbx wrote: rbx keeps a file's journal under "
+    fd, other = open_regular(jpath)
+    if fd is None:     # never read: a FIFO would wait for a writer for ever, a link may lead anywhere (/dev/zero)
+        raise JournalError(f"is {other}, not a journal rbx wrote: rbx keeps a file's journal under "
                            f"this name and reads it before the file; remove it (or rename it), then run again")
     with os.fdopen(fd, "rb") as fh:
         raw = fh.read()

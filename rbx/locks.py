@@ -15,12 +15,11 @@ import errno
 import glob
 import os
 import socket
-import stat
 import sys
 import threading
 import time
 
-from .paths import NO_ROOM, DiskFull, FileError, display_path, format_size, lock_path, what_it_is
+from .paths import NO_ROOM, DiskFull, FileError, display_path, format_size, lock_path, open_regular
 
 __all__ = ["lock_path", "acquire_lock", "release_lock", "lock_holder", "release_held_locks", "busy",
            "LockNotWritable", "taken_fresh"]
@@ -64,16 +63,14 @@ def _read_lock(lock):
     of bytes that are not text, a damaged one: ``{'damaged': '…'}``). Raises :class:`NotALock` for what is not a
     lock file (never opened as one: a FIFO would block the read for ever)."""
     try:
-        fd = os.open(lock, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0))
-    except OSError as exc:
-        if exc.errno == errno.ELOOP or os.path.islink(lock):
-            raise NotALock(display_path(lock), None, f"is {what_it_is(lock)}, not a lock file rbx made: remove it "
-                                                     "(rbx does not write through links)") from None
+        fd, other = open_regular(lock)
+    except OSError:
         return {}
+    if fd is None:
+        links = " (rbx does not write through links)" if os.path.islink(lock) else ""
+        raise NotALock(display_path(lock), None, f"is {other}, not a lock file rbx made: remove it{links}")
     try:
         st = os.fstat(fd)
-        if not stat.S_ISREG(st.st_mode):
-            raise NotALock(display_path(lock), None, f"is {what_it_is(lock)}, not a lock file rbx made: remove it")
         if st.st_size > MAX_LOCK_BYTES:
             raise NotALock(display_path(lock), None, f"is a file of {format_size(st.st_size)}, not a lock rbx made "
                                                      f"(a lock holds a few lines); rbx keeps its run's lock under "

@@ -121,6 +121,22 @@ def check_replaceable(path, key=None, file=None):
                                "a file name such as run.h5")
 
 
+def open_regular(path):
+    """Open ``path`` for reading without following a symbolic link and without waiting on a FIFO -> (fd, None)
+    for a regular file, (None, what it is: :func:`what_it_is`) for anything else, never read. Other errors of
+    the open (nothing there, no permission) are raised as they are."""
+    try:
+        fd = os.open(path, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0))
+    except OSError as exc:
+        if exc.errno != errno.ELOOP and not os.path.islink(path):
+            raise
+        return None, what_it_is(path)
+    if not stat.S_ISREG(os.fstat(fd).st_mode):
+        os.close(fd)
+        return None, what_it_is(path)
+    return fd, None
+
+
 def own_names(path):
     """The files rbx makes beside a run's output ``path`` and writes or reads itself: its ``.partial``, the
     ``.partial.new`` of a new run, the journals of these and of the output, and the run's lock -> list of paths."""
