@@ -780,7 +780,7 @@ def _sweep(study, output, scheduler, resume, force, progress, base):
         if output is not None and finished > stored:
             _write_held(ds, partial)
         if isinstance(exc, KeyboardInterrupt) and output is not None:
-            raise StudyInterrupted(*kept_points(partial, st.digest), total) from None
+            raise StudyInterrupted(*kept_points(partial, st.digest)[:2], total) from None
         raise
     finally:
         if client is not None and client is not scheduler:
@@ -802,17 +802,18 @@ class StudyInterrupted(KeyboardInterrupt):
 
 
 def kept_points(path, digest=None):
-    """The finished points a results file holds -> (path, number), or (None, 0) when there is no such file (or it
-    is another study's, or unreadable)."""
+    """The finished points a results file holds -> (path, number, points of its study), or (None, 0, 0) when
+    there is no such file (or it is another study's, or unreadable)."""
     if not os.path.exists(path):
-        return None, 0
+        return None, 0, 0
     try:
         ds = _read(path)
     except Exception:
-        return None, 0
+        return None, 0, 0
     if digest is not None and ds.attrs.get("study_digest") != digest:
-        return None, 0
-    return path, int(ds["done"].values.astype(bool).sum())
+        return None, 0, 0
+    done = ds["done"].values
+    return path, int(done.astype(bool).sum()), int(done.size)
 
 
 def _write_held(ds, path):

@@ -73,14 +73,11 @@ def _kept(output):
     """The results file a resume would continue and what it holds -> StudyInterrupted(path, kept, total), or None."""
     import os
 
-    from ..study import StudyInterrupted, _read, partial_path
+    from ..study import StudyInterrupted, kept_points, partial_path
     for path in (partial_path(output), output):
         if os.path.exists(path):
-            try:
-                done = _read(path)["done"].values
-            except Exception:
-                return None
-            return StudyInterrupted(path, int(done.astype(bool).sum()), int(done.size)) if done.any() else None
+            found, kept, total = kept_points(path)
+            return StudyInterrupted(found, kept, total) if kept else None
     return None
 
 
