@@ -210,12 +210,17 @@ class Lyapunov:
         during its warm-up measured nothing (its row of ``per_trajectory`` is NaN) -> int."""
         return int(np.sum(np.isfinite(self.per_trajectory[:, 0])))
 
+    def regular(self, threshold=REGULAR_THRESHOLD):
+        """The regular orbits among the measured ones (:meth:`measured`): those whose own λ₁ (per unit time) is
+        below ``threshold`` -> (regular, measured)."""
+        lam1 = self.per_trajectory[:, 0]
+        lam1 = lam1[np.isfinite(lam1)]
+        return int(np.sum(lam1 < threshold)), int(lam1.size)
+
     def regular_share(self, threshold=REGULAR_THRESHOLD):
         """The share of trajectories whose own λ₁ (per unit time) is below ``threshold`` — regular orbits, which a
         rough table can trap beside chaotic ones — with its Wilson interval (z = 1) -> (share, low, high)."""
-        lam1 = self.per_trajectory[:, 0]
-        ok = np.isfinite(lam1)
-        return wilson(int(np.sum(lam1[ok] < threshold)), int(np.sum(ok)))
+        return wilson(*self.regular(threshold))
 
     def to_dict(self):
         """Plain data for JSON: exponents and stderr (per unit time), per collision, their sum, each trajectory's

@@ -227,9 +227,7 @@ register(Observable(
 
 
 def _regular_share(runs, options):
-    lam1 = runs.lyapunov.per_trajectory[:, 0]
-    ok = np.isfinite(lam1)
-    return _share(int(np.sum(lam1[ok] < float(options["threshold"]))), int(ok.sum()))
+    return _share(*runs.lyapunov.regular(float(options["threshold"])))
 
 
 register(Observable(

@@ -481,10 +481,7 @@ def run_point(study, point, scheduler=None):
             collisions += int(np.sum(runs.returns.collisions))
     values = {name: obs.get(name).compute(runs, options) for name, options in study.measure}
     if need["tangent"]:
-        lam1 = runs.lyapunov.per_trajectory[:, 0]
-        lam1 = lam1[np.isfinite(lam1)]
-        values["lyapunov_orbits"] = int(lam1.size)
-        values["lyapunov_regular"] = int(np.sum(lam1 < _threshold(study)))
+        values["lyapunov_regular"], values["lyapunov_orbits"] = runs.lyapunov.regular(_threshold(study))
     return values, collisions, time.perf_counter() - began
 
 

@@ -3,7 +3,6 @@ import json
 import time
 
 import click
-import numpy as np
 
 from .common import (Command, UserError, check_cluster_options, connect, duration, ending_on_signals, parse_sets,
                      pending_signal, plural, quiet_option, report_and_exit, set_option, summary, user_errors,
@@ -108,8 +107,7 @@ def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as
     click.echo(f"per collision: {per}")
     share, low, high = result.regular_share()
     if len(result.time) > 1:
-        lam1 = result.per_trajectory[:, 0]
-        regular = int(np.sum(lam1[np.isfinite(lam1)] < REGULAR_THRESHOLD))
+        regular = result.regular()[0]
         of = (f"{regular} of the {measured} measured (the other {M - measured} left the table during their "
               "warm-up)" if measured < M else f"{regular} of {measured}")
         click.echo(f"regular orbits (own λ1 < {REGULAR_THRESHOLD}): {of}, share {share:.3f} "
