@@ -76,6 +76,15 @@ def check_size(cfg, path, key_file=None, written=0, option="max_size="):
                                     f"{format_size(free)} free")
 
 
+def _killed_partial(tmp, force_hint, what_force_does):
+    """The refusal of a ``.partial`` a killed run left (no run holds its lock): how to continue that run (the CLI's
+    or the API's words, by ``force_hint``), or to remove it, or to ``what_force_does`` with ``force_hint``."""
+    again = (f"rbx simulate --resume {display_path(tmp)}" if force_hint.startswith("--") else
+             f"rbx.resume({display_path(tmp)!r})")
+    return FileError(tmp, None, f"exists, left by a run that was killed (no run holds its lock): continue that run "
+                                f"with {again}; or remove it, or use {force_hint} to {what_force_does}")
+
+
 def check_target(path, force, key, file=None, config_source=None, partial_ok=False, force_hint="--force"):
     """Refuse to write ``path`` when it is a folder, the config or a file it includes (``config_source``: the
     config's path, or a sequence of it and its includes), or (without ``force``) when it exists or
@@ -105,10 +114,7 @@ def check_target(path, force, key, file=None, config_source=None, partial_ok=Fal
     tmp = temporary_path(path)
     if os.path.exists(tmp) and not force and not partial_ok:
         # no live run holds the lock (checked above): a killed run left it
-        again = (f"rbx simulate --resume {display_path(tmp)}" if force_hint.startswith("--") else
-                 f"rbx.resume({display_path(tmp)!r})")
-        raise FileError(tmp, None, f"exists, left by a run that was killed (no run holds its lock): continue that "
-                                   f"run with {again}; or remove it, or use {force_hint} to start this one over it")
+        raise _killed_partial(tmp, force_hint, "start this one over it")
 
 
 def forget_second_name(tmp, path):
@@ -485,10 +491,7 @@ def prepare_resume(run_file, output=None, *, force=False, max_size=None, out_key
         check_target(path, force or own, out_key, partial_ok=True, force_hint=force_hint)
     if os.path.lexists(tmp) and not force and not in_place:
         # this resume holds the output's lock: no live run writes tmp, a killed one left it
-        again = (f"rbx simulate --resume {display_path(tmp)}" if force_hint.startswith("--") else
-                 f"rbx.resume({display_path(tmp)!r})")
-        raise FileError(tmp, None, f"exists, left by a run that was killed (no run holds its lock): continue that "
-                                   f"run with {again}; or remove it, or use {force_hint} to write this one over it")
+        raise _killed_partial(tmp, force_hint, "write this one over it")
     # every limit a new run has: output.max_size (or the one given now) and the free space, for the whole file
     cfg = sim.cfg
     if max_size is not None:
