@@ -14,7 +14,6 @@ when, and under which name.
 """
 import contextlib
 import dataclasses
-import errno
 import os
 import shutil
 import weakref
