@@ -597,46 +597,50 @@ def histogram_figure(angle, d, ks_statistic, ks_pvalue, title, bins=50):
 
 
 @styled
-def escape_figure(s, S, rate, rate_err, start, exits, total, title, unit="path length [L]", expected=None,
-                  trapped=None, stop=None):
+def escape_figure(s, S, fit, exits, total, title, unit="path length [L]", expected=None, trapped=None):
     """The survival function S(s) (Kaplan–Meier: the fraction of trajectories still in the table after path s) on
-    a log scale, with the fitted exponential tail A·exp(−γ s) for ``start`` ≤ s ≤ ``stop`` and its rate γ ± error.
-    ``expected``: (γ, label) of a predicted rate, drawn dashed. ``trapped``: (share, low, high) where survival
-    levels off: the share drawn as a level with its interval, the fit as that level plus the decay of the rest."""
+    a log scale, with the fitted law of :mod:`rbx.escape` (``fit``: an :class:`rbx.escape.EscapeFit`, or None)
+    drawn over its window only, and only if it follows the data there; else the legend says that no exponential
+    does. ``expected``: (γ, label) of a predicted rate, drawn dashed. ``trapped``: (share, low, high) where survival
+    levels off: the share drawn as a level with its interval."""
     fig = _figure(8.4, 5.0, title)
     ax = fig.add_subplot()
     s, S = np.asarray(s)[np.asarray(S) > 0], np.asarray(S)[np.asarray(S) > 0]   # S = 0 has no place on a log axis
     ax.step(s, S, where="post", color=_colour(0), lw=1.2, label=f"Kaplan–Meier survival ({exits} of {total} exited)")
-    end = float(np.max(s)) if len(s) else start + 1.0
-    stop = end if stop is None else stop
-    level = 0.0 if trapped is None else trapped[0]
+    end = float(np.max(s)) if len(s) else 1.0
     if trapped is not None:
         share, low, high = trapped
         ax.axhspan(low, high, color=_colour(1), alpha=0.25, lw=0)
         ax.axhline(share, color=_colour(1), lw=1.0, ls=":",
                    label=f"trapped share: {100 * share:.3g} % never exited (Wilson interval {100 * low:.3g}–"
                          f"{100 * high:.3g} %, z = 1)")
-    if rate > 0 and np.isfinite(rate_err):
-        x = np.linspace(start, stop, 200)
-        S0 = float(S[np.searchsorted(s, start, side="right") - 1]) if len(s) else 1.0
-        what = f"{start:.3g} ≤ s < {stop:.3g}" + (" (the trapped share plus the decay of the trajectories that "
-                                                   "leave)" if trapped is not None else "")
-        ax.plot(x, level + (S0 - level) * np.exp(-rate * (x - start)), "k-", lw=1.0,
-                label=f"exponential fit over {what}: γ = {rate:.4g} ± {rate_err:.2g} per unit path")
-        if expected is not None:
-            ax.plot(x, S0 * np.exp(-expected[0] * (x - start)), "k--", lw=0.9, label=expected[1])
+    drawn = fit is not None and fit.follows and fit.rate > 0 and np.isfinite(fit.rate_err)
+    if drawn:
+        x = np.linspace(fit.start, fit.stop, 400)
+        what = f"{fit.start:.3g} ≤ s ≤ {fit.stop:.3g}"
+        rate = f"γ = {fit.rate:.4g} ± {fit.rate_err:.2g} per unit path"
+        if fit.trapped:
+            label = (f"fit over {what} of S(s₀)·[q + (1 − q)·e^(−γ(s − s₀))], s₀ = {fit.start:.3g}: {rate}, "
+                     f"level S(s₀)·q = {100 * fit.survival0 * fit.level:.3g} %")
+        else:
+            label = f"fit over {what} of S(s₀)·e^(−γ(s − s₀)), s₀ = {fit.start:.3g}: {rate}"
+        ax.plot(x, fit.survival(x), "k-", lw=1.0, label=label)
+    else:
+        ax.plot([], [], " ", label="no exponential law follows the survival over any window tried: no rate")
+    if expected is not None:
+        s0, S0 = (fit.start, fit.survival0) if drawn else (0.0, 1.0)
+        x = np.linspace(s0, fit.stop if drawn else end, 200)
+        ax.plot(x, S0 * np.exp(-expected[0] * (x - s0)), "k--", lw=0.9, label=expected[1])
     ax.set_yscale("log")
     positive = S[S > 0]
     bottom = max(0.5 * float(positive.min()) if len(positive) else 1e-3, 0.5 / max(total, 1))
     if trapped is not None and trapped[1] > 0:
         bottom = min(bottom, 0.5 * trapped[1])
     ax.set_ylim(bottom, 1.5)
-    ax.set_xlim(0.0, None)
-    if trapped is not None:         # the decay takes a small part of the run: show it, and the level beyond
-        ax.set_xlim(0.0, min(end, 5.0 * stop))
+    ax.set_xlim(0.0, end)
     ax.set_xlabel(unit)
     ax.set_ylabel("fraction still in the table S(s) [–]")
-    legend_outside(ax, "below", ncols=1 if trapped is not None or expected is not None else 2)
+    legend_outside(ax, "below", ncols=1)
     return fig
 
 

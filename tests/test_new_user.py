@@ -77,25 +77,22 @@ def test_a_table_that_traps_gets_its_trapped_share_with_its_interval(trap):
     said = res.stdout
     assert f"trapped share {100 * share:.3g} % (Wilson interval, z = 1: {100 * low:.3g}–{100 * high:.3g} %) of " \
            f"{n} starts" in said, said
-    # the rate is that of the trajectories that leave: their exit paths inside the window, a closed form
-    m = re.search(r"escape rate γ = ([0-9.e+-]+) ± ([0-9.e+-]+) per unit path \(fitted over ([0-9.e+-]+) ≤ s < "
-                  r"([0-9.e+-]+), the trajectories that leave\)", said)
-    assert m, said
-    gamma = float(m.group(1))
-    paths = esc.path[esc.exited]
-    lo, hi = np.quantile(paths, [0.1, 0.9])
-    inside = paths[paths >= lo]
-    expected = np.sum(inside < hi) / np.sum(np.minimum(inside, hi) - lo)
-    assert gamma == pytest.approx(expected, rel=1e-3)
+    # the rate and the level are fitted together (rbx.escape), and only over a window where the curve follows the
+    # data (tests/test_escape_fit.py); the drawn curve is what the text says, and levels off above the share's
+    # interval's floor
+    m = re.search(r"escape rate γ = ([0-9.e+-]+) ± ([0-9.e+-]+) per unit path \(fitted over ([0-9.e+-]+) ≤ s ≤ "
+                  r"([0-9.e+-]+), with the level", said)
+    assert m or said.startswith("no escape rate"), said
     fig = make_figure(str(trap / "trap.h5"), "escape")
     texts = legend(fig)
     assert any(t.startswith("trapped share") for t in texts), texts
     assert not any("small-hole" in t for t in texts), texts        # the hole is a whole wall
-    # the fitted curve is drawn over its window only, and levels off at the trapped share
-    fit = [line for line in fig.axes[0].get_lines() if line.get_label().startswith("exponential fit")][0]
-    x, y = fit.get_data()
-    assert x.min() == pytest.approx(lo) and x.max() == pytest.approx(hi)
-    assert np.all(y > share)
+    fits = [line for line in fig.axes[0].get_lines() if "γ =" in line.get_label()]
+    assert len(fits) == (1 if m else 0)
+    if m:
+        x, y = fits[0].get_data()
+        assert f"{x.min():.3g}" == m.group(3) and f"{x.max():.3g}" == m.group(4)
+        assert np.all(y > low)
 
 
 def test_a_small_gate_gets_the_small_hole_rate_and_no_trapped_share(tmp_path):

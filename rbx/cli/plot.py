@@ -429,29 +429,31 @@ def _escape(run, rec, traj, fit_from=0.1, **_):
         raise ValueError(f"{who} an exit wall in {plural(exp.run.collisions, 'collision')}")
     if not 0.0 <= fit_from < 0.5:
         raise UserError(None, "--fit-from", f"escape: a quantile in [0, 0.5), got {fit_from}")
-    from ..dynamics import exponential_rate, survival
+    from ..dynamics import survival
+    from ..escape import FOLLOWS, fit_escape
     s, S = survival(path, exited)
     walls = sorted({run.wall_names[w] for w in out.wall[sel][exited]})
     trapped = _trapped(run, path, exited)
-    # the fit window: the exit paths between the quantiles fit_from and 1 − fit_from, the transient before it and
-    # the few late exits after it left out (a tail of rare long stays bent the line away from the data); where
-    # survival levels off, of the trajectories that leave only (the trapped ones would add their whole path to
-    # the exposure: the rate of 4000 starts of a rough rectangle fell from 0.5 to 0.015)
-    leaving = path[exited]
-    start, stop = (float(np.quantile(leaving, q)) for q in (fit_from, 1.0 - fit_from))
-    if fit_from == 0:
-        start = 0.0
-    if trapped is None:
-        rate, err, _ = exponential_rate(path, exited, start, stop)
-    else:
-        rate, err, _ = exponential_rate(leaving, np.ones(len(leaving), bool), start, stop)
+    # the model and its window (rbx.escape): where survival levels off, the trapped share q and the rate γ of the
+    # others fitted together; the window starts after the transient, where the fitted curve follows the data
+    try:
+        fit = fit_escape(path, exited, fit_from=fit_from, trapped=trapped is not None)
+    except ValueError:
+        fit = None
     expected = None if trapped is not None else _small_hole_rate(run, exp)
     censored = int(np.sum(~exited))
     title = _title(run, f"escape through {', '.join(walls)} ({censored} still inside: censored)", traj, rec)
-    fig = plotting.escape_figure(s, S, rate, err, start, int(exited.sum()), len(sel), title,
-                                 unit="path length in (x, R√κ·θ) [L]", expected=expected, trapped=trapped, stop=stop)
-    said = f"escape rate γ = {rate:.4g} ± {err:.2g} per unit path (fitted over {start:.3g} ≤ s < {stop:.3g}"
-    said += ", the trajectories that leave)" if trapped is not None else ")"
+    fig = plotting.escape_figure(s, S, fit, int(exited.sum()), len(sel), title,
+                                 unit="path length in (x, R√κ·θ) [L]", expected=expected, trapped=trapped)
+    if fit is not None and fit.follows:
+        said = (f"escape rate γ = {fit.rate:.4g} ± {fit.rate_err:.2g} per unit path (fitted over {fit.start:.3g} ≤ s "
+                f"≤ {fit.stop:.3g}")
+        said += (f", with the level it tends to, S(s₀)·q = {100 * fit.survival0 * fit.level:.3g} %: "
+                 f"S(s) = S(s₀)·[q + (1 − q)·exp(−γ(s − s₀))])" if fit.trapped else ")")
+    else:
+        said = (f"no escape rate: no exponential follows the survival from any start between the {fit_from:g} and "
+                f"0.8 quantiles of the exit paths (the decay is not exponential; largest gap allowed {FOLLOWS} "
+                "in units of 1/√n)")
     if trapped is not None:
         share, low, high = trapped
         said += (f"; trapped share {100 * share:.3g} % (Wilson interval, z = 1: {100 * low:.3g}–{100 * high:.3g} %) "
