@@ -331,6 +331,101 @@ def diffusion_problem(geom, coordinate):
     return None
 
 
+#: the lattice planes (2D: lines) whose free corridors are looked for: Miller indices up to this size. A corridor of
+#: higher index is narrower than the spacing of its planes, 1/|(h/a, k/b, l/c)|, which falls below any scatterer's
+#: diameter first
+CORRIDOR_INDEX = 6
+
+
+@dataclass(frozen=True)
+class Corridor:
+    """A free corridor of a periodic table: a slab between lattice planes (2D: a strip between lattice lines) that
+    no grown scatterer meets, so that a flight along it never ends."""
+    index: tuple        # Miller indices of the planes (h, k[, l]) of the rectangular cell
+    normal: tuple       # the unit normal of the planes
+    width: float        # the free width the centre can fly in [L]
+
+    def along(self, axis):
+        """Whether a flight inside the corridor can move along the coordinate axis (not only across it)."""
+        return abs(self.normal[axis]) < 1.0 - 1e-12
+
+
+def free_corridors(geom):
+    """The free corridors of a periodic table of round scatterers (a Lorentz gas) -> list of :class:`Corridor`
+    (empty: a finite horizon, every flight ends), or None where it is not worked out (a periodic table with other
+    obstacles) or does not apply (a table that is not periodic).
+
+    For each family of lattice planes (Miller indices (h, k[, l]) up to :data:`CORRIDOR_INDEX`, normal
+    g = (h/a, k/b, l/c), spacing d = 1/|g|) every scatterer image projects onto g/|g| at its centre's projection
+    modulo d; the planes leave a free slab when the grown scatterers' intervals [p − ρ, p + ρ] (ρ = radius + R)
+    do not cover the circle of length d. In 2D a free strip carries flights of unbounded length with a density
+    that makes the mean-square displacement grow as t·log t (Bleher 1992); in 3D so does a free slab (a planar
+    horizon, Dettmann 2012), while a corridor of lower dimension does not, so only planes are looked at."""
+    if geom.lattice is None or geom.pieces is None:
+        return None
+    from .pieces import Lattice, Sphere
+    period = np.asarray(geom.lattice[1], float)
+    n = len(period)
+    balls = []
+    for piece in geom.pieces:
+        if isinstance(piece, Lattice):
+            continue
+        if not isinstance(piece, Sphere) or piece.inside:
+            return None
+        balls.append((np.asarray(piece.center, float), float(piece.radius) + float(geom.shrunk_radius)))
+    out = []
+    for index in itertools.product(range(-CORRIDOR_INDEX, CORRIDOR_INDEX + 1), repeat=n):
+        first = next((i for i in index if i != 0), 0)
+        if first <= 0 or math.gcd(*index) != 1:         # one of ±index, primitive
+            continue
+        g = np.array(index, float) / period
+        d = 1.0 / float(np.linalg.norm(g))
+        unit = g * d
+        width = _free_gap([(float(c @ unit) % d, rho) for c, rho in balls], d)
+        if width > 0:
+            out.append(Corridor(tuple(index), tuple(float(x) for x in unit), width))
+    return out
+
+
+def _free_gap(intervals, d):
+    """The longest stretch of a circle of length d that no interval (centre, half-width) covers -> float (0 if
+    covered)."""
+    if any(2 * rho >= d for _, rho in intervals):
+        return 0.0
+    spans = sorted(((p - rho) % d, 2 * rho) for p, rho in intervals)
+    best, start0 = 0.0, spans[0][0]
+    reach = start0 + spans[0][1]
+    for lo, length in spans[1:] + [(start0 + d, 0.0)]:
+        best = max(best, lo - reach)
+        reach = max(reach, lo + length)
+    return best
+
+
+def horizon_problem(geom, coordinate):
+    """Why the mean-square displacement of ``coordinate`` has no diffusion coefficient in this table although it
+    grows without bound (an infinite horizon: a free corridor along it) -> (a short phrase for a figure, a
+    sentence), or None."""
+    axis = DIFFUSING.get(coordinate)
+    corridors = free_corridors(geom) if axis is not None else None
+    along = [c for c in corridors or () if c.along(axis)]
+    if not along:
+        return None
+    widest = max(along, key=lambda c: c.width)
+
+    def named(c):         # 2D: the corridor's direction in cell vectors (k, −h); 3D: the slab's Miller indices
+        if geom.dimension == 2:
+            h, k = c.index
+            u = (k, -h) if (k, -h) > (0, 0) else (-k, h)
+            return f"({u[0]},\u00a0{u[1]})"          # a no-break space: "(1," and "0)" on two lines of a title
+        return "(" + " ".join(str(i) for i in c.index) + ")"
+    shown = ", ".join(named(c) for c in along[:4]) + (" …" if len(along) > 4 else "")
+    where = "corridors along the cell vectors" if geom.dimension == 2 else "slabs between the lattice planes"
+    short = f"infinite horizon (free {where} {shown}, {widest.width:.3g} L wide): MSD ∝ t·log t"
+    return short, (f"infinite horizon: free {where} {shown} (the widest {widest.width:.3g} L across) carry flights "
+                   f"of any length, so the MSD along {coordinate} grows as t·log t and no diffusion coefficient "
+                   "exists; the slope shown depends on the window")
+
+
 def fit_diffusion(t, x, fit_from=0.1, confidence=0.95):
     """Diffusion coefficient of one coordinate -> :class:`DiffusionFit`.
 

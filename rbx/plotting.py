@@ -512,10 +512,13 @@ def series_figure(steps, values, title, ylabel, labels=None, scales=(0.01, 0.1, 
 
 
 @styled
-def diffusion_figure(steps, msd, fit, displacement, title, coordinate="x", time_per_step=None):
+def diffusion_figure(steps, msd, fit, displacement, title, coordinate="x", time_per_step=None, horizon=None):
     """Left: mean-square displacement against steps (log–log) with the fit 2·D·t + c and its confidence
     interval; right: the distribution of the final displacement against the Gaussian of the fitted MSD.
-    ``time_per_step``: the mean time per collision τ [T], if known: D is then also given per unit time, D/τ."""
+    ``time_per_step``: the mean time per collision τ [T], if known: D is then also given per unit time, D/τ.
+    ``horizon``: why the slope is no diffusion coefficient (an infinite horizon: the short phrase of
+    :func:`rbx.analysis.horizon_problem`),
+    said in the MSD panel and the fit's label."""
     from scipy import stats
     fig = _figure(11.0, 4.6, title)
     ax = fig.add_subplot(1, 2, 1)
@@ -526,6 +529,8 @@ def diffusion_figure(steps, msd, fit, displacement, title, coordinate="x", time_
     model = fit.msd(t)
     pct = round(100 * fit.confidence)
     label = f"fit 2Dt + c: D = {fit.coefficient:.4g} ± {fit.half_width:.2g} L²/collision ({pct}% CI)"
+    if horizon:
+        label = "slope over the fit window only, " + label
     if time_per_step:
         label += (f"\n  = {fit.coefficient / time_per_step:.4g} ± {fit.half_width / time_per_step:.2g} L²/T per unit "
                   f"time (mean time per collision {time_per_step:.4g} T)")
@@ -541,6 +546,9 @@ def diffusion_figure(steps, msd, fit, displacement, title, coordinate="x", time_
     ax.set_xlabel("collisions [–]")
     ax.set_ylabel(f"MSD ⟨Δ{coordinate}²⟩ [L²]")
     ax.set_title(f"mean-square displacement, {fit.trajectories} trajectories")   # a fit needs 2 or more
+    if horizon:
+        ax.set_title(f"mean-square displacement, {fit.trajectories} trajectories\n"
+                     f"no diffusion coefficient: {horizon}", color="C3")
     ax2 = fig.add_subplot(1, 2, 2)
     dx = np.asarray(displacement, float)
     dx = dx[np.isfinite(dx)]

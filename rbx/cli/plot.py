@@ -388,9 +388,22 @@ def _diffusion(run, rec, traj, coordinate="x", fit_from=0.1, **_):
         tau = float(np.mean(clock[:, -1] - clock[:, 0])) / span if span > 0 else np.nan
         if np.isfinite(tau) and tau > 0:
             per_time = tau
-    return plotting.diffusion_figure(t, msd, fit, (x[full, -1] - x[full, 0]),
-                                     _title(run, f"diffusion along {coordinate}", traj, rec), coordinate=coordinate,
-                                     time_per_step=per_time)
+    # an infinite horizon (a free corridor along the coordinate, decided from the table's geometry): the MSD grows
+    # as t·log t, and the slope drawn is no diffusion coefficient
+    horizon = analysis.horizon_problem(run.geometry(), coordinate)
+    fig = plotting.diffusion_figure(t, msd, fit, (x[full, -1] - x[full, 0]),
+                                    _title(run, f"diffusion along {coordinate}", traj, rec), coordinate=coordinate,
+                                    time_per_step=per_time, horizon=horizon and horizon[0])
+    what = "slope of the MSD" if horizon else "diffusion coefficient"
+    said = (f"{what} along {coordinate}: D = {fit.coefficient:.4g} ± {fit.half_width:.2g} L²/collision "
+            f"({round(100 * fit.confidence)}% CI, {fit.trajectories} trajectories, fitted over steps "
+            f"{fit.start:.0f}–{fit.stop:.0f})")
+    if per_time:
+        said += f" = {fit.coefficient / per_time:.4g} ± {fit.half_width / per_time:.2g} L²/T"
+    if horizon:
+        said += f"; not a diffusion coefficient: {horizon[1]}"
+    fig.rbx_result = said
+    return fig
 
 
 def _refuse_one_orbit(run, traj, values, kind, what, why):
