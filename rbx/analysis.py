@@ -684,6 +684,19 @@ def wall_span(geom, wall):
     return min(s0 for _, s0 in offsets), length
 
 
+def ccw_direction(geom, wall):
+    """Which way the arc length s of a flat 2D wall grows (counter-clockwise: the table on the left) -> words:
+    'towards −x' on the strip's top wall, 'towards +x' on its floor, or 'along (−0.5, −0.866)'."""
+    patch = geom.wall_list[wall].patches[0]
+    if patch[0] != "flat":
+        return "counter-clockwise"
+    t = _ccw_tangent(np.asarray(patch[2], float))
+    for k, name in enumerate("xy"):
+        if abs(abs(t[k]) - 1.0) < 1e-12:
+            return f"towards {'+' if t[k] > 0 else '−'}{name}"
+    return f"along ({t[0]:.3g}, {t[1]:.3g})"
+
+
 def spin_fraction(velocity, angular_velocity, R, kappa):
     """The spin's share of the speed in the metric coordinates: v₀/|(v, v₀)| with v₀ = R√κ·ω (2D), or R√κ·ω·e/…
     for 3D components -> values in [−1, 1] (M,) for 2D, (M, 3) for 3D."""

@@ -694,3 +694,30 @@ def test_an_orbit_of_one_trajectory_is_not_called_each_trajectory(tmp_path):
         titles[m] = " ".join(make_figure(str(h5), "orbit").axes[0].get_title().split())
     assert titles[1].startswith("lines: the first ") and " collisions of the trajectory; grey" in titles[1], titles
     assert " collisions of each trajectory; grey" in titles[2], titles
+
+
+def test_phase_and_birkhoff_put_a_collision_at_the_same_s(runs):
+    """One convention for the arc length on an unbounded wall: counter-clockwise (the table on the left), so on the
+    strip's top wall s = −x, and the same collision lands at the same (s, sin ψ) in the phase portrait and in the
+    Birkhoff map (the phase portrait measured s along +x there, the Birkhoff map along −x)."""
+    run = Run.open(runs["strip"])
+    with run:
+        top = run.wall_names.index("top")
+        wall = run.read("wall", [0], slice(None))[0]
+        x = run.read("position", [0], slice(None))[0][wall == top, 0]
+        vx = run.read("velocity", [0], slice(None))[0][wall == top, 0]
+        speed = np.linalg.norm(run.read("velocity", [0], slice(None))[0][wall == top], axis=1)
+    assert len(x) > 100
+
+    def points(fig, title):
+        ax = [a for a in fig.axes if a.get_title().endswith(title)][0]
+        xy = np.concatenate([c.get_offsets() for c in ax.collections])
+        return xy[np.lexsort(xy.T[::-1])], ax.get_xlabel()
+    phase, label = points(make_figure(runs["strip"], "phase", trajectories="0"), "boundary map on wall 'top'")
+    birk, label2 = points(make_figure(runs["strip"], "birkhoff", trajectories="0", wall="top"),
+                          "boundary map on wall 'top'")
+    np.testing.assert_allclose(phase, birk, rtol=0, atol=1e-12)
+    assert label == label2 and "counter-clockwise (towards −x)" in label
+    # the closed form: on the top wall the counter-clockwise tangent is −x, so s = −x and sin ψ = −vₓ/|v|
+    expected = np.column_stack([-x, -vx / speed])
+    np.testing.assert_allclose(phase, expected[np.lexsort(expected.T[::-1])], rtol=0, atol=1e-12)

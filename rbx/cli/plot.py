@@ -289,14 +289,12 @@ def _phase(run, rec, traj, colour="trajectory", **_):
             panels.append(dict(x=s, y=sin_psi, xlabel="arc length s along the shrunk boundary [L]",
                                ylabel="sin ψ = v·t/|v| [–]", ylim=(-1.05, 1.05), xlim=(0.0, total),
                                vlines=analysis.wall_joints(geom), title="Birkhoff coordinates of the boundary map"))
-        else:  # unbounded walls (strip, wedge): one panel per wall, along the wall's own axis (x for the strip)
+        else:  # unbounded walls (strip, wedge): one panel per wall, s counter-clockwise from the wall's origin, as
+            # in --kind birkhoff --wall (the strip's top wall: s = −x; its own axis +x had s run the other way)
             for w, name in enumerate(run.wall_names):
-                _, origin, _, axes = geom.wall_list[w].patches[0]
-                e = np.asarray(axes[0][0], float)
                 on = wall == w
-                panels.append(dict(x=(pos[on] - origin) @ e, y=(vel[on] @ e) / np.linalg.norm(vel[on], axis=1),
-                                   select=on, xlabel=f"position along wall '{name}' [L]",
-                                   ylabel="sin ψ = v·e/|v|, e along the wall [–]", ylim=(-1.05, 1.05),
+                panels.append(dict(x=s[on], y=sin_psi[on], select=on, xlabel=_along(geom, w, name),
+                                   ylabel="sin ψ = v·t/|v| (t: the counter-clockwise tangent) [–]", ylim=(-1.05, 1.05),
                                    title=f"boundary map on wall '{name}'"))
     planes = analysis.spin_planes(wall, nu, vel, spin, run.radius, run.kappa, tangents)
     for k, (x, y, xn, yn) in enumerate(planes):
@@ -569,7 +567,7 @@ def _birkhoff(run, rec, traj, wall=None, **_):
         if np.isfinite(length):
             panel["xlim"] = (0.0, length)
         else:   # an unbounded wall (the strip's): the axis spans the collisions, from where the wall's arc starts
-            panel["xlabel"] = f"position along wall '{wall}' (counter-clockwise) [L]"
+            panel["xlabel"] = _along(geom, w_sel, wall)
     else:
         total = analysis.boundary_length(geom)
         if not np.isfinite(total):
@@ -578,6 +576,13 @@ def _birkhoff(run, rec, traj, wall=None, **_):
                      vlines=analysis.wall_joints(geom), title="Birkhoff map of the whole boundary")
     return plotting.section_figure([panel], colour, _title(run, "Birkhoff section at collisions", traj, rec),
                                    "spin share v₀/|(v, v₀)|, v₀ = R√κ·ω [–]")
+
+
+def _along(geom, w, name):
+    """The axis label of s on an unbounded 2D wall: counter-clockwise from the wall's origin, and which way that is
+    (the phase portrait and the Birkhoff map share it)."""
+    from .. import analysis
+    return f"arc length s along wall '{name}', counter-clockwise ({analysis.ccw_direction(geom, w)}) [L]"
 
 
 def _poincare(run, rec, traj, plane="z=0.5", **_):
