@@ -604,7 +604,13 @@ def resume_to_file(r, *, progress=None, should_stop=None, report=None):
         if not r.in_place:
             journal.discard(tmp)            # a journal left by a .partial that was removed by hand is not this copy's
             shutil.copyfile(r.source, tmp)
+            if journal.pending(r.source):   # a source that cannot be written (read-only): its journal goes to the copy
+                journal.recover(tmp, journal=journal.journal_path(r.source))
         h5 = open_journaled(tmp)
+    except journal.JournalError as exc:
+        with contextlib.suppress(OSError):
+            os.remove(tmp)
+        raise FileError(journal.journal_path(r.source), None, str(exc)) from None
     except OSError as exc:
         if os.path.exists(tmp) and not r.in_place:
             os.remove(tmp)

@@ -624,8 +624,17 @@ def _open_h5(path, mode="r"):
         except journal.JournalError as exc:
             raise FileError(journal.journal_path(path), None, str(exc)) from None
         except OSError as exc:
+            if mode == "r":       # the file cannot be written (a read-only file system): read it as finished
+                return _open_view(path)
             raise FileError(path, None, "its run was killed while saving a checkpoint, and finishing that needs "
                                         f"to write the file: {exc.strerror or exc}") from None
+    if journal.torn(path):
+        holder = lock_holder(path)
+        if holder is not None:      # a live run copying a checkpoint in: its file is locked meanwhile
+            raise _busy(path, holder)
+        raise FileError(path, None, "is torn: its run was killed while a checkpoint was being copied into it, and "
+                                    f"the journal that finishes it ({os.path.basename(journal.journal_path(path))}) "
+                                    "is gone; put that journal back beside the file, else run the config again")
     try:
         is_hdf5 = h5py.is_hdf5(path)
     except OSError as exc:
@@ -647,6 +656,24 @@ def _open_h5(path, mode="r"):
                                         "recovered: remove it and run the config again") from None
         raise FileError(path, None, f"cannot open the HDF5 file (damaged or locked by another program?): "
                                     f"{_first_line(exc)}") from None
+
+
+def _open_view(path):
+    """Open for reading a file whose pending journal cannot be copied into it: applied in memory
+    (:class:`rbx.journal.JournalView`) -> ``h5py.File``."""
+    try:
+        view = journal.JournalView(path)
+    except journal.JournalError as exc:
+        raise FileError(journal.journal_path(path), None, str(exc)) from None
+    except OSError as exc:
+        raise FileError(path, None, f"cannot read: {exc.strerror or exc}") from None
+    try:
+        f = h5py.File(view, "r")
+    except Exception as exc:   # noqa: BLE001 - HDF5's own words on a damaged file
+        view.close()
+        raise FileError(path, None, f"cannot open the HDF5 file (damaged?): {_first_line(exc)}") from None
+    f._rbx_journal_view = view
+    return f
 
 
 def _check_rbx_file(f, path, group):

@@ -136,19 +136,84 @@ def test_a_kill_at_any_step_of_a_commit_leaves_the_old_or_the_new_file(stage, ve
     assert not os.path.exists(f"{journal.journal_path(path)}.tmp")
 
 
-def test_a_journal_copied_with_its_file_is_refused_in_one_line(tmp_path):
-    """A journal names the file (inode) it was made for: applied to a copy it could write pages of one file into
-    another, so it is refused, and says why."""
-    src = tmp_path / "a.h5.partial"
-    res = subprocess.run([sys.executable, "-c", WRITER, str(src), "half-applied"], capture_output=True, text=True,
+def _killed_writer(path, stage="half-applied"):
+    res = subprocess.run([sys.executable, "-c", WRITER, str(path), stage], capture_output=True, text=True,
                          timeout=300)
-    assert res.returncode == -9 and journal.pending(src)
+    assert res.returncode == -9 and journal.pending(path), res.stderr
+
+
+def test_a_journal_copied_with_its_file_applies_to_the_copy(tmp_path):
+    """A journal names its file by the pages it changes, not by inode: copied with its file (a folder moved to
+    another disk, restored from a backup) it finishes the copy's checkpoint. It was refused as written for another
+    file, and the file without it is torn."""
+    src = tmp_path / "a.h5.partial"
+    _killed_writer(src)
+    assert journal.torn(src)                       # halfway through: HDF5 would refuse it
     copy = tmp_path / "b.h5.partial"
     shutil.copyfile(src, copy)
     shutil.copyfile(journal.journal_path(src), journal.journal_path(copy))
-    with pytest.raises(FileError, match="was written for another file"):
-        _open_h5(copy)
-    with _open_h5(src) as f:                       # the original is recovered as usual
+    for path in (copy, src):
+        with _open_h5(path) as f:
+            assert f.attrs["version"] == 2 and np.all(f["x"][...] == 2.0)
+        assert not journal.pending(path) and not journal.torn(path)
+    assert open(src, "rb").read() == open(copy, "rb").read()
+
+
+def test_a_journal_beside_another_file_is_refused_saying_what_the_file_is_without_it(tmp_path):
+    """A journal whose pages match neither what the file held nor what they become is another file's: refused,
+    and the line says whether the file is whole without it (move it away) or torn (put its own journal back)."""
+    torn_file = tmp_path / "a.h5.partial"
+    _killed_writer(torn_file)
+    whole = tmp_path / "b.h5.partial"
+    _killed_writer(whole, "applied")               # every page copied in, the journal not yet removed
+    other = tmp_path / "c.h5.partial"
+    _killed_writer(other)
+    with open(journal.journal_path(other), "rb") as fh:   # made another run's: its first page, before and after
+        raw = bytearray(fh.read())
+    count = journal.HEADER.unpack_from(raw, len(journal.MAGIC))[1]
+    before = len(journal.MAGIC) + journal.HEADER.size + 8 * count
+    raw[before:before + 4] = bytes(4)
+    page = before + 4 * count
+    raw[page:page + PAGE] = bytes(range(256)) * (PAGE // 256)
+    raw[-4:] = journal.CRC.pack(journal.zlib.crc32(bytes(raw[:-4])))
+    for path, words in ((whole, "is whole without it"), (torn_file, "is torn")):
+        with open(journal.journal_path(path), "wb") as fh:
+            fh.write(raw)
+        with pytest.raises(FileError, match="was written for another file") as info:
+            _open_h5(path)
+        assert words in str(info.value), info.value
+        assert journal.pending(path)               # nothing applied, nothing removed
+
+
+@pytest.mark.parametrize("stage, words", [("applied", "is whole without it"), ("half-applied", "is torn")])
+def test_a_damaged_journal_says_what_the_file_is_without_it(stage, words, tmp_path):
+    path = tmp_path / "a.h5.partial"
+    _killed_writer(path, stage)
+    with open(journal.journal_path(path), "r+b") as fh:
+        fh.seek(100)
+        fh.write(b"\xff" * 8)
+    with pytest.raises(FileError, match="is damaged") as info:
+        _open_h5(path)
+    assert words in str(info.value), info.value
+    if stage == "applied":                         # as the line says: moved away, the file reads whole
+        os.rename(journal.journal_path(path), tmp_path / "moved")
+        with _open_h5(path) as f:
+            assert f.attrs["version"] == 2
+
+
+def test_a_torn_file_without_its_journal_is_refused_not_read(tmp_path):
+    """The journal of a file killed halfway through copying it in, removed: HDF5 opened the torn file (a mixture of
+    two checkpoints) and rbx read it silently. Its signature stays replaced until the copying-in ends: refused in
+    one line naming the journal to put back."""
+    path = tmp_path / "a.h5.partial"
+    _killed_writer(path)
+    saved = tmp_path / "saved.journal"
+    os.rename(journal.journal_path(path), saved)
+    with pytest.raises(FileError, match="is torn: .* the journal that finishes it .a.h5.partial.journal. is gone"):
+        _open_h5(path)
+    assert not h5py.is_hdf5(path)
+    os.rename(saved, journal.journal_path(path))  # put back: the checkpoint finishes
+    with _open_h5(path) as f:
         assert f.attrs["version"] == 2
 
 
