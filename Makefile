@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 WARM := $(VENV)/.warmed-up
 
-.PHONY: bytecode test test-numba reproduce-figures warm-up bench stress gallery studies notebook clean
+.PHONY: test test-numba reproduce-figures warm-up bench stress gallery studies notebook clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -16,11 +16,13 @@ $(STAMP): pyproject.toml
 # rbx's modules compiled to bytecode once: where PYTHONDONTWRITEBYTECODE is set, Python would otherwise compile
 # every module from its source again in each of the hundreds of processes the tests and the figures start
 # (0.08 s of the 0.6 s a short `rbx simulate` takes)
-bytecode: $(STAMP)
+BYTECODE := $(VENV)/.bytecode
+$(BYTECODE): $(wildcard rbx/*.py rbx/cli/*.py) | $(STAMP)
 	$(PY) -m compileall -q rbx
+	touch $@
 
 # the tests that take minutes each (the bench, accuracy and stress documents, marked `heavy`) run with `make stress`
-test: $(STAMP) bytecode
+test: $(STAMP) $(BYTECODE)
 	$(PY) -m pytest -q -n 2 -m "not heavy" tests
 
 # the suite with the oldest and the newest Numba that pyproject.toml declares (a venv each), and with kernels
@@ -41,7 +43,7 @@ reproduce-figures: figures/README.md $(WARM)
 # the kernels of every example compiled ahead into the kernel cache (scripts/warm_up.py), so that the first run of an
 # example loads them instead of compiling for 10-40 s; done again when rbx's source or an example changes
 warm-up: $(WARM)
-$(WARM): scripts/warm_up.py $(wildcard configs/examples/*.yaml) $(wildcard rbx/*.py) | $(STAMP) bytecode
+$(WARM): scripts/warm_up.py $(wildcard configs/examples/*.yaml) $(wildcard rbx/*.py) | $(STAMP) $(BYTECODE)
 	$(PY) scripts/warm_up.py
 	touch $@
 
@@ -55,12 +57,12 @@ figures/README.md: $(FIGURES:%=figures/%.png) scripts/figures_readme.py
 figures/%.png: scripts/fig_%.py scripts/figlib.py $$(call fig_data,$$*) | $(STAMP)
 	MPLBACKEND=Agg $(PY) $< $(call fig_data,$*) -o $@
 
-data/%.h5: configs/experiments/%.yaml | $(STAMP) bytecode
+data/%.h5: configs/experiments/%.yaml | $(STAMP) $(BYTECODE)
 	@mkdir -p $(dir $@)
 	$(RBX) simulate $< -o $@ --force --quiet
 
 # the return-angle experiment writes its own file (output.path in the config points here)
-data/histogram.h5: configs/experiments/histogram.yaml | $(STAMP) bytecode
+data/histogram.h5: configs/experiments/histogram.yaml | $(STAMP) $(BYTECODE)
 	@mkdir -p data
 	$(RBX) histogram $< -o data/histogram-cli.png --force --quiet
 

@@ -39,7 +39,7 @@ def tree(tmp_path):
     sources = ["pyproject.toml", "scripts/figlib.py", "scripts/figures_readme.py", "scripts/warm_up.py",
                "rbx/engine.py"] + configs + examples + [f"scripts/fig_{x}.py" for x in labels]
     data = [c.replace("configs/experiments/", "data/").replace(".yaml", ".h5") for c in configs]
-    made = [".venv/.installed"] + data + [f"figures/{x}.png" for x in labels] + ["figures/README.md",
+    made = [".venv/.installed", ".venv/.bytecode"] + data + [f"figures/{x}.png" for x in labels] + ["figures/README.md",
                                                                                  ".venv/.warmed-up"]
     t = time.time() - 1000
     for i, rel in enumerate(sources + made):
@@ -86,11 +86,13 @@ def test_reproduce_figures_compiles_every_example_ahead(tree):
     subprocess.run(["touch", ".venv/.warmed-up"], cwd=tree, check=True)
     assert dry_run(tree) == []
     later = time.time()
-    for changed in ("configs/examples/strip.yaml", "rbx/engine.py"):
+    bytecode = [".venv/bin/python -m compileall -q rbx", "touch .venv/.bytecode"]
+    for changed, first in (("configs/examples/strip.yaml", []), ("rbx/engine.py", bytecode)):
         later += 100
         os.utime(tree / changed, (later, later))
         cmds = dry_run(tree)
-        assert cmds == [".venv/bin/python scripts/warm_up.py", "touch .venv/.warmed-up"], (changed, cmds)
+        assert cmds == first + [".venv/bin/python scripts/warm_up.py", "touch .venv/.warmed-up"], (changed, cmds)
         assert not any("simulate" in c or "fig_" in c for c in cmds)
         later += 100
-        os.utime(tree / ".venv" / ".warmed-up", (later, later))
+        for made in (".venv/.bytecode", ".venv/.warmed-up"):
+            os.utime(tree / made, (later, later))
