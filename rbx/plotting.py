@@ -180,12 +180,12 @@ def _few_ticks(ax, n=4):
         axis.set_major_locator(MaxNLocator(n))
 
 
-def _thin(paths, budget, geom=None):
+def _thin(paths, budget, geom=None, walk=False):
     """The first K records of each path, K such that the drawn flights total about ``budget``/√m for m paths (at
-    most PER_TRAJECTORY each); in a periodic table, up to PER_TRAJECTORY_PERIODIC each -> (paths, K or None if
-    nothing was cut)."""
+    most PER_TRAJECTORY each); in a periodic table (or for any ``walk``: the horizontal projection of an orbit
+    between plates), up to PER_TRAJECTORY_PERIODIC each -> (paths, K or None if nothing was cut)."""
     per = PER_TRAJECTORY
-    if geom is not None and getattr(geom, "lattice", None) is not None:
+    if walk or (geom is not None and getattr(geom, "lattice", None) is not None):
         per = PER_TRAJECTORY_PERIODIC
         budget = per * len(paths)
     else:
@@ -195,6 +195,28 @@ def _thin(paths, budget, geom=None):
         return paths, None
     k = max(2, min(budget // max(len(paths), 1), per) + 1)
     return [p[:k] for p in paths], k - 1
+
+
+#: the drawn flights of a 2D orbit over its density cover at most about this share of the area the whole run visits
+#: (the line length times the line width): 250 chords of the rough circle covered its annulus, and the grey density
+#: of the whole run that the title promised could not be seen (now a few dozen of its chords are drawn over it)
+INK_SHARE = 0.1
+
+
+def _ink_cap(shown, k, visited, ax, lw_pt):
+    """Fewer flights of each shown path (the first k' ≤ k) so that their ink covers at most :data:`INK_SHARE` of
+    the area the whole run visits (``visited``: the occupied cells of its density, :func:`_density`) -> (paths,
+    k')."""
+    (x0, x1), (y0, y1) = ax.get_xlim(), ax.get_ylim()
+    fig = ax.figure
+    width_pt = 0.75 * fig.get_figwidth() * 72.0                  # the axes before the layout: most of the width
+    lw = lw_pt * max(x1 - x0, y1 - y0) / width_pt                # the line width in L
+    room = INK_SHARE * visited / lw                               # the line length allowed [L]
+    lengths = [np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(p[:, :2], axis=0), axis=1))]) for p in shown]
+    per = max(1, k)
+    while per > 10 and sum(float(c[min(per, len(c) - 1)]) for c in lengths) > room:
+        per = int(per * 0.9)
+    return [p[:per + 1] for p in shown], per
 
 
 def _density(ax, paths, points_only, lo, hi, bins=200):
@@ -213,7 +235,7 @@ def _density(ax, paths, points_only, lo, hi, bins=200):
         u = np.linspace(0.0, s[-1], min(400_000, 40 * len(p)))
         pts.append(np.stack([np.interp(u, s, p[:, 0]), np.interp(u, s, p[:, 1])], axis=1))
     if not pts:
-        return
+        return 0.0
     q = np.concatenate(pts)
     span = np.maximum(np.asarray(hi[:2], float) - np.asarray(lo[:2], float), 1e-12)
     nx = int(np.clip(bins * span[0] / span.max(), 20, bins))
@@ -222,6 +244,7 @@ def _density(ax, paths, points_only, lo, hi, bins=200):
     h = np.ma.masked_equal(h, 0)
     ax.pcolormesh(xe, ye, h.T, cmap="Greys", norm=matplotlib.colors.LogNorm(vmin=1, vmax=max(h.max(), 2)),
                   alpha=0.55, zorder=0, rasterized=True)
+    return int(h.count()) * float((xe[1] - xe[0]) * (ye[1] - ye[0]))
 
 
 #: one colour per trajectory: matplotlib's tab10 with its brown (the 6th) replaced by a navy, since thin brown and
@@ -322,7 +345,9 @@ def orbit_figure(paths, geom, title, labels=None, points_only=False, stride=1):
     _round_caps(ax)
     shown, k = _thin(paths, ORBIT_SEGMENTS, geom)
     if k is not None:
-        _density(ax, paths, points_only, *_extent(paths))
+        visited = _density(ax, paths, points_only, *_extent(paths))
+        if not points_only:
+            shown, k = _ink_cap(shown, k, visited, ax, 0.6)
     alpha = 1.0 if len(paths) == 1 else 0.8
     for i, p in enumerate(shown):
         style = dict(ls="none", marker=".", ms=2) if points_only else dict(lw=0.6)
@@ -336,7 +361,7 @@ def orbit_figure(paths, geom, title, labels=None, points_only=False, stride=1):
         ax.set_aspect("equal", adjustable="box")
         # to scale, so the figure takes the table's shape (a wide, low figure for a wide table)
         width = 9.0 if ratio < 0.5 else 6.4
-        legend = 1.5 if labels and len(paths) <= MAX_LEGEND and ratio >= 0.5 else 0.0   # beside the axes
+        legend = 1.5 if labels and 1 < len(paths) <= MAX_LEGEND and ratio >= 0.5 else 0.0   # beside the axes
         fig.set_size_inches(width, float(np.clip((width - legend - 0.8) * ratio + 1.6, 3.2, 9.0)))
         ax.set_xlabel("x [L]")
         ax.set_ylabel("y [L]")
@@ -350,7 +375,7 @@ def orbit_figure(paths, geom, title, labels=None, points_only=False, stride=1):
         ax.set_ylabel("y [L]")
     if k is not None:
         ax.set_title(f"{_first(k, stride if points_only else 1, len(shown))}; grey: the whole run")
-    if labels and len(paths) <= MAX_LEGEND:
+    if labels and 1 < len(paths) <= MAX_LEGEND:     # one trajectory: the title names it, a legend only took room
         legend_outside(ax, "below" if ratio < 0.5 else "right")
     return fig
 
@@ -372,9 +397,15 @@ def orbit3d_figure(paths, geom, title, labels=None, points_only=False, stride=1)
     # the projection's y label
     gs = fig.add_gridspec(1, 3, width_ratios=[1.0, 0.1, 1.0])
     ax = fig.add_subplot(gs[0, 0], projection="3d")
-    lo, hi = _extent(paths, 3)
     style = dict(ls="none", marker=".", ms=2) if points_only else dict(lw=0.6)
     shown, k = _thin(paths, ORBIT3D_SEGMENTS, geom)
+    # between plates (unbounded, not periodic) the orbit drifts: 250 flights ran 80 L along the plates 1 apart, a
+    # blue block at one end of planes drawn 600 L long; the 3D panel shows a stretch a few gaps long, the
+    # projection the whole walk
+    drifts = geom.lattice is None and bool(analysis.unbounded_axes(geom))
+    if drifts:
+        shown, k = _short_stretch(shown if k is not None else paths, paths)
+    lo, hi = _extent(shown, 3)
     alpha = 1.0 if len(paths) == 1 else 0.8
     for i, p in enumerate(shown):
         ax.plot(p[:, 0], p[:, 1], p[:, 2], color=_colour(i), alpha=alpha, label=labels[i] if labels else None,
@@ -391,13 +422,17 @@ def orbit3d_figure(paths, geom, title, labels=None, points_only=False, stride=1)
     ax.set_ylabel("y [L]")
     ax.set_zlabel("z [L]")
     stride = stride if points_only else 1
-    ax.set_title("3D path of the centre" + (f" (first {k} {'records' if stride > 1 else 'collisions'} each)"
+    each = " each" if len(shown) > 1 else ""
+    ax.set_title("3D path of the centre" + (f" (first {k} {'records' if stride > 1 else 'collisions'}{each})"
                                             if k else ""))
     ax2 = fig.add_subplot(gs[0, 2])
-    lo2, hi2 = _extent(paths)
+    lo2, hi2 = _extent(shown if drifts else paths)
     draw_table_2d(ax2, geom, lo2, hi2)
     _round_caps(ax2)
-    shown2, k2 = _thin(paths, ORBIT_SEGMENTS, geom)
+    if drifts:          # the stretch of the 3D panel seen from above (the whole walk was a solid block of ink)
+        shown2, k2 = shown, None
+    else:
+        shown2, k2 = _thin(paths, ORBIT_SEGMENTS, geom)
     if k2 is not None:
         _density(ax2, paths, points_only, lo2, hi2)
     for i, p in enumerate(shown2):
@@ -413,10 +448,33 @@ def orbit3d_figure(paths, geom, title, labels=None, points_only=False, stride=1)
         ax2.set_xlabel("x [L] (not to scale)")
     ax2.set_ylabel("y [L]")
     drawn = f"points, first {k2} records" if stride > 1 else f"lines, first {k2} collisions"
-    ax2.set_title("horizontal projection" + (f": {drawn}; grey, whole run" if k2 else ""))
-    if labels and len(paths) <= MAX_LEGEND:
+    if drifts:
+        (a, b), (c, d) = (f"{v:.3g}".replace("-", "−") for v in _extent(paths)[0][:2]), \
+            (f"{v:.3g}".replace("-", "−") for v in _extent(paths)[1][:2])
+        ax2.set_title(f"the stretch of (a) seen from above\n(whole run: x {a} to {c}, y {b} to {d} [L])")
+    else:
+        ax2.set_title("horizontal projection" + (f": {drawn}; grey, whole run" if k2 else ""))
+    if labels and 1 < len(paths) <= MAX_LEGEND:
         legend_outside(ax2)
     return fig
+
+
+#: between plates the 3D panel shows a stretch of the orbit at most this many times the height it spans (the gap)
+STRETCH = 6.0
+
+
+def _short_stretch(shown, paths):
+    """The first k flights of each path such that every drawn path spans at most :data:`STRETCH` times the whole
+    run's vertical range horizontally -> (paths, k or None when nothing was cut)."""
+    height = max(float(np.ptp(p[:, 2])) for p in paths if len(p)) or 1.0
+    k = max(len(p) for p in shown) - 1
+    for p in shown:
+        span = np.maximum(np.maximum.accumulate(p[:, :2], axis=0) - np.minimum.accumulate(p[:, :2], axis=0), 0.0)
+        over = np.nonzero(np.max(span, axis=1) > STRETCH * height)[0]
+        if len(over):
+            k = min(k, max(int(over[0]) - 1, 2))
+    cut = [p[:k + 1] for p in shown]
+    return cut, (k if any(len(p) > k + 1 for p in paths) else None)
 
 
 # ---- phase portraits -------------------------------------------------------------------------------------------

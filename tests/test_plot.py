@@ -721,3 +721,48 @@ def test_phase_and_birkhoff_put_a_collision_at_the_same_s(runs):
     # the closed form: on the top wall the counter-clockwise tangent is −x, so s = −x and sin ψ = −vₓ/|v|
     expected = np.column_stack([-x, -vx / speed])
     np.testing.assert_allclose(phase, expected[np.lexsort(expected.T[::-1])], rtol=0, atol=1e-12)
+
+
+def _example_run(tmp_path, name, collisions):
+    import rbx
+    exp = rbx.load(os.path.join(EXAMPLES, name + ".yaml"), {"collisions": collisions})
+    path = str(tmp_path / f"{name}.h5")
+    rbx.simulate(exp, output=path, force=True)
+    return path
+
+
+def test_the_density_of_a_long_orbit_shows_between_its_drawn_flights(tmp_path):
+    """The rough circle's orbit drew 250 chords over the grey density of the whole run that its title promised:
+    the chords covered the annulus and no grey could be seen. Rendered, the grey of the density now shows in
+    more of the orbit's disc than the lines' colour."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.colors import to_rgb
+    fig = make_figure(_example_run(tmp_path, "circle", 2000), "orbit")
+    assert "grey: the whole run" in fig.axes[0].get_title()
+    FigureCanvasAgg(fig)
+    fig.set_dpi(100)
+    fig.canvas.draw()
+    image = np.asarray(fig.canvas.buffer_rgba())[..., :3].astype(float) / 255
+    box = fig.axes[0].get_window_extent()
+    h = image.shape[0]
+    inside = image[int(h - box.y1) + 5:int(h - box.y0) - 5, int(box.x0) + 5:int(box.x1) - 5]
+    line = np.all(np.abs(inside - to_rgb(fig.axes[0].get_lines()[-1].get_color())) < 0.25, axis=-1)
+    grey = (np.ptp(inside, axis=-1) < 0.03) & (inside.mean(axis=-1) < 0.97) & (inside.mean(axis=-1) > 0.4)
+    assert grey.sum() > line.sum() > 0, (grey.sum(), line.sum())
+
+
+def test_an_orbit_between_plates_is_drawn_as_a_stretch_a_few_gaps_long(tmp_path):
+    """Between plates the orbit drifts (580 L along y in 2000 collisions of the example): its first 250 flights ran
+    80 L along plates 1 apart, a block of ink at one end of the drawn planes, and the whole walk's projection was a
+    solid block. Both panels now show a stretch at most STRETCH times the gap it spans, and say how far the whole
+    run went."""
+    fig = make_figure(_example_run(tmp_path, "plates", 2000), "orbit3d")
+    ax3, ax2 = fig.axes[0], fig.axes[1]
+    drawn = [line for line in ax3.get_lines() if line.get_label().startswith("trajectory")]
+    xyz = np.concatenate([np.column_stack(line.get_data_3d()) for line in drawn])
+    height = np.ptp(xyz[:, 2])
+    assert 0.5 < height <= 1.0 and np.max(np.ptp(xyz[:, :2], axis=0)) <= 6 * height + 1.0   # plotting.STRETCH
+    flat = [line for line in ax2.get_lines() if line.get_label().startswith("trajectory")]
+    assert sum(len(line.get_xdata()) for line in flat) == len(xyz)
+    assert "whole run" in ax2.get_title() and "−5" in ax2.get_title()
+    assert readable(fig) == []
