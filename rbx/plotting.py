@@ -340,11 +340,16 @@ def orbit_figure(paths, geom, title, labels=None, points_only=False, stride=1):
     much longer than wide (a strip) is stretched across, and the axis label says so."""
     fig = _figure(6.4, 6.0, title)
     ax = fig.add_subplot()
-    lo, hi = _extent(paths)
+    # a 3D orbit between plates drifts along them: its projection was a block of ink over a striped density of a
+    # uniform drift; it is drawn as a stretch a few gaps long, as in orbit3d_figure
+    drifts = geom.dimension == 3 and geom.lattice is None and bool(analysis.unbounded_axes(geom))
+    shown, k = _thin(paths, ORBIT_SEGMENTS, geom)
+    if drifts:
+        shown, k = _short_stretch(shown if k is not None else paths, paths)
+    lo, hi = _extent(shown if drifts else paths)
     draw_table_2d(ax, geom, lo, hi)
     _round_caps(ax)
-    shown, k = _thin(paths, ORBIT_SEGMENTS, geom)
-    if k is not None:
+    if k is not None and not drifts:
         visited = _density(ax, paths, points_only, *_extent(paths))
         if not points_only:
             shown, k = _ink_cap(shown, k, visited, ax, 0.6)
@@ -373,7 +378,11 @@ def orbit_figure(paths, geom, title, labels=None, points_only=False, stride=1):
         fig.set_size_inches(4.4, 7.5)
         ax.set_xlabel("x [L] (not to scale)")
         ax.set_ylabel("y [L]")
-    if k is not None:
+    if drifts and k is not None:
+        (a, b), (c, d) = ((f"{v:.3g}".replace("-", "−") for v in corner[:2]) for corner in _extent(paths))
+        ax.set_title(f"{_first(k, stride if points_only else 1, len(shown))}\n(whole run: x {a} to {c}, y {b} to "
+                     f"{d} [L])")
+    elif k is not None:
         ax.set_title(f"{_first(k, stride if points_only else 1, len(shown))}; grey: the whole run")
     if labels and 1 < len(paths) <= MAX_LEGEND:     # one trajectory: the title names it, a legend only took room
         legend_outside(ax, "below" if ratio < 0.5 else "right")
@@ -449,8 +458,7 @@ def orbit3d_figure(paths, geom, title, labels=None, points_only=False, stride=1)
     ax2.set_ylabel("y [L]")
     drawn = f"points, first {k2} records" if stride > 1 else f"lines, first {k2} collisions"
     if drifts:
-        (a, b), (c, d) = (f"{v:.3g}".replace("-", "−") for v in _extent(paths)[0][:2]), \
-            (f"{v:.3g}".replace("-", "−") for v in _extent(paths)[1][:2])
+        (a, b), (c, d) = ((f"{v:.3g}".replace("-", "−") for v in corner[:2]) for corner in _extent(paths))
         ax2.set_title(f"the stretch of (a) seen from above\n(whole run: x {a} to {c}, y {b} to {d} [L])")
     else:
         ax2.set_title("horizontal projection" + (f": {drawn}; grey, whole run" if k2 else ""))
