@@ -766,3 +766,9 @@ def test_an_orbit_between_plates_is_drawn_as_a_stretch_a_few_gaps_long(tmp_path)
     assert sum(len(line.get_xdata()) for line in flat) == len(xyz)
     assert "whole run" in ax2.get_title() and "−5" in ax2.get_title()
     assert readable(fig) == []
+    # the orbit kind draws the same stretch from above, not the whole drift over its density
+    fig = make_figure(str(tmp_path / "plates.h5"), "orbit")
+    flat = np.concatenate([line.get_xydata() for line in fig.axes[0].get_lines()
+                           if line.get_label().startswith("trajectory")])
+    assert len(flat) == len(xyz) and not fig.axes[0].collections      # no density
+    assert "whole run" in fig.axes[0].get_title()
