@@ -219,6 +219,12 @@ def _ink_cap(shown, k, visited, ax, lw_pt):
     return [p[:per + 1] for p in shown], per
 
 
+#: the greys of a run's density under the drawn flights: from white to a middle grey, so that the darkest cell still
+#: leaves the coloured lines over it their contrast (the full grey scale at 55 % opacity made a box's nearly uniform
+#: projection a dark noise in which eight trajectories' lines were lost)
+DENSITY_GREYS = matplotlib.colors.LinearSegmentedColormap.from_list("rbx_density", ["0.96", "0.6"])
+
+
 def _density(ax, paths, points_only, lo, hi, bins=200):
     """The time spent at each place by the whole orbit, as a grey density under the drawn flights: points
     sampled uniformly along each straight flight (or the recorded points themselves, ``points_only``)."""
@@ -242,8 +248,8 @@ def _density(ax, paths, points_only, lo, hi, bins=200):
     ny = int(np.clip(bins * span[1] / span.max(), 20, bins))
     h, xe, ye = np.histogram2d(q[:, 0], q[:, 1], bins=(nx, ny), range=[[lo[0], hi[0]], [lo[1], hi[1]]])
     h = np.ma.masked_equal(h, 0)
-    ax.pcolormesh(xe, ye, h.T, cmap="Greys", norm=matplotlib.colors.LogNorm(vmin=1, vmax=max(h.max(), 2)),
-                  alpha=0.55, zorder=0, rasterized=True)
+    ax.pcolormesh(xe, ye, h.T, cmap=DENSITY_GREYS, norm=matplotlib.colors.LogNorm(vmin=1, vmax=max(h.max(), 2)),
+                  zorder=0, rasterized=True)
     return int(h.count()) * float((xe[1] - xe[0]) * (ye[1] - ye[0]))
 
 
