@@ -420,6 +420,22 @@ def orbit3d_figure(paths, geom, title, labels=None, points_only=False, stride=1)
     drifts = geom.lattice is None and bool(analysis.unbounded_axes(geom))
     if drifts:
         shown, k = _short_stretch(shown if k is not None else paths, paths)
+    # the projection first: the flights it can show over the run's density (_ink_cap) are all the 3D panel shows
+    # too (250 of the rough sphere's were a hedgehog in 3D)
+    ax2 = fig.add_subplot(gs[0, 2])
+    lo2, hi2 = _extent(shown if drifts else paths)
+    draw_table_2d(ax2, geom, lo2, hi2)
+    _round_caps(ax2)
+    if drifts:          # the stretch of the 3D panel seen from above (the whole walk was a solid block of ink)
+        shown2, k2 = shown, None
+    else:
+        shown2, k2 = _thin(paths, ORBIT_SEGMENTS, geom)
+    if k2 is not None:
+        visited = _density(ax2, paths, points_only, lo2, hi2)
+        if not points_only:
+            shown2, k2 = _ink_cap(shown2, k2, visited, ax2, 0.6)
+            if k is not None and k2 < k:
+                shown, k = [p[:k2 + 1] for p in shown], k2
     lo, hi = _extent(shown, 3)
     alpha = 1.0 if len(paths) == 1 else 0.8
     for i, p in enumerate(shown):
@@ -440,16 +456,6 @@ def orbit3d_figure(paths, geom, title, labels=None, points_only=False, stride=1)
     each = " each" if len(shown) > 1 else ""
     ax.set_title("3D path of the centre" + (f" (first {k} {'records' if stride > 1 else 'collisions'}{each})"
                                             if k else ""))
-    ax2 = fig.add_subplot(gs[0, 2])
-    lo2, hi2 = _extent(shown if drifts else paths)
-    draw_table_2d(ax2, geom, lo2, hi2)
-    _round_caps(ax2)
-    if drifts:          # the stretch of the 3D panel seen from above (the whole walk was a solid block of ink)
-        shown2, k2 = shown, None
-    else:
-        shown2, k2 = _thin(paths, ORBIT_SEGMENTS, geom)
-    if k2 is not None:
-        _density(ax2, paths, points_only, lo2, hi2)
     for i, p in enumerate(shown2):
         ax2.plot(p[:, 0], p[:, 1], color=_colour(i), alpha=alpha, label=labels[i] if labels else None, **style)
     for i, p in enumerate(shown2):
