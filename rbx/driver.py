@@ -45,11 +45,23 @@ def estimated_size(cfg):
     return data_bytes(cfg) + METADATA_BYTES
 
 
-def check_size(cfg, path, key_file=None, written=0, option="max_size="):
+def free_space(path):
+    """Bytes free on the disk ``path`` is (or will be) on, asking its nearest existing folder -> int, or None."""
+    folder = os.path.dirname(os.path.abspath(path)) or "."
+    while not os.path.isdir(folder) and os.path.dirname(folder) != folder:
+        folder = os.path.dirname(folder)                   # the folder is made later: ask its nearest parent
+    try:
+        return shutil.disk_usage(folder).free
+    except OSError:
+        return None
+
+
+def check_size(cfg, path, key_file=None, written=0, option="max_size=", hint=""):
     """Refuse a run whose file would be larger than ``output.max_size`` or than the free space where it goes:
     raises :class:`FileError` before anything is written. ``key_file``: (file, key) the limit is named by;
     ``written``: bytes of the file already on that disk (a run resumed in place: only the rest must fit);
-    ``option``: how the caller raises the limit (``max_size=`` in Python, ``--max-size`` on the command line)."""
+    ``option``: how the caller raises the limit (``max_size=`` in Python, ``--max-size`` on the command line);
+    ``hint``: what to do when the disk is short, added to that line."""
     need = estimated_size(cfg)
     # compression: the size before it (what it saves depends on the numbers, unknown before the run)
     raw = "" if cfg.output.compression == "none" else " before compression"
@@ -62,17 +74,13 @@ def check_size(cfg, path, key_file=None, written=0, option="max_size="):
                                    f"{plural(cfg.run.collisions // cfg.output.every + 1, 'record')} of "
                                    f"{', '.join(cfg.output.record)}), more than the limit "
                                    f"{format_size(cfg.output.max_size)}; {how} if that is meant")
-    folder = os.path.dirname(os.path.abspath(path)) or "."
-    while not os.path.isdir(folder) and os.path.dirname(folder) != folder:
-        folder = os.path.dirname(folder)                   # the folder is made later: ask its nearest parent
-    try:
-        free = shutil.disk_usage(folder).free
-    except OSError:
+    free = free_space(path)
+    if free is None:
         return
     if need - written > free:
         more = f", {format_size(written)} of it written already," if written else ""
         raise FileError(path, None, f"the run would write about {format_size(need)}{raw}{more} but the disk has "
-                                    f"{format_size(free)} free")
+                                    f"{format_size(free)} free{hint}")
 
 
 def _killed_partial(tmp, force_hint, what_force_does):
@@ -410,6 +418,8 @@ class Resumption:
     write_initial: bool = False
     done: int = 0
     notes: list = dataclasses.field(default_factory=list)
+    #: the source (OUT.h5) is renamed to ``tmp`` and continued in place: the disk has no room for a copy
+    move: bool = False
 
 
 def resumed_source(run_file):
@@ -498,16 +508,26 @@ def prepare_resume(run_file, output=None, *, force=False, max_size=None, out_key
         key_file = (None, size_key)
     else:
         key_file = (source, "config: output.max_size")
-    written = os.path.getsize(source) if in_place else 0
+    move = False
+    movable = not in_place and path == source and not os.path.lexists(tmp)
+    if movable:
+        # OUT.h5 resumed into itself works on a copy (OUT.h5.partial). Where the disk has no room for the copy and
+        # the rest of the run, it is continued in place under its .partial name instead, renamed rather than
+        # copied: the journal keeps the file whole at every instant, and a stop ends with it renamed back
+        free = free_space(path)
+        move = free is not None and estimated_size(cfg) > free
+    written = os.path.getsize(source) if in_place or movable else 0
+    other = "-o" if out_key.startswith("-") else f"{out_key}="
     check_size(cfg, path, key_file, written=written,
-               option=size_key if size_key.startswith("--") else f"{size_key}=")
+               option=size_key if size_key.startswith("--") else f"{size_key}=",
+               hint=f"; free some space, or resume it into a file on another disk with {other}")
     notes += [note] if note else []
     for field, chunks in sim.torn_chunks.items():
         notes.append(f"collisions/{field}: {len(chunks)} chunk(s) of the last saved records failed their checksum "
                      "(torn by the kill while HDF5 rewrote them): the saved records were read from the raw bytes "
                      "of the chunks")
     return Resumption("continue", source, path, tmp, in_place, force or own or path == source, sim, write_initial,
-                      done, notes)
+                      done, notes, move)
 
 
 def _identity(run):
@@ -601,7 +621,10 @@ def resume_to_file(r, *, progress=None, should_stop=None, report=None):
     midway."""
     sim, tmp = r.sim, r.tmp
     try:
-        if not r.in_place:
+        if r.move:
+            journal.discard(tmp)
+            os.rename(r.source, tmp)
+        elif not r.in_place:
             journal.discard(tmp)            # a journal left by a .partial that was removed by hand is not this copy's
             shutil.copyfile(r.source, tmp)
             if journal.pending(r.source):   # a source that cannot be written (read-only): its journal goes to the copy
@@ -612,11 +635,13 @@ def resume_to_file(r, *, progress=None, should_stop=None, report=None):
             os.remove(tmp)
         raise FileError(journal.journal_path(r.source), None, str(exc)) from None
     except OSError as exc:
-        if os.path.exists(tmp) and not r.in_place:
+        if os.path.exists(tmp) and not r.in_place and not r.move:
             os.remove(tmp)
         if exc.errno in NO_ROOM:           # not the user's input: the disk is still full
-            raise DiskFull(f"the disk is full: no room to continue the run; free some space and resume again "
-                           f"({display_path(r.source)} is unchanged)") from None
+            what = "to continue the run" if r.in_place or r.move else \
+                f"for the copy of {display_path(r.source)} a resume works on"
+            raise DiskFull(f"the disk is full: no room {what}; free some space and resume again, or resume it into "
+                           f"a file on another disk ({display_path(r.source)} is unchanged)") from None
         raise FileError(tmp, None, f"cannot write: {exc.strerror or exc}") from None
     try:
         try:
@@ -630,7 +655,7 @@ def resume_to_file(r, *, progress=None, should_stop=None, report=None):
         with contextlib.suppress(Exception):
             h5.close()
         close_journal(h5, commit=False)        # the file as it was: nothing of the attempt reaches it
-        if not r.in_place:
+        if not r.in_place and not r.move:
             os.remove(tmp)
         raise
     return stream(sim, h5, tmp, r.path, fresh=False, write_initial=r.write_initial, replace=r.force,

@@ -295,8 +295,23 @@ class H5Sink:
         b = next(iter(block.values())).shape[1]
         start = g["step"].shape[0]
         new, rewritten = self._block_room(start, b)
+        free = self._free()
+        if b > 1 and not self._fits(new, self._journal_due + rewritten + self._count_bytes(), self._next_slot()[1],
+                                    free):
+            # its records would go into chunks committed before (the first block of a resume adds the rest of the
+            # run to them), and the journal of that is more than the disk has room for: in halves, each committed
+            # before the next, so that one journal at a time takes room. A commit without a checkpoint leaves
+            # records past the saved state, which a resume cuts back, as after a kill between a block and its
+            # checkpoint
+            h = b // 2
+            self.write({f: a[:, :h] for f, a in block.items()}, np.minimum(nrec, h))
+            self.h5.flush()
+            commit(self.h5)
+            self._committed_records, self._journal_due = int(g["step"].shape[0]), 0
+            self.write({f: a[:, h:] for f, a in block.items()}, np.maximum(np.asarray(nrec) - h, 0))
+            return
         self._journal_due += rewritten + self._count_bytes()
-        self._check_space(new, self._journal_due, self._next_slot()[1])
+        self._check_space(new, self._journal_due, self._next_slot()[1], free)
         for f, arr in block.items():
             ds = g[f]
             ds.resize(start + b, axis=1)
@@ -357,7 +372,31 @@ class H5Sink:
             self._slot = target, target in self.h5
         return self._slot
 
-    def _check_space(self, new_bytes, journal_bytes, in_place):
+    def _free(self):
+        """Bytes free on the file's disk -> int, or None if the system does not say."""
+        try:
+            return shutil.disk_usage(os.path.dirname(os.path.abspath(file_path(self.h5))) or ".").free
+        except OSError:
+            return None
+
+    def _fits(self, new_bytes, journal_bytes, in_place, free):
+        """Whether :meth:`_check_space` would find room for these writes with ``free`` bytes free (it says
+        nothing)."""
+        if free is None:
+            return True
+        file_bytes = new_bytes + (0 if in_place else self.state_bytes) + DISK_MARGIN
+        journal_bytes = journal_bytes + (self.state_bytes if in_place else 0) + DISK_MARGIN
+        return free + self._spare() >= file_bytes + journal_bytes
+
+    def _spare(self):
+        """Room reserved in the file by the last block's check and not used by HDF5 yet."""
+        jf = journal_of(self.h5)
+        with contextlib.suppress(OSError):
+            if jf is not None:
+                return max(0, os.fstat(jf.fd).st_blocks * 512 - jf.size)
+        return 0
+
+    def _check_space(self, new_bytes, journal_bytes, in_place, free=False):
         """Stop with :class:`DiskFull` before a write the disk has no room for: HDF5 meeting ENOSPC mid-write left
         the file half-updated and h5py crashed (a segmentation fault) closing it. The room is what the write
         really takes: ``new_bytes`` of new chunks in the file, the next checkpoint's state (a new slot in the
@@ -367,16 +406,9 @@ class H5Sink:
         the last checkpoint is intact and the file can be resumed once there is space."""
         file_bytes = new_bytes + (0 if in_place else self.state_bytes) + DISK_MARGIN
         journal_bytes = journal_bytes + (self.state_bytes if in_place else 0) + DISK_MARGIN
-        folder = os.path.dirname(os.path.abspath(file_path(self.h5))) or "."
-        try:
-            free = shutil.disk_usage(folder).free
-        except OSError:
-            free = None
-        jf = journal_of(self.h5)
-        spare = 0
-        if jf is not None:     # room reserved by the last block's check and not used by HDF5 yet
-            with contextlib.suppress(OSError):
-                spare = max(0, os.fstat(jf.fd).st_blocks * 512 - jf.size)
+        if free is False:      # not measured by the caller
+            free = self._free()
+        spare = self._spare()  # room reserved by the last block's check and not used by HDF5 yet
         if free is not None and free + spare < file_bytes + journal_bytes:
             self.full = True
             raise DiskFull(f"the disk is full: {format_size(free)} free, the next block needs about "

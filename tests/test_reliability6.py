@@ -50,3 +50,34 @@ def test_a_pending_journal_on_a_read_only_disk_is_read_and_resumed_into_a_writab
         assert_same_records(read_run(tmp_path / "out.h5"), read_run(tmp_path / "ref.h5"))
         assert (disk / "o.h5.partial.journal").exists()         # the read-only folder as it was
 
+
+@pytest.mark.parametrize("name", ["o.h5.partial", "o.h5"])
+def test_a_killed_run_that_fits_a_small_disk_is_finished_there(name, tmp_path):
+    """On a 3 MB disk a run whose file takes 1.8 MB, killed at 1.5 MB: its resume in place stopped at once ('the
+    disk is full … the checkpoint's journal 1.4 MB': the first block of a resume adds the rest of the run to
+    chunks committed before, all through the journal) and renamed the .partial to o.h5, whose resume then asked
+    room for a copy ('would write about 2.28 MB but the disk has 1.63 MB free'), for ever. Now a block whose
+    journal does not fit is written in parts, each committed; and o.h5 is continued in place (renamed, not
+    copied) where the copy does not fit."""
+    from tests.test_reliability import small_blocks
+    write_config(tmp_path, strip_random(20_000, trajectories=3, every=3))
+    res = rbx_cli("simulate", "exp.yaml", "-o", "ref.h5", "--quiet", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    with tmpfs(tmp_path / "disk", "3m") as disk:
+        write_config(disk, strip_random(20_000, trajectories=3, every=3))
+        killed = subprocess.run(small_blocks(work=1000, kill_at=12) + ["simulate", "exp.yaml", "-o", "o.h5",
+                                                                       "--quiet"],
+                                cwd=disk, capture_output=True, text=True, timeout=900)
+        assert killed.returncode == -9, killed.stderr
+        if name == "o.h5":         # as a run stopped for room leaves it: renamed, complete = false
+            os.rename(disk / "o.h5.partial", disk / "o.h5")
+            (disk / "filler").write_bytes(bytes(1_200_000))     # no room even in place: what to do, nothing moved
+            res = rbx_cli("simulate", "--resume", name, "--quiet", cwd=disk)
+            line = _refused(res, "o.h5", "written already, but the disk has",
+                            "resume it into a file on another disk with -o")
+            assert sorted(p.name for p in disk.iterdir()) == ["exp.yaml", "filler", "o.h5"], line
+            os.remove(disk / "filler")
+        res = rbx_cli("simulate", "--resume", name, "--quiet", cwd=disk)
+        assert res.returncode == 0, res.stderr
+        assert_same_records(read_run(disk / "o.h5"), read_run(tmp_path / "ref.h5"))
+        assert sorted(p.name for p in disk.iterdir()) == ["exp.yaml", "o.h5"]

@@ -194,7 +194,8 @@ def _execute(sim, path, stop, quiet, done, start, began):
         elif isinstance(failure, DiskFull):
             click.echo(f"rbx: {display_path(where)}: {failure}; the run stopped, the file holds every record up to "
                        "its last checkpoint (complete = false). Free some space, then continue with: "
-                       f"rbx simulate --resume {display_path(where)}", err=True)
+                       f"rbx simulate --resume {display_path(where)} (or continue it on another disk: add -o "
+                       "with a file there)", err=True)
         elif not os.path.exists(where):
             click.echo(f"rbx: {display_path(where)}: writing failed: {failure.strerror or failure}; nothing was "
                        "saved (the run stopped before its file was made)", err=True)
