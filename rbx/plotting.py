@@ -733,6 +733,29 @@ def escape_figure(s, S, fit, exits, total, title, unit="path length [L]", expect
 # ---- sections (docs/reference.md §10) -------------------------------------------------------------------------
 
 
+#: the width of a character of a wall's name over a Birkhoff map, in points (DejaVu Sans at the "small" size)
+NAME_CHAR_PT = 5.0
+
+
+def _name_walls(ax, walls):
+    """Each wall named over the middle of its stretch of a Birkhoff map's axis, on a secondary axis on top: in two
+    rows, alternately (the mushroom's short walls ran into one another on one), and a name left out where even
+    two rows leave it no room (a wall shorter than half its name)."""
+    (x0, x1) = ax.get_xlim()
+    fig = ax.figure
+    cols = max(1, ax.get_subplotspec().get_gridspec().ncols) if ax.get_subplotspec() else 1
+    points = 0.75 * fig.get_figwidth() * 72.0 / cols / max(x1 - x0, 1e-300)     # points per unit of s
+    ticks, names = [], []
+    for i, (s, name, length) in enumerate(walls):
+        if NAME_CHAR_PT * len(name) > 2.0 * length * points:
+            continue
+        ticks.append(s)
+        names.append(name if len(ticks) % 2 else name + "\n")
+    top = ax.secondary_xaxis("top")
+    top.set_xticks(ticks, names, fontsize="small")
+    top.tick_params(length=0, pad=1.0)
+
+
 def _dress(ax, spec):
     """A panel's limits, aspect, labels and title from its spec (:func:`phase_figure`)."""
     if "xlim" in spec:
@@ -748,6 +771,8 @@ def _dress(ax, spec):
             spec = dict(spec, xlabel=spec["xlabel"] + " (not to scale)")
     ax.set_xlabel(spec["xlabel"])
     ax.set_ylabel(spec["ylabel"])
+    if spec.get("walls"):
+        _name_walls(ax, spec["walls"])
     if spec.get("title"):
         ax.set_title(spec["title"])
 

@@ -772,3 +772,18 @@ def test_an_orbit_between_plates_is_drawn_as_a_stretch_a_few_gaps_long(tmp_path)
                            if line.get_label().startswith("trajectory")])
     assert len(flat) == len(xyz) and not fig.axes[0].collections      # no density
     assert "whole run" in fig.axes[0].get_title()
+
+
+def test_a_birkhoff_map_names_its_walls_over_their_stretches(runs):
+    """The whole boundary's Birkhoff map marked the joints between walls and named none: each wall's name now
+    stands over the middle of its stretch of s (the L-shaped polygon: six edges, in boundary order)."""
+    run = Run.open(runs["lshape"])
+    with run:
+        geom, names = run.geometry(), run.wall_names
+    for kind in ("birkhoff", "phase"):
+        fig = make_figure(runs["lshape"], kind)
+        (top,) = fig.axes[0].child_axes
+        labels = [t.get_text().strip() for t in top.get_xticklabels()]
+        assert labels == list(names), labels
+        middles = [s0 + length / 2 for s0, length in (analysis.wall_span(geom, w) for w in range(len(names)))]
+        np.testing.assert_allclose(top.get_xticks(), middles)

@@ -288,7 +288,8 @@ def _phase(run, rec, traj, colour="trajectory", **_):
         if np.isfinite(total):
             panels.append(dict(x=s, y=sin_psi, xlabel="arc length s along the shrunk boundary [L]",
                                ylabel="sin ψ = v·t/|v| [–]", ylim=(-1.05, 1.05), xlim=(0.0, total),
-                               vlines=analysis.wall_joints(geom), title="Birkhoff coordinates of the boundary map"))
+                               vlines=analysis.wall_joints(geom), walls=_wall_names(geom, run.wall_names),
+                               title="Birkhoff coordinates of the boundary map"))
         else:  # unbounded walls (strip, wedge): one panel per wall, s counter-clockwise from the wall's origin, as
             # in --kind birkhoff --wall (the strip's top wall: s = −x; its own axis +x had s run the other way)
             for w, name in enumerate(run.wall_names):
@@ -573,9 +574,24 @@ def _birkhoff(run, rec, traj, wall=None, **_):
         if not np.isfinite(total):
             raise ValueError("the table is unbounded: choose one wall with --wall")
         panel.update(x=s, xlabel="arc length s along the shrunk boundary [L]", xlim=(0.0, total),
-                     vlines=analysis.wall_joints(geom), title="Birkhoff map of the whole boundary")
+                     vlines=analysis.wall_joints(geom), walls=_wall_names(geom, run.wall_names),
+                     title="Birkhoff map of the whole boundary")
     return plotting.section_figure([panel], colour, _title(run, "Birkhoff section at collisions", traj, rec),
                                    "spin share v₀/|(v, v₀)|, v₀ = R√κ·ω [–]")
+
+
+def _wall_names(geom, names):
+    """[(s at the middle of each wall, its name, its length)] along the whole boundary: the axis of a Birkhoff map
+    marked the joints between walls but named no wall"""
+    from .. import analysis
+    out = []
+    for w, name in enumerate(names):
+        try:
+            s0, length = analysis.wall_span(geom, w)
+        except ValueError:                 # a wall the centre cannot touch
+            continue
+        out.append((s0 + 0.5 * length, name, length))
+    return out
 
 
 def _along(geom, w, name):
