@@ -16,7 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .analysis import santalo_constant, table_measure, unbounded_axes, velocity_dimension, wall_measure, wilson
+from .analysis import (free_corridors, santalo_constant, table_measure, unbounded_axes, velocity_dimension, wall_measure,
+                       wilson)
 from .dynamics import REGULAR_THRESHOLD, escape_times, exponential_rate
 from .model import Exit, rule_leaves
 
@@ -250,7 +251,16 @@ def _diffusion(runs, options):
     dt = np.diff(t, axis=1)
     ok = np.isfinite(dr2) & np.isfinite(dt)
     value, err = ratio_batches(np.where(ok, dr2, 0.0), np.where(ok, dt, 0.0))
-    return Value(float(value), float(err))
+    return Value(float(value), float(err), {"horizon": _widest_corridor(exp.geometry(), axes)})
+
+
+def _widest_corridor(geom, axes):
+    """The width of the widest free corridor along one of ``axes`` (an infinite horizon: the MSD grows as t·log t
+    and the value depends on the segments' length), 0 for a finite horizon, NaN where it is not worked out."""
+    corridors = free_corridors(geom)
+    if corridors is None:
+        return math.nan
+    return max((c.width for c in corridors if any(c.along(a) for a in axes)), default=0.0)
 
 
 def _bounded(exp, options):
@@ -263,6 +273,11 @@ register(Observable(
     "diffusion", "L²/T", "diffusion coefficient per unit time, ⟨|Δx|²⟩ = 2k·D·t over the k unbounded axes, from "
     "the displacements over segments of each trajectory (run.collisions/segments collisions each)", _diffusion,
     fields=("time", "position"), unbounded=True, options={"segments": 20}, problem=_bounded,
+    companions=(Companion("horizon", "L", "the widest free corridor along the axes measured: above 0 an infinite "
+                          "horizon, where the mean-square displacement grows as t·log t and no diffusion coefficient "
+                          "exists (the value then depends on the segments' length); 0 a finite horizon; NaN not "
+                          "worked out (a table that is not a periodic gas of round scatterers)",
+                          label="widest free corridor", symbol="w"),),
     label="diffusion coefficient", symbol="D"))
 
 

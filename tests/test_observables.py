@@ -83,3 +83,16 @@ def test_regular_share_integrable_against_ergodic():
         share = float(ds["regular_share"][0])
         low, high = float(ds["regular_share_low"][0]), float(ds["regular_share_high"][0])
         assert share == pytest.approx(expected) and low - 1e-12 <= expected <= high + 1e-12
+
+
+def test_diffusion_says_where_the_horizon_is_infinite():
+    """The diffusion observable carries the widest free corridor of the gas (rbx.analysis.free_corridors): the
+    square Lorentz gas of the example (scatterer 0.3, R = 0.1) has corridors 1 − 2·0.4 = 0.2 wide along its cell's
+    sides, so its value is no diffusion coefficient; the triangular one of finite horizon has none."""
+    widths = []
+    for name in ("lorentz", "lorentz-triangular"):
+        base = str(rbx.__path__[0] + f"/../configs/examples/{name}.yaml")
+        ds = sweep(point_study(base, [{"diffusion": {"segments": 4}}], 4, 200, 1))
+        widths.append(float(ds["diffusion_horizon"][0]))
+        assert ds["diffusion_horizon"].attrs["units"] == "L"
+    assert widths[0] == pytest.approx(0.2, abs=1e-12) and widths[1] == 0.0
