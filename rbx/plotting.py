@@ -5,7 +5,6 @@ Figures are built without pyplot, so no global state or GUI backend is involved:
 matplotlib's Agg canvas. Units on the axes: L is the table's length unit, T the time unit of the config's
 velocities; a step is one collision.
 """
-import contextlib
 import functools
 import os
 import re
