@@ -41,8 +41,9 @@ DEFAULT_TRAJECTORIES = {"orbit": 10, "orbit3d": 10, "phase": 20, "series": 1, "d
 @click.option("--scales", default="0.01,0.1,1", show_default=True,
               help="series: fractions of the run shown in the panels.")
 @click.option("--fit-from", default=0.1, show_default=True, type=float,
-              help="diffusion: fit the MSD over steps ≥ this fraction of the last step; escape: fit the rate over "
-                   "the exit paths between this quantile and 1 − it (below 0.5).")
+              help="diffusion: fit the MSD over steps ≥ this fraction of the last step; escape: the first start "
+                   "tried for the fit, as a quantile of the exit paths (below 0.5; later ones are tried until the "
+                   "fitted law follows the survival).")
 @click.option("--wall", "wall", help="birkhoff: the wall whose boundary map to draw (default: the whole boundary).")
 @click.option("--plane", default="z=0.5", show_default=True,
               help="poincare: the section plane, z=0.5 (or x=, y=) or n=NX,NY,NZ;c=C for n·x = C.")
@@ -66,7 +67,8 @@ def plot(ctx, run_file, kind, out, records, trajectories, colour, coordinate, sc
       phase      boundary map, and tangential velocity against spin, at each collision
       series     a --coordinate against the collision step, over several --scales
       diffusion  ensemble mean-square displacement along --coordinate with the fitted D (per collision and,
-                 with time recorded, per unit time) and the displacements' distribution
+                 with time recorded, per unit time; only a slope where free corridors make the horizon
+                 infinite) and the displacements' distribution
       escape     survival of the exit paths (walls with the rule exit): the fitted rate, and the trapped share
                  where survival levels off
       birkhoff   2D runs: the boundary map (arc length, sin ψ) coloured by the spin, one --wall or all
