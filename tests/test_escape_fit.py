@@ -8,7 +8,6 @@
 - where no exponential follows (a rough rectangle with a hole for a floor), no rate is drawn or printed.
 """
 import os
-import subprocess
 
 import numpy as np
 import pytest
@@ -17,7 +16,6 @@ import rbx
 from rbx.cli.plot import make_figure
 from rbx.dynamics import escape_times, survival
 from rbx.escape import FOLLOWS, fit_escape
-from tests.test_interrupt import RBX
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SINAI = os.path.join(ROOT, "configs", "examples", "escape-sinai.yaml")
@@ -61,26 +59,21 @@ def fitted_line(fig):
 
 
 def test_the_drawn_fit_follows_the_rough_sinai_survival(tmp_path):
-    res = subprocess.run([RBX, "simulate", SINAI, "-o", "esc.h5", "--quiet", "--set",
-                          "boundary.default={rule: constant, rank: 1}"], cwd=tmp_path, capture_output=True, text=True,
-                         timeout=900)
-    assert res.returncode == 0, res.stderr
     run = str(tmp_path / "esc.h5")
+    rbx.simulate(rbx.load(SINAI, {"boundary.default": {"rule": "constant", "rank": 1}}), output=run)
     esc = escape_times(rbx.open(run))
     assert 0.15 < np.mean(~esc.exited) < 0.3          # the case: a fifth trapped
     s, S = survival(esc.path, esc.exited)
-    x, y = fitted_line(make_figure(run, "escape"))
+    fig = make_figure(run, "escape")
+    x, y = fitted_line(fig)
     assert x.max() > 150.0                              # the window reaches the slow part
     n0 = int(np.sum(esc.path >= x.min()))
     data = S[np.searchsorted(s, x, side="right") - 1]
     gap = np.max(np.abs(data - y)) * np.sqrt(n0) / data[0]
     assert gap <= FOLLOWS, gap
-    # what the CLI prints is the drawn fit
-    res = subprocess.run([RBX, "plot", "esc.h5", "--kind", "escape", "--quiet"], cwd=tmp_path, capture_output=True,
-                         text=True, timeout=900)
-    assert res.returncode == 0, res.stderr
-    assert f"fitted over {x.min():.3g} ≤ s ≤ {x.max():.3g}" in res.stdout, res.stdout
-    assert "trapped share" in res.stdout
+    # what rbx plot prints (tests/test_new_user.py: through the CLI) is the drawn fit
+    said = fig.rbx_result
+    assert f"fitted over {x.min():.3g} ≤ s ≤ {x.max():.3g}" in said and "trapped share" in said, said
 
 
 def test_no_rate_where_no_exponential_follows():

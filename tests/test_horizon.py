@@ -6,14 +6,12 @@ the cell's sides exists iff 2ρ < 1 (width 1 − 2ρ), one along its diagonals i
 """
 import math
 import os
-import subprocess
 
 import pytest
 
 import rbx
 from rbx import analysis
 from rbx.cli.plot import make_figure
-from tests.test_interrupt import RBX
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 EXAMPLES = os.path.join(ROOT, "configs", "examples")
@@ -52,32 +50,27 @@ def test_finite_and_infinite_horizons_of_the_examples():
     assert {(0, 1), (1, 1), (1, -1)} <= thin
 
 
-def rbx_cli(*args, cwd):
-    return subprocess.run([RBX, *map(str, args)], capture_output=True, text=True, cwd=cwd, timeout=900)
+def short_run(tmp_path, name):
+    exp = rbx.load(os.path.join(EXAMPLES, name), {"run.collisions": 2000, "run.trajectories": 16})
+    rbx.simulate(exp, output=str(tmp_path / "gas.h5"))
 
 
 def test_the_diffusion_plot_says_an_infinite_horizon_has_no_coefficient(tmp_path):
-    res = rbx_cli("simulate", os.path.join(EXAMPLES, "lorentz.yaml"), "-o", "gas.h5", "--collisions", "2000",
-                  "--trajectories", "16", "--quiet", cwd=tmp_path)
-    assert res.returncode == 0, res.stderr
-    res = rbx_cli("plot", "gas.h5", "--kind", "diffusion", "--quiet", cwd=tmp_path)
-    assert res.returncode == 0, res.stderr
-    assert res.stdout.startswith("slope of the MSD along x: D = "), res.stdout
-    assert "not a diffusion coefficient: infinite horizon" in res.stdout and "t·log t" in res.stdout
+    short_run(tmp_path, "lorentz.yaml")
     fig = make_figure(str(tmp_path / "gas.h5"), "diffusion")
+    said = fig.rbx_result                      # what rbx plot prints (tests/test_new_user.py: through the CLI)
+    assert said.startswith("slope of the MSD along x: D = "), said
+    assert "not a diffusion coefficient: infinite horizon" in said and "t·log t" in said
     assert "no diffusion coefficient: infinite horizon" in fig.axes[0].get_title()
     labels = [t.get_text() for leg in fig.legends for t in leg.get_texts()]
     assert any(t.startswith("slope over the fit window only") for t in labels), labels
 
 
 def test_a_finite_horizon_keeps_its_diffusion_coefficient(tmp_path):
-    res = rbx_cli("simulate", os.path.join(EXAMPLES, "lorentz-triangular.yaml"), "-o", "gas.h5", "--collisions",
-                  "2000", "--trajectories", "16", "--quiet", cwd=tmp_path)
-    assert res.returncode == 0, res.stderr
-    res = rbx_cli("plot", "gas.h5", "--kind", "diffusion", "--quiet", cwd=tmp_path)
-    assert res.returncode == 0, res.stderr
-    assert res.stdout.startswith("diffusion coefficient along x: D = ") and "horizon" not in res.stdout, res.stdout
+    short_run(tmp_path, "lorentz-triangular.yaml")
     fig = make_figure(str(tmp_path / "gas.h5"), "diffusion")
+    said = fig.rbx_result                      # what rbx plot prints
+    assert said.startswith("diffusion coefficient along x: D = ") and "horizon" not in said, said
     assert "horizon" not in fig.axes[0].get_title() and "coefficient" not in fig.axes[0].get_title()
     labels = [t.get_text() for leg in fig.legends for t in leg.get_texts()]
     assert any(t.startswith("fit 2Dt + c: D = ") for t in labels), labels
