@@ -465,8 +465,8 @@ def _escape(run, rec, traj, fit_from=0.1, **_):
         said += (f", with the level it tends to, S(s₀)·q = {100 * fit.survival0 * fit.level:.3g} %: "
                  f"S(s) = S(s₀)·[q + (1 − q)·exp(−γ(s − s₀))])" if fit.trapped else ")")
     else:
-        said = (f"no escape rate: no exponential follows the survival from any start between the {fit_from:g} and "
-                f"0.8 quantiles of the exit paths (the decay is not exponential; largest gap allowed {FOLLOWS} "
+        said = (f"no escape rate: no exponential follows the survival from any of the starts tried (quantiles of "
+                f"the exit paths from {fit_from:g} up; the decay is not exponential; largest gap allowed {FOLLOWS} "
                 "in units of 1/√n)")
     if trapped is not None:
         share, low, high = trapped
