@@ -701,7 +701,8 @@ def escape_figure(s, S, fit, exits, total, title, unit="path length [L]", expect
                          f"{100 * high:.3g} %, z = 1)")
     drawn = fit is not None and fit.follows and fit.rate > 0 and np.isfinite(fit.rate_err)
     if drawn:
-        x = np.linspace(fit.start, fit.stop, 400)
+        # drawn as far as the survival is drawn: the last exit, where S = 0, may end the window off the log axis
+        x = np.linspace(fit.start, min(fit.stop, max(end, fit.start)), 400)
         what = f"{fit.start:.3g} ≤ s ≤ {fit.stop:.3g}"
         rate = f"γ = {fit.rate:.4g} ± {fit.rate_err:.2g} per unit path"
         if fit.trapped:
