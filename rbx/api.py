@@ -202,8 +202,8 @@ def resume(path, *, output=None, force=False, max_size=None, progress=False, sch
         if not named[name].strip():
             raise ValueError(f"rbx.resume: {name} is empty: give the path of a run file")
     path, output = named["path"], named.get("output")
-    r = prepare_resume(path, output, force=force, max_size=max_size, out_key="output", size_key="max_size",
-                       force_hint="force=True")
+    r = _api_keys(lambda: prepare_resume(path, output, force=force, max_size=max_size, out_key="output",
+                                         size_key="max_size", force_hint="force=True"))
     for note in r.notes:
         warnings.warn(f"{r.source}: {note}", RuntimeWarning, stacklevel=2)
     if r.state != "continue":

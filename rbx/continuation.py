@@ -89,6 +89,7 @@ def _load(run, source):
                           "terms (written by an older rbx), so a resumed run would not equal an uninterrupted one; "
                           "run it again from its config")
     _check_state_fits(run, cfg, state, slot, damaged)
+    _check_orbit(run, slot, source)
     collisions = state["collisions"].astype(np.int64)
     alive = state["alive"].astype(bool)
     running = np.unique(collisions[alive])
@@ -108,6 +109,29 @@ def _load(run, source):
     sim.torn_chunks = torn
     done = int(running[0]) if running.size else cfg.run.collisions
     return sim, False, done
+
+
+def _check_orbit(run, slot, source):
+    """The stored config must make the orbit the saved state was computed on: every key of it that does (the
+    seed, the table, the rules, the ball, the initial states, the numerics: :func:`rbx.runfile.orbit_digests`)
+    as it was at the checkpoint. A state saved by an older rbx carries no such digests: not checked."""
+    import json
+    stored = run.h5[slot].attrs.get("orbit") if slot in run.h5 else None
+    if stored is None:
+        return
+    try:
+        was = json.loads(runfile._text(stored))
+    except ValueError:
+        raise ConfigError(source, f"{slot}.orbit", "damaged (not the digests rbx writes); the file cannot be "
+                                                   "resumed") from None
+    now = json.loads(runfile.orbit_digests(run.config))
+    changed = [k for k in sorted(set(was) | set(now)) if was.get(k) != now.get(k)]
+    if changed:
+        more = f"; so do {', '.join(changed[1:])}" if changed[1:] else ""
+        raise ConfigError(source, f"config: {changed[0]}",
+                          "differs from the value the run's records were computed with (the stored config was "
+                          f"changed in the file since{more}): a resume would mix two orbits in one file; run the "
+                          "config again instead")
 
 
 #: how far (in units of the table's size) a saved centre may lie outside the shrunk table: rounding on a wall

@@ -30,7 +30,7 @@ from .progress import plural
 from .paths import (NO_ROOM, DiskFull, FileError, check_own_names, check_replaceable, creation_path, display_path,
                     format_size, temporary_path, what_it_is)
 from .runfile import (H5Sink, Run, _text, close_journal, commit, config_yaml, data_bytes, file_path, fill_returns,
-                      journal_of, open_journaled)
+                      is_true, journal_of, open_journaled)
 
 # ---- the .partial lifecycle --------------------------------------------------------------------------------------
 
@@ -184,7 +184,7 @@ def create(path, force=False):
 def _is_complete_run(path):
     try:
         with h5py.File(path, "r") as f:
-            return bool(f.attrs.get("complete", False))
+            return bool(is_true(f.attrs.get("complete", False)))
     except Exception:   # noqa: BLE001 - not an rbx run, or damaged: not a result worth keeping over the new one
         return False
 
@@ -472,7 +472,7 @@ def prepare_resume(run_file, output=None, *, force=False, max_size=None, out_key
         if run.complete:
             run.close()
             if not source.endswith(".partial"):
-                return Resumption("complete", source, path)
+                return Resumption("complete", source, path, notes=_newer_partial(source, locked, force_hint))
             if output and path != default:
                 raise FileError(None, out_key, f"{display_path(source)} holds a complete run that was not yet "
                                                "renamed; resume it without -o to rename it to its own output")
@@ -491,6 +491,11 @@ def prepare_resume(run_file, output=None, *, force=False, max_size=None, out_key
     # the output must be a file rbx may replace, before the run: a link or a device was refused only at the final
     # rename, after the whole run, with exit 0 (the records left in the .partial)
     check_replaceable(path, out_key if output else None)
+    if output and path != source and os.path.isfile(path) and not _is_hdf5(path):
+        # a resume does not know the config it was started from: a -o that names it (or any file that is not a
+        # run's) was written over with HDF5, --force or not
+        raise FileError(None, out_key, f"{display_path(path)} exists and is not an HDF5 file (a config, a table, "
+                                       "notes?): a resume writes only over a run file; give another name")
     if lock_path(path) != lock_path(source):
         # -o OTHER.h5: OTHER's own lock too, held to the final rename like a new run's, so that two resumes into
         # one OTHER cannot write one OTHER.h5.partial (with --force the second truncated it)
@@ -528,6 +533,26 @@ def prepare_resume(run_file, output=None, *, force=False, max_size=None, out_key
                      "of the chunks")
     return Resumption("continue", source, path, tmp, in_place, force or own or path == source, sim, write_initial,
                       done, notes, move)
+
+
+def _is_hdf5(path):
+    try:
+        return h5py.is_hdf5(path)
+    except OSError:
+        return False
+
+
+def _newer_partial(source, locked, force_hint):
+    """``--resume OUT.h5`` of a complete OUT.h5 beside an ``OUT.h5.partial`` that a killed run left (a run with
+    --force over the complete file): a note saying so and how to continue it -> list of notes."""
+    tmp = temporary_path(source)
+    if not locked or not os.path.isfile(tmp) or os.path.islink(tmp):
+        return []
+    show = display_path(tmp)
+    again = (f"rbx simulate --resume {show} {force_hint}" if force_hint.startswith("--") else
+             f"rbx.resume({show!r}, {force_hint})")
+    return [f"{show} exists, left by a run of this output that was killed (no run holds its lock): to continue that "
+            f"run, replacing {display_path(source)} when it ends: {again}; else remove it"]
 
 
 def _identity(run):

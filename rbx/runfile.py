@@ -133,6 +133,7 @@ def config_yaml(cfg, path=None):
 #: libyaml's emitter when there is one: the same text as yaml.safe_dump, in a third of the time (a config of
 #: 10 000 explicit states: 0.9 s -> 0.3 s)
 _DUMPER = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
+_LOADER = getattr(yaml, "CSafeLoader", yaml.SafeLoader)
 
 
 def _plain(x):
@@ -156,6 +157,36 @@ def root_attrs(cfg, complete, path=None):
               "collisions_requested": cfg.run.collisions}
     assert tuple(values) == tuple(ROOT_ATTRS)
     return values
+
+
+def orbit_digests(config):
+    """What makes a run's orbit, key by key -> JSON text {key: digest}: every section of ``config`` (the stored
+    config, as read from the file's ``config`` attribute: the same text gives the same digests) but ``output``
+    (where and what is recorded) and ``run.collisions`` (how far). A checkpoint stores it with the state (the
+    ``orbit`` attribute of ``final/``); a resume compares it with its stored config's, so that a config changed
+    in the file since (``run.seed`` edited) is refused rather than continued with records of two orbits
+    (:func:`rbx.continuation.load`)."""
+    import json
+    parts = {}
+    for key, value in (config if isinstance(config, dict) else {}).items():
+        if key == "output":
+            continue
+        if key == "run" and isinstance(value, dict):
+            parts.update({f"run.{k}": v for k, v in value.items() if k != "collisions"})
+        else:
+            parts[key] = value
+    return json.dumps({k: hashlib.blake2b(json.dumps(_plain(v), sort_keys=True, default=repr).encode(),
+                                          digest_size=8).hexdigest() for k, v in parts.items()}, sort_keys=True)
+
+
+def is_true(value):
+    """A file's ``complete`` attribute -> bool; None when it is not a boolean (text such as 'false', an array: a
+    crafted or changed file, which must not be taken as complete because a non-empty text is true)."""
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)) and value in (0, 1):
+        return bool(value)
+    return None
 
 
 def provenance():
@@ -279,6 +310,7 @@ class H5Sink:
             _extend_record_scale(self.g)      # resume cut the records back (or emptied them)
         #: bytes of one saved state (a checkpoint writes one, over the older of the two slots or as a new one)
         self.state_bytes = state_bytes(M, n)
+        self.orbit = None        # the stored config's orbit_digests, made at the first checkpoint
         #: records in the file at its last commit: a chunk holding one of them lies below the commit, and a block
         #: that adds records to it goes through the journal (rbx.journal); chunks made since are written in place
         self._committed_records = 0 if fresh else int(self.g["step"].shape[0])
@@ -465,6 +497,9 @@ class H5Sink:
                     del fin[k]
                 fin.create_dataset(k, data=v)
         fin.attrs["sequence"] = sequence
+        if self.orbit is None:   # the config as stored (a resume into -o stores it again before running)
+            self.orbit = orbit_digests(yaml.load(_text(self.h5.attrs["config"]), Loader=_LOADER))
+        fin.attrs["orbit"] = self.orbit
         fin.attrs["digest"] = state_digest(state)     # last: until it is written the group does not verify
         self.h5.flush()
         commit(self.h5)      # the file changes here, all at once: a kill before leaves the last checkpoint's
@@ -719,6 +754,9 @@ def _check_rbx_file(f, path, group):
                                     "run the config again")
     if missing:
         raise FileError(path, None, f"not an rbx run file (no root attribute '{missing[0]}')")
+    if is_true(f.attrs["complete"]) is None:
+        raise FileError(path, "complete", f"is {_attr(f.attrs['complete'])!r}, not true or false (a boolean): the "
+                                          "attribute was changed since rbx wrote it")
     schema = int(f.attrs.get("schema_version", 1))
     if schema > SCHEMA_VERSION:
         raise FileError(path, "schema_version", f"is {schema}: written by a newer rbx (this one reads up to "

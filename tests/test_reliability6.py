@@ -8,7 +8,7 @@ import sys
 import pytest
 
 import rbx
-from tests.test_interrupt import assert_same_records, read_run, strip_random, write_config
+from tests.test_interrupt import assert_same_records, read_run, strip_random, without_path, write_config
 from tests.test_reliability3 import one_line, rbx_cli, tmpfs
 from tests.test_reliability5 import KILL_MID_APPLY
 
@@ -81,3 +81,93 @@ def test_a_killed_run_that_fits_a_small_disk_is_finished_there(name, tmp_path):
         assert res.returncode == 0, res.stderr
         assert_same_records(read_run(disk / "o.h5"), read_run(tmp_path / "ref.h5"))
         assert sorted(p.name for p in disk.iterdir()) == ["exp.yaml", "o.h5"]
+
+
+# ---- a resume is checked against everything that makes its orbit ------------------------------------------------
+
+def _edit_stored_config(path, edit):
+    import h5py
+    import yaml
+    with h5py.File(path, "r+") as f:
+        cfg = yaml.safe_load(f.attrs["config"])
+        edit(cfg)
+        f.attrs["config"] = yaml.safe_dump(cfg, sort_keys=False)
+
+
+@pytest.mark.parametrize("key, edit", [("run.seed", lambda c: c["run"].update(seed=99)),
+                                       ("boundary", lambda c: c["boundary"]["default"].update(probabilities=[0.4, 0.6]))])
+def test_a_resume_of_a_file_whose_stored_config_was_changed_is_refused(key, edit, tmp_path):
+    """A stored config whose ``run.seed`` was edited in the file resumed with exit 0: the records after the
+    checkpoint came from another seed than those before. Every key that makes the orbit is compared with the
+    digests the checkpoint stored with the state."""
+    import h5py
+    from tests.test_reliability3 import killed_run
+    reference = killed_run(tmp_path)
+    with h5py.File(tmp_path / "run.h5.partial", "r") as f:
+        original = f.attrs["config"]
+    _edit_stored_config(tmp_path / "run.h5.partial", edit)
+    res = rbx_cli("simulate", "--resume", "run.h5", "--quiet", cwd=tmp_path, timeout=HANG)
+    _refused(res, "run.h5.partial", f"config: {key}: differs from the value the run's records were computed with",
+             "run the config again")
+    assert not (tmp_path / "run.h5").exists()
+    # what is recorded and where is not the orbit: the config put back with another max_size resumes exactly
+    with h5py.File(tmp_path / "run.h5.partial", "r+") as f:
+        f.attrs["config"] = original
+    _edit_stored_config(tmp_path / "run.h5.partial", lambda c: c["output"].update(max_size="1 GB"))
+    res = rbx_cli("simulate", "--resume", "run.h5", "--quiet", cwd=tmp_path, timeout=HANG)
+    assert res.returncode == 0, res.stderr
+    resumed = read_run(tmp_path / "run.h5")
+    assert without_path(resumed["attrs"]["config"])["output"]["max_size"] == "1 GB"
+    resumed["attrs"]["config"] = reference["attrs"]["config"]
+    assert_same_records(resumed, reference)
+
+
+def test_a_complete_attribute_that_is_not_a_boolean_is_refused(tmp_path):
+    """``complete = "false"`` (text) was taken as complete: 'nothing to resume', and read as a finished run."""
+    import h5py
+    from tests.test_reliability3 import killed_run
+    killed_run(tmp_path)
+    with h5py.File(tmp_path / "run.h5.partial", "r+") as f:
+        f.attrs["complete"] = "false"
+    with pytest.raises(rbx.FileError, match="complete: is 'false', not true or false"):
+        rbx.open(tmp_path / "run.h5.partial")
+    res = rbx_cli("simulate", "--resume", "run.h5", "--quiet", cwd=tmp_path, timeout=HANG)
+    _refused(res, "run.h5.partial", "complete: is 'false'")
+
+
+def test_the_api_resume_names_its_own_keyword_for_a_bad_max_size(tmp_path):
+    from tests.test_reliability3 import killed_run
+    killed_run(tmp_path)
+    for bad in (-1, "lots"):
+        with pytest.raises(rbx.ConfigError) as info:
+            rbx.resume(tmp_path / "run.h5", max_size=bad)
+        assert info.value.key == "max_size" and "--max-size" not in str(info.value), info.value
+
+
+def test_a_resume_never_writes_over_a_file_that_is_not_a_run_file(tmp_path):
+    """``--resume r.h5 -o c.yaml --force`` (and ``rbx.resume(…, output="c.yaml", force=True)``) wrote HDF5 over
+    the YAML config; ``rbx simulate`` refuses its own config even with --force, a resume now any ``-o`` that exists
+    and is not an HDF5 file."""
+    from tests.test_reliability3 import killed_run
+    killed_run(tmp_path)
+    text = (tmp_path / "exp.yaml").read_text()
+    res = rbx_cli("simulate", "--resume", "run.h5", "-o", "exp.yaml", "--force", "--quiet", cwd=tmp_path,
+                  timeout=HANG)
+    line = _refused(res, "-o", "exp.yaml exists and is not an HDF5 file")
+    with pytest.raises(rbx.FileError, match="exp.yaml exists and is not an HDF5 file"):
+        rbx.resume(tmp_path / "run.h5", output=tmp_path / "exp.yaml", force=True)
+    assert (tmp_path / "exp.yaml").read_text() == text, line
+    assert not (tmp_path / "exp.yaml.partial").exists()
+
+
+def test_a_complete_output_beside_a_killed_newer_partial_says_how_to_continue_it(tmp_path):
+    """``rbx simulate c.yaml -o o.h5 --force`` over a complete o.h5, SIGKILLed: ``--resume o.h5`` said only that
+    o.h5 is complete, not that o.h5.partial holds a killed run and how to continue it."""
+    from tests.test_reliability3 import killed_run
+    killed_run(tmp_path)
+    os.rename(tmp_path / "ref.h5", tmp_path / "run.h5")        # complete, beside the killed run's .partial
+    res = rbx_cli("simulate", "--resume", "run.h5", "--quiet", cwd=tmp_path, timeout=HANG)
+    assert res.returncode == 0, res.stderr
+    assert "the run is complete; nothing to resume" in res.stderr
+    assert "run.h5.partial" in res.stderr and "rbx simulate --resume run.h5.partial" in res.stderr, res.stderr
+    assert (tmp_path / "run.h5.partial").exists()
