@@ -94,6 +94,8 @@ class Study:
         10⁶ collisions)."""
         memo = self.__dict__.setdefault("_experiments", {})
         key = (tuple(sorted(point.items())), tuple(fields), int(every))
+        if key not in memo and len(memo) >= CHECK_EVERY_POINT:
+            memo.clear()         # a large study's points one after the other: not 10⁵ experiments in memory
         if key not in memo:
             memo[key] = self._experiment(point, fields, every)
         return memo[key]
@@ -142,9 +144,10 @@ def _plain(v):
 
 # ---- reading a study file ---------------------------------------------------------------------------------------
 
-def load_study(study, base=None):
+def load_study(study, base=None, progress=None):
     """A study file (YAML) or mapping -> :class:`Study`; a mistake raises :class:`rbx.ConfigError` naming the
-    file and the key (``vary.ball.inertia``, ``measure.diffusion``, …)."""
+    file and the key (``vary.ball.inertia``, ``measure.diffusion``, …). ``progress(done, total)``: the configs of
+    its points checked so far (:func:`_check_points`; a study at its grid bound takes minutes)."""
     if isinstance(study, Study):
         return study
     if isinstance(study, Mapping):
@@ -225,7 +228,7 @@ def load_study(study, base=None):
     study_obj = Study(file=file, folder=folder, base=base_value, fixed=fixed, keys=keys, values=values, zip=zipped,
                       measure=measure, ensemble=ens, text=text, digest=hashlib.sha256(text.encode()).hexdigest(),
                       source=(text if file is None else open(file, encoding="utf-8").read()))
-    _check_points(study_obj)
+    _check_points(study_obj, progress)
     return study_obj
 
 
@@ -422,12 +425,33 @@ def _measure(spec, fail):
     return out
 
 
-def _check_points(study):
+#: a study of at most this many points has every point's config built and checked before any point runs; a larger
+#: product grid has every value of each key checked once (the other keys at their first values), and a combination
+#: of values that is refused only together is refused when its point runs (the points finished before are kept)
+CHECK_EVERY_POINT = 2000
+
+
+def _check_points(study, progress=None):
     """Every point's experiment is built now (a bad value is refused before anything runs) and every observable
-    is asked whether this table can give it."""
+    is asked whether this table can give it: every point of a study of up to :data:`CHECK_EVERY_POINT` points,
+    else every value of each key once (a grid of 1000 × 100 points: 1099 configs, not 100 000; at ~1 ms a
+    config, the grid bound's study sat silent for 2 minutes). ``progress(done, total)``: configs checked so far,
+    every few hundred."""
     need = _needs(study)
-    for _, point in study.points():
-        exp = study.experiment(point, need["fields"], need["every"])      # the one the run takes (kept)
+    points = study.points()
+    small = len(points) <= CHECK_EVERY_POINT
+    if small or study.zip or len(study.keys) == 1:
+        checked = [point for _, point in points]
+    else:
+        first = {k: v[0] for k, v in zip(study.keys, study.values)}
+        checked = [first] + [dict(first, **{k: x}) for k, v in zip(study.keys, study.values) for x in v[1:]]
+    total = len(checked)
+    for i, point in enumerate(checked):
+        if progress is not None and i % 200 == 0:
+            progress(i, total)
+        # the one the run takes, kept for a small study (a large one's would fill the memory: 613 MB for 10⁵)
+        exp = study.experiment(point, need["fields"], need["every"]) if small else \
+            study._experiment(point, need["fields"], need["every"])
         for name, options in study.measure:
             rec = obs.get(name)
             problem = None
@@ -439,6 +463,8 @@ def _check_points(study):
                 problem = rec.problem(exp, options)
             if problem:
                 raise ConfigError(study.file, f"measure.{name}", problem)
+    if progress is not None:
+        progress(total, total)
 
 
 # ---- running ------------------------------------------------------------------------------------------------------

@@ -34,13 +34,23 @@ def sweep(study, output, scheduler, resume, force, quiet, debug):
     def progress(finished, total):
         counts.append((finished, total))
         bar(finished, total)
+    checks = Progress("checking", delay=2.0, quiet=quiet, unit="configs")
+
+    def checking(done, total):
+        # a study at its grid bound checks its points' configs for minutes before the first runs: said, not silent
+        if done == 0 and total >= LONG_CHECK and not quiet:
+            click.echo(f"rbx: {display_path(study)}: checking the configs of {plural(total, 'point')} before the "
+                       "first one runs", err=True)
+        checks(done, total)
+        if done >= total:
+            checks.close()
     interrupted = None
     try:
         if resume and force:
             raise UserError(None, "--resume", "give --resume or --force, not both")
         with ending_on_signals(stop):
             try:
-                ds = _sweep(study, output, scheduler, resume, force, progress)
+                ds = _sweep(study, output, scheduler, resume, force, progress, checking)
             except StudyInterrupted as exc:
                 stop.running = True     # a second signal now only notes itself: the line below is printed
                 interrupted = exc
@@ -97,13 +107,19 @@ def _interrupted(exc, signum, study):
     hard_exit(128 + int(signum))
 
 
-def _sweep(study, output, scheduler, resume, force, progress):
+#: a study with this many configs to check before its first point runs says so first
+LONG_CHECK = 10_000
+
+
+def _sweep(study, output, scheduler, resume, force, progress, checking=None):
     from ..cluster import ClusterError, SchedulerUnreachable
     from ..paths import DiskFull
+    from ..study import load_study
     from ..study import sweep as run
     with user_errors():
         try:
-            return run(study, output, scheduler=scheduler, resume=resume, force=force, progress=progress)
+            st = load_study(study, progress=checking)
+            return run(st, output, scheduler=scheduler, resume=resume, force=force, progress=progress)
         except SchedulerUnreachable as exc:
             raise UserError(None, "--scheduler", exc.problem) from None
         except ValueError as exc:        # a point whose trajectories all left the table before measuring
