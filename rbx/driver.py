@@ -14,6 +14,7 @@ when, and under which name.
 """
 import contextlib
 import dataclasses
+import errno
 import os
 import shutil
 import weakref
@@ -665,6 +666,9 @@ def resume_to_file(r, *, progress=None, should_stop=None, report=None):
         if exc.errno in NO_ROOM:           # not the user's input: the disk is still full
             what = "to continue the run" if r.in_place or r.move else \
                 f"for the copy of {display_path(r.source)} a resume works on"
+            if exc.errno == errno.EFBIG:      # a file size limit, not the disk
+                raise DiskFull(f"the file is not allowed to grow (a file size limit, ulimit -f?): no room {what} "
+                               f"({display_path(r.source)} is unchanged)") from None
             raise DiskFull(f"the disk is full: no room {what}; free some space and resume again, or resume it into "
                            f"a file on another disk ({display_path(r.source)} is unchanged)") from None
         raise FileError(tmp, None, f"cannot write: {exc.strerror or exc}") from None

@@ -171,3 +171,19 @@ def test_a_complete_output_beside_a_killed_newer_partial_says_how_to_continue_it
     assert "the run is complete; nothing to resume" in res.stderr
     assert "run.h5.partial" in res.stderr and "rbx simulate --resume run.h5.partial" in res.stderr, res.stderr
     assert (tmp_path / "run.h5.partial").exists()
+
+
+def test_a_size_limit_met_by_a_resumes_copy_is_named_as_such(tmp_path):
+    """``ulimit -f`` below the size of an interrupted OUT.h5: the resume's copy failed with 'the disk is full'
+    though the disk had room; it is the file size limit, and the line says so."""
+    from tests.test_reliability3 import RBX, killed_run
+    killed_run(tmp_path)
+    os.rename(tmp_path / "run.h5.partial", tmp_path / "run.h5")
+    before = (tmp_path / "run.h5").read_bytes()
+    limit = len(before) // 2048                      # KiB: half the file
+    res = subprocess.run(["bash", "-c", f"trap '' XFSZ; ulimit -f {limit}; exec {RBX} simulate --resume run.h5 "
+                                        "--quiet"], cwd=tmp_path, capture_output=True, text=True, timeout=HANG)
+    assert res.returncode == 1, res.stderr
+    line = one_line(res)
+    assert "not allowed to grow (a file size limit" in line and "disk is full" not in line, line
+    assert (tmp_path / "run.h5").read_bytes() == before and not (tmp_path / "run.h5.partial").exists()
