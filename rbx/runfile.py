@@ -458,7 +458,15 @@ class H5Sink:
             return
         fd, used = jf.fd, jf.size                   # HDF5's end of file, not counting an earlier reservation
         try:
-            os.posix_fallocate(fd, 0, used + need)
+            try:
+                os.posix_fallocate(fd, 0, used + need)
+            except OSError as exc:
+                if exc.errno not in (errno.EFBIG, errno.ENOSPC, errno.EDQUOT) or need <= DISK_MARGIN:
+                    raise
+                # the margin for HDF5's metadata does not fit (a file size limit just above the run's file: its
+                # last blocks stopped for room they would not use): the room the block writes without it. A write
+                # of HDF5's that then meets the limit is the file's failure, and it stays at its last commit
+                os.posix_fallocate(fd, 0, used + need - DISK_MARGIN)
         except OSError as exc:
             self.full = exc.errno in (errno.EFBIG, errno.ENOSPC, errno.EDQUOT)
             if exc.errno == errno.EFBIG:

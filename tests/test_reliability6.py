@@ -187,3 +187,19 @@ def test_a_size_limit_met_by_a_resumes_copy_is_named_as_such(tmp_path):
     line = one_line(res)
     assert "not allowed to grow (a file size limit" in line and "disk is full" not in line, line
     assert (tmp_path / "run.h5").read_bytes() == before and not (tmp_path / "run.h5.partial").exists()
+
+
+def test_a_run_under_a_size_limit_just_above_its_file_finishes(tmp_path):
+    """``ulimit -f`` a little above the size of a run's finished file (1759 KiB for a 1753 KiB file): the run
+    stopped, 'not allowed to grow by 820 kB for the next block', and so did its resumes up to 2000 KiB. The room
+    reserved for a block keeps a margin for HDF5's metadata; where only the margin does not fit, the block's own
+    room is reserved (a write of HDF5's that meets the limit is the file's failure: it stays at its last commit)."""
+    from tests.test_reliability3 import RBX
+    write_config(tmp_path, strip_random(20_000, trajectories=3, every=3))
+    res = rbx_cli("simulate", "exp.yaml", "-o", "ref.h5", "--quiet", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    limit = -(-(tmp_path / "ref.h5").stat().st_size // 1024) + 64          # KiB
+    res = subprocess.run(["bash", "-c", f"trap '' XFSZ; ulimit -f {limit}; exec {RBX} simulate exp.yaml -o o.h5 "
+                                        "--quiet"], cwd=tmp_path, capture_output=True, text=True, timeout=HANG)
+    assert res.returncode == 0, res.stderr
+    assert_same_records(read_run(tmp_path / "o.h5"), read_run(tmp_path / "ref.h5"))
