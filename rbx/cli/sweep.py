@@ -39,7 +39,7 @@ def sweep(study, output, scheduler, resume, force, quiet, debug):
     def checking(done, total):
         # a study at its grid bound checks its points' configs for minutes before the first runs: said, not silent
         if done == 0 and total >= LONG_CHECK and not quiet:
-            click.echo(f"rbx: {display_path(study)}: checking the configs of {plural(total, 'point')} before the "
+            click.echo(f"rbx: {display_path(study)}: checking {plural(total, 'config')} of its points before the "
                        "first one runs", err=True)
         checks(done, total)
         if done >= total:
