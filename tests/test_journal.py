@@ -386,3 +386,31 @@ def test_an_io_error_at_any_write_is_one_line_and_the_file_resumes_exactly(tmp_p
         assert res.returncode == 0, (at, times, res.stderr)
         assert sorted(f.name for f in tmp_path.glob("run.h5*")) == ["run.h5"]
         assert_same_records(read_run(tmp_path / "run.h5"), reference)
+
+
+def test_a_journal_an_older_rbx_left_is_applied_to_its_own_file_only(tmp_path):
+    """Journals written before they named their file by content named it by inode: one left by a kill of an older
+    rbx still finishes its file, and is refused beside a copy, saying what the file is without it."""
+    path = tmp_path / "a.h5.partial"
+    _killed_writer(path)
+    jpath = journal.journal_path(path)
+    with open(jpath, "rb") as fh:
+        raw = fh.read()
+    size, count = journal.HEADER.unpack_from(raw, len(journal.MAGIC))
+    at = len(journal.MAGIC) + journal.HEADER.size
+    numbers = raw[at:at + 8 * count]
+    pages = raw[at + 12 * count:-journal.CRC.size]
+
+    def first_journal(st):
+        body = journal.MAGIC_1 + journal.HEADER_1.pack(st.st_ino, st.st_dev, size, count) + numbers + pages
+        return body + journal.CRC.pack(journal.zlib.crc32(body))
+    copy = tmp_path / "b.h5.partial"
+    shutil.copyfile(path, copy)
+    for p in (path, copy):
+        with open(journal.journal_path(p), "wb") as fh:
+            fh.write(first_journal(os.stat(path)))
+    with pytest.raises(FileError, match="was written for another file .* by an older rbx") as info:
+        _open_h5(copy)
+    assert "is torn" in str(info.value)
+    with _open_h5(path) as f:
+        assert f.attrs["version"] == 2 and np.all(f["x"][...] == 2.0)
