@@ -423,7 +423,9 @@ def test_the_leading_exponents_alone_are_the_first_of_the_whole_spectrum(scene, 
     from rbx import dynamics
     whole = lyapunov(scene)
     lead = lyapunov(scene, exponents=K)
-    assert len(lead.exponents) == K and lead.exponents[0] > 0.05
+    # something to compare: λ₁ > 0 (the sphere's 0.052 ± 0.003 with Numba 0.68 and NumPy 2, 0.044 ± 0.004 with
+    # Numba 0.59 and NumPy 1.26, whose orbit parts from it by an ulp of the time by the third collision)
+    assert len(lead.exponents) == K and lead.exponents[0] > 0.02
     np.testing.assert_array_equal(lead.time, whole.time)
     if K == 1:
         assert lead.exponents[0] == pytest.approx(whole.exponents[0], rel=1e-12)
