@@ -254,11 +254,9 @@ def check_target(path, force, experiment, key="output", file=None, force_hint="f
 
 
 def compile_kernels(sim):
-    """Compile (or load from the cache) the kernels now, while Ctrl-C can still abort at once: a first compile
-    takes several seconds, and once the run has started a signal is only seen between blocks. (Not for a run on
-    a cluster: its workers compile, the client never runs a kernel.)"""
-    if sim.cluster is None:
-        sim.advance(0, sim.block_buffers(0))   # no trajectory is below collision 0: nothing moves
+    """:meth:`rbx.simulation.Simulation.compile_kernels`: the kernels compiled (or loaded) while Ctrl-C can still
+    abort at once."""
+    sim.compile_kernels()
 
 
 def cluster_for(scheduler, key, slices=None, task_collisions=None):

@@ -66,7 +66,7 @@ def _quiet(cfg):
     return cfg.replace(output=dataclasses.replace(cfg.output, record=(), every=1))
 
 
-def return_experiment(cfg, progress=None, _spin_scale=1.0, cluster=None, should_stop=None):
+def return_experiment(cfg, progress=None, _spin_scale=1.0, cluster=None, should_stop=None, on_run=None):
     """Run the return-angle experiment of a validated config with ``initial: {sample: billiard, wall: W}`` ->
     :class:`Returns`.
 
@@ -75,7 +75,10 @@ def return_experiment(cfg, progress=None, _spin_scale=1.0, cluster=None, should_
     on the whole boundary and the return is the next collision, on any wall (the boundary map itself).
     ``_spin_scale`` multiplies the sampled spins: a deliberately wrong sampler, for testing that the test can
     fail. ``cluster``: a :class:`rbx.cluster.Cluster` to follow the trajectories on (the same result).
-    ``should_stop()`` is polled between blocks: if it says stop, KeyboardInterrupt (the experiment is not whole)."""
+    ``should_stop()`` is polled between blocks: if it says stop, KeyboardInterrupt (the experiment is not whole).
+    ``on_run()`` is called once the states are drawn and the kernels compiled, just before the trajectories run
+    (the command line switches there from aborting at a signal to flagging it: the set-up of 10⁷ states takes
+    seconds, and a Ctrl-C in it used to wait for the first block); if it returns True, KeyboardInterrupt."""
     if cfg.initial[0] != "sample":
         raise ValueError("the return experiment needs initial: {sample: billiard, wall: NAME}")
     start = time.perf_counter()
@@ -90,6 +93,9 @@ def return_experiment(cfg, progress=None, _spin_scale=1.0, cluster=None, should_
     initial = analysis.normal_angle(state["velocity"], state["angular_velocity"], state["normal"], R, kappa)
     sim = Simulation(cfg, state=state, stop_wall=-1 if wall is None else wall)
     sim.cluster = cluster
+    sim.compile_kernels()
+    if on_run is not None and on_run():
+        raise KeyboardInterrupt
     sim.run(_NullSink(), progress=progress, should_stop=should_stop)
     if should_stop is not None and should_stop():
         raise KeyboardInterrupt

@@ -201,6 +201,13 @@ class Simulation:
         """Whether the run is done: every trajectory still running has made ``run.collisions`` collisions."""
         return not self.alive.any() or int(self.ncoll[self.alive].min()) >= self.cfg.run.collisions
 
+    def compile_kernels(self):
+        """Compile (or load from the cache) this run's kernels now, while Ctrl-C can still abort at once: a first
+        compile takes several seconds, and once the run has started a signal is only seen between blocks. (Not for
+        a run on a cluster: its workers compile, the client never runs a kernel.)"""
+        if self.cluster is None:
+            self.advance(0, self.block_buffers(0))   # no trajectory is below collision 0: nothing moves
+
     def run(self, sink, progress=None, should_stop=None, write_initial=None):
         """Run to ``run.collisions`` collisions, streaming records to ``sink`` -> True if complete.
 

@@ -86,6 +86,29 @@ def test_other_inertia_and_the_whole_boundary():
     assert res.ks_pvalue > P_PASS
 
 
+def test_the_return_experiment_says_when_its_set_up_is_done_and_stops_there_if_told(monkeypatch):
+    """``on_run`` is called once, after the states are drawn and the kernels compiled, before any block runs:
+    `rbx histogram` switches there from aborting at a Ctrl-C to flagging it (a Ctrl-C while 10⁷ states were drawn
+    waited 5-8 s for the first block). Told to stop there, nothing runs."""
+    from rbx.simulation import Simulation
+    events = []
+    compile_kernels = Simulation.compile_kernels
+    monkeypatch.setattr(Simulation, "compile_kernels", lambda sim: (events.append("compiled"), compile_kernels(sim)))
+    cfg = experiment(RECT, ROUGH, "bottom", trajectories=200)
+
+    def on_run(answer):
+        events.append("on_run")
+        return answer
+    blocks = lambda done, total: events.append("block")      # noqa: E731
+    with pytest.raises(KeyboardInterrupt):
+        return_experiment(cfg, progress=blocks, on_run=lambda: on_run(True))
+    assert events == ["compiled", "on_run"]
+    events.clear()
+    result = return_experiment(cfg, progress=blocks, on_run=lambda: on_run(False))
+    assert events[:2] == ["compiled", "on_run"] and events[2:] and set(events[2:]) == {"block"}
+    assert result.samples == 200
+
+
 def test_trajectories_that_do_not_return_are_counted():
     """From the bottom of a rectangle a return takes at least two collisions (top, or a side and then …)."""
     res = return_experiment(experiment(RECT, ROUGH, "bottom", trajectories=2000, collisions=1))

@@ -123,10 +123,9 @@ def _histogram(config, out, data, trajectories, seed, sets, force, quiet, cluste
 
     with connect(cluster) as on:
         progress = Progress("histogram", quiet=quiet, trajectories=cfg.run.trajectories)
-        if stop.start_running():
-            raise KeyboardInterrupt
         try:
-            result = return_experiment(cfg, progress=progress, cluster=on, should_stop=stop)
+            result = return_experiment(cfg, progress=progress, cluster=on, should_stop=stop,
+                                       on_run=stop.start_running)
         except ClusterError as exc:     # the cluster failed mid-run: not the user's input, exit 1
             click.echo(f"rbx: {exc}; nothing written", err=True)
             raise SystemExit(1) from None
