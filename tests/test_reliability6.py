@@ -10,19 +10,10 @@ import pytest
 import rbx
 from tests.test_interrupt import assert_same_records, read_run, strip_random, without_path, write_config
 from tests.test_reliability3 import one_line, rbx_cli, tmpfs
-from tests.test_reliability5 import KILL_MID_APPLY
+from tests.test_reliability5 import KILL_MID_APPLY, _refused
 
 #: a guard against a hang, not a bound
 HANG = 600
-
-
-def _refused(res, name, *words):
-    assert res.returncode == 2, (res.returncode, res.stderr)
-    line = one_line(res)
-    assert line.startswith(f"rbx: {name}: "), line
-    for w in words:
-        assert w in line, line
-    return line
 
 
 def test_a_pending_journal_on_a_read_only_disk_is_read_and_resumed_into_a_writable_folder(tmp_path):
