@@ -28,8 +28,8 @@ from .config import loads
 from .locks import LockNotWritable, acquire_lock, lock_holder, lock_path, release_lock, taken_fresh
 from .locks import busy as _busy
 from .progress import plural
-from .paths import (NO_ROOM, DiskFull, FileError, check_own_names, check_replaceable, creation_path, display_path,
-                    format_size, temporary_path, what_it_is)
+from .paths import (NO_ROOM, DiskFull, FileError, check_own_kind, check_own_names, check_replaceable, creation_path,
+                    display_path, format_size, temporary_path, what_it_is)
 from .runfile import (H5Sink, Run, _text, close_journal, commit, config_yaml, data_bytes, file_path, fill_returns,
                       is_true, journal_of, open_journaled)
 
@@ -119,6 +119,7 @@ def check_target(path, force, key, file=None, config_source=None, partial_ok=Fal
     forget_second_name(temporary_path(path), path)
     if os.path.exists(path) and not force:
         raise FileError(path, None, f"exists; use {force_hint} to overwrite it")
+    check_own_kind(path, key, file)     # with force: never a config, a table or notes named as the output
     tmp = temporary_path(path)
     if os.path.exists(tmp) and not force and not partial_ok:
         # no live run holds the lock (checked above): a killed run left it
@@ -492,11 +493,10 @@ def prepare_resume(run_file, output=None, *, force=False, max_size=None, out_key
     # the output must be a file rbx may replace, before the run: a link or a device was refused only at the final
     # rename, after the whole run, with exit 0 (the records left in the .partial)
     check_replaceable(path, out_key if output else None)
-    if output and path != source and os.path.isfile(path) and not _is_hdf5(path):
-        # a resume does not know the config it was started from: a -o that names it (or any file that is not a
-        # run's) was written over with HDF5, --force or not
-        raise FileError(None, out_key, f"{display_path(path)} exists and is not an HDF5 file (a config, a table, "
-                                       "notes?): a resume writes only over a run file; give another name")
+    if output and path != source:
+        # a resume does not know the config it was started from: a -o that names it (or any file rbx did not
+        # write) was written over with HDF5, --force or not
+        check_own_kind(path, out_key)
     if lock_path(path) != lock_path(source):
         # -o OTHER.h5: OTHER's own lock too, held to the final rename like a new run's, so that two resumes into
         # one OTHER cannot write one OTHER.h5.partial (with --force the second truncated it)
@@ -534,13 +534,6 @@ def prepare_resume(run_file, output=None, *, force=False, max_size=None, out_key
                      "of the chunks")
     return Resumption("continue", source, path, tmp, in_place, force or own or path == source, sim, write_initial,
                       done, notes, move)
-
-
-def _is_hdf5(path):
-    try:
-        return h5py.is_hdf5(path)
-    except OSError:
-        return False
 
 
 def _newer_partial(source, locked, force_hint):

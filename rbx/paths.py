@@ -1,7 +1,8 @@
 """The files around a run, named and checked before rbx reads or replaces them: the errors a file raises
 (:class:`FileError`, :class:`DiskFull`), the names beside a run's output (``OUT.h5.partial``, ``.partial.new``,
 ``.lock``), and what a path is (:func:`what_it_is`): rbx reads only regular files of a sane size
-(:func:`config_file_problem`) and replaces only regular files (:func:`check_replaceable`).
+(:func:`config_file_problem`) and replaces only regular files (:func:`check_replaceable`) that it wrote itself
+(:func:`check_own_kind`).
 
 The lowest of the run-file modules: :mod:`rbx.locks`, :mod:`rbx.runfile` and :mod:`rbx.driver` import it, it
 imports none of them.
@@ -119,6 +120,27 @@ def check_replaceable(path, key=None, file=None):
                                    "links: give the file's own path, or remove the link")
     raise FileError(file, key, f"{show} is {what}, not a regular file; rbx replaces only regular files: give "
                                "a file name such as run.h5")
+
+
+#: the first bytes of the files rbx writes (HDF5: run files, return-angle files, a study's NetCDF results) and of
+#: a run file torn while its journal was copied in (:data:`rbx.journal.TORN`)
+OWN_SIGNATURES = (b"\x89HDF\r\n\x1a\n", b"\x89RBXtorn")
+
+
+def check_own_kind(path, key=None, file=None):
+    """Raise :class:`FileError` when ``path`` is a regular file with something in it that rbx did not write (not
+    HDF5): ``--force`` replaces a run, a return-angle file or a study's results, never a config, a table or a
+    user's notes that happen to be named as the output."""
+    fd, _ = open_regular(path) if os.path.lexists(path) else (None, None)
+    if fd is None:
+        return
+    try:
+        head = os.pread(fd, 8, 0)
+    finally:
+        os.close(fd)
+    if head and not any(head == sig[:len(head)] for sig in OWN_SIGNATURES):
+        raise FileError(file, key, f"{display_path(path)} exists and is not an HDF5 file (a config, a table, "
+                                   "notes?): rbx writes only over its own files; give another name")
 
 
 def open_regular(path):

@@ -45,7 +45,7 @@ from .dynamics import lyapunov
 from .histogram import return_experiment
 from .model import ConfigError
 from .locks import acquire_lock, release_lock
-from .paths import DiskFull, check_own_names, check_replaceable, config_file_problem, display_path
+from .paths import DiskFull, check_own_kind, check_own_names, check_replaceable, config_file_problem, display_path
 from .runfile import FileError, provenance
 
 __all__ = ["sweep", "load_study", "Study", "point_seed", "StudyInterrupted"]
@@ -768,8 +768,9 @@ def _sweep(study, output, scheduler, resume, force, progress, base):
             for p in (output, partial):
                 if os.path.lexists(p):
                     raise FileError(p, None, "exists: --force starts the study again, --resume continues it")
-        for p in (output, partial):       # replaced only if a regular file: never a device, a FIFO or a link
-            check_replaceable(p, "-o", None)
+        for p in (output, partial):       # replaced only if a regular file rbx wrote: never a device, a FIFO, a
+            check_replaceable(p, "-o", None)  # link, a study file or notes
+            check_own_kind(p, "-o", None)
         os.makedirs(os.path.dirname(output), exist_ok=True)
     if ds is None:
         ds = _empty(st, exp0)

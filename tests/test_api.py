@@ -240,10 +240,15 @@ def test_open_of_a_file_that_is_not_a_run(tmp_path, cli_files):
 
 def test_output_is_refused_without_force(tmp_path):
     out = tmp_path / "r.h5"
-    out.write_bytes(b"precious")
+    out.write_bytes(b"\x89HDF\r\n\x1a\n precious")            # an HDF5 file, as rbx writes
     with pytest.raises(rbx.FileError, match="exists; use force=True"):
         rbx.simulate(scene("strip-rough", collisions=10), output=out)
-    assert out.read_bytes() == b"precious"
+    assert out.read_bytes() == b"\x89HDF\r\n\x1a\n precious"
+    notes = tmp_path / "notes.h5"                           # not one: kept even with force=True
+    notes.write_bytes(b"precious")
+    with pytest.raises(rbx.FileError, match="is not an HDF5 file"):
+        rbx.simulate(scene("strip-rough", collisions=10), output=notes, force=True)
+    assert notes.read_bytes() == b"precious"
     run = rbx.simulate(scene("strip-rough", collisions=10), output=out, force=True)
     assert run.records == 11 and not Path(f"{out}.partial").exists()
 

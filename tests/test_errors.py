@@ -25,7 +25,7 @@ from rbx.runfile import FileError, Run
 from rbx.cli.main import cli
 
 RBX = str(Path(sys.executable).with_name("rbx"))
-SENTINEL = b"an existing result that must survive"
+SENTINEL = b"\x89HDF\r\n\x1a\n" + b"an existing result that must survive"     # what rbx writes: HDF5
 
 TABLE = {"kind": "strip", "width": 1.0}
 BOUNDARY = {"default": {"rule": "random", "choices": [{"rule": "constant", "rank": 0}, {"rule": "constant", "rank": 1}],

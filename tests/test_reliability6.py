@@ -151,6 +151,35 @@ def test_a_resume_never_writes_over_a_file_that_is_not_a_run_file(tmp_path):
     assert not (tmp_path / "exp.yaml.partial").exists()
 
 
+def test_force_never_writes_a_new_run_over_a_file_rbx_did_not_write(tmp_path):
+    """A new run with --force (``rbx simulate``, ``rbx.simulate(force=True)``, ``rbx histogram --data``, ``rbx
+    sweep -o``) wrote HDF5 over any regular file: notes, another experiment's config, another study. It replaces
+    only what rbx writes (HDF5, a torn run file) and an empty file; the rest is refused in one line, --force or not."""
+    from rbx import journal, paths
+    assert journal.TORN in paths.OWN_SIGNATURES
+    write_config(tmp_path, strip_random(200))
+    notes = tmp_path / "notes.txt"
+    notes.write_text("my notes\n")
+    other = tmp_path / "other.yaml"
+    other.write_text((tmp_path / "exp.yaml").read_text())
+    study = tmp_path / "study.yaml"
+    study.write_text("base: exp.yaml\nvary: {ball.inertia: [0.2, 0.4]}\nensemble: {trajectories: 2, collisions: 100}\n"
+                     "measure: [energy_drift]\n")
+    for args, name in ((["simulate", "exp.yaml", "-o", "notes.txt"], "notes.txt"),
+                       (["simulate", "exp.yaml", "-o", "other.yaml"], "other.yaml"),
+                       (["sweep", "study.yaml", "-o", "other.yaml"], "other.yaml")):
+        res = rbx_cli(*args, "--force", "--quiet", cwd=tmp_path, timeout=HANG)
+        _refused(res, "-o", f"{name} exists and is not an HDF5 file")
+    with pytest.raises(rbx.FileError, match="notes.txt exists and is not an HDF5 file"):
+        rbx.simulate(tmp_path / "exp.yaml", output=notes, force=True)
+    assert notes.read_text() == "my notes\n" and other.read_text() == (tmp_path / "exp.yaml").read_text()
+    # what rbx wrote, and an empty file, are replaced
+    (tmp_path / "empty.h5").write_bytes(b"")
+    for out in ("run.h5", "run.h5", "empty.h5"):
+        res = rbx_cli("simulate", "exp.yaml", "-o", out, "--force", "--quiet", cwd=tmp_path, timeout=HANG)
+        assert res.returncode == 0, res.stderr
+
+
 def test_a_complete_output_beside_a_killed_newer_partial_says_how_to_continue_it(tmp_path):
     """``rbx simulate c.yaml -o o.h5 --force`` over a complete o.h5, SIGKILLed: ``--resume o.h5`` said only that
     o.h5 is complete, not that o.h5.partial holds a killed run and how to continue it."""
