@@ -431,6 +431,17 @@ def _measure(spec, fail):
 CHECK_EVERY_POINT = 2000
 
 
+def _representatives(study):
+    """The points that stand for the whole study -> (points, whether they are all of them): every point of a study
+    of up to :data:`CHECK_EVERY_POINT` points (or of one key, or zipped keys), else each value of each key once
+    with the other keys at their first values (a grid of 1000 × 100 points: 1099)."""
+    points = study.points()
+    if len(points) <= CHECK_EVERY_POINT or study.zip or len(study.keys) == 1:
+        return [point for _, point in points], len(points) <= CHECK_EVERY_POINT
+    first = {k: v[0] for k, v in zip(study.keys, study.values)}
+    return [first] + [dict(first, **{k: x}) for k, v in zip(study.keys, study.values) for x in v[1:]], False
+
+
 def _check_points(study, progress=None):
     """Every point's experiment is built now (a bad value is refused before anything runs) and every observable
     is asked whether this table can give it: every point of a study of up to :data:`CHECK_EVERY_POINT` points,
@@ -438,13 +449,7 @@ def _check_points(study, progress=None):
     config, the grid bound's study sat silent for 2 minutes). ``progress(done, total)``: configs checked so far,
     every few hundred."""
     need = _needs(study)
-    points = study.points()
-    small = len(points) <= CHECK_EVERY_POINT
-    if small or study.zip or len(study.keys) == 1:
-        checked = [point for _, point in points]
-    else:
-        first = {k: v[0] for k, v in zip(study.keys, study.values)}
-        checked = [first] + [dict(first, **{k: x}) for k, v in zip(study.keys, study.values) for x in v[1:]]
+    checked, small = _representatives(study)
     total = len(checked)
     for i, point in enumerate(checked):
         if progress is not None and i % 200 == 0:
@@ -582,9 +587,10 @@ def study_title(study, exp0=None):
     """What the whole study shows: the scene's title (:func:`rbx.analysis.scene_title`) with each word that
     changes from point to point given as its range over the points ('κ = 0.05–1'), then the varied keys and their
     ranges ('ball.inertia: 8 values, 0.05–1') -> str. (The first point's title alone named its κ as the study's.)"""
-    points = study.points()
     need = _needs(study)
-    titles = [scene_title(study.experiment(p, need["fields"], need["every"])) for _, p in points]
+    # the words that change from point to point, read off the points that stand for the study (each value of each
+    # key of a large grid once: building all 10⁵ configs of one took 67 s before its first point)
+    titles = [scene_title(study.experiment(p, need["fields"], need["every"])) for p in _representatives(study)[0]]
     words = [t.split(" ") for t in titles]
     if len({len(w) for w in words}) == 1:
         merged = []
