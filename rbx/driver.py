@@ -166,9 +166,15 @@ def create(path, force=False):
         if taken_fresh(lock):      # the lock was free: no live run is making this file
             with contextlib.suppress(FileNotFoundError):
                 os.remove(new)
-            # journals without their file (a killed run's .partial removed by hand): the next file here may get
-            # the same inode number, and must not be mistaken for theirs
-            journal.discard(new)
+            journal.discard(new)       # a .partial.new holds no records: its journal finishes nothing
+            orphan = journal.journal_path(tmp)
+            if os.path.exists(orphan) and not force:
+                # the .partial it finishes was moved away (or removed): if a kill tore that file, this journal is
+                # the only thing that can finish it, and this run's own journal would take its name
+                release_lock(path)
+                raise FileError(orphan, None, f"the journal of a killed run's {display_path(tmp)}, which is not "
+                                              "here (moved away?): it is what finishes that file; put it back "
+                                              "beside the file, or remove it (or use --force) to start this run")
             journal.discard(tmp)
         return open_journaled(new, create=True)
     except (FileExistsError, OSError) as exc:

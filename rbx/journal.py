@@ -24,7 +24,8 @@ signature is replaced by :data:`TORN` (the first write of the copying-in; page 0
 signature back), so a file whose journal was lost halfway through is refused by HDF5 and named as torn by rbx
 (:func:`torn`), never read as if it were whole. Where the file cannot be written (a read-only file system), a
 reader applies the journal in memory (:class:`JournalView`), and a resume into another folder applies it to its
-copy (:func:`recover` with ``journal=``). rbx removes journals left without their file before it makes a new one.
+copy (:func:`recover` with ``journal=``). A journal left without its file is kept: a new run on that output stops
+and names it (its file may live on elsewhere, torn), and ``--force`` removes it (:func:`rbx.driver.create`).
 
 A write or read the system refuses (an I/O error, the disk full) is kept as the file's ``failure`` rather than
 raised through h5py's callbacks (:func:`_failing`); from then on nothing is committed, and the next commit raises

@@ -217,9 +217,10 @@ def test_a_torn_file_without_its_journal_is_refused_not_read(tmp_path):
         assert f.attrs["version"] == 2
 
 
-def test_a_new_run_removes_journals_left_without_their_file(tmp_path):
-    """A killed run's journal whose .partial was removed by hand: the next run's file can get the same inode
-    number, and that journal must not be applied to it (seen in review: a new file silently became the old one)."""
+def test_a_new_run_over_a_journal_left_without_its_file_is_forced_and_never_takes_it(tmp_path):
+    """A killed run's journal whose .partial was removed (or moved away) by hand: a new run keeps it and says so
+    (it may be the only thing that finishes the file elsewhere); with --force it is removed, and never applied to
+    the new file (seen in review: a new file silently became the old one)."""
     src = tmp_path / "run.h5.partial"
     res = subprocess.run([sys.executable, "-c", WRITER, str(src), "half-applied"], capture_output=True, text=True,
                          timeout=300)
@@ -227,8 +228,10 @@ def test_a_new_run_removes_journals_left_without_their_file(tmp_path):
     src.unlink()
     cfg = strip_random(3000, trajectories=2, every=1, record=("time",))
     write_config(tmp_path, cfg)
-    res = subprocess.run([sys.executable, "-c", f"import sys; {RBX_MAIN}", "simulate", "exp.yaml", "-o", "run.h5",
-                          "--quiet"], cwd=tmp_path, capture_output=True, text=True, timeout=900)
+    args = [sys.executable, "-c", f"import sys; {RBX_MAIN}", "simulate", "exp.yaml", "-o", "run.h5", "--quiet"]
+    res = subprocess.run(args, cwd=tmp_path, capture_output=True, text=True, timeout=900)
+    assert res.returncode == 2 and "run.h5.partial.journal" in res.stderr and "is not here" in res.stderr, res.stderr
+    res = subprocess.run(args + ["--force"], cwd=tmp_path, capture_output=True, text=True, timeout=900)
     assert res.returncode == 0, res.stderr
     assert sorted(f.name for f in tmp_path.glob("run.h5*")) == ["run.h5"]
     assert rbx.open(tmp_path / "run.h5").complete

@@ -223,3 +223,20 @@ def test_a_run_under_a_size_limit_just_above_its_file_finishes(tmp_path):
                                         "--quiet"], cwd=tmp_path, capture_output=True, text=True, timeout=HANG)
     assert res.returncode == 0, res.stderr
     assert_same_records(read_run(tmp_path / "o.h5"), read_run(tmp_path / "ref.h5"))
+
+
+def test_a_new_run_keeps_the_journal_of_a_partial_that_was_moved_away(tmp_path):
+    """A killed run's ``.partial`` moved away (to keep it, inspect it, free the name) left its journal, the only
+    thing that can finish it if the kill tore it; a new run on that output deleted the journal without a word. It
+    is kept and named now; ``--force`` (or removing it) starts the run."""
+    write_config(tmp_path, strip_random(200))
+    orphan = tmp_path / "o.h5.partial.journal"
+    orphan.write_bytes(b"a journal whose file was moved away")
+    res = rbx_cli("simulate", "exp.yaml", "-o", "o.h5", "--quiet", cwd=tmp_path, timeout=HANG)
+    _refused(res, "o.h5.partial.journal", "which is not here", "put it back beside the file")
+    with pytest.raises(rbx.FileError, match="put it back beside the file"):
+        rbx.simulate(tmp_path / "exp.yaml", output=tmp_path / "o.h5")
+    assert orphan.read_bytes() == b"a journal whose file was moved away"
+    assert not (tmp_path / "o.h5").exists() and not (tmp_path / "o.h5.lock").exists()
+    res = rbx_cli("simulate", "exp.yaml", "-o", "o.h5", "--quiet", "--force", cwd=tmp_path, timeout=HANG)
+    assert res.returncode == 0 and (tmp_path / "o.h5").exists() and not orphan.exists(), res.stderr
