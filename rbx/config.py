@@ -883,7 +883,9 @@ def _initial(init, n, c, geom, kind, R, kappa, names):
     for i in range(len(out), len(states)):
         key = "initial" if not isinstance(init, list) else f"initial[{i}]"
         out.append(_one_state(states[i], init, key, n, c, geom, R, kappa))
-    return tuple(out), len(out)
+    # read-only mappings of read-only arrays: an edit of a loaded experiment's start (exp.initial[0][...] = …) was
+    # kept and shown, and the run used the start it was loaded with
+    return tuple(types.MappingProxyType(state) for state in out), len(out)
 
 
 def _infinite_area(geom):

@@ -138,6 +138,22 @@ def test_a_file_of_a_changed_experiment_records_what_ran(tmp_path):
     assert run.experiment.ball.kappa == 0.3
 
 
+def test_a_loaded_experiments_starts_cannot_be_edited_in_place():
+    """``exp.initial[0]["angular_velocity"] = 5.0`` was kept and shown while the run used the start it was loaded
+    with (−2). The states are read-only now, like the rest of the experiment; ``replace`` is the way to change one,
+    and is checked and run."""
+    exp = rbx.load(str(ROOT / "configs" / "examples" / "circle.yaml"))
+    with pytest.raises(TypeError):
+        exp.initial[0]["angular_velocity"] = 5.0
+    with pytest.raises(ValueError):
+        exp.initial[0]["position"][0] = 5.0
+    assert rbx.simulate(exp, collisions=5).angular_velocity[0][0] == exp.initial[0]["angular_velocity"]
+    spun = exp.replace(initial=[{**exp.initial[0], "angular_velocity": 5.0}])
+    assert rbx.simulate(spun, collisions=5).angular_velocity[0][0] == 5.0
+    with pytest.raises(rbx.ConfigError, match="initial"):
+        exp.replace(initial=[{**exp.initial[0], "position": [5.0, 5.0]}])
+
+
 def test_an_edited_config_mapping_finds_its_includes(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)                  # another folder than the config's
     data = yaml.safe_load(STRIP.read_text())     # table: ../tables/strip.yaml, relative to the config's folder
