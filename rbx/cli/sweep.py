@@ -241,7 +241,28 @@ def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=Non
              f"{int(done.values.sum())} of {done.size} points · run time {duration(seconds)}")
     if y == "lyapunov" or y.startswith("lyapunov_per_collision") or y.startswith("lyapunov_spectrum"):
         title += "\n" + pooled_note(ds, ysym, int(M))
+    note = horizon_note(ds, y)
+    if note:
+        title += "\n" + note
+        panel["ylabel"] = ylabel.replace("diffusion coefficient", "slope of the MSD (no coefficient)")
     return panel, title
+
+
+def horizon_note(ds, y):
+    """Where the gas has free corridors (``diffusion_horizon`` > 0: an infinite horizon), the mean-square
+    displacement grows as t·log t and a point's ``diffusion`` is the slope over its segments, not a coefficient ->
+    one line for the title, or '' (the study plot said 'diffusion coefficient' with error bars on such a gas)."""
+    import numpy as np
+    if not y.startswith("diffusion") or "diffusion_horizon" not in ds:
+        return ""
+    done = ds["done"].values.astype(bool)
+    width = ds["diffusion_horizon"].values[done]
+    open_points = int(np.sum(width > 0))
+    if not open_points:
+        return ""
+    return (f"not a diffusion coefficient at {open_points} of {int(done.sum())} points: free corridors (up to "
+            f"{float(width.max()):.3g} wide) make the horizon infinite and the MSD grow as t·log t; drawn: the slope "
+            "over the segments")
 
 
 def pooled_note(ds, ysym, M):
