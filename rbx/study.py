@@ -40,7 +40,7 @@ from . import __version__, observables as obs
 from .analysis import scene_title, unbounded_axes
 from .api import cluster_for, load, simulate
 from .cluster import connect
-from .config import parse_yaml, read_text
+from .config import parse_yaml, read_text, repeated_orbits
 from .dynamics import lyapunov
 from .histogram import return_experiment
 from .model import ConfigError
@@ -451,6 +451,7 @@ def _check_points(study, progress=None):
     need = _needs(study)
     checked, small = _representatives(study)
     total = len(checked)
+    repeated = None
     for i, point in enumerate(checked):
         if progress is not None and i % 200 == 0:
             progress(i, total)
@@ -468,6 +469,12 @@ def _check_points(study, progress=None):
                 problem = rec.problem(exp, options)
             if problem:
                 raise ConfigError(study.file, f"measure.{name}", problem)
+        repeated = repeated or repeated_orbits(exp)
+    if repeated:
+        # each point's error bar would be the spread of copies of one orbit (a regular share of 1.0 ± 0.1 from 4
+        # copies): said as rbx simulate and rbx lyapunov say it
+        warnings.warn(f"{display_path(study.file) if study.file else 'the study'}: ensemble.trajectories: "
+                      f"{repeated}", RuntimeWarning, stacklevel=3)
     if progress is not None:
         progress(total, total)
 

@@ -564,3 +564,23 @@ def test_a_large_grid_checks_each_value_of_each_key_once(monkeypatch):
     title = study_title(st)
     assert len(built) <= 60 + 60 - 1
     assert "κ = 0.2–0.79" in title and "radius 0.1–0.336" in title, title
+
+
+def test_a_study_of_copies_of_one_orbit_is_warned_about(tmp_path):
+    """``rbx sweep`` ran ensembles of identical starts without a word (the circle example's fixed start, 4
+    trajectories: a regular share of 1.0 ± 0.1 from 4 copies), where rbx simulate and rbx lyapunov warn. It says so
+    now, once, in one line; a study whose starts differ says nothing."""
+    study = {"base": str(ROOT / "configs" / "examples" / "circle.yaml"), "vary": {"ball.inertia": [0.2, 0.5]},
+             "measure": ["regular_share"], "ensemble": {"trajectories": 4, "collisions": 300, "seed": 1}}
+    (tmp_path / "copies.yaml").write_text(yaml.safe_dump(study))
+    res = rbx_cli("sweep", "copies.yaml", "-o", "copies.nc", "--quiet", cwd=tmp_path)
+    lines = res.stderr.strip().splitlines()
+    assert res.returncode == 0 and len(lines) == 1, res.stderr
+    assert lines[0].startswith("rbx: warning: copies.yaml: ensemble.trajectories: the 4 trajectories all start "
+                               "from the same state"), lines[0]
+    with pytest.warns(RuntimeWarning, match="copies of one orbit"):
+        load_study(study)
+    study["set"] = {"initial": {"sample": "billiard"}}
+    (tmp_path / "sampled.yaml").write_text(yaml.safe_dump(study))
+    res = rbx_cli("sweep", "sampled.yaml", "-o", "sampled.nc", "--quiet", cwd=tmp_path)
+    assert res.returncode == 0 and res.stderr == "", res.stderr

@@ -2,6 +2,7 @@
 import shlex
 import signal
 import time
+import warnings
 
 import click
 
@@ -118,7 +119,11 @@ def _sweep(study, output, scheduler, resume, force, progress, checking=None):
     from ..study import sweep as run
     with user_errors():
         try:
-            st = load_study(study, progress=checking)
+            with warnings.catch_warnings(record=True) as said:      # one line each, as the other commands say them
+                warnings.simplefilter("always", RuntimeWarning)
+                st = load_study(study, progress=checking)
+            for w in said:
+                click.echo(f"rbx: warning: {w.message}", err=True)
             return run(st, output, scheduler=scheduler, resume=resume, force=force, progress=progress)
         except SchedulerUnreachable as exc:
             raise UserError(None, "--scheduler", exc.problem) from None
