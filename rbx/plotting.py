@@ -682,16 +682,22 @@ def histogram_figure(angle, d, ks_statistic, ks_pvalue, title, bins=50):
 
 
 @styled
-def escape_figure(s, S, fit, exits, total, title, unit="path length [L]", expected=None, trapped=None):
+def escape_figure(s, S, fit, exits, total, title, unit="path length [L]", expected=None, trapped=None, at_last=0,
+                  falling=0):
     """The survival function S(s) (Kaplan–Meier: the fraction of trajectories still in the table after path s) on
     a log scale, with the fitted law of :mod:`rbx.escape` (``fit``: an :class:`rbx.escape.EscapeFit`, or None)
     drawn over its window only, and only if it follows the data there; else the legend says that no exponential
     does. ``expected``: (γ, label) of a predicted rate, drawn dashed. ``trapped``: (share, low, high) where survival
-    levels off: the share drawn as a level with its interval."""
+    levels off: the share drawn as a level with its interval. ``at_last``: how many of the ``exits`` were at the
+    run's last collision (said beside them). ``falling``: how many are still inside where survival has not levelled
+    off (said: no trapped share can be read)."""
     fig = _figure(8.4, 5.0, title)
     ax = fig.add_subplot()
     s, S = np.asarray(s)[np.asarray(S) > 0], np.asarray(S)[np.asarray(S) > 0]   # S = 0 has no place on a log axis
-    ax.step(s, S, where="post", color=_colour(0), lw=1.2, label=f"Kaplan–Meier survival ({exits} of {total} exited)")
+    counted = f"{exits} of {total} exited"
+    if at_last:
+        counted += f": {exits - at_last} before the run's last collision, {at_last} at it"
+    ax.step(s, S, where="post", color=_colour(0), lw=1.2, label=f"Kaplan–Meier survival ({counted})")
     end = float(np.max(s)) if len(s) else 1.0
     if trapped is not None:
         share, low, high = trapped
@@ -699,6 +705,9 @@ def escape_figure(s, S, fit, exits, total, title, unit="path length [L]", expect
         ax.axhline(share, color=_colour(1), lw=1.0, ls=":",
                    label=f"trapped share: {100 * share:.3g} % never exited (Wilson interval {100 * low:.3g}–"
                          f"{100 * high:.3g} %, z = 1)")
+    elif falling:
+        ax.plot([], [], " ", label=f"still falling at the end of the run ({falling} of {total} still inside): no "
+                                   "trapped share can be read; run longer")
     drawn = fit is not None and fit.follows and fit.rate > 0 and np.isfinite(fit.rate_err)
     if drawn:
         # drawn as far as the survival is drawn: the last exit, where S = 0, may end the window off the log axis

@@ -5,7 +5,10 @@
 - on the rough open Sinai table (configs/examples/escape-sinai.yaml made rough: a fifth of the orbits trapped,
   the others leaving ever more slowly) the drawn curve stays within the Kaplan–Meier curve's noise over all of
   its window (one exponential fitted to the trajectories that leave ran 0.02 under the data at s = 181);
-- where no exponential follows (a rough rectangle with a hole for a floor), no rate is drawn or printed.
+- where no exponential follows (a rough rectangle with a hole for a floor), no rate is drawn or printed;
+- a trapped share is read only where survival levels off: a few orbits still inside a tail that is still falling
+  (a specular rectangle open on one whole wall) are said to be no trapped share; the exits the legend counts are
+  those rbx simulate's summary counts as ended earlier, plus those at the run's last collision, both said.
 """
 import os
 
@@ -15,10 +18,11 @@ import pytest
 import rbx
 from rbx.cli.plot import make_figure
 from rbx.dynamics import escape_times, survival
-from rbx.escape import FOLLOWS, fit_escape
+from rbx.escape import FOLLOWS, fit_escape, levels_off
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
 SINAI = os.path.join(ROOT, "configs", "examples", "escape-sinai.yaml")
+RECTANGLE = os.path.join(ROOT, "configs", "examples", "rectangle.yaml")
 
 
 def known_survival(n, seed):
@@ -93,3 +97,56 @@ def test_no_rate_where_no_exponential_follows():
     texts = [t.get_text() for leg in fig.legends for t in leg.get_texts()]
     assert fitted_line(fig) is None
     assert any(t.startswith("no exponential law follows") for t in texts), texts
+
+
+def test_levelling_off_needs_a_flat_late_stretch_with_orbits_in_it():
+    path, exited = known_survival(6000, 1)              # a fifth never leaves: a plateau
+    assert levels_off(path, exited)
+    # a tail falling as 2/s (no plateau) followed up to s = 6000: one orbit of 3000 still inside; up to s = 300: 21
+    # still inside, and its Kaplan–Meier curve halves over the late stretch
+    tail = 2.0 / np.random.default_rng(1).random(3000)
+    for end, inside in ((6000.0, 1), (300.0, 17)):
+        path, exited = np.minimum(tail, end), tail < end
+        assert np.sum(~exited) == inside
+        assert not levels_off(path, exited)
+    assert not levels_off(path, np.ones(len(path), bool))      # nothing inside: nothing to read
+
+
+def legend(fig):
+    return [t.get_text() for leg in fig.legends for t in leg.get_texts()]
+
+
+def test_a_few_orbits_inside_a_falling_tail_are_no_trapped_share(tmp_path):
+    """A specular rectangle open on its whole left wall traps nothing (every orbit leaves by 40 000 collisions),
+    but its tail is slow: after 2000 collisions one orbit of 3000 is still inside. That is no trapped share."""
+    run = str(tmp_path / "rect.h5")
+    exp = rbx.load(RECTANGLE, {"boundary": {"default": {"rule": "constant", "rank": 0}, "walls": {"left": {"rule": "exit"}}},
+                               "initial.wall": None, "run.trajectories": 3000, "run.collisions": 2000,
+                               "output.record": ["wall"], "output.every": 100})
+    rbx.simulate(exp, output=run)
+    esc = escape_times(rbx.open(run))
+    assert 0 < np.sum(~esc.exited) < 10
+    fig = make_figure(run, "escape")
+    said, texts = fig.rbx_result, legend(fig)
+    assert "; trapped share" not in said and not any(t.startswith("trapped share") for t in texts), (said, texts)
+    inside = f"({np.sum(~esc.exited)} of 3000 still inside)"
+    assert f"survival still falling at the end of the run {inside}: no trapped share can be read; run longer" in said
+    assert f"still falling at the end of the run {inside}: no trapped share can be read; run longer" in texts
+
+
+def test_the_exits_counted_agree_with_the_summary(tmp_path):
+    """escape-sinai.yaml run for 100 collisions: some orbits exit at their 100th collision. rbx simulate's summary
+    counts those that ended earlier; the legend gives the exits, and how many of them were at the last collision.
+    The survival is still falling at the end: no trapped share."""
+    run = str(tmp_path / "esc.h5")
+    rbx.simulate(rbx.load(SINAI), collisions=100, output=run)
+    final = rbx.open(run).final
+    exited = escape_times(rbx.open(run)).exited
+    earlier = int(np.sum(~final["alive"] & (final["collisions"] < 100)))    # rbx simulate's "ended earlier"
+    at_last = int(np.sum(exited & (final["collisions"] == 100)))
+    assert at_last > 0 and earlier + at_last == exited.sum()
+    fig = make_figure(run, "escape")
+    texts = legend(fig)
+    assert f"Kaplan–Meier survival ({exited.sum()} of 2000 exited: {earlier} before the run's last collision, " \
+           f"{at_last} at it)" in texts, texts
+    assert "no trapped share can be read" in fig.rbx_result and "trapped share:" not in " ".join(texts)

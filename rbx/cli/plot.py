@@ -457,8 +457,13 @@ def _escape(run, rec, traj, fit_from=0.1, **_):
     expected = None if trapped is not None else _small_hole_rate(run, exp)
     censored = int(np.sum(~exited))
     title = _title(run, f"escape through {', '.join(walls)} ({censored} still inside: censored)", traj, rec)
+    # a trajectory that exits at its last collision ended with the run: rbx simulate's summary does not count it
+    # among those that "ended earlier"; the legend says both
+    at_last = int(np.sum(exited & (np.asarray(run.final["collisions"])[sel] >= exp.run.collisions)))
+    falling = censored if trapped is None else 0
     fig = plotting.escape_figure(s, S, fit, int(exited.sum()), len(sel), title,
-                                 unit="path length in (x, R√κ·θ) [L]", expected=expected, trapped=trapped)
+                                 unit="path length in (x, R√κ·θ) [L]", expected=expected, trapped=trapped,
+                                 at_last=at_last, falling=falling)
     if fit is not None and fit.follows:
         said = (f"escape rate γ = {fit.rate:.4g} ± {fit.rate_err:.2g} per unit path (fitted over {fit.start:.3g} ≤ s "
                 f"≤ {fit.stop:.3g}")
@@ -472,34 +477,19 @@ def _escape(run, rec, traj, fit_from=0.1, **_):
         share, low, high = trapped
         said += (f"; trapped share {100 * share:.3g} % (Wilson interval, z = 1: {100 * low:.3g}–{100 * high:.3g} %) "
                  f"of {len(sel)} starts")
+    elif falling:
+        said += (f"; survival still falling at the end of the run ({falling} of {len(sel)} still inside): no trapped "
+                 "share can be read; run longer")
     fig.rbx_result = said
     return fig
 
 
-#: survival has levelled off when, over the later half of what the survivors were followed, the trajectories exit at
-#: most at this fraction of the rate they had before, and that shortfall is no chance (Poisson tail below PLATEAU_P)
-PLATEAU_RATIO, PLATEAU_P = 0.1, 1e-3
-
-
 def _trapped(run, path, exited):
-    """The trapped share -> (share, low, high) (the ``trapped_share`` observable: Wilson interval, z = 1) when
-    survival levels off, else None.
-
-    Levels off: the trajectories still inside at the end were followed over paths whose median is s_end; the
-    exits past s_end/2 are compared with those the rate before s_end/2 predicts for the exposure past it. A
-    table that traps (a share of orbits never reaching the exit) has almost none; an exponential tail, however
-    slow, has about as many as predicted."""
-    from scipy import stats
+    """The trapped share -> (share, low, high) (the ``trapped_share`` observable: Wilson interval, z = 1) where
+    survival levels off (:func:`rbx.escape.levels_off`), else None."""
     from ..analysis import wilson
-    from ..dynamics import exponential_rate
-    if exited.all() or not exited.any():
-        return None
-    half = 0.5 * float(np.median(path[~exited]))
-    early, _, k_early = exponential_rate(path, exited, 0.0, half)
-    late_exits = int(np.sum(exited & (path >= half)))
-    exposure = float(np.sum(np.maximum(path - half, 0.0)))
-    predicted = early * exposure
-    if k_early == 0 or late_exits > PLATEAU_RATIO * predicted or stats.poisson.cdf(late_exits, predicted) > PLATEAU_P:
+    from ..escape import levels_off
+    if not levels_off(path, exited):
         return None
     if len(path) == run.trajectories:       # the whole run: the observable of rbx sweep, the same numbers
         from ..observables import PointRuns, get
