@@ -591,11 +591,13 @@ def series_figure(steps, values, title, ylabel, labels=None, scales=(0.01, 0.1, 
 @styled
 def diffusion_figure(steps, msd, fit, displacement, title, coordinate="x", time_per_step=None, horizon=None):
     """Left: mean-square displacement against steps (log–log) with the fit 2·D·t + c and its confidence
-    interval; right: the distribution of the final displacement against the Gaussian of the fitted MSD.
+    interval; right: the distribution of the final displacement against the Gaussian of the fitted MSD (not drawn
+    with ``horizon``).
     ``time_per_step``: the mean time per collision τ [T], if known: D is then also given per unit time, D/τ.
     ``horizon``: why the slope is no diffusion coefficient (an infinite horizon: the short phrase of
     :func:`rbx.analysis.horizon_problem`),
-    said in the MSD panel and the fit's label."""
+    said in the MSD panel and the fit's label, which names the fitted number b (half the MSD's slope over the
+    window), not D."""
     from scipy import stats
     fig = _figure(11.0, 4.6, title)
     ax = fig.add_subplot(1, 2, 1)
@@ -605,12 +607,17 @@ def diffusion_figure(steps, msd, fit, displacement, title, coordinate="x", time_
     t = np.geomspace(fit.start, fit.stop, 200)                # the fit is drawn where it was made
     model = fit.msd(t)
     pct = round(100 * fit.confidence)
-    label = f"fit 2Dt + c: D = {fit.coefficient:.4g} ± {fit.half_width:.2g} L²/collision ({pct}% CI)"
     if horizon:
-        label = "slope over the fit window only, " + label
+        # no coefficient: b, half the MSD's slope over the window, a number of the window alone
+        label = (f"fit 2bt + c, over the fit window only: b = {fit.coefficient:.4g} ± {fit.half_width:.2g} "
+                 f"L²/collision ({pct}% CI)")
+    else:
+        label = f"fit 2Dt + c: D = {fit.coefficient:.4g} ± {fit.half_width:.2g} L²/collision ({pct}% CI)"
     if time_per_step:
         label += (f"\n  = {fit.coefficient / time_per_step:.4g} ± {fit.half_width / time_per_step:.2g} L²/T per unit "
                   f"time (mean time per collision {time_per_step:.4g} T)")
+    if horizon:
+        label += "\n  b: half the MSD's slope over the window, not D"
     ax.loglog(t[model > 0], model[model > 0], "-", color="k", lw=1, label=label)
     band_lo, band_hi = 2 * fit.low * t + fit.intercept, 2 * fit.high * t + fit.intercept
     # where the interval reaches 0 or below (few trajectories), a log axis cannot show its lower edge: the band
@@ -633,7 +640,11 @@ def diffusion_figure(steps, msd, fit, displacement, title, coordinate="x", time_
     var = float(fit.msd(T))
     ax2.hist(dx, bins=max(10, min(60, int(np.sqrt(len(dx))) + 1)), density=True, color=_colour(0), alpha=0.6,
              label=f"Δ{coordinate} after {T:.0f} collisions")
-    if var > 0:
+    if horizon:
+        # the displacements spread as √(t·log t): no Gaussian of the fitted MSD's variance is expected
+        ax2.plot([], [], " ", label="no Gaussian of variance 2bT + c drawn:\nwith an infinite horizon the MSD "
+                                    "grows as t·log t")
+    elif var > 0:
         sd = np.sqrt(var)
         u = np.linspace(min(dx.min(), -4 * sd) if len(dx) else -4 * sd, max(dx.max(), 4 * sd) if len(dx) else 4 * sd,
                         400)

@@ -32,8 +32,9 @@ SHOWS = {
     "phase": "boundary map and tangential velocity against spin at each collision",
     "series": "x against the collision step over 1/100, 1/10 and all of the run",
     "diffusion": "ensemble mean-square displacement with the fitted 2Dt + c (D per collision and per unit time; "
-                 "where free corridors make the horizon infinite, only the slope over the window, said in red), and "
-                 "the final displacements",
+                 "where free corridors make the horizon infinite, only b, half the MSD's slope over the window, said "
+                 "in red), and the final displacements (against the Gaussian of the fitted MSD, not drawn where the "
+                 "horizon is infinite)",
     "escape": "survival of the exit path length with the exponential rate fitted where it describes the data (and "
               "the trapped share, where survival levels off)",
     "birkhoff": "Birkhoff section (arc length, sin ψ) coloured by the spin share",

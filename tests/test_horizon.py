@@ -59,11 +59,11 @@ def test_the_diffusion_plot_says_an_infinite_horizon_has_no_coefficient(tmp_path
     short_run(tmp_path, "lorentz.yaml")
     fig = make_figure(str(tmp_path / "gas.h5"), "diffusion")
     said = fig.rbx_result                      # what rbx plot prints (tests/test_new_user.py: through the CLI)
-    assert said.startswith("slope of the MSD along x: D = "), said
+    assert said.startswith("slope of the MSD along x, fitted as 2bt + c: b = "), said
     assert "not a diffusion coefficient: infinite horizon" in said and "t·log t" in said
     assert "no diffusion coefficient: infinite horizon" in fig.axes[0].get_title()
     labels = [t.get_text() for leg in fig.legends for t in leg.get_texts()]
-    assert any(t.startswith("slope over the fit window only") for t in labels), labels
+    assert any(t.startswith("fit 2bt + c, over the fit window only") for t in labels), labels
 
 
 def test_a_finite_horizon_keeps_its_diffusion_coefficient(tmp_path):

@@ -559,6 +559,20 @@ def test_meaningless_selections_and_analyses_are_refused(runs, scenes):
     assert "--coordinate: the time is not a random coordinate" in line
 
 
+def test_an_infinite_horizon_gives_a_slope_not_d_and_no_gaussian(scenes):
+    """On the square Lorentz gas (free corridors along x) the fitted number is half the MSD's slope over the
+    window: the legend and stdout call it b, never D with a confidence interval, and the displacement panel draws
+    no Gaussian of the fitted variance (the MSD grows as t·log t)."""
+    fig = make_figure(scenes["lorentz"], "diffusion")
+    said = fig.rbx_result
+    assert said.startswith("slope of the MSD along x, fitted as 2bt + c: b = ") and "D = " not in said, said
+    labels = [t.get_text() for leg in fig.legends for t in leg.get_texts()]
+    assert not any("D = " in t for t in labels), labels
+    assert any(t.startswith("fit 2bt + c, over the fit window only: b = ") and "not D" in t for t in labels), labels
+    assert fig.axes[1].get_lines()[0].get_label().startswith("no Gaussian"), fig.axes[1].get_lines()
+    assert not any("KS p" in t for t in labels)
+
+
 # ---- rbx animate ---------------------------------------------------------------------------------------------------
 
 def test_animate_writes_a_gif_with_the_frames_asked(scenes, tmp_path):

@@ -395,10 +395,13 @@ def _diffusion(run, rec, traj, coordinate="x", fit_from=0.1, **_):
     fig = plotting.diffusion_figure(t, msd, fit, (x[full, -1] - x[full, 0]),
                                     _title(run, f"diffusion along {coordinate}", traj, rec), coordinate=coordinate,
                                     time_per_step=per_time, horizon=horizon and horizon[0])
-    what = "slope of the MSD" if horizon else "diffusion coefficient"
-    said = (f"{what} along {coordinate}: D = {fit.coefficient:.4g} ± {fit.half_width:.2g} L²/collision "
-            f"({round(100 * fit.confidence)}% CI, {fit.trajectories} trajectories, fitted over steps "
-            f"{fit.start:.0f}–{fit.stop:.0f})")
+    ci = (f"({round(100 * fit.confidence)}% CI, {fit.trajectories} trajectories, fitted over steps "
+          f"{fit.start:.0f}–{fit.stop:.0f})")
+    if horizon:
+        said = (f"slope of the MSD along {coordinate}, fitted as 2bt + c: b = {fit.coefficient:.4g} ± "
+                f"{fit.half_width:.2g} L²/collision {ci}")
+    else:
+        said = f"diffusion coefficient along {coordinate}: D = {fit.coefficient:.4g} ± {fit.half_width:.2g} L²/collision {ci}"
     if per_time:
         said += f" = {fit.coefficient / per_time:.4g} ± {fit.half_width / per_time:.2g} L²/T"
     if horizon:
