@@ -851,6 +851,11 @@ def _initial(init, n, c, geom, kind, R, kappa, names):
     """-> (tuple of explicit states, or ('sample', wall index or None), or ('point_particle', None)), default
     number of trajectories."""
     if isinstance(init, dict) and "sample" in init:
+        given = [k for k in STATE_KEYS if k in init]
+        if given:
+            c.fail(f"initial.{given[0]}", "a sampled start (initial: {sample: …}) has no " + given[0] + "; a fixed "
+                   "start replaces it when given whole: initial: {position: …, velocity: …} (--set "
+                   "'initial={position: […], velocity: […]}')")
         c.mapping(init, "initial", ("sample", "wall"))
         sampler = c.choice(init["sample"], "initial.sample", SAMPLERS, "sampler")
         wall = init.get("wall")
@@ -1027,7 +1032,8 @@ def apply_changes(data, changes, file, base, label="override"):
 
     A value replaces what the key holds, except a mapping given for a mapping, which is merged into it key by key
     (``{'ball': {'inertia': 0.2}}`` is ``{'ball.inertia': 0.2}``), unless it names its kind (``rule:``,
-    ``kind:``, ``sample:``): then it replaces. A table or boundary kept in its own file is read (from ``base``)
+    ``kind:``, ``sample:``; for ``initial``, a fixed start's key such as ``position:`` given for a sampled start):
+    then it replaces. A table or boundary kept in its own file is read (from ``base``)
     when a change reaches into it. Unknown keys (did you mean …?), keys given twice and keys through a value that
     is not a mapping or a list raise :class:`ConfigError` (``file`` names the config, ``label`` the changes)."""
     if not isinstance(changes, Mapping):
@@ -1072,6 +1078,9 @@ def apply_changes(data, changes, file, base, label="override"):
         if len(path) == 1 and head in ("table", "boundary") and isinstance(old, str) and isinstance(value, Mapping) \
                 and not any(k in value for k in KIND_KEYS):
             old = _inline(parent, name, base, file, inlined)
+        if path == ["initial"] and isinstance(old, dict) and "sample" in old and isinstance(value, Mapping) \
+                and any(k in value for k in STATE_KEYS):
+            old = None             # a fixed start given for a sampled one replaces it (its keys mean nothing there)
         parent[name] = _merged(old, value)
     return data, tuple(inlined)
 

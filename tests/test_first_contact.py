@@ -105,6 +105,23 @@ def test_an_override_is_checked_as_the_yaml_is(strip_inertia):
         rbx.load(STRIP, {"ball": {"radius": 0.1}, "ball.inertia": 0.3})
 
 
+def test_a_fixed_start_given_whole_replaces_a_sampled_one():
+    """``initial`` given as a mapping with a fixed start's keys, for a config whose start is sampled, replaces
+    the sampled start (its keys mean nothing to a sampler); the reverse keeps working. A single key of a fixed start
+    given for a sampled one is refused with how to give the start whole."""
+    lorentz = ROOT / "configs" / "examples" / "lorentz.yaml"         # initial: {sample: billiard}
+    start = {"position": [0.5, 0.0], "velocity": [0.6, 0.8], "angular_velocity": 0.3}
+    exp = rbx.load(lorentz, {"initial": start, "run.trajectories": 1})
+    assert len(exp.initial) == 1 and exp.initial[0]["position"].tolist() == [0.5, 0.0]
+    assert exp.initial[0]["angular_velocity"] == 0.3
+    assert rbx.load(STRIP, {"initial": {"sample": "billiard"}}).to_dict()["initial"] == {"sample": "billiard"}
+    with pytest.raises(rbx.ConfigError) as info:
+        rbx.load(lorentz, {"initial.position": [0.5, 0.0]})
+    assert info.value.key == "initial.position"
+    assert "a sampled start (initial: {sample: …}) has no position; a fixed start replaces it when given whole" \
+        in info.value.problem, info.value.problem
+
+
 def test_kappa_follows_the_inertia_and_a_changed_part_is_validated(strip_inertia):
     exp = rbx.load(STRIP)
     ball = dataclasses.replace(exp.ball, inertia=0.1)

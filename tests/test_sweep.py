@@ -584,3 +584,14 @@ def test_a_study_of_copies_of_one_orbit_is_warned_about(tmp_path):
     (tmp_path / "sampled.yaml").write_text(yaml.safe_dump(study))
     res = rbx_cli("sweep", "sampled.yaml", "-o", "sampled.nc", "--quiet", cwd=tmp_path)
     assert res.returncode == 0 and res.stderr == "", res.stderr
+
+
+def test_a_studys_set_can_give_a_fixed_start_for_a_sampled_one():
+    """A study's ``set: {initial: {position: …, velocity: …}}`` on a base whose start is sampled replaces that
+    start (it was merged into {sample: billiard} and refused as an unknown key)."""
+    study = {"base": str(ROOT / "configs" / "examples" / "lorentz.yaml"),
+             "set": {"initial": {"position": [0.5, 0.0], "velocity": [0.6, 0.8], "angular_velocity": 0.3}},
+             "vary": {"ball.inertia": [0.2, 0.5]}, "measure": ["mean_free_path"],
+             "ensemble": {"trajectories": 1, "collisions": 10, "seed": 1}}
+    st = load_study(study)
+    assert st.fixed["initial"]["position"] == [0.5, 0.0]
