@@ -92,6 +92,9 @@ WRITER = textwrap.dedent("""
     h5.attrs["version"] = 1
     h5.flush()
     commit(h5)
+    if len(sys.argv) > 3:                             # a copy of the file as of this commit (a backup)
+        import shutil
+        shutil.copyfile(path, sys.argv[3])
     # the second version: the partly filled chunk rewritten in place, metadata changed, a new object
     ds.resize(300, axis=1)
     ds[:, :] = 2.0
@@ -183,6 +186,33 @@ def test_a_journal_beside_another_file_is_refused_saying_what_the_file_is_withou
             _open_h5(path)
         assert words in str(info.value), info.value
         assert journal.pending(path)               # nothing applied, nothing removed
+
+
+@pytest.mark.parametrize("cut", [False, True])
+def test_a_journal_beside_the_file_as_of_the_checkpoint_before_is_refused(cut, tmp_path):
+    """A copy of the file as of the checkpoint before the journal's (a backup), with the journal beside it: each of
+    the journal's pages is as the journal found it, but the bytes its checkpoint wrote past the old end (new chunks,
+    new HDF5 objects) are not in the copy. It was applied, and the whole, resumable copy became a file whose
+    structure points into zeros. Now refused in one line saying the file is whole without it; nothing changed."""
+    path = tmp_path / "a.h5.partial"
+    backup = tmp_path / "b.h5.partial"
+    res = subprocess.run([sys.executable, "-c", WRITER, str(path), "applied", str(backup)], capture_output=True,
+                         text=True, timeout=300)
+    assert res.returncode == -9 and journal.pending(path), res.stderr
+    if not cut:          # the copy as long as the file, the bytes past its old end as the disk had them: zeros
+        with open(backup, "r+b") as fh:
+            fh.truncate(os.path.getsize(path))
+    shutil.copyfile(journal.journal_path(path), journal.journal_path(backup))
+    before = backup.read_bytes()
+    with pytest.raises(FileError, match="was written for another file") as info:
+        _open_h5(backup)
+    assert "is whole without it" in str(info.value), info.value
+    assert backup.read_bytes() == before and journal.pending(backup)
+    os.remove(journal.journal_path(backup))       # as the line says: moved away, the copy reads as it was
+    with _open_h5(backup) as f:
+        assert f.attrs["version"] == 1 and np.all(f["x"][...] == 1.0) and "g" not in f
+    with _open_h5(path) as f:                     # its own file it finishes
+        assert f.attrs["version"] == 2 and np.all(f["x"][...] == 2.0)
 
 
 @pytest.mark.parametrize("stage, words", [("applied", "is whole without it"), ("half-applied", "is torn")])
@@ -399,7 +429,7 @@ def test_a_journal_an_older_rbx_left_is_applied_to_its_own_file_only(tmp_path):
     jpath = journal.journal_path(path)
     with open(jpath, "rb") as fh:
         raw = fh.read()
-    size, count = journal.HEADER.unpack_from(raw, len(journal.MAGIC))
+    size, count = journal.HEADER.unpack_from(raw, len(journal.MAGIC))[:2]
     at = len(journal.MAGIC) + journal.HEADER.size
     numbers = raw[at:at + 8 * count]
     pages = raw[at + 12 * count:-journal.CRC.size]
