@@ -121,6 +121,11 @@ class Study:
                 return ConfigError(self.file, f"vary.{k}", exc.problem)
         for k in self.fixed:
             if key == k or key.startswith(k + "."):
+                if k in getattr(self, "given", ()):        # rbx sweep --set: named as rbx simulate names it
+                    problem = exc.problem
+                    if problem.endswith(f" (override {k})"):
+                        problem = problem[:-len(f" (override {k})")]
+                    return ConfigError(self.file, key, f"{problem} (--set {k})")
                 return ConfigError(self.file, f"set.{k}", exc.problem)
         if exc.file and self.file and os.path.abspath(exc.file) == os.path.abspath(self.file):
             return exc
@@ -144,10 +149,15 @@ def _plain(v):
 
 # ---- reading a study file ---------------------------------------------------------------------------------------
 
-def load_study(study, base=None, progress=None):
+def load_study(study, base=None, progress=None, sets=None, ensemble=None):
     """A study file (YAML) or mapping -> :class:`Study`; a mistake raises :class:`rbx.ConfigError` naming the
     file and the key (``vary.ball.inertia``, ``measure.diffusion``, …). ``progress(done, total)``: the configs of
-    its points checked so far (:func:`_check_points`; a study at its grid bound takes minutes)."""
+    its points checked so far (:func:`_check_points`; a study at its grid bound takes minutes).
+
+    ``sets``: ``{dotted config key: value}`` made to the base at every point after the study's own ``set`` (a key
+    given in both: this value), named ``--set KEY`` in errors (``rbx sweep --set``); ``ensemble``: values that
+    replace the study's ``ensemble`` entries (``{"trajectories": 4}``: ``rbx sweep --trajectories 4``). Both are
+    in the study's digest, so a resume must give them again."""
     if isinstance(study, Study):
         return study
     if isinstance(study, Mapping):
@@ -177,6 +187,9 @@ def load_study(study, base=None, progress=None):
     if isinstance(base_value, str):
         base_path = os.path.normpath(os.path.join(folder, os.path.expanduser(base_value)))
         problem = _base_problem(base_path, base_value)
+        if problem and file is None and base is None and not os.path.isabs(os.path.expanduser(base_value)):
+            problem += (f" (a mapping's relative paths are resolved from the working folder, {folder}: give base=, "
+                        "the study file or folder they are relative to, or an absolute path)")
         if problem:
             fail("base", problem)
         base_value = base_path
@@ -188,6 +201,16 @@ def load_study(study, base=None, progress=None):
     fixed = {str(k): v for k, v in fixed.items()}
     for key, value in fixed.items():
         _not_the_studys(key, value, f"set.{key}", fail)
+    sets = dict(sets or {})
+    for key, value in sets.items():
+        for reserved in ("run.trajectories", "run.collisions"):
+            if key == reserved or reserved.startswith(key + ".") and isinstance(value, Mapping) \
+                    and _holds(value, reserved[len(key) + 1:]):
+                what = reserved.split(".")[1]
+                fail(f"--set {key}", f"set at every point by the study from ensemble.{what}: give --{what}")
+        _not_the_studys(key, value, f"--set {key}", fail)
+    fixed = {**{k: v for k, v in fixed.items() if k not in sets}, **sets}
+    changed = {k: v for k, v in (ensemble or {}).items() if v is not None}
     zipped = data.get("zip", False)
     if not isinstance(zipped, bool):
         fail("zip", f"true or false, not {zipped!r}")
@@ -196,6 +219,9 @@ def load_study(study, base=None, progress=None):
         fail("vary", "a mapping of dotted config keys to lists of values or {from, to, num, scale}")
     for key in vary:
         _not_the_studys(str(key), None, f"vary.{key}", fail)
+        for given in sets:             # a --set of a varied key would be replaced at every point without a word
+            if given == str(key) or str(key).startswith(given + ".") or given.startswith(str(key) + "."):
+                fail(f"--set {given}", f"the study varies {key} (vary.{key}): a value set for it would not be used")
     _check_size(vary, zipped, fail)         # before any value is made: 10⁷ points took 4.3 GB to build
     keys, values = [], []
     for key, spec in vary.items():
@@ -209,6 +235,7 @@ def load_study(study, base=None, progress=None):
     ensemble = data["ensemble"]
     if not isinstance(ensemble, Mapping):
         fail("ensemble", "a mapping {trajectories: M, collisions: N, seed: S}")
+    ensemble = {**ensemble, **changed}
     for k in ensemble:
         if k not in ENSEMBLE_KEYS:
             fail(f"ensemble.{k}", f"unknown key (ensemble has {', '.join(ENSEMBLE_KEYS)})")
@@ -225,9 +252,15 @@ def load_study(study, base=None, progress=None):
                  "vary": {k: [_plain(x) for x in v] for k, v in zip(keys, values)}, "zip": zipped,
                  "measure": [[n, o] for n, o in measure], "ensemble": ens}
     text = json.dumps(canonical, sort_keys=True, separators=(",", ":"), default=str, ensure_ascii=False)
+    source = text if file is None else open(file, encoding="utf-8").read()
+    if file is not None and (sets or changed):
+        # the results file's copy of the study says what the command line changed (its digest covers it)
+        given = [f"--set {k}={json.dumps(v, ensure_ascii=False, default=str)}" for k, v in sets.items()]
+        given += [f"--{k} {v}" for k, v in changed.items()]
+        source = source.rstrip("\n") + "\n# changed by rbx sweep: " + " ".join(given) + "\n"
     study_obj = Study(file=file, folder=folder, base=base_value, fixed=fixed, keys=keys, values=values, zip=zipped,
                       measure=measure, ensemble=ens, text=text, digest=hashlib.sha256(text.encode()).hexdigest(),
-                      source=(text if file is None else open(file, encoding="utf-8").read()))
+                      source=source, given=tuple(sets))
     _check_points(study_obj, progress)
     return study_obj
 

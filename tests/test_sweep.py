@@ -194,7 +194,8 @@ def test_a_study_stopped_by_ctrl_c_says_what_it_kept_and_how_to_continue(tmp_pat
              "measure": ["lyapunov"], "ensemble": {"trajectories": 4, "collisions": 400000, "seed": 4}}
     (tmp_path / "study.yaml").write_text(yaml.safe_dump(study, sort_keys=False))
     partial = tmp_path / "out.nc.partial"
-    proc = subprocess.Popen([RBX, "sweep", "study.yaml", "-o", "out.nc"], cwd=tmp_path, stdout=subprocess.PIPE,
+    proc = subprocess.Popen([RBX, "sweep", "study.yaml", "-o", "out.nc", "--trajectories", "4"], cwd=tmp_path,
+                            stdout=subprocess.PIPE,
                             stderr=subprocess.PIPE, text=True)
     while not partial.exists():
         assert proc.poll() is None, proc.communicate()
@@ -207,11 +208,11 @@ def test_a_study_stopped_by_ctrl_c_says_what_it_kept_and_how_to_continue(tmp_pat
     assert 1 <= kept < 10
     assert err.splitlines() == [
         f"rbx: out.nc.partial: interrupted by SIGINT after {kept} of 10 points; the file holds those {kept}. "
-        "Continue with: rbx sweep study.yaml -o out.nc --resume"], err
-    res = rbx_cli("sweep", "study.yaml", "-o", "out.nc", "--resume", cwd=tmp_path)
+        "Continue with: rbx sweep study.yaml -o out.nc --trajectories 4 --resume"], err
+    res = rbx_cli("sweep", "study.yaml", "-o", "out.nc", "--trajectories", "4", "--resume", cwd=tmp_path)
     assert res.returncode == 0 and f"({10 - kept} run now, {kept} before)" in res.stderr, res.stderr
     # a finished study resumed has nothing to do, and says so
-    res = rbx_cli("sweep", "study.yaml", "-o", "out.nc", "--resume", cwd=tmp_path)
+    res = rbx_cli("sweep", "study.yaml", "-o", "out.nc", "--trajectories", "4", "--resume", cwd=tmp_path)
     assert res.returncode == 0 and res.stderr == "rbx: nothing to do: out.nc holds all 10 points of the study\n"
 
 
@@ -595,3 +596,42 @@ def test_a_studys_set_can_give_a_fixed_start_for_a_sampled_one():
              "ensemble": {"trajectories": 1, "collisions": 10, "seed": 1}}
     st = load_study(study)
     assert st.fixed["initial"]["position"] == [0.5, 0.0]
+
+
+def test_sweep_set_and_ensemble_options_change_every_point(tmp_path):
+    """``rbx sweep --set KEY=VALUE --trajectories M --collisions N`` shrinks or changes a shipped study without
+    copying it: the same numbers as the study with those values written in it. A --set is checked as rbx
+    simulate's is (an unknown key refused with a suggestion, in one line), and may not name a key the study sets
+    or varies itself."""
+    import xarray as xr
+    study = {"base": SINAI, "vary": {"ball.inertia": [0.3, 0.6]}, "measure": ["mean_free_path"],
+             "ensemble": {"trajectories": 500, "collisions": 100000, "seed": 2}}
+    (tmp_path / "study.yaml").write_text(yaml.safe_dump(study))
+    res = rbx_cli("sweep", "study.yaml", "-o", "out.nc", "--set", "ball.radius=0.05", "--trajectories", "3",
+                  "--collisions", "200", "--quiet", cwd=tmp_path)
+    assert res.returncode == 0 and res.stderr == "", res.stderr
+    written = dict(study, set={"ball.radius": 0.05}, ensemble={"trajectories": 3, "collisions": 200, "seed": 2})
+    with xr.open_dataset(tmp_path / "out.nc") as got:
+        assert got.attrs["ensemble_trajectories"] == 3 and got.attrs["ensemble_collisions"] == 200
+        assert "# changed by rbx sweep: --set ball.radius=0.05 --trajectories 3 --collisions 200" in got.attrs["study"]
+        same(got.load(), sweep(written))
+    for args, words in ((["--set", "ball.inertai=0.2"], "study.yaml: ball.inertai: unknown key (did you mean "
+                                                         "'ball.inertia'?) (--set ball.inertai)"),
+                        (["--set", "run.collisions=5"], "study.yaml: --set run.collisions: set at every point by the "
+                                                        "study from ensemble.collisions: give --collisions"),
+                        (["--set", "ball.inertia=0.2"], "study.yaml: --set ball.inertia: the study varies "
+                                                        "ball.inertia"),
+                        (["--trajectories", "0"], "--trajectories: 0 is not in the range x>=1")):
+        res = rbx_cli("sweep", "study.yaml", "-o", "bad.nc", *args, cwd=tmp_path)
+        assert res.returncode == 2 and res.stderr.count("\n") == 1 and words in res.stderr, (args, res.stderr)
+        assert not (tmp_path / "bad.nc").exists()
+
+
+def test_a_mapping_study_says_where_its_relative_base_is_resolved_from(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    study = {"base": "../examples/circle.yaml", "vary": {"ball.inertia": [0.2]}, "measure": ["mean_free_path"],
+             "ensemble": {"trajectories": 2, "collisions": 10}}
+    with pytest.raises(rbx.ConfigError) as info:
+        rbx.sweep(study)
+    assert info.value.key == "base"
+    assert "a mapping's relative paths are resolved from the working folder" in str(info.value), str(info.value)

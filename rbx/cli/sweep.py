@@ -7,7 +7,7 @@ import warnings
 import click
 
 from .common import (Command, Progress, UserError, display_path, duration, ending_on_signals, hard_exit,
-                     pending_signal, plural, quiet_option, report_and_exit, summary, user_errors)
+                     parse_sets, pending_signal, plural, quiet_option, report_and_exit, summary, user_errors)
 
 
 @click.command(cls=Command)
@@ -20,9 +20,16 @@ from .common import (Command, Progress, UserError, display_path, duration, endin
 @click.option("--resume", is_flag=True, help="Continue RESULTS.nc(.partial): compute only the missing points "
                                             "(refused if the study changed).")
 @click.option("--force", is_flag=True, help="Replace an existing RESULTS.nc.")
+@click.option("--trajectories", type=click.IntRange(min=1), metavar="M",
+              help="Override ensemble.trajectories (the trajectories of every point).")
+@click.option("--collisions", type=click.IntRange(min=1), metavar="N",
+              help="Override ensemble.collisions (the collisions of every trajectory).")
+@click.option("--set", "sets", multiple=True, metavar="KEY=VALUE",
+              help="Change a config key of the study's base at every point, after the study's own set: (VALUE in "
+                   "YAML; repeatable): --set ball.radius=0.05. Give it again with --resume.")
 @quiet_option
 @click.option("--debug", is_flag=True, help="Show a traceback with user errors.")
-def sweep(study, output, scheduler, resume, force, quiet, debug):
+def sweep(study, output, scheduler, resume, force, trajectories, collisions, sets, quiet, debug):
     """Run the study STUDY.yaml: the observables of `measure` at every point of `vary`, an ensemble per point,
     with standard errors, into RESULTS.nc (xarray.open_dataset reads it)."""
     from ..api import StopFlag
@@ -49,9 +56,10 @@ def sweep(study, output, scheduler, resume, force, quiet, debug):
     try:
         if resume and force:
             raise UserError(None, "--resume", "give --resume or --force, not both")
+        changes = {"sets": parse_sets(sets), "ensemble": {"trajectories": trajectories, "collisions": collisions}}
         with ending_on_signals(stop):
             try:
-                ds = _sweep(study, output, scheduler, resume, force, progress, checking)
+                ds = _sweep(study, output, scheduler, resume, force, progress, checking, changes)
             except StudyInterrupted as exc:
                 stop.running = True     # a second signal now only notes itself: the line below is printed
                 interrupted = exc
@@ -67,7 +75,10 @@ def sweep(study, output, scheduler, resume, force, quiet, debug):
         report_and_exit(exc, debug)
     bar.close()
     if interrupted is not None:
-        _interrupted(interrupted, stop.signum or signal.SIGINT, study)
+        again = [a for item in sets for a in ("--set", item)]
+        again += [a for flag, v in (("--trajectories", trajectories), ("--collisions", collisions)) if v is not None
+                  for a in (flag, str(v))]
+        _interrupted(interrupted, stop.signum or signal.SIGINT, study, again)
     points = int(ds["done"].size)
     if not counts or counts[0][0] == counts[0][1]:
         summary(quiet, f"nothing to do: {display_path(output)} holds all {plural(points, 'point')} of the study")
@@ -92,7 +103,7 @@ def _kept(output):
     return None
 
 
-def _interrupted(exc, signum, study):
+def _interrupted(exc, signum, study, again=()):
     """The line of a study stopped by a signal: what its results file keeps and how to continue; exit 128 + signum."""
     name = signal.Signals(signum).name
     if exc.path is None or exc.kept == 0:
@@ -104,7 +115,7 @@ def _interrupted(exc, signum, study):
         click.echo(f"rbx: {display_path(exc.path)}: interrupted by {name} after {exc.kept} of "
                    f"{plural(exc.total, 'point')}; the file holds those {exc.kept}. Continue with: "
                    f"rbx sweep {shlex.quote(study)} -o {shlex.quote(display_path(exc.path[:-len('.partial')]))} "
-                   "--resume", err=True)
+                   + "".join(f"{shlex.quote(a)} " for a in again) + "--resume", err=True)
     hard_exit(128 + int(signum))
 
 
@@ -112,7 +123,7 @@ def _interrupted(exc, signum, study):
 LONG_CHECK = 10_000
 
 
-def _sweep(study, output, scheduler, resume, force, progress, checking=None):
+def _sweep(study, output, scheduler, resume, force, progress, checking=None, changes=None):
     from ..cluster import ClusterError, SchedulerUnreachable
     from ..paths import DiskFull
     from ..study import load_study
@@ -121,7 +132,7 @@ def _sweep(study, output, scheduler, resume, force, progress, checking=None):
         try:
             with warnings.catch_warnings(record=True) as said:      # one line each, as the other commands say them
                 warnings.simplefilter("always", RuntimeWarning)
-                st = load_study(study, progress=checking)
+                st = load_study(study, progress=checking, **(changes or {}))
             for w in said:
                 click.echo(f"rbx: warning: {w.message}", err=True)
             return run(st, output, scheduler=scheduler, resume=resume, force=force, progress=progress)
