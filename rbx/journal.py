@@ -344,7 +344,7 @@ class JournaledFile:
         self.path = str(path)
 
 
-def _lock(fd):
+def _lock(fd, shared=False):
     """Lock the file as HDF5 locks a file it writes (``flock``, exclusive), so that HDF5 refuses to open it for
     reading meanwhile, as it did before rbx wrote through a file object (h5py's fileobj driver takes no lock):
     ``rbx.runfile._open_h5`` then says which run writes it. Not where HDF5 would not lock either
@@ -354,7 +354,7 @@ def _lock(fd):
     if os.environ.get("HDF5_USE_FILE_LOCKING", "").upper() in ("FALSE", "0"):
         return
     try:
-        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        fcntl.flock(fd, (fcntl.LOCK_SH if shared else fcntl.LOCK_EX) | fcntl.LOCK_NB)
     except OSError as exc:
         if exc.errno in (errno.EWOULDBLOCK, errno.EAGAIN, errno.EACCES):
             raise OSError(exc.errno, "the file is open in another program (an HDF5 lock is held on it)") from None
@@ -604,13 +604,17 @@ def recover(path, journal=None):
 
 class JournalView(JournaledFile):
     """A file with its pending journal applied in memory, for reading where the file cannot be written (a
-    read-only file system): ``h5py.File(JournalView(path), "r")``. JournalError as :func:`recover`."""
+    read-only file system) or its run's lock cannot be taken to apply the journal: ``h5py.File(JournalView(path),
+    "r")``. JournalError as :func:`recover`. ``shared``: the file locked for reading (``flock``, shared) as long
+    as the view is open, as HDF5 locks a file it reads: OSError where a writer has it open."""
 
-    def __init__(self, path):
+    def __init__(self, path, shared=False):
         self.path = str(path)
         j = _read_checked(journal_path(self.path), self.path)
         self.fd = os.open(self.path, os.O_RDONLY)
         try:
+            if shared:
+                _lock(self.fd, shared=True)
             if j is not None:
                 _check_file(self.fd, j)
             pages = dict(j.pages) if j is not None else {}

@@ -692,17 +692,10 @@ def _open_h5(path, mode="r"):
     what = what_it_is(os.path.realpath(path))
     if what != "a regular file":       # a FIFO would block the read for ever; a device is no run
         raise FileError(path, None, f"is {what}, not a regular file: not an HDF5 file")
-    if journal.pending(path) and lock_holder(path) is None:
-        # its run was killed inside a commit: finish it (the journal is whole, or it would not be there)
-        try:
-            journal.recover(path)
-        except journal.JournalError as exc:
-            raise FileError(journal.journal_path(path), None, str(exc)) from None
-        except OSError as exc:
-            if mode == "r":       # the file cannot be written (a read-only file system): read it as finished
-                return _open_view(path)
-            raise FileError(path, None, "its run was killed while saving a checkpoint, and finishing that needs "
-                                        f"to write the file: {exc.strerror or exc}") from None
+    if journal.pending(path):
+        view = _finish_journal(path, mode)
+        if view is not None:
+            return view
     if journal.torn(path):
         holder = lock_holder(path)
         if holder is not None:      # a live run copying a checkpoint in: its file is locked meanwhile
@@ -733,11 +726,44 @@ def _open_h5(path, mode="r"):
                                     f"{_first_line(exc)}") from None
 
 
-def _open_view(path):
+def _finish_journal(path, mode):
+    """Apply the pending journal of ``path`` (its run was killed inside a commit, after the commit point) under the
+    run's lock, so that no resume writes the file meanwhile: a reader that copied the journal's pages in without it
+    wrote an older checkpoint's pages over the file a resume had finished in the meantime -> None, or the file
+    opened for reading with its journal applied in memory (:func:`_open_view`) where the lock cannot be taken (a
+    live run holds it, a read-only folder) or the file cannot be written."""
+    try:
+        acquire_lock(path, warn=lambda message: None)    # a killed run's stale lock: taken over without a word
+    except (FileError, OSError) as exc:      # a live run holds it, a read-only folder, no room for the lock
+        if mode != "r":
+            raise
+        holder = lock_holder(path)
+        try:
+            return _open_view(path, shared=True)
+        except FileError:
+            if holder is not None:      # a live run: it finishes the journal itself, and names itself
+                raise _busy(path, holder) from None
+            raise exc from None
+    try:
+        if journal.pending(path):       # looked at again under the lock: a resume may have applied it meanwhile
+            journal.recover(path)
+    except journal.JournalError as exc:
+        raise FileError(journal.journal_path(path), None, str(exc)) from None
+    except OSError as exc:
+        if mode == "r":       # the file cannot be written (a read-only file system): read it as finished
+            return _open_view(path)
+        raise FileError(path, None, "its run was killed while saving a checkpoint, and finishing that needs "
+                                    f"to write the file: {exc.strerror or exc}") from None
+    finally:
+        release_lock(path)
+    return None
+
+
+def _open_view(path, shared=False):
     """Open for reading a file whose pending journal cannot be copied into it: applied in memory
     (:class:`rbx.journal.JournalView`) -> ``h5py.File``."""
     try:
-        view = journal.JournalView(path)
+        view = journal.JournalView(path, shared=shared)
     except journal.JournalError as exc:
         raise FileError(journal.journal_path(path), None, str(exc)) from None
     except OSError as exc:
