@@ -57,24 +57,31 @@ def free_space(path):
         return None
 
 
-def check_size(cfg, path, key_file=None, written=0, option="max_size=", hint=""):
+def returns_bytes(cfg):
+    """Bytes the file of a return-angle experiment (``rbx histogram``) takes, at most: per sample its angle, its
+    trajectory, its collisions and its initial angle (:func:`rbx.runfile.fill_returns`), and HDF5's metadata."""
+    return 32 * cfg.run.trajectories + METADATA_BYTES
+
+
+def check_size(cfg, path, key_file=None, written=0, option="max_size=", hint="", need=None, what=None):
     """Refuse a run whose file would be larger than ``output.max_size`` or than the free space where it goes:
     raises :class:`FileError` before anything is written. ``key_file``: (file, key) the limit is named by;
     ``written``: bytes of the file already on that disk (a run resumed in place: only the rest must fit);
     ``option``: how the caller raises the limit (``max_size=`` in Python, ``--max-size`` on the command line);
-    ``hint``: what to do when the disk is short, added to that line."""
-    need = estimated_size(cfg)
+    ``hint``: what to do when the disk is short, added to that line. ``need`` and ``what``: the file's size and
+    what it holds, for a file that is not a run's records (default: :func:`estimated_size` and the records)."""
     # compression: the size before it (what it saves depends on the numbers, unknown before the run)
-    raw = "" if cfg.output.compression == "none" else " before compression"
+    raw = "" if cfg.output.compression == "none" or need is not None else " before compression"
+    if need is None:
+        need = estimated_size(cfg)
+        what = (f"{plural(cfg.run.trajectories, 'trajectory')} × "
+                f"{plural(cfg.run.collisions // cfg.output.every + 1, 'record')} of {', '.join(cfg.output.record)}")
     if need > cfg.output.max_size:
         file, key = key_file or (cfg.source, "output.max_size")
         how = f"give a larger {option}" if key in ("--max-size", "max_size") else \
             f"raise output.max_size or give {option}"
-        raise FileError(file, key, f"the run would write about {format_size(need)}{raw} "
-                                   f"({plural(cfg.run.trajectories, 'trajectory')} × "
-                                   f"{plural(cfg.run.collisions // cfg.output.every + 1, 'record')} of "
-                                   f"{', '.join(cfg.output.record)}), more than the limit "
-                                   f"{format_size(cfg.output.max_size)}; {how} if that is meant")
+        raise FileError(file, key, f"the run would write about {format_size(need)}{raw} ({what}), more than the "
+                                   f"limit {format_size(cfg.output.max_size)}; {how} if that is meant")
     free = free_space(path)
     if free is None:
         return
@@ -144,7 +151,7 @@ def forget_second_name(tmp, path):
     return True
 
 
-def create(path, force=False):
+def create(path, force=False, force_hint="force=True"):
     """Open a new file for a new run (folders made as needed) -> ``h5py.File`` at :func:`creation_path`
     (``OUT.h5.partial.new``), which :func:`stream` renames to ``OUT.h5.partial`` once the run's structure is
     written and on disk (:func:`publish_new`). OSError if it cannot.
@@ -154,7 +161,8 @@ def create(path, force=False):
     of two runs started on one output, the second fails here instead of both writing one file. With ``force`` a
     leftover ``.partial`` is removed first (never one a live run holds the lock of). A leftover ``.partial.new``
     is removed when no run holds the lock (a killed run's: it holds no records); the ``.partial.new`` of a run
-    of this same process (which holds the lock already) is created exclusively, so the second fails."""
+    of this same process (which holds the lock already) is created exclusively, so the second fails.
+    ``force_hint``: how the caller forces (``--force``, ``force=True``), in the words of a refusal."""
     os.makedirs(os.path.dirname(os.path.abspath(path)) or ".", exist_ok=True)
     tmp, new = temporary_path(path), creation_path(path)
     lock = acquire_lock(path)   # first: --force must not remove the .partial of a run still writing it
@@ -174,7 +182,7 @@ def create(path, force=False):
                 release_lock(path)
                 raise FileError(orphan, None, f"the journal of a killed run's {display_path(tmp)}, which is not "
                                               "here (moved away?): it is what finishes that file; put it back "
-                                              "beside the file, or remove it (or use --force) to start this run")
+                                              f"beside the file, or remove it (or use {force_hint}) to start this run")
             journal.discard(tmp)
         return open_journaled(new, create=True)
     except (FileExistsError, OSError) as exc:
@@ -182,7 +190,7 @@ def create(path, force=False):
         for busy in (tmp, new):
             if os.path.exists(busy):
                 raise FileError(busy, None, "exists: another run is writing it (or was killed); remove it or use "
-                                            "--force") from None
+                                            f"{force_hint}") from None
         raise exc
     except BaseException:
         release_lock(path)
@@ -236,8 +244,23 @@ def _fsync_folder(path):
             os.close(fd)
 
 
-def stream(sim, h5, tmp, path, *, fresh=True, progress=None, should_stop=None, write_initial=None, report=None,
-           replace=False):
+def stream(sim, h5, tmp, path, **options):
+    """:func:`_stream`, a disk that filled while HDF5 or the journal wrote (another program took the room) said as
+    such (:class:`DiskFull`), not as a bare ``No space left on device``: the file is at its last checkpoint."""
+    try:
+        return _stream(sim, h5, tmp, path, **options)
+    except DiskFull:
+        raise
+    except OSError as exc:
+        if exc.errno == errno.EFBIG:
+            raise DiskFull("the file is not allowed to grow (a file size limit, ulimit -f?) while writing") from None
+        if exc.errno in NO_ROOM:
+            raise DiskFull(f"the disk is full ({exc.strerror}) while writing") from None
+        raise
+
+
+def _stream(sim, h5, tmp, path, *, fresh=True, progress=None, should_stop=None, write_initial=None, report=None,
+            replace=False):
     """Run ``sim`` into the open file ``h5`` (at ``tmp``, or made by :func:`create` and renamed to ``tmp`` once
     its structure is written: :func:`publish_new`), mark it complete or not, close it and rename it to ``path``
     -> True if the run finished (False: ``should_stop()`` said stop). The config stored in the file names
@@ -363,15 +386,18 @@ def publish(tmp, path, complete, replace, report):
 
 
 
-def write_returns(path, cfg, result):
+def write_returns(path, cfg, result, force_hint="--force"):
     """Write a return-angle experiment (:class:`rbx.histogram.Returns`) to a new HDF5 file (via ``path.partial``,
     renamed at the end).
 
     Root attributes :data:`rbx.runfile.ROOT_ATTRS`; group ``returns/``: ``angle`` (K,) return angles [rad],
     ``trajectory`` (K,) their trajectory indices, ``collisions`` (K,) collisions to return, ``initial_angle`` (M,)
     sampled angles; attributes :data:`rbx.runfile.RETURNS_ATTRS` (:func:`rbx.runfile.fill_returns`)."""
+    new = creation_path(path)
+    made = False
     try:
-        h5 = create(path)
+        h5 = create(path, force_hint=force_hint)
+        made = True
         try:
             with h5:
                 fill_returns(h5, cfg, result, path)
@@ -380,21 +406,27 @@ def write_returns(path, cfg, result):
         if failure is not None:
             raise failure
         check_replaceable(path)
-        os.replace(creation_path(path), path)
+        os.replace(new, path)
+    except BaseException:
+        if made:       # a file left half written (a full disk) holds nothing worth keeping, and takes the room
+            with contextlib.suppress(OSError):
+                os.remove(new)
+            journal.discard(new)
+        raise
     finally:
         release_lock(path)
 
 
 # ---- a new run ----------------------------------------------------------------------------------------------------
 
-def run_to_file(sim, path, *, progress=None, should_stop=None, report=None, force=False):
+def run_to_file(sim, path, *, progress=None, should_stop=None, report=None, force=False, force_hint="force=True"):
     """Run a new ``sim`` into ``path`` through ``path.partial`` -> True if it finished (see :func:`stream`;
     ``force``: replace an existing ``path``). Raises :class:`FileError` if the file cannot be created,
     :class:`DiskFull` if there is no room for it, OSError if writing fails midway (the file then holds what was
     written, ``complete = False``)."""
     tmp = temporary_path(path)
     try:
-        h5 = create(path, force=force)
+        h5 = create(path, force=force, force_hint=force_hint)
     except DiskFull:
         raise
     except OSError as exc:

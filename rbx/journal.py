@@ -39,6 +39,7 @@ It guards against a process being killed, not against the machine losing power: 
 the disk).
 """
 import contextlib
+import errno
 import math
 import os
 import struct
@@ -305,11 +306,15 @@ class JournaledFile:
         tmp = f"{final}.tmp"
         try:
             _write_all(self.fd, [mark], mark_at)
-            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o666)
             try:
-                _write_all(fd, parts, 0)
-            finally:
-                os.close(fd)
+                _write_journal(tmp, parts)
+            except OSError as exc:
+                if exc.errno not in (errno.ENOSPC, errno.EDQUOT) or os.fstat(self.fd).st_size <= mark_at + len(mark):
+                    raise
+                # no room for the journal: give back the room reserved in the file past HDF5's end for writes that
+                # went elsewhere (chunks put in room freed inside the file), and try once more
+                os.ftruncate(self.fd, mark_at + len(mark))
+                _write_journal(tmp, parts)
             os.replace(tmp, final)           # the commit point
         except OSError as exc:               # not committed: the file is as it was
             self.failure = self.failure or exc
@@ -335,6 +340,12 @@ class JournaledFile:
                 self.commit()
                 if os.fstat(self.fd).st_size > self.size:
                     os.ftruncate(self.fd, self.size)
+            elif not os.path.exists(journal_path(self.path)):
+                # the file stays at its last commit: what lies past it (writes never committed, room reserved for
+                # them) is given back, or every later attempt found that much less room on a small disk
+                with contextlib.suppress(OSError):
+                    if os.fstat(self.fd).st_size > self.committed:
+                        os.ftruncate(self.fd, self.committed)
         finally:
             os.close(self.fd)
             self.fd = None
@@ -344,12 +355,19 @@ class JournaledFile:
         self.path = str(path)
 
 
+def _write_journal(tmp, parts):
+    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o666)
+    try:
+        _write_all(fd, parts, 0)
+    finally:
+        os.close(fd)
+
+
 def _lock(fd, shared=False):
     """Lock the file as HDF5 locks a file it writes (``flock``, exclusive), so that HDF5 refuses to open it for
     reading meanwhile, as it did before rbx wrote through a file object (h5py's fileobj driver takes no lock):
     ``rbx.runfile._open_h5`` then says which run writes it. Not where HDF5 would not lock either
     (``HDF5_USE_FILE_LOCKING=FALSE``), nor where the file system has no locks."""
-    import errno
     import fcntl
     if os.environ.get("HDF5_USE_FILE_LOCKING", "").upper() in ("FALSE", "0"):
         return

@@ -314,8 +314,9 @@ class H5Sink:
         #: records in the file at its last commit: a chunk holding one of them lies below the commit, and a block
         #: that adds records to it goes through the journal (rbx.journal); chunks made since are written in place
         self._committed_records = 0 if fresh else int(self.g["step"].shape[0])
-        #: bytes the next commit's journal holds, about: the pages of committed chunks the blocks since changed
-        self._journal_due = 0
+        #: bytes of new chunks the blocks since the last commit may have put in room freed inside the file (a
+        #: resume cuts records back): written through the journal, not past the file's end (:meth:`_inside`)
+        self._inside_due = 0
         self._slot = self._count_pages = None      # read once: :meth:`_next_slot`, :meth:`_count_bytes`
         #: room was reserved in the file beyond HDF5's end (:meth:`_reserve`): :func:`trim` the file once closed
         self.reserved = False
@@ -326,10 +327,11 @@ class H5Sink:
         g = self.g
         b = next(iter(block.values())).shape[1]
         start = g["step"].shape[0]
-        new, rewritten = self._block_room(start, b)
+        new = self._block_room(start, b)[0]
+        inside = self._inside(new)
+        due = self._journal_due(start + b) + self._inside_due + inside
         free = self._free()
-        if b > 1 and not self._fits(new, self._journal_due + rewritten + self._count_bytes(), self._next_slot()[1],
-                                    free):
+        if b > 1 and not self._fits(new - inside, due, self._next_slot()[1], free):
             # its records would go into chunks committed before (the first block of a resume adds the rest of the
             # run to them), and the journal of that is more than the disk has room for: in halves, each committed
             # before the next, so that one journal at a time takes room. A commit without a checkpoint leaves
@@ -339,11 +341,11 @@ class H5Sink:
             self.write({f: a[:, :h] for f, a in block.items()}, np.minimum(nrec, h))
             self.h5.flush()
             commit(self.h5)
-            self._committed_records, self._journal_due = int(g["step"].shape[0]), 0
+            self._committed_records, self._inside_due = int(g["step"].shape[0]), 0
             self.write({f: a[:, h:] for f, a in block.items()}, np.maximum(np.asarray(nrec) - h, 0))
             return
-        self._journal_due += rewritten + self._count_bytes()
-        self._check_space(new, self._journal_due, self._next_slot()[1], free)
+        self._check_space(new - inside, due, self._next_slot()[1], free)
+        self._inside_due += inside
         for f, arr in block.items():
             ds = g[f]
             ds.resize(start + b, axis=1)
@@ -352,6 +354,26 @@ class H5Sink:
         g["step"][start:] = np.arange(start, start + b) * self.every
         _extend_record_scale(g)
         g["count"][...] = g["count"][...] + nrec
+
+    def _journal_due(self, end):
+        """Bytes the next commit's journal holds once the records up to ``end`` are written, about: the pages of
+        the committed chunks that the records since the last commit change (each page once, however many blocks
+        change it: summed per block, a checkpoint of several small blocks asked for the whole file) and ``count``'s
+        pages."""
+        since = self._committed_records
+        return (self._block_room(since, end - since)[1] if end > since else 0) + self._count_bytes()
+
+    def _inside(self, new):
+        """Of ``new`` bytes of new chunks, those HDF5 may put in room freed inside the file (the records a resume
+        cut back): written below the last commit, so through the journal, and not past the file's end. A resume
+        of a run interrupted at its first checkpoint reserved 1.2 MB past the end for chunks that went inside, and
+        found no room for their journal."""
+        if not new:
+            return 0
+        try:
+            return min(new, int(self.h5.id.get_freespace()))
+        except Exception:    # noqa: BLE001 - another file driver: none known
+            return 0
 
     def _count_bytes(self):
         """Bytes of ``count`` (rewritten with each block, in place) in whole pages."""
@@ -492,7 +514,7 @@ class H5Sink:
         newest = max(slots, key=slots.get) if max(slots.values()) >= 0 else None
         target = next(name for name in ("final_previous", "final", "final_swap") if name != newest)
         self._slot = None             # the next checkpoint writes the other slot
-        self._check_space(0, self._journal_due, target in self.h5)
+        self._check_space(0, self._journal_due(int(self.g["step"].shape[0])) + self._inside_due, target in self.h5)
         fin = self.h5.require_group(target)
         state = sim.final_state()
         for k, v in state.items():
@@ -511,7 +533,7 @@ class H5Sink:
         fin.attrs["digest"] = state_digest(state)     # last: until it is written the group does not verify
         self.h5.flush()
         commit(self.h5)      # the file changes here, all at once: a kill before leaves the last checkpoint's
-        self._committed_records, self._journal_due = int(self.g["step"].shape[0]), 0
+        self._committed_records, self._inside_due = int(self.g["step"].shape[0]), 0
 
     def settle(self, complete=False):
         """Name the newest saved state ``final`` (and the other ``final_previous``), once the run stops writing
@@ -686,6 +708,14 @@ def _open_h5(path, mode="r"):
     """Open an existing HDF5 file -> ``h5py.File``, or raise :class:`FileError` saying why not."""
     path = str(path)
     if not os.path.exists(path):
+        partial = f"{path}.partial"
+        if not path.endswith(".partial") and os.path.isfile(partial):
+            # a run stopped or killed before it was renamed to its output (a resume in place renames OUT.h5 to its
+            # .partial while it runs): the records are there
+            show = display_path(partial)
+            raise FileError(path, None, f"file not found, but {show} holds its run, stopped or killed before it was "
+                                        f"renamed: read {show}, or continue it with rbx simulate --resume "
+                                        f"{display_path(path)}")
         raise FileError(path, None, "file not found")
     if os.path.isdir(path):
         raise FileError(path, None, "is a directory, not an HDF5 file")

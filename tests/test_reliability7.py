@@ -74,3 +74,120 @@ def test_a_reader_finishing_a_journal_holds_the_run_lock_so_a_resume_cannot_fini
         rbx.resume(tmp_path / "o.h5").close()
     assert_same_records(read_run(tmp_path / "o.h5"), reference)
     assert not resumed, "the resume ran while the reader copied its journal in"
+
+
+# ---- a run that fits a small disk finishes there -------------------------------------------------------------------
+
+#: the command line with small blocks and a checkpoint after each, stopping itself by SIGTERM after its first commit
+#: (the file's structure and first block: a run interrupted at its first checkpoint)
+STOP_AT_FIRST_COMMIT = """
+import os, signal, sys
+import rbx.simulation as s, rbx.journal as j
+s.BLOCK_WORK = 500
+s.CHECKPOINT_SECONDS = 0
+real = j.JournaledFile.commit
+def commit(self):
+    done = real(self)
+    os.kill(os.getpid(), signal.SIGTERM)
+    return done
+j.JournaledFile.commit = commit
+from rbx.cli.main import main
+sys.argv[0] = "rbx"
+main()
+"""
+
+
+def _small_disk_reference(tmp_path):
+    cfg = strip_random(20_000, trajectories=3, every=3)          # its file takes 1.8 MB
+    write_config(tmp_path, cfg)
+    rbx.simulate(str(tmp_path / "exp.yaml"), output=str(tmp_path / "ref.h5")).close()
+    return cfg, read_run(tmp_path / "ref.h5")
+
+
+def test_a_run_interrupted_at_its_first_checkpoint_on_a_small_disk_is_finished_there(tmp_path):
+    """On a 3 MB disk a run interrupted at its first checkpoint (1.23 MB): every resume in place failed with
+    'writing failed: No space left on device', and left the file 1.46 MB longer. The resume cut the records back,
+    HDF5 put the new chunks in the room that freed inside the file (so through the journal), while the room was
+    reserved past the file's end: none was left for the journal. Now such chunks are counted as journal, and the
+    room reserved and not used is given back; the resume finishes bit for bit."""
+    from tests.test_reliability3 import tmpfs
+    cfg, reference = _small_disk_reference(tmp_path)
+    with tmpfs(tmp_path / "disk", "3m") as disk:
+        write_config(disk, cfg)
+        stopped = subprocess.run([sys.executable, "-c", STOP_AT_FIRST_COMMIT, "simulate", "exp.yaml", "-o", "o.h5",
+                                  "--quiet"], cwd=disk, capture_output=True, text=True, timeout=900)
+        assert stopped.returncode == 143 and "interrupted by SIGTERM after 0 of" in stopped.stderr, stopped.stderr
+        rbx.resume(disk / "o.h5").close()
+        assert_same_records(read_run(disk / "o.h5"), reference)
+        assert sorted(p.name for p in disk.iterdir()) == ["exp.yaml", "o.h5"]
+
+
+def test_a_run_whose_checkpoints_span_many_blocks_finishes_on_a_small_disk(tmp_path, monkeypatch):
+    """On a 3 MB disk a run of 1.8 MB with small blocks and a checkpoint only at its end stopped 'the disk is
+    full … the checkpoint's journal 1.81 MB': the journal a block asks room for summed each block's pages, though
+    the journal keeps a page once. Now it is counted over the records since the last commit; the run finishes."""
+    import rbx.simulation as simulation
+    from tests.test_reliability3 import tmpfs
+    cfg, reference = _small_disk_reference(tmp_path)
+    monkeypatch.setattr(simulation, "BLOCK_WORK", 500)
+    monkeypatch.setattr(simulation, "CHECKPOINT_SECONDS", 1e9)     # no checkpoint before the end
+    with tmpfs(tmp_path / "disk", "3m") as disk:
+        write_config(disk, cfg)
+        rbx.simulate(str(disk / "exp.yaml"), output=str(disk / "o.h5")).close()
+        assert_same_records(read_run(disk / "o.h5"), reference)
+
+
+# ---- rbx histogram keeps the limits every run keeps ------------------------------------------------------------------
+
+def test_histogram_keeps_the_size_limit_and_a_write_that_finds_no_room_leaves_nothing(tmp_path):
+    """`rbx histogram` wrote its return angles with neither output.max_size nor the free space checked (10 kB
+    given, 9.6 MB written), and a write that met a full disk left its `.partial.new` filling the disk. The size is
+    now checked before the samples are drawn, in one line, exit 2; a write that finds no room (a file size limit
+    here, which no check sees) is one line, exit 1, nothing left behind."""
+    import resource
+    import signal
+    from tests.test_first_contact import histogram_config
+    from tests.test_reliability3 import one_line, rbx_cli
+    conf = histogram_config(tmp_path)
+    res = rbx_cli("histogram", conf, "-o", "h.png", "--set", "output.max_size=10kB", cwd=tmp_path)
+    line = one_line(res)
+    assert res.returncode == 2 and line.startswith("rbx: h.yaml: output.max_size: the run would write about"), line
+    assert "more than the limit 10 kB" in line, line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["h.yaml"]
+
+    def limited():
+        signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+        resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))
+    res = rbx_cli("histogram", conf, "-o", "h.png", cwd=tmp_path, preexec_fn=limited)
+    line = one_line(res)
+    assert res.returncode == 1 and line.startswith("rbx: returns.h5: cannot write: File too large"), line
+    assert "nothing was saved" in line, line
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["h.yaml"]
+
+
+def test_the_refusal_of_a_journal_left_without_its_file_names_the_callers_way_to_force(tmp_path):
+    """A killed run's journal whose `.partial` was moved away: `rbx.simulate(…)` was told to 'use --force', an
+    option it does not have; its refusals say `force=True`, the command line's `--force`."""
+    from tests.test_reliability3 import one_line, rbx_cli
+    write_config(tmp_path, strip_random(300, trajectories=2, every=1, record=("time",)))
+    (tmp_path / "o.h5.partial.journal").write_bytes(b"rbx journal 3\n")
+    with pytest.raises(rbx.FileError, match="is not here") as info:
+        rbx.simulate(str(tmp_path / "exp.yaml"), output=str(tmp_path / "o.h5"))
+    assert "force=True" in str(info.value) and "--force" not in str(info.value), info.value
+    line = one_line(rbx_cli("simulate", "exp.yaml", "-o", "o.h5", cwd=tmp_path))
+    assert "--force" in line and "force=True" not in line, line
+    assert (tmp_path / "o.h5.partial.journal").exists() and not (tmp_path / "o.h5").exists()
+
+
+def test_reading_an_output_whose_run_lies_in_its_partial_names_the_partial(tmp_path):
+    """A resume in place renames OUT.h5 to OUT.h5.partial while it runs; killed, it leaves no OUT.h5, and every
+    reader said only 'file not found'. The line now names the `.partial` and how to continue."""
+    from tests.test_reliability3 import one_line, rbx_cli
+    write_config(tmp_path, strip_random(300, trajectories=2, every=1, record=("time",)))
+    rbx.simulate(str(tmp_path / "exp.yaml"), output=str(tmp_path / "o.h5")).close()
+    os.rename(tmp_path / "o.h5", tmp_path / "o.h5.partial")
+    with pytest.raises(rbx.FileError, match="o.h5.partial holds its run") as info:
+        rbx.open(tmp_path / "o.h5")
+    assert "rbx simulate --resume" in str(info.value), info.value
+    line = one_line(rbx_cli("plot", "o.h5", "--kind", "orbit", "-o", "x.png", cwd=tmp_path))
+    assert line.startswith("rbx: o.h5: file not found, but o.h5.partial holds its run"), line

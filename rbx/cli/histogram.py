@@ -101,7 +101,8 @@ def _histogram(config, out, data, trajectories, seed, sets, force, quiet, cluste
     from ..analysis import scene_title
     from ..cluster import ClusterError
     from ..histogram import return_experiment
-    from ..driver import write_returns
+    from ..driver import check_size, returns_bytes, write_returns
+    from ..paths import NO_ROOM
 
     check_cluster_options(cluster)
 
@@ -118,6 +119,10 @@ def _histogram(config, out, data, trajectories, seed, sets, force, quiet, cluste
     if fig_path == h5_path:
         raise UserError(None, "--data", f"{display_path(h5_path)} is the figure too: give the figure -o another name")
     _check_data_target(h5_path, key, force, cfg, config)
+    with user_errors():       # output.max_size and the free space, before the samples are drawn (as rbx simulate)
+        check_size(cfg, h5_path, need=returns_bytes(cfg), what=f"{plural(cfg.run.trajectories, 'sample')}' return "
+                   "angles", option="--set output.max_size=", hint="; free some space, or write the return angles "
+                   "to another disk with --data")
     if os.path.exists(fig_path) and not force:
         raise UserError(fig_path, None, "exists; use --force to overwrite it")
 
@@ -135,6 +140,10 @@ def _histogram(config, out, data, trajectories, seed, sets, force, quiet, cluste
     try:
         write_returns(h5_path, cfg, result)
     except OSError as exc:
+        if exc.errno in NO_ROOM:     # not the user's input: the disk filled meanwhile (or a size limit), exit 1
+            click.echo(f"rbx: {display_path(h5_path)}: cannot write: {exc.strerror}: no room on the disk (or a size "
+                       "limit, ulimit -f?); nothing was saved", err=True)
+            raise SystemExit(1) from None
         raise UserError(h5_path, None, f"cannot write: {exc.strerror or exc}") from None
 
     names = cfg.wall_names

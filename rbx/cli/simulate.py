@@ -92,7 +92,8 @@ def simulate(config, out, collisions, trajectories, seed, sets, max_size, resume
 
 def _simulate(config, out, overrides, changes, force, quiet, stop, cluster, began):
     from .. import config as cfgmod
-    from ..api import compile_kernels, run_to_file
+    from ..api import compile_kernels
+    from ..driver import run_to_file
     from ..driver import check_size, check_target
     from ..simulation import Simulation
 
@@ -124,7 +125,8 @@ def _simulate(config, out, overrides, changes, force, quiet, stop, cluster, bega
         compile_kernels(sim)
         if stop.start_running():
             raise KeyboardInterrupt
-        return _execute(sim, path, stop, quiet, 0, lambda **how: run_to_file(sim, path, force=force, **how), began)
+        return _execute(sim, path, stop, quiet, 0,
+                        lambda **how: run_to_file(sim, path, force=force, force_hint="--force", **how), began)
 
 
 def _resume(config, run_file, out, overrides, force, quiet, stop, cluster, began):
