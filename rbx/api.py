@@ -47,7 +47,7 @@ def load(config, overrides=None, *, base=None):
     ``overrides``: ``{key: value}``, each a dotted config key, made to the config before it is validated, so
     checked exactly as the YAML is (the same as ``rbx simulate --set KEY=VALUE``)::
 
-        rbx.load("strip.yaml", {"ball.inertia": 0.2, "initial.position": [0, 0.5], "run.trajectories": 10})
+        rbx.load("strip.yaml", {"ball.inertia": 0.2, "initial.position": [0, 0.5], "run.collisions": 5000})
         rbx.load(exp, overrides={"boundary.walls.top": {"rule": "exit"}})
 
     A mapping value is merged into the mapping already there (``{"ball": {"inertia": 0.2}}`` is
@@ -158,7 +158,7 @@ def simulate(experiment, *, collisions=None, trajectories=None, seed=None, outpu
         sim = Simulation(exp)
         stop = StopFlag()
         with stop.installed(), cluster_for(scheduler, "scheduler", slices, task_collisions) as sim.cluster:
-            compile_kernels(sim)
+            sim.compile_kernels()
             if stop.start_running():
                 raise KeyboardInterrupt
             run_to_file(sim, path, progress=bar, should_stop=stop, force=force,
@@ -212,7 +212,7 @@ def resume(path, *, output=None, force=False, max_size=None, progress=False, sch
     stop = StopFlag()
     try:
         with stop.installed(), cluster_for(scheduler, "scheduler", slices, task_collisions) as r.sim.cluster:
-            compile_kernels(r.sim)
+            r.sim.compile_kernels()
             if stop.start_running():
                 raise KeyboardInterrupt
             resume_to_file(r, progress=bar, should_stop=stop,
@@ -254,8 +254,8 @@ def check_target(path, force, experiment, key="output", file=None, force_hint="f
 
 
 def compile_kernels(sim):
-    """:meth:`rbx.simulation.Simulation.compile_kernels`: the kernels compiled (or loaded) while Ctrl-C can still
-    abort at once."""
+    """:meth:`rbx.simulation.Simulation.compile_kernels`, kept only for ``rbx simulate`` (rbx/cli/simulate.py), which
+    still calls it; new code calls the method."""
     sim.compile_kernels()
 
 

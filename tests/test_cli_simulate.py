@@ -176,3 +176,35 @@ def test_a_file_that_appeared_meanwhile_is_not_replaced_without_force(tmp_path):
     ours_inode = os.stat(tmp).st_ino
     runfile.publish(tmp, str(other), complete=True, replace=True, report=None)     # with --force: replaced
     assert not os.path.exists(tmp) and os.stat(other).st_ino == ours_inode
+
+
+def test_a_first_compile_is_announced_before_it_starts_and_a_warm_run_says_nothing(tmp_path):
+    """A cold kernel cache: rbx simulate says on stderr, before compiling, that it compiles (seconds of silence
+    otherwise); the next run loads the kernels and says nothing of it; --quiet says nothing either."""
+    import os as _os
+    env = {**_os.environ, "NUMBA_CACHE_DIR": str(tmp_path / "cache")}
+    example = os.path.join(ROOT, "configs", "examples", "strip.yaml")
+
+    def run(*extra):
+        return subprocess.run(RBX + ["simulate", example, "-o", str(tmp_path / "s.h5"), "--force",
+                                     "--collisions", "100", *extra], capture_output=True, text=True, timeout=300,
+                              env=env)
+    cold = run()
+    assert cold.returncode == 0, cold.stderr
+    lines = cold.stderr.splitlines()
+    assert lines[0] == "rbx: compiling kernels for this scene, once (3–15 s each; the next run loads them from the " \
+                       "cache)…", lines
+    assert "compiling" in lines[-1] and len(lines) == 2, lines
+    warm = run()
+    assert warm.returncode == 0 and "compiling" not in warm.stderr and len(warm.stderr.splitlines()) == 1
+    assert run("--quiet").stderr == ""
+
+
+def test_the_readme_gives_the_default_size_limit_as_the_refusal_does(tmp_path):
+    res = rbx("simulate", os.path.join(ROOT, "configs", "examples", "circle.yaml"), "--collisions", "1000000000",
+              "-o", str(tmp_path / "big.h5"))
+    assert res.returncode == 2, res.stderr
+    import re
+    limit = re.search(r"more than the limit ([0-9.]+ [kMGT]?B)", res.stderr).group(1)
+    readme = " ".join(open(os.path.join(ROOT, "README.md"), encoding="utf-8").read().split())
+    assert f"`output.max_size` (default {limit}" in readme, limit

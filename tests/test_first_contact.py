@@ -278,3 +278,27 @@ def test_histogram_never_replaces_the_simulation_by_default_and_data_names_its_f
     # never the config itself
     line = one_line(cli("histogram", conf, "--data", "h.yaml", "--force", cwd=tmp_path))
     assert "h.yaml is the config file itself" in line, line
+
+
+def test_lyapunov_of_copies_of_one_orbit_gives_one_orbit_and_no_interval(tmp_path):
+    """rbx lyapunov on the circle example's fixed start (a deterministic rule) with 5 trajectories: after the
+    warning, the regular share is one orbit's verdict, with no Wilson interval computed from 5 copies of it."""
+    res = cli("lyapunov", ROOT / "configs" / "examples" / "circle.yaml", "--trajectories", "5", "--collisions",
+              "2000", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert "5 copies of one orbit" in res.stderr
+    line = [x for x in res.stdout.splitlines() if x.startswith("regular orbits")]
+    assert len(line) == 1 and "one orbit, run as 5 copies: regular (own λ1 = " in line[0], res.stdout
+    assert "Wilson" not in res.stdout and "share 1.000" not in res.stdout, res.stdout
+
+
+def test_the_readmes_override_example_changes_one_orbit_without_copying_it():
+    """The README's override example was 10 copies of the strip's one orbit (a fixed start, no random rule)."""
+    import ast
+    import re
+    from rbx.config import repeated_orbits
+    text = " ".join((ROOT / "README.md").read_text().split())
+    found = re.search(r'give overrides by dotted key: `rbx\.load\("([^"]+)", (\{[^`]*\})\)`', text)
+    exp = rbx.load(ROOT / found.group(1), ast.literal_eval(found.group(2)))
+    assert repeated_orbits(exp) is None
+    assert exp.ball.inertia == 0.2

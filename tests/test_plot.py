@@ -547,6 +547,43 @@ def rbx_fails(*args):
     return lines[0]
 
 
+def test_a_figure_is_written_only_where_a_careful_user_expects(runs, tmp_path):
+    """rbx plot -o makes no folder (a typo in the folder made a new tree without a word), writes through no
+    symbolic link, and replaces a figure but no other file (a run, a config, notes named as the figure)."""
+    run = runs["lshape"]
+    missing = tmp_path / "no" / "such" / "x.png"
+    line = rbx_fails("plot", run, "--kind", "orbit", "-o", str(missing))
+    assert line == f"rbx: {missing}: the folder {missing.parent} does not exist (rbx makes no folders for a figure: " \
+                   "create it first, or give another path)", line
+    assert not (tmp_path / "no").exists()
+    notes = tmp_path / "notes.txt"
+    notes.write_text("mine\n")
+    link = tmp_path / "link.png"
+    link.symlink_to(notes)
+    line = rbx_fails("plot", run, "--kind", "orbit", "-o", str(link))
+    assert "is a symbolic link" in line and "does not write through links" in line, line
+    line = rbx_fails("plot", run, "--kind", "orbit", "-o", str(notes))
+    assert line.endswith("exists and is not a figure (not a PNG, PDF, SVG, PostScript, JPEG or TIFF file: a run, a "
+                         "config, notes?); rbx replaces only figures: give another name"), line
+    assert notes.read_text() == "mine\n"
+    # a figure is replaced, as before
+    exe = os.path.join(os.path.dirname(sys.executable), "rbx")
+    png = tmp_path / "x.png"
+    for _ in range(2):
+        r = subprocess.run([exe, "plot", run, "--kind", "orbit", "-o", str(png), "--quiet"], capture_output=True,
+                           text=True, timeout=300)
+        assert r.returncode == 0 and r.stderr == "", r.stderr
+
+
+def test_a_mistyped_kind_and_a_config_given_for_a_run_say_what_to_do(runs):
+    line = rbx_fails("plot", runs["lshape"], "--kind", "orbits")
+    assert line.endswith("; did you mean orbit?"), line
+    config = os.path.join(EXAMPLES, "circle.yaml")
+    line = rbx_fails("plot", config, "--kind", "orbit")
+    assert "circle.yaml: is a config, not a run: run it first, rbx simulate " in line, line
+    assert line.endswith("circle.yaml -o OUT.h5, then rbx plot OUT.h5 --kind orbit"), line
+
+
 def test_meaningless_selections_and_analyses_are_refused(runs, scenes):
     line = rbx_fails("plot", runs["lshape"], "--kind", "orbit", "--records", "100:50")
     assert ": --records: 100:50 selects no records" in line

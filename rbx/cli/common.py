@@ -237,8 +237,62 @@ class OneLineUsage:
         raise click.exceptions.Exit(EXIT_USER_ERROR) from None
 
 
+class Choice(click.Choice):
+    """click's Choice with a did-you-mean (``--kind orbits``: did you mean orbit?), as commands and options have."""
+
+    def convert(self, value, param, ctx):
+        try:
+            return super().convert(value, param, ctx)
+        except click.BadParameter as exc:
+            import difflib
+            close = difflib.get_close_matches(str(value), [str(c) for c in self.choices], n=1)
+            if not close:
+                raise
+            exc.message = f"{exc.message.rstrip('.')}; did you mean {close[0]}?"
+            raise exc
+
+
 class Command(OneLineUsage, click.Command):
-    """A command of rbx (``@click.command(cls=Command)``): usage errors are one line, exit 2."""
+    """A command of rbx (``@click.command(cls=Command)``): usage errors are one line, exit 2. A command that runs
+    kernels (:data:`COMPILING`) says on stderr, before a first compile, that it compiles (not with ``--quiet``)."""
+
+    def invoke(self, ctx):
+        if self.name in COMPILING and not ctx.params.get("quiet"):
+            announce_compiles()
+        return super().invoke(ctx)
+
+
+#: the commands that run kernels: a first run of a scene compiles them, silent for seconds without a word
+COMPILING = ("simulate", "histogram", "lyapunov", "sweep")
+#: the line said when Numba starts a first compile in this process
+COMPILE_NOTICE = ("rbx: compiling kernels for this scene, once (3–15 s each; the next run loads them from the "
+                  "cache)…")
+_ANNOUNCING = {"registered": False}
+
+
+def announce_compiles():
+    """Say :data:`COMPILE_NOTICE` on stderr when Numba starts its first compile in this process (its
+    ``numba:compile`` events: a kernel loaded from the disk cache raises none, so a warm run says nothing)."""
+    if _ANNOUNCING["registered"]:
+        return
+    try:
+        from numba.core import event
+    except ImportError:         # pragma: no cover - a Numba without the event API: no notice
+        return
+
+    class Notice(event.Listener):
+        said = False
+
+        def on_start(self, ev):
+            if not self.said:
+                self.said = True
+                click.echo(COMPILE_NOTICE, err=True)
+
+        def on_end(self, ev):
+            pass
+
+    event.register("numba:compile", Notice())
+    _ANNOUNCING["registered"] = True
 
 
 class Group(OneLineUsage, click.Group):
@@ -314,3 +368,36 @@ def summary(quiet, message):
 
 #: ``--quiet``, the same for every command
 quiet_option = click.option("--quiet", is_flag=True, help="No progress bar and no summary line on stderr.")
+
+
+# ---- where a figure is written (rbx plot) -----------------------------------------------------------------------
+
+#: the first bytes of the figures rbx plot writes (PNG, PDF, SVG, PostScript, JPEG, TIFF): such a file, or an empty
+#: one, is replaced; anything else named as the figure (a run, a config, notes) is not
+FIGURE_SIGNATURES = (b"\x89PNG\r\n\x1a\n", b"%PDF-", b"<?xml", b"<svg", b"%!PS", b"\xff\xd8\xff", b"II*\x00",
+                     b"MM\x00*")
+
+
+def check_figure_target(path):
+    """Refuse, as a :class:`UserError`, to write a figure at ``path`` where that would surprise: into a folder that
+    does not exist (it was made without a word, so a typo made a folder tree), through a symbolic link or onto a
+    device or FIFO, or over a file that is not a figure (its first bytes: :data:`FIGURE_SIGNATURES`)."""
+    from ..paths import FileError, check_replaceable
+    folder = os.path.dirname(os.path.abspath(path))
+    if not os.path.isdir(folder):
+        raise UserError(path, None, f"the folder {display_path(folder)} does not exist (rbx makes no folders for a "
+                                    "figure: create it first, or give another path)")
+    try:
+        check_replaceable(path)
+    except FileError as exc:
+        raise UserError(None, None, exc.problem) from None
+    if os.path.isfile(path):
+        try:
+            with open(path, "rb") as f:
+                head = f.read(8)
+        except OSError as exc:
+            raise UserError(path, None, f"cannot read it: {exc.strerror or exc}") from None
+        if head and not any(head[:len(sig)] == sig[:len(head)] for sig in FIGURE_SIGNATURES):
+            raise UserError(path, None, "exists and is not a figure (not a PNG, PDF, SVG, PostScript, JPEG or TIFF "
+                                        "file: a run, a config, notes?); rbx replaces only figures: give another "
+                                        "name")

@@ -3,6 +3,7 @@ import json
 import time
 
 import click
+import numpy as np
 
 from .common import (Command, UserError, check_cluster_options, connect, duration, ending_on_signals, parse_sets,
                      pending_signal, plural, quiet_option, report_and_exit, set_option, summary, user_errors,
@@ -106,7 +107,17 @@ def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as
     per = ", ".join(f"λ{k} = {x:.6f}" for k, x in enumerate(result.per_collision(), 1))
     click.echo(f"per collision: {per}")
     share, low, high = result.regular_share()
-    if len(result.time) > 1:
+    from ..config import start_groups
+    group = start_groups(exp)
+    if len(result.time) > 1 and group is not None and len(set(group.tolist())) == 1:
+        # copies of one orbit (warned about above): one orbit, regular or not; no share, no interval
+        lam1 = result.per_trajectory[:, 0]
+        lam1 = lam1[np.isfinite(lam1)]
+        if len(lam1):
+            kind = "regular" if lam1[0] < REGULAR_THRESHOLD else "not regular"
+            click.echo(f"regular orbits (own λ1 < {REGULAR_THRESHOLD}): one orbit, run as {M} copies: {kind} (own "
+                       f"λ1 = {lam1[0]:.6f}); copies give no share and no interval")
+    elif len(result.time) > 1:
         regular = result.regular()[0]
         of = (f"{regular} of the {measured} measured (the other {M - measured} left the table during their "
               "warm-up)" if measured < M else f"{regular} of {measured}")

@@ -6,8 +6,8 @@ import time
 import click
 import numpy as np
 
-from .common import (Command, UserError, display_path, duration, interrupted_exit, plural, quiet_option,
-                     report_and_exit, summary, user_errors)
+from .common import (Command, Choice, UserError, check_figure_target, display_path, duration, interrupted_exit,
+                     plural, quiet_option, report_and_exit, summary, user_errors)
 
 #: the plot kinds (``--kind``); kind K is drawn by the function ``_K`` below
 KINDS = ("orbit", "orbit3d", "phase", "series", "diffusion", "escape", "birkhoff", "poincare", "sweep")
@@ -27,16 +27,17 @@ DEFAULT_TRAJECTORIES = {"orbit": 10, "orbit3d": 10, "phase": 20, "series": 1, "d
 
 @click.command(cls=Command)
 @click.argument("run_file", metavar="OUT.h5", type=click.Path())
-@click.option("--kind", required=True, type=click.Choice(KINDS), help="Which picture.")
+@click.option("--kind", required=True, type=Choice(KINDS), help="Which picture.")
 @click.option("-o", "--output", "out", type=click.Path(dir_okay=False),
-              help="Figure to write (PNG, PDF, SVG; default: OUT_<kind>.png beside the run). Overwritten.")
+              help="Figure to write (PNG, PDF, SVG; default: OUT_<kind>.png beside the run). An existing figure is "
+                   "replaced; a missing folder, a link or another kind of file is refused.")
 @click.option("--records", metavar="A:B[:C]", help="Record range, as a Python slice (record i = the state after "
                                                      "collision i·every). Default: all.")
 @click.option("--trajectories", metavar="LIST", help="Trajectories to use: 0,1,2 or 0-9 or all. Default: the first "
                                                     "10 (orbit), 20 (phase), 1 (series), all (diffusion).")
-@click.option("--color", "colour", type=click.Choice(["trajectory", "step"]), default="trajectory",
+@click.option("--color", "colour", type=Choice(["trajectory", "step"]), default="trajectory",
               show_default=True, help="phase: colour points by trajectory or by collision step.")
-@click.option("--coordinate", default="x", show_default=True, type=click.Choice(list(COORDINATES)),
+@click.option("--coordinate", default="x", show_default=True, type=Choice(list(COORDINATES)),
               help="series, diffusion: the coordinate to follow.")
 @click.option("--scales", default="0.01,0.1,1", show_default=True,
               help="series: fractions of the run shown in the panels.")
@@ -114,12 +115,13 @@ def _check_kind_options(ctx, kind):
 
 def _plot(run_file, kind, out, records, trajectories, colour, coordinate, scales, fit_from, dpi, wall=None,
           plane="z=0.5"):
+    path = out or f"{os.path.splitext(run_file)[0]}_{kind}.png"
+    if out is not None or os.path.exists(run_file):    # (a missing run is said by its own line)
+        check_figure_target(path)                        # before the figure is made: said at once
     fig = make_figure(run_file, kind, parse_records(records), trajectories, colour=colour, coordinate=coordinate,
                       scales=parse_scales(scales), fit_from=fit_from, wall=wall, plane=plane)
     from ..plotting import save
-    path = out or f"{os.path.splitext(run_file)[0]}_{kind}.png"
     try:
-        os.makedirs(os.path.dirname(os.path.abspath(path)), exist_ok=True)
         save(fig, path, dpi=dpi)
     except (OSError, ValueError) as exc:
         raise UserError(path, None, f"cannot write the figure: {getattr(exc, 'strerror', None) or exc}") from None
@@ -134,6 +136,9 @@ def make_figure(run_file, kind, records=slice(None), trajectories=None, **option
     from ..runfile import Run
 
     with user_errors():
+        if os.path.isfile(run_file) and run_file.endswith((".yaml", ".yml")):
+            raise UserError(run_file, None, "is a config, not a run: run it first, rbx simulate "
+                                            f"{display_path(run_file)} -o OUT.h5, then rbx plot OUT.h5 --kind {kind}")
         run = Run.open(run_file)
         with run:
             traj = parse_trajectories(trajectories, run.trajectories, DEFAULT_TRAJECTORIES[kind], run.path)

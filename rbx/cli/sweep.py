@@ -6,8 +6,8 @@ import warnings
 
 import click
 
-from .common import (Command, Progress, UserError, display_path, duration, ending_on_signals, hard_exit,
-                     parse_sets, pending_signal, plural, quiet_option, report_and_exit, summary, user_errors)
+from .common import (Command, Progress, UserError, check_figure_target, display_path, duration, ending_on_signals,
+                     hard_exit, parse_sets, pending_signal, plural, quiet_option, report_and_exit, summary, user_errors)
 
 
 @click.command(cls=Command)
@@ -161,8 +161,8 @@ def plot_sweep(path, kind, out, y, x, logx, logy, dpi):
     panel, title = sweep_panel(ds, y, x, logx, logy, path)
     fig = sweep_figure([panel], title)
     out = out or f"{os.path.splitext(path)[0]}_sweep.png"
+    check_figure_target(out)
     try:
-        os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
         save(fig, out, dpi=dpi)
     except (OSError, ValueError) as exc:
         raise UserError(out, None, f"cannot write the figure: {getattr(exc, 'strerror', None) or exc}") from None
