@@ -725,10 +725,25 @@ def _write(ds, path):
     except OSError as exc:
         with contextlib.suppress(OSError):
             os.remove(tmp)
+        size = _bytes_text(len(image.getbuffer()))
+        if os.path.exists(path):
+            kept = (f"{display_path(path)} is as it was (a write makes a whole new copy, {size}, beside it before "
+                    "replacing it, so it needs that much free): free some room and continue with --resume")
+        else:
+            kept = (f"nothing of the study was on disk yet, so no point is kept (its results need {size} free): "
+                    "free some room and run the study again")
         raise DiskFull(f"{display_path(path)}: cannot write the study's results ({exc.strerror or exc}); "
-                       f"{display_path(path)} is as it was: free some room and continue with --resume") from None
+                       + kept) from None
     os.replace(tmp, path)
     _write_cost = time.perf_counter() - began
+
+
+def _bytes_text(n):
+    """A size for people: ``14.5 kB``, ``3.2 MB``."""
+    for factor, unit in ((1e9, "GB"), (1e6, "MB"), (1e3, "kB")):
+        if n >= factor:
+            return f"{n / factor:.3g} {unit}"
+    return f"{n} bytes"
 
 
 def _to_netcdf(ds, path):
@@ -753,7 +768,8 @@ def _to_netcdf(ds, path):
 
 def _read(path):
     import xarray as xr
-    with xr.open_dataset(path, engine="h5netcdf") as ds:
+    # phony_dims: a variable without dimension scales (a file damaged or made by hand) is read, not warned about
+    with xr.open_dataset(path, engine="h5netcdf", phony_dims="access") as ds:
         return ds.load()
 
 
@@ -808,6 +824,7 @@ def _sweep(study, output, scheduler, resume, force, progress, base):
                 if ds.attrs.get("study_digest") != st.digest:
                     raise FileError(source, "--resume", "the study changed since this file was started (its "
                                                         "digest differs): run it afresh with --force")
+                _check_resumable(ds, _empty(st, exp0), source)
                 if source == output and int(ds["done"].values.min()) == 1:
                     return ds
         elif not force:
@@ -862,6 +879,25 @@ def _sweep(study, output, scheduler, resume, force, progress, base):
     return ds
 
 
+def _check_resumable(ds, template, path):
+    """Refuse (:class:`FileError` naming the variable) a results file to resume whose variables are not those this
+    study writes, of their shapes: a file with the study's digest but ``done`` missing, of another shape or not
+    0/1 (damaged, or made by hand) gave a traceback, or was taken as finished."""
+    fix = "not the results of this study as rbx sweep writes them: run it afresh with --force"
+    for name, var in template.variables.items():
+        if name not in ds.variables:
+            raise FileError(path, name, f"missing; {fix}")
+        got = ds.variables[name]
+        if got.dims != var.dims or got.shape != var.shape:
+            raise FileError(path, name, f"has dimensions {dict(zip(got.dims, got.shape))}, where this study's "
+                                        f"are {dict(zip(var.dims, var.shape))}; {fix}")
+        if var.dtype.kind in "iufb" and got.dtype.kind not in "iufb":
+            raise FileError(path, name, f"holds {got.dtype} values, not numbers; {fix}")
+    done = ds["done"].values
+    if not np.all((done == 0) | (done == 1)):
+        raise FileError(path, "done", f"holds values other than 0 and 1; {fix}")
+
+
 class StudyInterrupted(KeyboardInterrupt):
     """A study stopped by a signal: ``path`` (None: nothing of the study written) holds ``kept`` of its ``total``
     points, which ``resume=True`` (``rbx sweep --resume``) continues."""
@@ -878,12 +914,12 @@ def kept_points(path, digest=None):
         return None, 0, 0
     try:
         ds = _read(path)
-    except Exception:
+        if digest is not None and ds.attrs.get("study_digest") != digest:
+            return None, 0, 0
+        done = np.asarray(ds["done"].values)
+        return path, int(np.sum(done == 1)), int(done.size)
+    except Exception:         # not a results file, or one without a readable 'done'
         return None, 0, 0
-    if digest is not None and ds.attrs.get("study_digest") != digest:
-        return None, 0, 0
-    done = ds["done"].values
-    return path, int(done.astype(bool).sum()), int(done.size)
 
 
 def _write_held(ds, path):

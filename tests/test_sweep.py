@@ -529,7 +529,10 @@ def test_a_study_that_cannot_write_its_results_stops_in_one_line(tmp_path):
                               "--quiet"], cwd=tmp_path, capture_output=True, text=True, timeout=600)
     assert limited.returncode == 1, limited.stderr
     assert "Traceback" not in limited.stderr and len(limited.stderr.splitlines()) == 1, limited.stderr
-    assert "cannot write the study's results" in limited.stderr and "--resume" in limited.stderr
+    assert "cannot write the study's results" in limited.stderr
+    # its first write failed: nothing was kept, and the line does not say that something was
+    assert "nothing of the study was on disk yet, so no point is kept (its results need " in limited.stderr
+    assert "is as it was" not in limited.stderr and "continue with --resume" not in limited.stderr, limited.stderr
     assert not (tmp_path / "out.nc").exists() and not (tmp_path / "out.nc.partial.tmp").exists()
     res = rbx_cli("sweep", "study.yaml", "-o", "out.nc", "--resume", "--quiet", cwd=tmp_path)
     assert res.returncode == 0 and (tmp_path / "out.nc").exists(), res.stderr
@@ -635,3 +638,49 @@ def test_a_mapping_study_says_where_its_relative_base_is_resolved_from(tmp_path,
         rbx.sweep(study)
     assert info.value.key == "base"
     assert "a mapping's relative paths are resolved from the working folder" in str(info.value), str(info.value)
+
+
+def test_a_results_file_to_resume_without_the_studys_variables_is_one_line(tmp_path):
+    """A results file with the study's digest but its ``done`` deleted, of another shape or of text (damaged, or
+    made by hand): --resume gave a traceback (KeyError, IndexError), or took text for finished points."""
+    import h5py
+    study = {"base": SINAI, "vary": {"ball.inertia": [0.3, 0.6]}, "measure": ["mean_free_path"],
+             "ensemble": {"trajectories": 2, "collisions": 50, "seed": 2}}
+    (tmp_path / "study.yaml").write_text(yaml.safe_dump(study))
+    sweep(str(tmp_path / "study.yaml"), str(tmp_path / "r.nc"))
+    for damage in ("no done", "done of 3", "done as text"):
+        partial = tmp_path / "c.nc.partial"
+        partial.write_bytes((tmp_path / "r.nc").read_bytes())
+        with h5py.File(partial, "a") as f:
+            del f["done"]
+            if damage == "done of 3":
+                f["done"] = np.zeros(3, np.int8)
+            elif damage == "done as text":
+                f["done"] = np.array([b"x", b"x"])
+        res = rbx_cli("sweep", "study.yaml", "-o", "c.nc", "--resume", cwd=tmp_path)
+        assert res.returncode == 2 and res.stderr.count("\n") == 1 and "Traceback" not in res.stderr, res.stderr
+        assert res.stderr.startswith("rbx: c.nc.partial: done: "), res.stderr
+        assert "not the results of this study as rbx sweep writes them: run it afresh with --force" in res.stderr
+        assert not (tmp_path / "c.nc").exists()
+
+
+def test_a_failed_write_over_kept_points_says_how_much_room_a_write_needs(tmp_path):
+    """The results are replaced whole: a new copy is written beside the old one, then renamed over it, so a disk
+    that holds the results once cannot take the next write. The line says so, with the size (it said only 'free
+    some room', and the same line came back at every --resume)."""
+    from rbx.paths import DiskFull
+    from rbx.study import _write
+    study = {"base": SINAI, "vary": {"ball.inertia": [0.3, 0.6]}, "measure": ["mean_free_path"],
+             "ensemble": {"trajectories": 2, "collisions": 50, "seed": 2}}
+    ds = sweep(study)
+    path = tmp_path / "r.nc.partial"
+    _write(ds, str(path))
+    before = path.read_bytes()
+    (tmp_path / "r.nc.partial.tmp").mkdir()          # where the new copy goes: it cannot be written
+    with pytest.raises(DiskFull) as info:
+        _write(ds, str(path))
+    said = str(info.value)
+    assert "r.nc.partial is as it was (a write makes a whole new copy, " in said, said
+    assert " kB, beside it before replacing it, so it needs that much free): free some room and continue with " \
+           "--resume" in said, said
+    assert path.read_bytes() == before
