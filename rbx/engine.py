@@ -273,6 +273,7 @@ S_EXIT = 2048       # some wall's rule is (or may resolve to) ``exit``: the traj
 S_AXES = 4096       # bounded by an axis-aligned box (Table.box): a division per axis, then the other primitives
 S_ROUND_HEMI = 8192  # 2D: a hemisphere rule on a wall without one normal: cos θ, sin θ (rbx.rules.choose)
 S_TANGENT = 16384   # carry tangent vectors (Tangent) along the orbit: the Lyapunov spectrum, the flow's Jacobian
+S_BLEND = 32768     # the rank is drawn at random: the map computed without a branch on it (rbx.physics.rough_factor)
 #: the bits compiled into the kernel; the others are tested at run time (a predictable branch). Each compiled
 #: combination in use costs a compile of 5–15 s the first time (then it is on disk), so the bits compiled are the
 #: ones that pay: the dimension (loops of constant length, state in registers), spin arithmetic, the slab's closed
@@ -294,12 +295,12 @@ RUNTIME_BITS = ~COMPILED_BITS
 
 def make_spec(n, orient=False, spin=True, tree=False, record=False, compensated=False, snap=False,
               slab=False, stop_wall=False, periodic=False, exit=False, axes=False, round_hemisphere=False,
-              tangent=False):
+              tangent=False, blend=False):
     """The ``spec`` bits from flags (:class:`rbx.simulation.Simulation` derives them from the config)."""
     flags = ((n == 3, S_DIM3), (orient, S_ORIENT), (spin, S_SPIN), (tree, S_TREE), (record, S_RECORD),
              (compensated, S_COMPENSATED), (snap, S_SNAP), (slab, S_SLAB),
              (stop_wall, S_STOP_WALL), (periodic, S_PERIODIC), (exit, S_EXIT), (axes, S_AXES),
-             (round_hemisphere, S_ROUND_HEMI), (tangent, S_TANGENT))
+             (round_hemisphere, S_ROUND_HEMI), (tangent, S_TANGENT), (blend, S_BLEND))
     return sum(bit for on, bit in flags if on)
 
 
@@ -343,6 +344,7 @@ def _make_kernel(spec):
     SLAB, PERIODIC = bool(spec & S_SLAB), bool(spec & S_PERIODIC)
     EXIT_, AXES, ROUND_HEMI = bool(spec & S_EXIT), bool(spec & S_AXES), bool(spec & S_ROUND_HEMI)
     TANGENT = bool(spec & S_TANGENT)
+    BLEND = SPIN and TREE   # a rank chosen per collision: S_BLEND can apply
 
     @jit_loop
     def advance_all(j0, j1, stop, table, rules, settings, state, out, tangent, nrec):
@@ -363,6 +365,7 @@ def _make_kernel(spec):
         own rows)."""
         n = N
         on = settings.flags                        # the run-time bits are read from here (the compiled ones: constants)
+        blend = BLEND and (on & S_BLEND) != 0
         codes, prim_wall, params, tol = table.codes, table.prim_wall, table.params, table.tol
         first_hit = table.first_hit
         R, kappa, every, renorm_every = settings.R, settings.kappa, settings.every, settings.renorm_every
@@ -482,8 +485,8 @@ def _make_kernel(spec):
                 # 4. rule
                 w = prim_wall[p]
                 if TREE:
-                    node, d = choose(w, nu, Aj, th, key, d, rules.root, rules.kind, rules.first, rules.children,
-                                     rules.threshold, rules.axis, rules.phase, n, ROUND_HEMI)
+                    node, d = choose(w, nu, Aj, th, key, d, rules.root, rules.kind, rules.first, rules.nchild,
+                                     rules.children, rules.threshold, rules.axis, rules.phase, n, ROUND_HEMI)
                 else:
                     node = rules.root[w]
                 rk = rules.rank[node]
@@ -532,17 +535,17 @@ def _make_kernel(spec):
                 # zeros left out, one call per axis so that i is a constant in each; the same numbers as collide
                 # (tests/test_physics.py)
                 if SLAB:
-                    collide_axis(v, Wj, n - 1, nu[n - 1], R, kappa, map_rank, rules.basis, node, w, work, n)
+                    collide_axis(v, Wj, n - 1, nu[n - 1], R, kappa, map_rank, rules.basis, node, w, work, n, blend)
                 else:
                     ax = table.axis[p]
                     if ax == 0:
-                        collide_axis(v, Wj, 0, nu[0], R, kappa, map_rank, rules.basis, node, w, work, n)
+                        collide_axis(v, Wj, 0, nu[0], R, kappa, map_rank, rules.basis, node, w, work, n, blend)
                     elif ax == 1:
-                        collide_axis(v, Wj, 1, nu[1], R, kappa, map_rank, rules.basis, node, w, work, n)
+                        collide_axis(v, Wj, 1, nu[1], R, kappa, map_rank, rules.basis, node, w, work, n, blend)
                     elif N == 3 and ax == 2:
-                        collide_axis(v, Wj, 2, nu[2], R, kappa, map_rank, rules.basis, node, w, work, n)
+                        collide_axis(v, Wj, 2, nu[2], R, kappa, map_rank, rules.basis, node, w, work, n, blend)
                     else:
-                        collide(v, Wj, nu, R, kappa, map_rank, rules.basis, node, w, work, n)
+                        collide(v, Wj, nu, R, kappa, map_rank, rules.basis, node, w, work, n, blend)
                 if f != 0.0:
                     scale_state(v, Wj, f, n)
                 if TANGENT:

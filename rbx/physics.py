@@ -38,22 +38,35 @@ def project_roughness(work, rank, basis, node, wall, n):
 
 
 @jit_hot
-def collide(v, W, nu, R, kappa, rank, basis, node, wall, work, n):
+def rough_factor(rank, blend):
+    """1.0, or with ``blend`` 0.0 at rank 0 and 1.0 above: the map's rough change is multiplied by it. Where a
+    wall's rank is drawn at each collision (a random or hemisphere rule), a branch on it is mispredicted about
+    every other time (about 13 ns on the strip); computing the rough change always and multiplying it by 0 costs
+    a few operations. x − 0·y is x, so the state is the specular map's to the sign of a zero."""
+    if blend:
+        return np.float64(rank > 0)
+    return 1.0
+
+
+@jit_hot
+def collide(v, W, nu, R, kappa, rank, basis, node, wall, work, n, blend):
     """Apply the strict collision map in place: (v, W) <- (v', W'); returns nothing.  docs/reference.md §1, paper
     eq. (update).
 
     The normal velocity is reversed exactly (``v·ν`` changes sign), so the next flight leaves the wall.
     ``basis[node, wall]`` holds the roughness basis (rows) and ``work`` is scratch space of shape (3, n): the
     kernel passes whole arrays and indices, since every array view costs reference counting in the hot loop.
-    ``n`` is the dimension, passed in so that the kernels compile it as a constant.
+    ``n`` is the dimension, passed in so that the kernels compile it as a constant. ``blend`` (a constant of the
+    kernel) computes the rough change at rank 0 too and multiplies it by 0 (:func:`rough_factor`).
     """
     vn = 0.0
     for i in range(n):
         vn += v[i] * nu[i]
-    if rank == 0:
+    if not blend and rank == 0:     # blend first: with it, no branch on the rank
         for i in range(n):
             v[i] -= 2.0 * vn * nu[i]
         return
+    g = rough_factor(rank, blend)
     # slip velocity u_t = (v − (v·ν)ν) + W r with r = −Rν (W r is tangent: W is antisymmetric), written so that
     # the chain of operations from (v, W) to (v', W') is short: it is what bounds a trajectory's speed
     for i in range(n):
@@ -62,12 +75,12 @@ def collide(v, W, nu, R, kappa, rank, basis, node, wall, work, n):
             s += W[i, j] * nu[j]
         work[1, i] = (v[i] - vn * nu[i]) - R * s
     # its projection P u_t onto the roughness subspace (the whole tangent plane for the completely rough map)
-    if rank < n - 1:
+    if rank > 0 and rank < n - 1:
         project_roughness(work, rank, basis, node, wall, n)
     # Δv = −2α P u_t, and W += (Δv rᵀ − r Δvᵀ)/(2λ) with r = −Rν, 2λ = κR²: since α/κ = 1/(1+κ) the spin
     # change is (2/((1+κ)R))·(P u_t νᵀ − ν (P u_t)ᵀ), computed without dividing by κ (finite as κ → 0)
-    alpha2 = 2.0 * kappa / (1.0 + kappa)
-    scale = 2.0 / ((1.0 + kappa) * R)
+    alpha2 = g * (2.0 * kappa / (1.0 + kappa))
+    scale = g * (2.0 / ((1.0 + kappa) * R))
     for i in range(n):
         v[i] = (v[i] - 2.0 * vn * nu[i]) - alpha2 * work[1, i]
         work[2, i] = scale * nu[i]
@@ -80,25 +93,26 @@ def collide(v, W, nu, R, kappa, rank, basis, node, wall, work, n):
 
 
 @jit_hot
-def collide_axis(v, W, m, sigma, R, kappa, rank, basis, node, wall, work, n):
+def collide_axis(v, W, m, sigma, R, kappa, rank, basis, node, wall, work, n, blend):
     """:func:`collide` for a wall normal ν = σ·e_m (σ = ±1: the walls of a strip or between plates, the sides of an
     axis-aligned box), with the products by the zero components of ν left out -> the same (v', W') as
     :func:`collide`, bit for bit up to the sign of zeros (tests/test_physics.py). Only v_m (reversed) and the
     column and row m of W change, and the chain of operations from (v, W) to (v', W') is about half as long.
     ``m`` is a constant where the kernels call it (each axis its own call), so that every index stays a constant."""
     v[m] = -v[m]
-    if rank == 0:
+    if not blend and rank == 0:     # blend first: with it, no branch on the rank
         return
+    g = rough_factor(rank, blend)
     # u_t,i = v_i + (W r)_i with r = −Rσ e_m, for i ≠ m; u_t,m = 0
     rs = R * sigma
     for i in range(n):
         if i != m:
             work[1, i] = v[i] - rs * W[i, m]
     work[1, m] = 0.0
-    if rank < n - 1:
+    if rank > 0 and rank < n - 1:
         project_roughness(work, rank, basis, node, wall, n)
-    alpha2 = 2.0 * kappa / (1.0 + kappa)
-    c = (2.0 / ((1.0 + kappa) * R)) * sigma
+    alpha2 = g * (2.0 * kappa / (1.0 + kappa))
+    c = g * ((2.0 / ((1.0 + kappa) * R)) * sigma)
     for i in range(n):
         if i != m:
             v[i] -= alpha2 * work[1, i]
@@ -113,7 +127,7 @@ def collision_map(v, W, nu, R, kappa, rank, basis=None):
     Wm = spin_matrix(W, n)
     b = np.zeros((max(n - 1, 1), n)) if basis is None else np.asarray(basis, dtype=float)
     collide(v, Wm, np.asarray(nu, dtype=float), float(R), float(kappa), int(rank), b[None, None], 0, 0,
-            np.empty((3, n)), n)
+            np.empty((3, n)), n, False)
     return v, Wm
 
 

@@ -41,6 +41,7 @@ class Rules(NamedTuple):
     kind: np.ndarray        # (nodes,) node kind
     rank: np.ndarray        # (nodes,) roughness rank (constant nodes)
     first: np.ndarray       # (nodes,) first child in ``children``
+    nchild: np.ndarray      # (nodes,) number of children
     children: np.ndarray    # (links,) child nodes
     threshold: np.ndarray   # (links,) uint64 thresholds on a draw's 53 bits (random nodes)
     axis: np.ndarray        # (nodes, n) body-frame axis (hemisphere nodes)
@@ -69,7 +70,8 @@ class CompiledRules:
 
     def kernel_arrays(self):
         """The arrays the kernels read, as the group :class:`Rules`."""
-        return Rules(root=self.root, kind=self.kind, rank=self.rank, first=self.first, children=self.children,
+        return Rules(root=self.root, kind=self.kind, rank=self.rank, first=self.first, nchild=self.nchild,
+                     children=self.children,
                      threshold=self.threshold, axis=self.axis, phase=self.phase, basis=self.basis)
 
 
@@ -189,7 +191,7 @@ def _reachable(root, nodes, links):
 
 
 @jit_hot
-def choose(wall, nu, A, theta, key, draws, root, kind, first, children, threshold, axis, phase, n, rounded):
+def choose(wall, nu, A, theta, key, draws, root, kind, first, nchild, children, threshold, axis, phase, n, rounded):
     """Walk the rule tree of ``wall`` -> (leaf node: a constant or an exit node, number of draws used so far).
 
     Each inner node takes its kind's step (its record's ``step``): hemisphere, :func:`hemisphere_step`; random,
@@ -203,7 +205,7 @@ def choose(wall, nu, A, theta, key, draws, root, kind, first, children, threshol
         if kind[node] == HEMISPHERE:
             node = children[first[node] + hemisphere_step(node, wall, nu, A, theta, axis, phase, n, rounded)]
         else:
-            node = children[random_step(first[node], key, draws, threshold)]
+            node = children[random_step(first[node], nchild[node], key, draws, threshold)]
             draws += 1
     return node, draws
 
@@ -452,13 +454,17 @@ def _random_node(rule, n):
 
 
 @jit_hot
-def random_step(k, key, draws, threshold):
-    """The link a random node takes, its first link being ``k`` -> the first link whose integer threshold
-    exceeds draw number ``draws`` of the stream ``key`` (its 53 bits m: :func:`thresholds`)."""
+def random_step(k, count, key, draws, threshold):
+    """The link a random node takes, its ``count`` links starting at ``k`` -> the first link whose integer
+    threshold exceeds draw number ``draws`` of the stream ``key`` (its 53 bits m: :func:`thresholds`). The
+    thresholds do not decrease and the last is never reached, so that link is ``k`` plus the number of the others
+    that m reaches: counted without a branch on the draw, which a loop searching for the link would mispredict
+    about every other time (with probability ½ for each of two children)."""
     m = draw_bits(key, draws) >> np.uint64(11)
-    while m >= threshold[k]:
-        k += 1
-    return k
+    j = k
+    for c in range(count - 1):
+        j += np.int64(m >= threshold[k + c])
+    return j
 
 
 def _random_precise(rule, loop, convert):

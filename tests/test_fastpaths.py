@@ -218,7 +218,7 @@ def test_the_antisymmetric_spin_update_is_the_full_update(n):
         R, kappa = rng.uniform(0.05, 2.0), rng.uniform(0.01, 1.0)
         want_v, want_W = full_update(v, W, nu, R, kappa)
         v1, W1 = v.copy(), W.copy()
-        collide(v1, W1, nu, R, kappa, n - 1, np.zeros((1, 1, max(n - 1, 1), n)), 0, 0, np.empty((3, n)), n)
+        collide(v1, W1, nu, R, kappa, n - 1, np.zeros((1, 1, max(n - 1, 1), n)), 0, 0, np.empty((3, n)), n, False)
         np.testing.assert_array_equal(v1, want_v)
         np.testing.assert_array_equal(W1, want_W)
         np.testing.assert_array_equal(W1, -W1.T)

@@ -200,8 +200,41 @@ def test_the_axis_map_is_the_general_map_bit_for_bit(n):
         basis[:, m] = 0.0                       # tangent to the wall exactly, as the rule compiler gives it
         b = basis[None, None]
         v1, W1, v2, W2 = v.copy(), W.copy(), v.copy(), W.copy()
-        collide(v1, W1, nu, R, kappa, k, b, 0, 0, np.empty((3, n)), n)
-        collide_axis(v2, W2, m, sigma, R, kappa, k, b, 0, 0, np.empty((3, n)), n)
+        collide(v1, W1, nu, R, kappa, k, b, 0, 0, np.empty((3, n)), n, False)
+        collide_axis(v2, W2, m, sigma, R, kappa, k, b, 0, 0, np.empty((3, n)), n, False)
         np.testing.assert_array_equal(v1, v2)
         np.testing.assert_array_equal(W1, W2)
         assert np.all(W2 == -W2.T)              # still exactly antisymmetric
+
+
+@pytest.mark.parametrize("n", DIMS)
+def test_the_map_without_a_branch_on_the_rank_is_the_map(n):
+    # under a random rule the kernel computes the rough change at every rank and multiplies it by
+    # physics.rough_factor (0 at rank 0): the state must be the map's own, general and axis form, at every rank
+    # (assert_array_equal counts −0 and +0 equal: only the sign of a zero may differ)
+    from rbx.physics import collide, collide_axis, rough_factor
+    assert rough_factor(0, True) == 0.0 and rough_factor(1, True) == 1.0 and rough_factor(0, False) == 1.0
+    rng = np.random.default_rng(11 + n)
+    for trial in range(300):
+        v, W, nu, R, kappa = random_state(rng, n)
+        for k in range(n):
+            basis = roughness_basis(rng, nu, k)[None, None]
+            out = []
+            for blend in (False, True):
+                v1, W1 = v.copy(), W.copy()
+                collide(v1, W1, nu, R, kappa, k, basis, 0, 0, np.empty((3, n)), n, blend)
+                out.append((v1, W1))
+            np.testing.assert_array_equal(out[0][0], out[1][0])
+            np.testing.assert_array_equal(out[0][1], out[1][1])
+            m, sigma = trial % n, (1.0 if trial % 2 else -1.0)
+            e = np.zeros(n)
+            e[m] = sigma
+            b = roughness_basis(rng, e, k)
+            b[:, m] = 0.0
+            out = []
+            for blend in (False, True):
+                v1, W1 = v.copy(), W.copy()
+                collide_axis(v1, W1, m, sigma, R, kappa, k, b[None, None], 0, 0, np.empty((3, n)), n, blend)
+                out.append((v1, W1))
+            np.testing.assert_array_equal(out[0][0], out[1][0])
+            np.testing.assert_array_equal(out[0][1], out[1][1])
