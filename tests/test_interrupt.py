@@ -21,6 +21,7 @@ import pytest
 import yaml
 from click.testing import CliRunner
 
+import rbx
 import rbx.cli.common as common
 import rbx.runfile as runfile
 import rbx.simulation as simulate
@@ -42,6 +43,14 @@ def strip_random(collisions, trajectories=3, every=3, record=("time", "position"
     cfg["run"] = {"collisions": collisions, "trajectories": trajectories, "seed": 11}
     cfg["output"] = {"record": list(record), "every": every}
     return cfg
+
+
+def reference_run(folder, config="exp.yaml", out="ref.h5", force=False):
+    """The uninterrupted run of ``config`` written to ``out``, in this process: ``rbx.simulate(output=)`` writes
+    the file ``rbx simulate -o`` writes (the same driver), without the start-up of another Python -> its path."""
+    path = Path(folder) / out
+    rbx.simulate(str(Path(folder) / config), output=str(path), force=force).close()
+    return path
 
 
 def read_run(path):

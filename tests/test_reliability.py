@@ -7,14 +7,13 @@ import socket
 import subprocess
 import sys
 import time
-from pathlib import Path
 
 import h5py
 import pytest
 
 import rbx.runfile as runfile
-from tests.test_interrupt import (RBX, assert_same_records, check_valid_partial, invoke, read_run, scene,
-                                  strip_random, tiny_blocks, write_config)  # noqa: F401 - tiny_blocks: a fixture
+from tests.test_interrupt import (RBX, assert_same_records, check_valid_partial, invoke, read_run, reference_run,
+                                  scene, strip_random, tiny_blocks, write_config)  # noqa: F401 - tiny_blocks: a fixture
 
 #: ``python -c`` running the CLI with small blocks (BLOCK_WORK), and SIGKILLing itself after checkpoint KILL_AT
 SMALL_BLOCKS = ("import os, sys, rbx.simulation as s, rbx.runfile as f; s.BLOCK_WORK = {work}; s.CHECKPOINT_SECONDS = 0; "
@@ -81,8 +80,7 @@ def test_a_stale_lock_of_a_killed_run_is_taken_over_and_the_resume_is_exact(tmp_
     """SIGKILL (here after the 4th checkpoint) leaves run.h5.lock behind. Its pid no longer runs on this host:
     the resume says so in one warning line, takes the lock over and writes the uninterrupted run's records."""
     write_config(tmp_path, strip_random(60_000, trajectories=3, every=7, record=("time", "position", "wall", "rank")))
-    res = rbx("simulate", "exp.yaml", "-o", "ref.h5", "--quiet", cwd=tmp_path)
-    assert res.returncode == 0, res.stderr
+    reference_run(tmp_path)
     assert not (tmp_path / "ref.h5.lock").exists()          # a normal end removes it
     killed = subprocess.run(small_blocks(kill_at=4) + ["simulate", "exp.yaml", "-o", "run.h5", "--quiet"],
                             cwd=tmp_path, capture_output=True, text=True, timeout=900)
@@ -149,8 +147,7 @@ def test_a_write_that_meets_a_full_file_system_stops_cleanly_and_resumes_exactly
     block's room in the file first (posix_fallocate), so the run stops between blocks: one line, exit 1, the file
     readable with its last checkpoint, the lock removed; resumed without the limit, the records are exact."""
     write_config(tmp_path, strip_random(30_000, trajectories=3, every=1, record=("time", "position", "wall")))
-    res = rbx("simulate", "exp.yaml", "-o", "ref.h5", "--quiet", cwd=tmp_path)
-    assert res.returncode == 0, res.stderr
+    reference_run(tmp_path)
     limit = 2 << 20      # the blocks' records come to ~2.5 MB: a block meets the limit
 
     def limited():
@@ -181,8 +178,7 @@ def test_a_killed_run_resumed_in_place_on_a_disk_still_full_stops_cleanly_and_re
     its first block: one line saying the file cannot grow (after the stale lock's warning), exit 1, the file
     renamed to OUT.h5 with its checkpoint; resumed with room, the records are the uninterrupted run's."""
     write_config(tmp_path, strip_random(30_000, trajectories=3, every=1, record=("time", "position", "wall")))
-    res = rbx("simulate", "exp.yaml", "-o", "ref.h5", "--quiet", cwd=tmp_path)
-    assert res.returncode == 0, res.stderr
+    reference_run(tmp_path)
     res = subprocess.run(small_blocks(kill_at=3) + ["simulate", "exp.yaml", "-o", "run.h5", "--quiet"],
                          cwd=tmp_path, capture_output=True, text=True, timeout=900)
     assert res.returncode == -9 and (tmp_path / "run.h5.partial").exists()
@@ -299,8 +295,7 @@ def test_a_run_killed_between_marking_it_complete_and_its_rename_is_finished_by_
     file: no simulation), exit 0, the lock taken over and removed; the records are the uninterrupted run's.
     (It used to say "nothing to resume" and leave the .partial.)"""
     write_config(tmp_path, strip_random(3000, trajectories=2, every=7, record=("time", "position", "wall")))
-    res = rbx("simulate", "exp.yaml", "-o", "ref.h5", "--quiet", cwd=tmp_path)
-    assert res.returncode == 0, res.stderr
+    reference_run(tmp_path)
     killed = subprocess.run([sys.executable, "-c", KILL_BEFORE_RENAME, "simulate", "exp.yaml", "-o", "run.h5",
                              "--quiet"], cwd=tmp_path, capture_output=True, text=True, timeout=900)
     assert killed.returncode == -signal.SIGKILL, killed.stderr

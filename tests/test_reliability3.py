@@ -21,7 +21,7 @@ import yaml
 
 import rbx
 import rbx.simulation as simulation
-from tests.test_interrupt import RBX, assert_same_records, read_run, scene, strip_random, write_config
+from tests.test_interrupt import RBX, assert_same_records, read_run, reference_run, scene, strip_random, write_config
 from tests.test_reliability import small_blocks
 
 
@@ -42,8 +42,7 @@ def killed_run(folder, out="run.h5", kill_at=3, cfg=None):
     """A run of ``exp.yaml`` SIGKILLed after its ``kill_at``-th checkpoint (tiny blocks): ``out.partial`` left,
     with its stale lock; and the uninterrupted run's file ``ref.h5`` -> its records."""
     write_config(folder, cfg or strip_random(30_000, trajectories=3, every=7, record=("time", "position", "wall")))
-    res = rbx_cli("simulate", "exp.yaml", "-o", "ref.h5", "--quiet", cwd=folder)
-    assert res.returncode == 0, res.stderr
+    reference_run(folder)
     killed = subprocess.run(small_blocks(kill_at=kill_at) + ["simulate", "exp.yaml", "-o", out, "--quiet"],
                             cwd=folder, capture_output=True, text=True, timeout=900)
     assert killed.returncode == -signal.SIGKILL, killed.stderr
@@ -320,8 +319,7 @@ def test_a_kill_between_the_final_link_and_the_remove_is_cleaned_up(tmp_path):
     ``--resume OUT.h5.partial`` then always said ``OUT.h5: exists; use --force``. The second name is removed
     (the rename was done), by the resume and by the next run's check."""
     write_config(tmp_path, strip_random(3000, trajectories=2, every=3, record=("time", "position")))
-    res = rbx_cli("simulate", "exp.yaml", "-o", "ref.h5", "--quiet", cwd=tmp_path)
-    assert res.returncode == 0, res.stderr
+    reference_run(tmp_path)
     for then in ("resume", "a new run"):
         for f in tmp_path.glob("run.h5*"):
             f.unlink()

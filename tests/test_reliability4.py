@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 import rbx
-from tests.test_interrupt import assert_same_records, read_run, strip_random, write_config
+from tests.test_interrupt import assert_same_records, read_run, reference_run, strip_random, write_config
 from tests.test_reliability import small_blocks
 from tests.test_reliability3 import one_line, rbx_cli, tmpfs
 
@@ -31,16 +31,14 @@ def test_runs_that_fit_a_small_disk_finish_and_resume_there(tmp_path):
     with tmpfs(tmp_path / "disk", "3m") as disk:
         for M, collisions, record in ((3, 10_000, ALL), (2, 10_000, ALL), (3, 6000, ("time", "position", "velocity"))):
             write_config(tmp_path, strip_random(collisions, trajectories=M, every=1, record=record))
-            res = rbx_cli("simulate", "exp.yaml", "-o", "ref.h5", "--force", "--quiet", cwd=tmp_path)
-            assert res.returncode == 0, res.stderr
+            reference_run(tmp_path, force=True)
             res = rbx_cli("simulate", "exp.yaml", "-o", disk / "run.h5", "--quiet", cwd=tmp_path)
             assert res.returncode == 0, (M, collisions, res.stderr)
             assert_same_records(read_run(disk / "run.h5"), read_run(tmp_path / "ref.h5"))
             os.remove(disk / "run.h5")
         # checkpoints after every block of 3000 collisions' work: committed chunks rewritten through the journal
         write_config(tmp_path, strip_random(10_000, trajectories=3, every=1, record=ALL))
-        res = rbx_cli("simulate", "exp.yaml", "-o", "ref.h5", "--force", "--quiet", cwd=tmp_path)
-        assert res.returncode == 0, res.stderr
+        reference_run(tmp_path, force=True)
         killed = subprocess.run(small_blocks(kill_at=4) + ["simulate", "exp.yaml", "-o", disk / "run.h5", "--quiet"],
                                 cwd=tmp_path, capture_output=True, text=True, timeout=900)
         assert killed.returncode == -signal.SIGKILL, killed.stderr
@@ -91,8 +89,7 @@ def test_a_resume_killed_while_continuing_the_run_in_its_own_file_is_resumed(tmp
     k.h5 into ``-o o.h5``, the same resume said "another run may be writing" o.h5.partial: it says it was
     killed and how to continue it."""
     write_config(tmp_path, strip_random(30_000, trajectories=3, every=7, record=("time", "position", "wall")))
-    res = rbx_cli("simulate", "exp.yaml", "-o", "ref.h5", "--quiet", cwd=tmp_path)
-    assert res.returncode == 0, res.stderr
+    reference_run(tmp_path)
     reference = read_run(tmp_path / "ref.h5")
     for resumed in ("k.h5", "k.h5.partial"):
         interrupted_then_killed_resume(tmp_path)

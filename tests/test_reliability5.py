@@ -3,13 +3,11 @@ journals, the lock) is looked at before it is opened or written: a link is never
 opened, a directory or a file of another kind named for what it is, each in one line."""
 import os
 import subprocess
-from pathlib import Path
 
-import h5py
 import pytest
 
 import rbx
-from tests.test_interrupt import assert_same_records, read_run
+from tests.test_interrupt import assert_same_records, read_run, reference_run
 from tests.test_reliability3 import killed_run, one_line, rbx_cli
 
 #: a guard against a hang, not a bound: each command below is refused before it computes anything
@@ -188,8 +186,7 @@ def test_a_journal_of_a_copied_folder_finishes_the_copy_and_a_torn_file_is_refus
     copy, torn = tmp_path / "copy", tmp_path / "torn"
     shutil.copytree(first, copy)
     shutil.copytree(first, torn)
-    res = rbx_cli("simulate", "exp.yaml", "-o", "ref.h5", "--quiet", cwd=first, timeout=HANG)
-    assert res.returncode == 0, res.stderr
+    reference_run(first)
     res = rbx_cli("simulate", "--resume", "o.h5", "--quiet", cwd=copy, timeout=HANG)
     assert res.returncode == 0, res.stderr
     assert_same_records(read_run(copy / "o.h5"), read_run(first / "ref.h5"))

@@ -8,7 +8,8 @@ import sys
 import pytest
 
 import rbx
-from tests.test_interrupt import assert_same_records, read_run, strip_random, without_path, write_config
+from tests.test_interrupt import (assert_same_records, read_run, reference_run, strip_random, without_path,
+                                  write_config)
 from tests.test_reliability3 import one_line, rbx_cli, tmpfs
 from tests.test_reliability5 import KILL_MID_APPLY, _refused
 
@@ -52,8 +53,7 @@ def test_a_killed_run_that_fits_a_small_disk_is_finished_there(name, tmp_path):
     copied) where the copy does not fit."""
     from tests.test_reliability import small_blocks
     write_config(tmp_path, strip_random(20_000, trajectories=3, every=3))
-    res = rbx_cli("simulate", "exp.yaml", "-o", "ref.h5", "--quiet", cwd=tmp_path)
-    assert res.returncode == 0, res.stderr
+    reference_run(tmp_path)
     with tmpfs(tmp_path / "disk", "3m") as disk:
         write_config(disk, strip_random(20_000, trajectories=3, every=3))
         killed = subprocess.run(small_blocks(work=1000, kill_at=12) + ["simulate", "exp.yaml", "-o", "o.h5",
