@@ -563,8 +563,8 @@ def test_a_figure_is_written_only_where_a_careful_user_expects(runs, tmp_path):
     line = rbx_fails("plot", run, "--kind", "orbit", "-o", str(link))
     assert "is a symbolic link" in line and "does not write through links" in line, line
     line = rbx_fails("plot", run, "--kind", "orbit", "-o", str(notes))
-    assert line.endswith("exists and is not a figure (not a PNG, PDF, SVG, PostScript, JPEG or TIFF file: a run, a "
-                         "config, notes?); rbx replaces only figures: give another name"), line
+    assert line.endswith("exists and is not a figure (not a PNG, PDF, SVG, PostScript, JPEG, TIFF, GIF or MP4 file: "
+                         "a run, a config, notes?); rbx replaces only figures: give another name"), line
     assert notes.read_text() == "mine\n"
     # a figure is replaced, as before
     exe = os.path.join(os.path.dirname(sys.executable), "rbx")
@@ -641,6 +641,19 @@ def test_animate_refuses_what_it_cannot_draw(runs):
     assert result.exit_code == 2 and "collisions/time" in result.stderr and len(result.stderr.splitlines()) == 1
     result = CliRunner().invoke(cli, ["animate", runs["plates"], "-o", "x.gif"])
     assert result.exit_code == 2 and "3D" in result.stderr
+
+
+def test_animate_writes_only_where_a_figure_may_go(scenes, tmp_path):
+    # as rbx plot -o: no folder made, no link written through, no file that is not a figure replaced
+    (tmp_path / "notes.gif").write_text("my notes")
+    os.symlink(tmp_path / "elsewhere.gif", tmp_path / "link.gif")
+    for out, said in ((tmp_path / "no" / "such" / "o.gif", "does not exist"), (tmp_path / "link.gif", "link"),
+                      (tmp_path / "notes.gif", "is not a figure")):
+        result = CliRunner().invoke(cli, ["animate", scenes["circle"], "-o", str(out), "--frames", "3"])
+        assert result.exit_code == 2 and said in result.stderr and len(result.stderr.splitlines()) == 1, \
+            result.stderr
+    assert not (tmp_path / "no").exists() and not (tmp_path / "elsewhere.gif").exists()
+    assert (tmp_path / "notes.gif").read_text() == "my notes"
 
 
 def test_panels_are_lettered_in_reading_order_and_once():

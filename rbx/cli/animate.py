@@ -12,8 +12,8 @@ import time
 import click
 import numpy as np
 
-from .common import (Command, UserError, display_path, duration, interrupted_exit, quiet_option, report_and_exit,
-                     summary, user_errors)
+from .common import (Command, UserError, check_figure_target, display_path, duration, interrupted_exit, quiet_option,
+                     report_and_exit, summary, user_errors)
 
 NEEDED = ("time", "position", "velocity", "orientation")
 
@@ -62,6 +62,7 @@ def write_animation(run_file, out, trajectory=0, records=None, fps=20, frames=20
         from matplotlib import animation
         if not animation.writers.is_available("ffmpeg"):
             raise UserError(out, "-o", "an .mp4 needs ffmpeg, which is not installed: write a .gif")
+    check_figure_target(out)
     rec = parse_records(records)
     with user_errors():
         with Run.open(run_file) as run:

@@ -254,10 +254,12 @@ class Choice(click.Choice):
 
 class Command(OneLineUsage, click.Command):
     """A command of rbx (``@click.command(cls=Command)``): usage errors are one line, exit 2. A command that runs
-    kernels (:data:`COMPILING`) says on stderr, before a first compile, that it compiles (not with ``--quiet``)."""
+    kernels (:data:`COMPILING`) says on stderr, before a first compile, that it compiles: to a terminal, as the
+    progress bar is drawn (not with ``--quiet``); a program reading stderr gets the summary line, which says the
+    same after the fact, and a refusal there stays one line."""
 
     def invoke(self, ctx):
-        if self.name in COMPILING and not ctx.params.get("quiet"):
+        if self.name in COMPILING and not ctx.params.get("quiet") and is_terminal(sys.stderr):
             announce_compiles()
         return super().invoke(ctx)
 
@@ -370,12 +372,13 @@ def summary(quiet, message):
 quiet_option = click.option("--quiet", is_flag=True, help="No progress bar and no summary line on stderr.")
 
 
-# ---- where a figure is written (rbx plot) -----------------------------------------------------------------------
+# ---- where a figure is written (rbx plot, rbx animate) -------------------------------------------------------------
 
-#: the first bytes of the figures rbx plot writes (PNG, PDF, SVG, PostScript, JPEG, TIFF): such a file, or an empty
-#: one, is replaced; anything else named as the figure (a run, a config, notes) is not
+#: the first bytes of the figures rbx plot and rbx animate write (PNG, PDF, SVG, PostScript, JPEG, TIFF, GIF; an MP4
+#: is known by its ``ftyp`` box at byte 4): such a file, or an empty one, is replaced; anything else named as the
+#: figure (a run, a config, notes) is not
 FIGURE_SIGNATURES = (b"\x89PNG\r\n\x1a\n", b"%PDF-", b"<?xml", b"<svg", b"%!PS", b"\xff\xd8\xff", b"II*\x00",
-                     b"MM\x00*")
+                     b"MM\x00*", b"GIF8")
 
 
 def check_figure_target(path):
@@ -397,7 +400,7 @@ def check_figure_target(path):
                 head = f.read(8)
         except OSError as exc:
             raise UserError(path, None, f"cannot read it: {exc.strerror or exc}") from None
-        if head and not any(head[:len(sig)] == sig[:len(head)] for sig in FIGURE_SIGNATURES):
-            raise UserError(path, None, "exists and is not a figure (not a PNG, PDF, SVG, PostScript, JPEG or TIFF "
-                                        "file: a run, a config, notes?); rbx replaces only figures: give another "
-                                        "name")
+        if head and head[4:8] != b"ftyp" and not any(head[:len(sig)] == sig[:len(head)] for sig in FIGURE_SIGNATURES):
+            raise UserError(path, None, "exists and is not a figure (not a PNG, PDF, SVG, PostScript, JPEG, TIFF, GIF "
+                                        "or MP4 file: a run, a config, notes?); rbx replaces only figures: give "
+                                        "another name")
