@@ -11,7 +11,7 @@ and the CLI write the same file bit for bit.
     >>> run = rbx.open("strip.h5")                        # the same rbx.Run, read back
 
 The running part also lives here because the CLI shares it: :class:`StopFlag` (SIGINT/SIGTERM stop a run between
-blocks, so the file is checkpointed and closed cleanly), :func:`compile_kernels`, :func:`run_to_file`.
+blocks, so the file is checkpointed and closed cleanly), :func:`run_to_file`.
 """
 import contextlib
 import dataclasses
@@ -251,12 +251,6 @@ def check_target(path, force, experiment, key="output", file=None, force_hint="f
                         else None, partial_ok=partial_ok, force_hint=force_hint)
     if experiment is not None:
         check_size(experiment, path, size_key)
-
-
-def compile_kernels(sim):
-    """:meth:`rbx.simulation.Simulation.compile_kernels`, kept only for ``rbx simulate`` (rbx/cli/simulate.py), which
-    still calls it; new code calls the method."""
-    sim.compile_kernels()
 
 
 def cluster_for(scheduler, key, slices=None, task_collisions=None):

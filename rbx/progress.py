@@ -75,19 +75,19 @@ def watch_compiles():
 
 def setup_note(seconds):
     """What the set-up of a command was, for its summary line: ``0.4 s setting up`` when the kernels came from the
-    cache, ``compiling kernels for this table, once: 12 s`` when this process compiled them (the next run of the
+    cache, ``compiling kernels for this scene, once: 12 s`` when this process compiled them (the next run of the
     same table loads them from the cache in well under a second). Needs :func:`watch_compiles` before the
     compile."""
     if _COMPILES["count"]:
-        return f"compiling kernels for this table, once: {duration(max(seconds, _COMPILES['seconds']))}"
+        return f"compiling kernels for this scene, once: {duration(max(seconds, _COMPILES['seconds']))}"
     return f"{duration(seconds)} setting up"
 
 
 def compile_note():
-    """``compiling kernels for this table, once: 39 s`` if this process compiled kernels (:func:`watch_compiles`),
+    """``compiling kernels for this scene, once: 39 s`` if this process compiled kernels (:func:`watch_compiles`),
     else the empty string."""
     if _COMPILES["count"]:
-        return f"compiling kernels for this table, once: {duration(_COMPILES['seconds'])}"
+        return f"compiling kernels for this scene, once: {duration(_COMPILES['seconds'])}"
     return ""
 
 

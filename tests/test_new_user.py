@@ -116,7 +116,7 @@ def test_a_first_compile_is_said_as_such_and_the_warm_up_fills_the_cache(tmp_pat
     cold = {"NUMBA_CACHE_DIR": str(tmp_path / "cold")}
     first = cli("simulate", example, "-o", "a.h5", cwd=tmp_path, env=cold)
     assert first.returncode == 0, first.stderr
-    assert re.search(r"\(compiling kernels for this table, once: [0-9.]+ (s|min)", first.stderr), first.stderr
+    assert re.search(r"\(compiling kernels for this scene, once: [0-9.]+ (s|min)", first.stderr), first.stderr
     again = cli("simulate", example, "-o", "b.h5", cwd=tmp_path, env=cold)
     assert re.search(r"\([0-9.]+ s setting up\)", again.stderr) and "compiling" not in again.stderr, again.stderr
     warm = {"NUMBA_CACHE_DIR": str(tmp_path / "warm")}

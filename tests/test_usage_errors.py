@@ -141,7 +141,7 @@ PROGRESS_AT_ONCE = ("import sys, rbx.simulation as s, rbx.cli.common as c; s.BLO
                     "from rbx.cli.main import main; sys.argv[0] = 'rbx'; main()")
 
 SUMMARY = re.compile(r"rbx: wrote run\.h5: 3 trajectories × 20000 collisions in [0-9.]+ (s|min)[^\n]*"
-                     r"(setting up|compiling kernels for this table, once: [^)]*)\)")
+                     r"(setting up|compiling kernels for this scene, once: [^)]*)\)")
 
 
 def progress_config(folder):

@@ -92,7 +92,6 @@ def simulate(config, out, collisions, trajectories, seed, sets, max_size, resume
 
 def _simulate(config, out, overrides, changes, force, quiet, stop, cluster, began):
     from .. import config as cfgmod
-    from ..api import compile_kernels
     from ..driver import run_to_file
     from ..driver import check_size, check_target
     from ..simulation import Simulation
@@ -122,7 +121,7 @@ def _simulate(config, out, overrides, changes, force, quiet, stop, cluster, bega
         sim.cluster = on
         warn_repeated(cfg, overrides)       # after every refusal: a user error stays one line
         watch_compiles()
-        compile_kernels(sim)
+        sim.compile_kernels()
         if stop.start_running():
             raise KeyboardInterrupt
         return _execute(sim, path, stop, quiet, 0,
@@ -132,7 +131,6 @@ def _simulate(config, out, overrides, changes, force, quiet, stop, cluster, bega
 def _resume(config, run_file, out, overrides, force, quiet, stop, cluster, began):
     """``--resume RUN``: the library's resume (:func:`rbx.driver.prepare_resume`, :func:`rbx.driver.resume_to_file`,
     which :func:`rbx.resume` calls too), with the command's lines and exit codes."""
-    from ..api import compile_kernels
     from ..driver import prepare_resume, resume_to_file
 
     if config is not None:
@@ -154,7 +152,7 @@ def _resume(config, run_file, out, overrides, force, quiet, stop, cluster, began
         return 0
     with connect(cluster) as r.sim.cluster:
         watch_compiles()
-        compile_kernels(r.sim)
+        r.sim.compile_kernels()
         if stop.start_running():
             raise KeyboardInterrupt
         return _execute(r.sim, r.path, stop, quiet, r.done, lambda **how: resume_to_file(r, **how), began)
