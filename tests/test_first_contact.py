@@ -290,6 +290,12 @@ def test_lyapunov_of_copies_of_one_orbit_gives_one_orbit_and_no_interval(tmp_pat
     line = [x for x in res.stdout.splitlines() if x.startswith("regular orbits")]
     assert len(line) == 1 and "one orbit, run as 5 copies: regular (own λ1 = " in line[0], res.stdout
     assert "Wilson" not in res.stdout and "share 1.000" not in res.stdout, res.stdout
+    # and the JSON object gives no share either, saying why
+    res = cli("lyapunov", ROOT / "configs" / "examples" / "circle.yaml", "--trajectories", "5", "--collisions",
+              "2000", "--json", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    share = json.loads(res.stdout)["regular_share"]
+    assert share["share"] is None and share["low"] is None and share["copies_of_one_orbit"] is True, share
 
 
 def test_the_readmes_override_example_changes_one_orbit_without_copying_it():

@@ -88,8 +88,14 @@ def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as
     warn_repeated(exp, overrides)        # after every refusal: a user error stays one line
     said = (f"lyapunov: {plural(len(result.time), 'trajectory')} × {plural(exp.run.collisions, 'collision')} in "
             f"{duration(time.perf_counter() - began)}" + (f" ({compile_note()})" if compile_note() else ""))
+    from ..config import start_groups
+    group = start_groups(exp)
+    copies = len(result.time) > 1 and group is not None and len(set(group.tolist())) == 1
     if as_json:
-        click.echo(json.dumps(result.to_dict()))
+        out = result.to_dict()
+        if copies:      # copies of one orbit (warned about above): no share, no interval
+            out["regular_share"].update(share=None, low=None, high=None, copies_of_one_orbit=True)
+        click.echo(json.dumps(out))
         return
     click.echo(f"Lyapunov spectrum (per unit time): {result.title}")
     M, measured = len(result.time), result.measured()
@@ -107,9 +113,7 @@ def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as
     per = ", ".join(f"λ{k} = {x:.6f}" for k, x in enumerate(result.per_collision(), 1))
     click.echo(f"per collision: {per}")
     share, low, high = result.regular_share()
-    from ..config import start_groups
-    group = start_groups(exp)
-    if len(result.time) > 1 and group is not None and len(set(group.tolist())) == 1:
+    if copies:
         # copies of one orbit (warned about above): one orbit, regular or not; no share, no interval
         lam1 = result.per_trajectory[:, 0]
         lam1 = lam1[np.isfinite(lam1)]
