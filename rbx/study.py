@@ -217,11 +217,14 @@ def load_study(study, base=None, progress=None, sets=None, ensemble=None):
     vary = data["vary"]
     if not isinstance(vary, Mapping) or not vary:
         fail("vary", "a mapping of dotted config keys to lists of values or {from, to, num, scale}")
+    own = {str(k): v for k, v in (data.get("set") or {}).items()}
     for key in vary:
         _not_the_studys(str(key), None, f"vary.{key}", fail)
-        for given in sets:             # a --set of a varied key would be replaced at every point without a word
-            if given == str(key) or str(key).startswith(given + ".") or given.startswith(str(key) + "."):
-                fail(f"--set {given}", f"the study varies {key} (vary.{key}): a value set for it would not be used")
+        # a set: or --set of a varied key would be replaced at every point without a word
+        for where, given, value in ([("set.", k, v) for k, v in own.items()]
+                                    + [("--set ", k, v) for k, v in sets.items()]):
+            if _sets_varied(given, value, str(key)):
+                fail(f"{where}{given}", f"the study varies {key} (vary.{key}): a value set for it would not be used")
     _check_size(vary, zipped, fail)         # before any value is made: 10⁷ points took 4.3 GB to build
     keys, values = [], []
     for key, spec in vary.items():
@@ -298,6 +301,15 @@ def _not_the_studys(key, value, where, fail):
                  reserved.startswith("run.") else f"set at every point by the study from {source}")
         if inside and value is None:        # a varied parent key (vary: {run: ...}) would replace it
             fail(where, f"holds {reserved}, which the study sets at every point from {source}")
+
+
+def _sets_varied(given, value, key):
+    """Whether setting ``given`` to ``value`` sets the varied ``key`` (or a part of it): the key itself, a key
+    inside it, or a parent mapping that holds it (a parent mapping that does not is refused when a point is
+    built: the overrides would name one key twice)."""
+    if given == key or given.startswith(key + "."):
+        return True
+    return key.startswith(given + ".") and (not isinstance(value, Mapping) or _holds(value, key[len(given) + 1:]))
 
 
 def _holds(mapping, dotted):

@@ -630,6 +630,16 @@ def test_sweep_set_and_ensemble_options_change_every_point(tmp_path):
         assert not (tmp_path / "bad.nc").exists()
 
 
+def test_a_studys_own_set_of_a_varied_key_is_refused():
+    # vary replaces the key at every point: a set: of it (or of a mapping holding it) was overridden without a word
+    study = {"base": SINAI, "vary": {"ball.inertia": [0.3, 0.6]}, "measure": ["mean_free_path"],
+             "ensemble": {"trajectories": 2, "collisions": 50}}
+    for fixed, key in (({"ball.inertia": 0.2}, "set.ball.inertia"), ({"ball": {"inertia": 0.2}}, "set.ball")):
+        with pytest.raises(rbx.ConfigError) as info:
+            load_study(dict(study, set=fixed))
+        assert info.value.key == key and "the study varies ball.inertia" in str(info.value), str(info.value)
+
+
 def test_a_mapping_study_says_where_its_relative_base_is_resolved_from(tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     study = {"base": "../examples/circle.yaml", "vary": {"ball.inertia": [0.2]}, "measure": ["mean_free_path"],
