@@ -671,21 +671,32 @@ def _superscript(k):
     return str(k).translate(str.maketrans("0123456789", "⁰¹²³⁴⁵⁶⁷⁸⁹"))
 
 
+def censored_note(not_returned, samples, sep=" "):
+    """Why a return-angle test with censored samples gives no p-value: the slow returns are the ones left out
+    (``sep`` between its two halves: a line break in a legend)."""
+    return (f"{not_returned} of {samples} samples did not return,{sep}and the test is biased by their absence; "
+            "raise run.collisions")
+
+
 @styled
-def histogram_figure(angle, d, ks_statistic, ks_pvalue, title, bins=50):
-    """Histogram of return angles φ against the billiard-measure density (d−1)·cos φ·sin^(d−2) φ on [0, π/2]."""
+def histogram_figure(angle, d, ks_statistic, ks_pvalue, title, bins=50, not_returned=0):
+    """Histogram of return angles φ against the billiard-measure density (d−1)·cos φ·sin^(d−2) φ on [0, π/2].
+    ``not_returned``: samples that did not return within the run; if any, the legend gives no KS test but
+    :func:`censored_note`."""
     fig = _figure(6.4, 4.6, title)
     ax = fig.add_subplot()
     ax.hist(angle, bins=bins, range=(0.0, np.pi / 2), density=True, color=_colour(0), alpha=0.65,
             label=f"{len(angle)} return angles")
     u = np.linspace(0.0, np.pi / 2, 400)
-    ax.plot(u, analysis.cos_law_pdf(u, d), "k-", lw=1.3,
-            label=f"predicted {density_name(d)} (KS D = {ks_statistic:.3g}, p = {ks_pvalue:.3g})")
+    test = f"KS D = {ks_statistic:.3g}, p = {ks_pvalue:.3g}" if not not_returned else "no KS test"
+    ax.plot(u, analysis.cos_law_pdf(u, d), "k-", lw=1.3, label=f"predicted {density_name(d)} ({test})")
+    if not_returned:
+        ax.plot([], [], " ", label=censored_note(not_returned, len(angle) + not_returned, sep="\n"))
     ax.set_xlim(0.0, np.pi / 2)
     ax.set_ylim(0.0, 1.25 * max(ax.get_ylim()[1], float(np.max(analysis.cos_law_pdf(u, d)))))
     ax.set_xlabel("return angle φ to the normal [rad]")
     ax.set_ylabel("density [1/rad]")
-    legend_outside(ax, "below")
+    legend_outside(ax, "below", **({"ncols": 1} if not_returned else {}))
     return fig
 
 

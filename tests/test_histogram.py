@@ -263,4 +263,20 @@ def test_cli_reports_trajectories_that_did_not_return(tmp_path):
     assert r.returncode == 0, r.stderr
     assert "did not return within 2 collisions" in r.stderr
     with h5py.File(tmp_path / "returns.h5") as f:
-        assert f["returns"].attrs["not_returned"] > 0
+        missing = int(f["returns"].attrs["not_returned"])
+    assert 0 < missing < 500
+    # the slow returns are the ones left out: a p-value of the others would test the truncation, so none is given,
+    # and stdout says why and what to do
+    assert "p = " not in r.stdout, r.stdout
+    assert f"{missing} of 500 samples did not return" in r.stdout and "raise run.collisions" in r.stdout
+    assert "biased" in r.stdout
+
+
+def test_the_histogram_figure_gives_no_p_value_when_samples_did_not_return():
+    from rbx import plotting
+    angle = np.linspace(0.1, 1.4, 50)
+    full = plotting.histogram_figure(angle, 3, 0.05, 0.5, "t")
+    assert "p = 0.5" in full.axes[0].get_legend_handles_labels()[1][1]
+    cut = plotting.histogram_figure(angle, 3, 0.05, 0.5, "t", not_returned=12)
+    labels = " ".join(cut.axes[0].get_legend_handles_labels()[1])
+    assert "p = " not in labels and "12 of 62 samples did not return" in labels and "no KS test" in labels and "run.collisions" in labels
