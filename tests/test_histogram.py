@@ -280,3 +280,15 @@ def test_the_histogram_figure_gives_no_p_value_when_samples_did_not_return():
     cut = plotting.histogram_figure(angle, 3, 0.05, 0.5, "t", not_returned=12)
     labels = " ".join(cut.axes[0].get_legend_handles_labels()[1])
     assert "p = " not in labels and "12 of 62 samples did not return" in labels and "no KS test" in labels and "run.collisions" in labels
+
+
+def test_cli_refuses_a_histogram_of_no_return(tmp_path):
+    """No sample returned: nothing to compare, so one line, exit 2, and neither file written (the angles would be
+    an empty list); no NumPy warning either."""
+    conf = write_config(tmp_path / "none.yaml", run="{collisions: 1, trajectories: 200, seed: 2}")
+    r = rbx("histogram", str(conf), "-o", str(tmp_path / "none.png"))
+    assert r.returncode == 2, (r.stdout, r.stderr)
+    assert r.stderr.count("\n") == 1 and r.stderr.startswith(f"rbx: {conf}: run.collisions: "), r.stderr
+    assert "no sample returned" in r.stderr and "raise run.collisions" in r.stderr
+    assert "Warning" not in r.stderr + r.stdout
+    assert not (tmp_path / "none.png").exists() and not (tmp_path / "returns.h5").exists()

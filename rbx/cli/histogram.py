@@ -137,6 +137,10 @@ def _histogram(config, out, data, trajectories, seed, sets, force, quiet, cluste
         finally:
             stop.running = False        # a signal from here on aborts at once again
             progress.close()
+    if len(result.angle) == 0:       # nothing to compare: neither an empty list of angles nor a figure is written
+        raise UserError(config, "run.collisions",
+                        f"no sample returned within {plural(cfg.run.collisions, 'collision')}: nothing to compare, "
+                        "nothing written; raise run.collisions")
     try:
         write_returns(h5_path, cfg, result)
     except OSError as exc:
