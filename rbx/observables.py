@@ -22,7 +22,7 @@ from .dynamics import REGULAR_THRESHOLD, escape_times, exponential_rate
 from .model import Exit, rule_leaves
 
 __all__ = ["Observable", "REGISTRY", "register", "get", "PointRuns", "Value", "PARAMETERS", "axis_label",
-           "variable_label", "parameter_label"]
+           "variable_label", "parameter_label", "error_bars"]
 
 
 @dataclass(frozen=True)
@@ -75,13 +75,27 @@ class Observable:
     dim: str | None = None          # the value's extra dimension
     coords: object = None           # experiment -> coordinate values of ``dim`` (and of companions' dims)
     problem: object = None
-    error: str = "standard error"
+    error: str = "standard error"  # what its error is: a standard error, "half-width of <an interval>" or "none (…)"
+    level: str = "about 68 %"      # the share of repeated measurements the error bar's interval would cover
     label: str = ""                 # what it is in a few words, for an axis ("Lyapunov exponent"); default: the name
     symbol: str = ""                # its symbol ("λ₁"), beside the words on an axis
 
     @property
     def simulate(self):
         return bool(self.fields) or self.final
+
+    @property
+    def bars(self):
+        """What an error bar of this observable spans, from ``error`` and ``level``, for a figure's note
+        ('±1 standard error (about 68 %)', 'the Wilson interval (z = 1, about 68 %)'), or '' (no error)."""
+        if self.error.startswith("none"):
+            return ""
+        if self.error.startswith("half-width of "):
+            interval = self.error[len("half-width of "):]
+            if interval.endswith(")"):
+                return f"{interval[:-1]}, {self.level})"
+            return f"{interval} ({self.level})"
+        return f"±1 {self.error} ({self.level})"
 
 
 REGISTRY = {}
@@ -142,6 +156,15 @@ def variable_label(name, unit=None, units=True):
                 words = c.label or c.description.split(":")[0]
                 return axis_label(words, c.symbol, c.unit if units else None), c.symbol or words
     return axis_label(name, "", unit if units else None), name
+
+
+def error_bars(name):
+    """What the error bars of a results file's variable are (an observable's, or a companion's with the error of
+    its observable) -> 'bars: …' for a figure, or '' (no error, or not a registered name)."""
+    for rec in REGISTRY.values():
+        if name == rec.name or any(name == f"{rec.name}_{c.suffix}" for c in rec.companions):
+            return f"bars: {rec.bars}" if rec.bars else ""
+    return ""
 
 
 # ---- statistics ------------------------------------------------------------------------------------------------

@@ -839,7 +839,7 @@ def sweep_figure(panels, title, width=None):
 
     A panel: ``series`` [{x, y, err ((n,) symmetric or (2, n) below/above), label}], optional ``references``
     [{x, y, label}] (dashed: a closed form at each point, or a constant when ``x`` is None), ``xlabel``,
-    ``ylabel``, ``title``, ``logx``, ``logy``."""
+    ``ylabel``, ``title``, ``logx``, ``logy``, ``note`` (a legend line of its own: what the error bars are)."""
     width = width or (4.6 * len(panels) + 2.8)
     fig = _figure(width, 4.8, title)
     axes = fig.subplots(1, len(panels), squeeze=False)[0]
@@ -857,6 +857,8 @@ def sweep_figure(panels, title, width=None):
                 ax.axhline(float(ref["y"]), **style)
             else:
                 ax.plot(np.asarray(ref["x"], float), np.asarray(ref["y"], float), **style)
+        if panel.get("note"):
+            ax.plot([], [], " ", label=panel["note"])
         if panel.get("logx"):
             ax.set_xscale("log")
         if panel.get("logy"):
@@ -869,5 +871,8 @@ def sweep_figure(panels, title, width=None):
             ax.set_title(panel["title"])
         ax.grid(True, alpha=0.3)
         if any(h.get_label() and not h.get_label().startswith("_") for h in ax.get_lines() + ax.containers):
-            ax.legend(fontsize="small", loc="upper center", bbox_to_anchor=(0.5, -0.16), borderaxespad=0.0)
+            handles, labels = ax.get_legend_handles_labels()
+            order = sorted(range(len(labels)), key=lambda i: labels[i] == panel.get("note"))    # the note last
+            ax.legend([handles[i] for i in order], [labels[i] for i in order], fontsize="small",
+                      loc="upper center", bbox_to_anchor=(0.5, -0.16), borderaxespad=0.0)
     return fig

@@ -442,6 +442,27 @@ def test_the_lyapunov_sweep_plot_says_it_pools_regular_and_chaotic_orbits(specul
     assert title.splitlines()[-1] == "λ₁ pools each point's 4 orbits; none is regular (own λ₁ < 0.02)"
 
 
+def test_the_sweep_plot_says_what_its_error_bars_are(specular, tmp_path):
+    """A bar is ±1 standard error for most observables and a Wilson interval at z = 1 for a share: the figure says
+    which, and at what level, from the observable's record (the bars said nothing)."""
+    from rbx import plotting
+    from rbx.cli.sweep import open_results, sweep_panel
+    ds = open_results(str(specular[1]))
+    panel, _ = sweep_panel(ds, "mean_free_path")
+    assert panel["note"] == "bars: ±1 standard error (about 68 %)"
+    panel, _ = sweep_panel(ds, "lyapunov_per_collision")          # a companion with its own standard error
+    assert panel["note"] == "bars: ±1 standard error (about 68 %)"
+    ds["regular_share"] = ds["lyapunov"] * 0 + [0.0, 0.5]
+    ds["regular_share_low"] = ds["lyapunov"] * 0 + [0.0, 0.276]
+    ds["regular_share_high"] = ds["lyapunov"] * 0 + [0.2, 0.724]
+    panel, _ = sweep_panel(ds, "regular_share")
+    assert panel["note"] == "bars: the Wilson interval (z = 1, about 68 %)"
+    panel, _ = sweep_panel(ds, "mean_free_path_santalo")          # no bars: nothing said
+    assert panel.get("note") is None
+    fig = plotting.sweep_figure([sweep_panel(ds, "regular_share")[0]], "t")
+    assert "bars: the Wilson interval (z = 1, about 68 %)" in fig.axes[0].get_legend_handles_labels()[1]
+
+
 def test_a_results_file_without_the_orbit_counts_says_only_what_it_can(specular, tmp_path):
     # a file written before the counts were kept: the regular share measured beside λ₁, or nothing about it
     from rbx.cli.sweep import open_results, pooled_note

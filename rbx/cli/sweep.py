@@ -195,7 +195,7 @@ def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=Non
 
     import numpy as np
 
-    from ..observables import parameter_label, variable_label
+    from ..observables import error_bars, parameter_label, variable_label
     varied = json.loads(ds.attrs["varied"])
     measured = json.loads(ds.attrs["measure"])
     y = y or measured[0]
@@ -252,6 +252,8 @@ def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=Non
     seconds = float(np.nansum(ds["wall_time"].values))
     panel = {"series": series, "references": references, "xlabel": xlabel, "ylabel": ylabel, "logx": logx,
              "logy": logy}
+    if any(s["err"] is not None and np.any(np.asarray(s["err"]) > 0) for s in series) and error_bars(y):
+        panel["note"] = error_bars(y)          # what a bar is, from the observable's record
     title = (f"{ds.attrs.get('title', '')}\n{ysym} against {xsym} · {plural(int(M), 'trajectory')} × "
              f"{plural(int(N), 'collision')} per point · "
              f"{int(done.values.sum())} of {done.size} points · run time {duration(seconds)}")
