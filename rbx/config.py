@@ -326,6 +326,32 @@ def parse_yaml(text, file, key=None):
     return data
 
 
+#: the kinds of YAML file rbx reads, told apart by their top-level keys: kind -> (what it is called, the keys that
+#: mark it, what to do with it). A file given where another kind is expected is named by the kind its keys say.
+FILE_KINDS = {
+    "config": ("an experiment config", ("table", "boundary", "ball", "initial"),
+               "run it with rbx simulate, or name it in a study's base:"),
+    "study": ("a study", ("base", "vary", "measure"), "run it with rbx sweep"),
+    "table": ("a table file", ("kind",), "name it in a config's table:"),
+    "boundary": ("a boundary file", ("default", "walls"), "name it in a config's boundary:"),
+}
+
+def other_kind(data, expected):
+    """Why the mapping read from a file is not of the ``expected`` kind (a key of :data:`FILE_KINDS`), when its
+    top-level keys say it is a file of another kind and none marks the expected one -> a problem for
+    :class:`ConfigError` ('is a study (base, vary, measure), not an experiment config: run it with rbx sweep'), or
+    None: the file's own keys are then checked one by one."""
+    if not isinstance(data, dict):
+        return None
+    keys = {str(k) for k in data}
+    if keys & set(FILE_KINDS[expected][1]):
+        return None
+    for kind, (name, marks, todo) in FILE_KINDS.items():
+        if kind != expected and keys & set(marks):
+            return f"is {name} ({', '.join(marks)}), not {FILE_KINDS[expected][0]}: {todo}"
+    return None
+
+
 def read_text(path, key=None):
     """The text of the YAML file at ``path`` (a config or a study), or :class:`ConfigError`: a device, a FIFO or a
     huge file is refused before it is read (:func:`rbx.paths.config_file_problem`), and every failure to read is
@@ -348,11 +374,16 @@ def read_text(path, key=None):
         raise ConfigError(path, key, f"cannot read the file: {exc.strerror or exc}") from None
 
 
-def _read_yaml(path, key=None):
+def read_yaml(path, key=None, expected="config"):
+    """The mapping of a YAML file of the ``expected`` kind (:data:`FILE_KINDS`: a config, a study, a table or a
+    boundary file), or :class:`ConfigError`; a file whose keys say it is of another kind is named as such."""
     text = read_text(path, key)
     data = parse_yaml(text, path)
     if data is None:
         raise ConfigError(path, None, "the file is empty (expected a YAML mapping)")
+    problem = other_kind(data, expected)
+    if problem:
+        raise ConfigError(path, None, problem)
     return data
 
 
@@ -474,7 +505,7 @@ def load(path, overrides=None, changes=None, label="override"):
     config before it is validated (:func:`apply_changes`; ``label`` names where they came from in messages)."""
     path = os.path.abspath(path)
     with gc_paused():                   # one pause over reading and validating (one deferred collection)
-        return from_dict(_read_yaml(path), path, overrides, changes=changes, label=label, copy_data=False)
+        return from_dict(read_yaml(path), path, overrides, changes=changes, label=label, copy_data=False)
 
 
 def loads(text, source, overrides=None):
@@ -643,7 +674,7 @@ def _include(value, key, base, c):
         if not os.path.exists(path):
             c.fail(key, f"file not found: {path}{c.not_found_hint}")
         c.included.append(path)
-        return _read_yaml(path), path
+        return read_yaml(path, expected=key), path
     if not isinstance(value, dict):
         c.fail(key, f"expected a file name or a mapping, got {_kind(value)}")
     return value, None

@@ -40,7 +40,7 @@ from . import __version__, observables as obs
 from .analysis import scene_title, unbounded_axes
 from .api import cluster_for, load, simulate
 from .cluster import connect
-from .config import parse_yaml, read_text, repeated_orbits
+from .config import other_kind, parse_yaml, read_text, repeated_orbits
 from .dynamics import lyapunov
 from .histogram import return_experiment
 from .model import ConfigError
@@ -172,6 +172,9 @@ def load_study(study, base=None, progress=None, sets=None, ensemble=None):
         data = parse_yaml(text, file)
         if not isinstance(data, Mapping):
             raise ConfigError(file, None, "a study file is a mapping with base, vary, measure, ensemble")
+        problem = other_kind(data, "study")     # a config, a table or a boundary file: say so, and what to do
+        if problem:
+            raise ConfigError(file, None, problem)
         folder = os.path.dirname(file)
 
     def fail(key, problem):

@@ -454,3 +454,40 @@ def test_reading_many_explicit_states_sets_off_no_garbage_collection(tmp_path):
             gc.enable()
     finally:
         gc.callbacks.remove(count)
+
+
+# ---- a file of another kind where a config is expected ------------------------------------------------------------
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+@pytest.mark.parametrize("path,problem", [
+    ("configs/studies/lyapunov-sinai.yaml", "is a study (base, vary, measure), not an experiment config: run it "
+                                            "with rbx sweep"),
+    ("configs/tables/circle.yaml", "is a table file (kind), not an experiment config: name it in a config's table:"),
+    ("configs/boundary/rough2d.yaml", "is a boundary file (default, walls), not an experiment config: name it in a "
+                                      "config's boundary:"),
+])
+def test_a_file_of_another_kind_given_as_a_config_says_what_it_is(path, problem):
+    """A study, a table file or a boundary file given where an experiment config is expected: the message names the
+    kind of file and what to do with it (it named the first key as unknown)."""
+    with pytest.raises(ConfigError) as info:
+        config.load(os.path.join(ROOT, path))
+    assert info.value.key is None and info.value.problem == problem
+
+
+def test_a_config_named_as_a_table_or_given_as_a_study_says_what_it_is(tmp_path):
+    from rbx.study import load_study
+    example = os.path.join(ROOT, "configs", "examples", "sinai.yaml")
+    with pytest.raises(ConfigError) as info:
+        load_study(example)
+    assert info.value.file == example and info.value.problem == (
+        "is an experiment config (table, boundary, ball, initial), not a study: run it with rbx simulate, or name it "
+        "in a study's base:")
+    (tmp_path / "exp.yaml").write_text(f"table: {example}\nboundary: {{default: {{rule: constant, rank: 1}}}}\n"
+                                       "ball: {radius: 0.1}\ninitial: {position: [0.5, 0.5], velocity: [1, 0]}\n")
+    with pytest.raises(ConfigError) as info:
+        config.load(tmp_path / "exp.yaml")
+    assert info.value.file == example and info.value.problem.startswith(
+        "is an experiment config (table, boundary, ball, initial), not a table file")
+
