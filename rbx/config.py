@@ -336,6 +336,10 @@ FILE_KINDS = {
     "boundary": ("a boundary file", ("default", "walls"), "name it in a config's boundary:"),
 }
 
+#: the first bytes of an HDF5 file (a run of rbx simulate, rbx histogram's return angles, a study's NetCDF results)
+HDF5_SIGNATURE = b"\x89HDF\r\n\x1a\n"
+
+
 def other_kind(data, expected):
     """Why the mapping read from a file is not of the ``expected`` kind (a key of :data:`FILE_KINDS`), when its
     top-level keys say it is a file of another kind and none marks the expected one -> a problem for
@@ -350,6 +354,20 @@ def other_kind(data, expected):
         if kind != expected and keys & set(marks):
             return f"is {name} ({', '.join(marks)}), not {FILE_KINDS[expected][0]}: {todo}"
     return None
+
+
+def _binary_problem(path):
+    """What a file that is not UTF-8 text is, where a YAML file was expected."""
+    try:
+        with open(path, "rb") as fh:
+            head = fh.read(len(HDF5_SIGNATURE))
+    except OSError:
+        head = b""
+    if head != HDF5_SIGNATURE:
+        return "not a text (UTF-8) file"
+    if str(path).endswith(".nc"):
+        return "is a study's results file (NetCDF), not a YAML file: draw it with rbx plot --kind sweep"
+    return "is a run file (HDF5), not a YAML file: draw it with rbx plot, continue it with rbx simulate --resume"
 
 
 def read_text(path, key=None):
@@ -369,7 +387,7 @@ def read_text(path, key=None):
     except PermissionError:
         raise ConfigError(path, key, "cannot read the file: permission denied") from None
     except UnicodeDecodeError:
-        raise ConfigError(path, key, "not a text (UTF-8) file") from None
+        raise ConfigError(path, key, _binary_problem(path)) from None
     except OSError as exc:
         raise ConfigError(path, key, f"cannot read the file: {exc.strerror or exc}") from None
 

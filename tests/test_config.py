@@ -491,3 +491,18 @@ def test_a_config_named_as_a_table_or_given_as_a_study_says_what_it_is(tmp_path)
     assert info.value.file == example and info.value.problem.startswith(
         "is an experiment config (table, boundary, ball, initial), not a table file")
 
+
+def test_an_hdf5_file_given_as_a_config_is_named_a_run(tmp_path):
+    """A run file (HDF5) where a YAML config is expected: what it is and what to do with it (it said only that it
+    is not a text file)."""
+    import rbx
+    run = tmp_path / "run.h5"
+    rbx.simulate(os.path.join(ROOT, "configs", "examples", "circle.yaml"), collisions=5, output=str(run))
+    with pytest.raises(ConfigError) as info:
+        config.load(run)
+    assert info.value.problem == ("is a run file (HDF5), not a YAML file: draw it with rbx plot, continue it with "
+                                  "rbx simulate --resume")
+    (tmp_path / "binary.yaml").write_bytes(b"\xff\xfe\x00 not text")
+    with pytest.raises(ConfigError) as info:
+        config.load(tmp_path / "binary.yaml")
+    assert info.value.problem == "not a text (UTF-8) file"
