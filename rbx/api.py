@@ -25,7 +25,7 @@ from collections.abc import Mapping
 from . import config as cfgmod
 from . import driver
 from .cluster import connect
-from .config import repeated_orbits
+from .config import repeated_orbits, seed_change, unused_seed
 from .driver import check_size, prepare_resume, resume_to_file
 from .model import ConfigError, Experiment
 from .progress import Progress
@@ -59,7 +59,26 @@ def load(config, overrides=None, *, base=None):
     ``base``: for a mapping, the file or folder its relative paths (``table: ../tables/strip.yaml``, the output
     path) are resolved from; default: the working folder. A mapping read from a config file (``yaml.safe_load``)
     needs ``base=`` that file; ``experiment.to_dict()`` gives one with its includes inlined and its paths absolute,
-    which loads from any folder."""
+    which loads from any folder.
+
+    A seed given (``seed`` or ``run.seed``) to an experiment that draws no random numbers (fixed starts, no random
+    rule) changes nothing: a RuntimeWarning says so."""
+    exp = _load(config, overrides, base=base)
+    _warn_unused_seed(exp, overrides, stacklevel=3)
+    return exp
+
+
+def _warn_unused_seed(exp, overrides, stacklevel):
+    """The RuntimeWarning of a seed given (``seed``, ``run.seed``) to an experiment that draws no random numbers."""
+    overrides = overrides if isinstance(overrides, Mapping) else {}
+    if overrides.get("seed") is not None or seed_change(overrides):
+        message = unused_seed(exp)
+        if message:
+            warnings.warn(f"{exp.source}: seed: {message}", RuntimeWarning, stacklevel=stacklevel)
+
+
+def _load(config, overrides=None, *, base=None):
+    """:func:`load` without its warning (a study sets run.seed at every point, whatever its base draws)."""
     if overrides is not None and not isinstance(overrides, Mapping):
         raise TypeError(f"rbx.load: overrides is a mapping {{'ball.inertia': 0.2, …}}, not "
                         f"{type(overrides).__name__}")
@@ -139,10 +158,11 @@ def simulate(experiment, *, collisions=None, trajectories=None, seed=None, outpu
     (a file then holds every round finished before, ``complete = False``)."""
     overrides = {k: v for k, v in (("collisions", collisions), ("trajectories", trajectories), ("seed", seed),
                                    ("max_size", max_size)) if v is not None}
-    exp = load(experiment, overrides or None)
+    exp = _load(experiment, overrides or None)
     repeated = repeated_orbits(exp)
     if repeated:
         warnings.warn(f"{exp.source}: {repeated}", RuntimeWarning, stacklevel=2)
+    _warn_unused_seed(exp, overrides, stacklevel=3)
     if scheduler is None and (slices is not None or task_collisions is not None):
         raise TypeError("slices and task_collisions cut a run for a cluster: give scheduler too")
     bar = _progress(progress)

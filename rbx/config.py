@@ -1283,5 +1283,22 @@ def repeated_orbits(experiment):
             f"the others repeat their orbits ({fix})")
 
 
+def unused_seed(experiment):
+    """A warning for a seed given to a run that draws no random numbers (fixed starts, no random rule): the seed
+    changes nothing -> text, or None. Said where a seed is given (``--seed``, ``--set run.seed=``, ``seed=``), as
+    :func:`repeated_orbits` is."""
+    if draws_random_numbers(experiment):
+        return None
+    return "nothing in this run draws random numbers (a fixed start, no random rule): the seed changes nothing"
+
+
+def seed_change(changes):
+    """The dotted key of ``changes`` that sets run.seed (``run.seed``, or ``run`` with a seed), or None."""
+    for key, value in (changes or {}).items():
+        if str(key) == "run.seed" or (str(key) == "run" and isinstance(value, Mapping) and "seed" in value):
+            return str(key)
+    return None
+
+
 # an experiment changed by hand is validated again here (rbx.model asks through SERVICES: it imports no loader)
 SERVICES["revalidate"] = revalidate

@@ -38,7 +38,7 @@ import yaml
 
 from . import __version__, observables as obs
 from .analysis import scene_title, unbounded_axes
-from .api import cluster_for, load, simulate
+from .api import _load as load, cluster_for, simulate
 from .cluster import connect
 from .config import other_kind, parse_yaml, read_text, repeated_orbits
 from .dynamics import lyapunov

@@ -78,7 +78,8 @@ def test_a_dotted_override_runs_the_physics_the_yaml_would(strip_inertia):
         assert run.kappa == 0.2
         assert_same_records(records(run), records(reference))
     # the short names of the run settings still work, as do simulate's keywords
-    assert rbx.load(STRIP, {"collisions": 7, "run.seed": 3}).run == rbx.model.RunSettings(7, 1, 3)
+    with pytest.warns(RuntimeWarning, match="the seed changes nothing"):        # the strip draws no numbers
+        assert rbx.load(STRIP, {"collisions": 7, "run.seed": 3}).run == rbx.model.RunSettings(7, 1, 3)
     assert rbx.simulate(STRIP, collisions=20).records == 21
 
 
@@ -244,6 +245,33 @@ def test_the_api_warns_of_copies_of_one_orbit():
     assert rbx.config.repeated_orbits(rbx.load(STRIP, {"initial": [
         {"position": [0, 0.5], "velocity": [0.6, 0.8]}, {"position": [0, 0.5], "velocity": [0.6, 0.8]},
         {"position": [0, 0.4], "velocity": [0.6, 0.8]}]})).startswith("only 2 of the 3 trajectories")
+
+
+def test_a_seed_that_nothing_uses_is_warned_about(tmp_path):
+    """--seed (or --set run.seed) on a run that draws no random numbers (a fixed start, no random rule) changes
+    nothing: one warning line, as for copies of one orbit; a run that draws numbers says nothing."""
+    circle = ROOT / "configs" / "examples" / "circle.yaml"
+    res = cli("simulate", circle, "-o", "t.h5", "--seed", 5, "--collisions", 100, "--quiet", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert res.stderr == ("rbx: warning: --seed: nothing in this run draws random numbers (a fixed start, no random "
+                          "rule): the seed changes nothing\n"), res.stderr
+    res = cli("lyapunov", circle, "--set", "run.seed=5", "--collisions", 200, "--quiet", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert res.stderr.startswith("rbx: warning: --set run.seed: nothing in this run draws random numbers"), res.stderr
+    res = cli("simulate", STRIP, "-o", "random.h5", "--collisions", 100, "--seed", 5,
+              "--set", f"boundary={RANDOM}", "--quiet", cwd=tmp_path)
+    assert res.returncode == 0 and res.stderr == "", res.stderr
+
+
+def test_the_api_warns_of_a_seed_that_nothing_uses():
+    with pytest.warns(RuntimeWarning, match="nothing in this run draws random numbers"):
+        rbx.simulate(STRIP, collisions=20, seed=5)
+    with pytest.warns(RuntimeWarning, match="the seed changes nothing"):
+        rbx.load(STRIP, {"run.seed": 5})
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        rbx.simulate(STRIP, collisions=20)                                        # no seed given
+        rbx.simulate(rbx.load(STRIP, {"boundary": yaml.safe_load(RANDOM)}), collisions=20, seed=5)
 
 
 # ---- 3. rbx histogram and rbx simulate share output.path --------------------------------------------------------

@@ -86,13 +86,20 @@ def parse_sets(sets):
     return out
 
 
-def warn_repeated(cfg, overrides):
-    """The warning for an ensemble of copies of one orbit (:func:`rbx.config.repeated_orbits`), on stderr."""
-    from ..config import repeated_orbits
+def warn_repeated(cfg, overrides, changes=None):
+    """The warnings for settings that change nothing, on stderr: an ensemble of copies of one orbit
+    (:func:`rbx.config.repeated_orbits`), and a seed given by ``--seed`` or ``--set run.seed=`` (``changes``) to a
+    run that draws no random numbers (:func:`rbx.config.unused_seed`)."""
+    from ..config import repeated_orbits, seed_change, unused_seed
     message = repeated_orbits(cfg)
     if message:
         where = "--trajectories" if overrides.get("trajectories") is not None else \
             f"{display_path(cfg.source)}: run.trajectories"
+        click.echo(f"rbx: warning: {where}: {message}", err=True)
+    where = "--seed" if overrides.get("seed") is not None else (
+        f"--set {seed_change(changes)}" if seed_change(changes) else None)
+    message = unused_seed(cfg) if where else None
+    if message:
         click.echo(f"rbx: warning: {where}: {message}", err=True)
 
 

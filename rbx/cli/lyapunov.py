@@ -85,7 +85,7 @@ def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as
         except ClusterError as exc:     # the cluster failed mid-run: not the user's input, exit 1
             click.echo(f"rbx: {exc}; nothing computed", err=True)
             raise SystemExit(1) from None
-    warn_repeated(exp, overrides)        # after every refusal: a user error stays one line
+    warn_repeated(exp, overrides, changes)        # after every refusal: a user error stays one line
     said = (f"lyapunov: {plural(len(result.time), 'trajectory')} × {plural(exp.run.collisions, 'collision')} in "
             f"{duration(time.perf_counter() - began)}" + (f" ({compile_note()})" if compile_note() else ""))
     from ..config import start_groups

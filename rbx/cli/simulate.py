@@ -119,7 +119,7 @@ def _simulate(config, out, overrides, changes, force, quiet, stop, cluster, bega
             raise UserError(file, key, f"{cfg.run.trajectories} trajectories do not fit in the free memory") \
                 from None
         sim.cluster = on
-        warn_repeated(cfg, overrides)       # after every refusal: a user error stays one line
+        warn_repeated(cfg, overrides, changes)       # after every refusal: a user error stays one line
         watch_compiles()
         sim.compile_kernels()
         if stop.start_running():
