@@ -226,3 +226,17 @@ def test_shell_completion_names_commands_and_options(words, cword, expected):
     env = dict(os.environ, COMP_WORDS=words, COMP_CWORD=str(cword), _RBX_COMPLETE="bash_complete")
     res = subprocess.run([RBX], env=env, capture_output=True, text=True, timeout=120)
     assert res.returncode == 0 and expected in res.stdout.split(), (res.stdout, res.stderr)
+
+
+def test_the_readme_says_the_compile_notice_is_for_terminals_only():
+    """The line said before a first compile is printed only when stderr is a terminal (a program reading stderr
+    gets the summary line, which says how long the compile took); the README said it is printed, without that."""
+    from pathlib import Path
+    readme = (Path(__file__).resolve().parents[1] / "README.md").read_text()
+    text = " ".join(readme.split())
+    start = text.index("Before a first compile")
+    sentence = text[start:text.index("Results go to stdout", start)]
+    assert "only when stderr is a terminal" in sentence, sentence
+    quick = text[text.index("The first `rbx simulate` of a table compiles"):]
+    quick = quick[:quick.index("`make reproduce-figures`")]
+    assert "on a terminal" in quick, quick
