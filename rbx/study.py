@@ -792,10 +792,15 @@ def partial_path(output):
     return f"{output}.partial"
 
 
-def sweep(study, output=None, *, scheduler=None, resume=False, force=False, progress=None, base=None):
+def sweep(study, output=None, *, scheduler=None, resume=False, force=False, progress=None, base=None,
+          trajectories=None, collisions=None, sets=None):
     """Run a study -> :class:`xarray.Dataset` (docs/studies.md).
 
     ``study``: a study file or mapping (``base=``: the file or folder a mapping's relative paths start from);
+    ``trajectories``, ``collisions`` replace its ``ensemble`` entries and ``sets`` (``{dotted config key: value}``)
+    changes the base at every point after the study's own ``set``, as ``rbx sweep --trajectories M --collisions N
+    --set KEY=VALUE`` do (a shipped study shortened without copying it; checked as they are, an error naming such
+    a key ``--set KEY``; part of the study's digest, so a resume gives them again);
     ``output``: the results file (NetCDF via h5netcdf), committed after every point as ``output.partial`` and
     renamed at the end; an existing one is refused unless ``force`` (start again) or ``resume`` (compute only
     the points it lacks; a study whose canonical text changed is refused). ``scheduler``: a Dask scheduler
@@ -804,19 +809,25 @@ def sweep(study, output=None, *, scheduler=None, resume=False, force=False, prog
 
     The results file is written under the run lock ``output.lock`` that ``rbx simulate`` takes too: a second
     sweep, or a run, writing the same file is refused, naming the one that holds it."""
+    changes = {"sets": sets, "ensemble": {"trajectories": trajectories, "collisions": collisions}}
+    if isinstance(study, Study) and (sets or trajectories is not None or collisions is not None):
+        raise TypeError("rbx.sweep: trajectories, collisions and sets change a study file or mapping, not a loaded "
+                        "Study (give them to load_study)")
+    if sets is not None and not isinstance(sets, Mapping):
+        raise TypeError(f"rbx.sweep: sets is a mapping {{'ball.inertia': 0.2, …}}, not {type(sets).__name__}")
     if output is None:
-        return _sweep(study, None, scheduler, resume, force, progress, base)
+        return _sweep(study, None, scheduler, resume, force, progress, base, changes)
     output = os.path.abspath(os.fspath(output))
     check_own_names(output)        # a FIFO named as the lock would block its read
     acquire_lock(output)
     try:
-        return _sweep(study, output, scheduler, resume, force, progress, base)
+        return _sweep(study, output, scheduler, resume, force, progress, base, changes)
     finally:
         release_lock(output)
 
 
-def _sweep(study, output, scheduler, resume, force, progress, base):
-    st = load_study(study, base)
+def _sweep(study, output, scheduler, resume, force, progress, base, changes):
+    st = load_study(study, base, **changes)      # the path of rbx sweep --set, --trajectories, --collisions
     points = st.points()
     need = _needs(st)
     exp0 = st.experiment(points[0][1], need["fields"], need["every"])

@@ -651,6 +651,20 @@ def test_sweep_set_and_ensemble_options_change_every_point(tmp_path):
         assert not (tmp_path / "bad.nc").exists()
 
 
+def test_the_api_sweep_shortens_a_study_as_the_command_line_does(tmp_path):
+    """``rbx.sweep(path, trajectories=, collisions=, sets=)`` is ``rbx sweep --trajectories --collisions --set``:
+    the same numbers as the study with those values written in it, and the same refusals."""
+    study = {"base": SINAI, "vary": {"ball.inertia": [0.3, 0.6]}, "measure": ["mean_free_path"],
+             "ensemble": {"trajectories": 500, "collisions": 100000, "seed": 2}}
+    (tmp_path / "study.yaml").write_text(yaml.safe_dump(study))
+    got = rbx.sweep(tmp_path / "study.yaml", trajectories=3, collisions=200, sets={"ball.radius": 0.05})
+    assert got.attrs["ensemble_trajectories"] == 3 and got.attrs["ensemble_collisions"] == 200
+    written = dict(study, set={"ball.radius": 0.05}, ensemble={"trajectories": 3, "collisions": 200, "seed": 2})
+    same(got, sweep(written))
+    with pytest.raises(rbx.ConfigError, match="the study varies ball.inertia"):
+        rbx.sweep(tmp_path / "study.yaml", sets={"ball.inertia": 0.2})
+
+
 def test_a_studys_own_set_of_a_varied_key_is_refused():
     # vary replaces the key at every point: a set: of it (or of a mapping holding it) was overridden without a word
     study = {"base": SINAI, "vary": {"ball.inertia": [0.3, 0.6]}, "measure": ["mean_free_path"],
