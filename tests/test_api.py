@@ -294,6 +294,20 @@ def test_readme_python_example_runs(tmp_path, monkeypatch):
              namespace)
 
 
+def test_readme_names_the_error_of_a_script_beside_the_clone(tmp_path):
+    """A script in the folder that holds the clone (a folder named rbx) imports that folder, not the package: the
+    README says so, with the error it gives, as it is."""
+    import subprocess
+    import sys
+    (tmp_path / "rbx").symlink_to(ROOT, target_is_directory=True)        # the clone, as git clone … rbx names it
+    (tmp_path / "script.py").write_text('import rbx\nrbx.load("configs/examples/strip.yaml")\n')
+    res = subprocess.run([sys.executable, "script.py"], capture_output=True, text=True, cwd=tmp_path, timeout=120)
+    error = res.stderr.strip().splitlines()[-1]
+    assert res.returncode == 1 and error == "AttributeError: module 'rbx' has no attribute 'load'", res.stderr
+    readme = " ".join((ROOT / "README.md").read_text().split())
+    assert error in readme and "parent folder" in readme
+
+
 def test_example_notebook_runs(tmp_path, monkeypatch):
     """examples/api.ipynb, every code cell in order in one namespace (what 'Run all' does)."""
     import matplotlib
