@@ -113,11 +113,7 @@ def check_target(path, force, key, file=None, config_source=None, partial_ok=Fal
     if os.path.isdir(path) and not os.path.islink(path):
         raise FileError(file, key, f"{show} is a directory; give a file name such as run.h5")
     check_replaceable(path, key, file)       # a device, FIFO, socket or link: never replaced, even with force
-    for suffix, what in ((".lock", "lock"), (".journal", "journal"), (".partial.new", "new file")):
-        if path.endswith(suffix) and len(os.path.basename(path)) > len(suffix):
-            # rbx's own name for another output's file: written with --force it would replace a live run's lock
-            raise FileError(file, key, f"{show} is the name rbx gives {display_path(path[:-len(suffix)])}'s "
-                                       f"{what}; give another name, such as run.h5")
+    check_not_own_name(path, key, file)
     sources = [config_source] if isinstance(config_source, str) else list(config_source or ())
     for i, source in enumerate(sources):
         if source and os.path.exists(path) and os.path.exists(source) and os.path.samefile(path, source):
@@ -131,6 +127,23 @@ def check_target(path, force, key, file=None, config_source=None, partial_ok=Fal
     if os.path.exists(tmp) and not force and not partial_ok:
         # no live run holds the lock (checked above): a killed run left it
         raise _killed_partial(tmp, force_hint, "start this one over it")
+
+
+#: the endings rbx gives the files beside a run's output ``OUT.h5``, and what each is
+OWN_SUFFIXES = ((".lock", "lock"), (".journal", "journal"), (".partial.new", "new file"),
+                (".partial", "unfinished run file"))
+
+
+def check_not_own_name(path, key, file=None):
+    """Refuse an output named as rbx names the files beside another output (``OUT.h5.lock``, a ``.journal``,
+    ``OUT.h5.partial.new``, ``OUT.h5.partial``): written there, it would replace a live run's lock, or a finished
+    run would be taken for the ``.partial`` a killed run left (called that, removed by ``--force`` to OUT.h5,
+    renamed by ``--resume``). Raises :class:`FileError`."""
+    for suffix, what in OWN_SUFFIXES:
+        if path.endswith(suffix) and len(os.path.basename(path)) > len(suffix):
+            raise FileError(file, key, f"{display_path(path)} is the name rbx gives "
+                                       f"{display_path(path[:-len(suffix)])}'s {what}; give another name, such as "
+                                       "run.h5")
 
 
 def forget_second_name(tmp, path):
@@ -486,6 +499,8 @@ def prepare_resume(run_file, output=None, *, force=False, max_size=None, out_key
     source = resumed_source(run_file)
     default = source[:-len(".partial")] if source.endswith(".partial") else source
     path = os.path.abspath(os.fspath(output)) if output else default
+    if output:
+        check_not_own_name(path, out_key)      # before the source is locked or read
     tmp = temporary_path(path)
     in_place = tmp == source
     # rbx's own files beside the source and the output (the .partial, its journal, the lock) must be nothing or

@@ -191,3 +191,55 @@ def test_reading_an_output_whose_run_lies_in_its_partial_names_the_partial(tmp_p
     assert "rbx simulate --resume" in str(info.value), info.value
     line = one_line(rbx_cli("plot", "o.h5", "--kind", "orbit", "-o", "x.png", cwd=tmp_path))
     assert line.startswith("rbx: o.h5: file not found, but o.h5.partial holds its run"), line
+
+
+# ---- an output is never named as a run's own files -------------------------------------------------------------------
+
+from tests.test_interrupt import invoke, tiny_blocks  # noqa: E402,F401 - the fixture, used by the tests below
+
+
+def _refusal(res):
+    """The one line a refused CliRunner invocation printed (exit 2)."""
+    assert res.exit_code == 2, (res.exit_code, res.stderr)
+    lines = [x for x in res.stderr.strip().splitlines() if x.startswith("rbx:")]
+    assert len(lines) == 1 and "Traceback" not in res.stderr, res.stderr
+    return lines[0]
+
+
+def test_an_output_named_as_a_runs_partial_is_refused_on_every_path(tmp_path, tiny_blocks):
+    """`-o r.h5.partial` was accepted by a new run and by a resume: the finished run, under the name rbx gives r.h5's
+    unfinished file, was later called 'left by a run that was killed', deleted by `--force` to r.h5 without a word
+    and renamed by `--resume r.h5.partial`. Such an output is now refused in one line, exit 2, before anything is
+    written; a killed run's `.partial` given to `--resume` (its input) still continues."""
+    exp = write_config(tmp_path, strip_random(1500, trajectories=2, every=3, record=("time",)))
+    tiny_blocks(None)
+    line = _refusal(invoke(exp, "-o", tmp_path / "r.h5.partial"))
+    assert "r.h5.partial is the name rbx gives" in line and "r.h5's" in line, line
+    with pytest.raises(rbx.FileError, match="is the name rbx gives"):
+        rbx.simulate(str(exp), output=str(tmp_path / "r.h5.partial"))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["exp.yaml"]
+
+    tiny_blocks(2)                    # an interrupted run.h5
+    assert invoke(exp, "-o", tmp_path / "run.h5").exit_code == 130
+    before = (tmp_path / "run.h5").read_bytes()
+    tiny_blocks(None)
+    for force in ((), ("--force",)):
+        line = _refusal(invoke("--resume", tmp_path / "run.h5", "-o", tmp_path / "x.h5.partial", *force))
+        assert "x.h5.partial is the name rbx gives" in line, line
+    with pytest.raises(rbx.FileError, match="is the name rbx gives"):
+        rbx.resume(tmp_path / "run.h5", output=tmp_path / "x.h5.partial", force=True)
+    with pytest.raises(rbx.FileError, match="is the name rbx gives"):
+        rbx.resume(tmp_path / "run.h5", output=tmp_path / "run.h5.partial", force=True)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["exp.yaml", "run.h5"]
+    assert (tmp_path / "run.h5").read_bytes() == before
+
+    # a killed run's .partial is the input of --resume: it continues, in place and into -o
+    os.rename(tmp_path / "run.h5", tmp_path / "k.h5.partial")
+    res = invoke("--resume", tmp_path / "k.h5.partial", "-o", tmp_path / "other.h5")
+    assert res.exit_code == 0, res.stderr
+    res = invoke("--resume", tmp_path / "k.h5.partial")
+    assert res.exit_code == 0, res.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["exp.yaml", "k.h5", "other.h5"]
+    assert bool(read_run(tmp_path / "k.h5")["attrs"]["complete"])
+    assert_same_records(read_run(tmp_path / "k.h5"), read_run(tmp_path / "other.h5"))
+
