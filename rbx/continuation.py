@@ -71,6 +71,7 @@ def _load(run, source):
     for f in recorded + ("count",):
         if g[f].shape[0] != M:
             raise damaged(f"collisions/{f}", f"has {g[f].shape[0]} trajectories, the config {M}")
+    _check_growable(g, recorded, cfg, damaged)
 
     state, slot, verified = latest_state(run.h5)
     if any(k not in state for k in STATE_KEYS):
@@ -109,6 +110,25 @@ def _load(run, source):
     sim.torn_chunks = torn
     done = int(running[0]) if running.size else cfg.run.collisions
     return sim, False, done
+
+
+def _check_growable(g, recorded, cfg, damaged):
+    """The datasets a resume cuts back and extends along the records (the recorded fields, ``step``, the ``record``
+    scale) must be able to: chunked, with room for the run's records. A file rewritten with them contiguous (as
+    ``h5repack -l CONTI`` does) or chunked with a fixed maximum shape reads as any other, but its resume failed
+    in HDF5 with a traceback after the copy of the file was made."""
+    needed = cfg.run.collisions // cfg.output.every + 1 if recorded else 0
+    for name in recorded + ("step",) + (("record",) if "record" in g else ()):
+        ds = g[name]
+        axis = 0 if ds.ndim == 1 else 1
+        if ds.chunks is None:
+            raise damaged(f"collisions/{name}", "is stored contiguous, not in chunks, so it cannot be extended (a "
+                                                "copy rewritten by h5repack or another tool?)")
+        most = ds.maxshape[axis]
+        if most is not None and most < needed:
+            raise damaged(f"collisions/{name}", f"has a fixed maximum of {most} records, fewer than the run's "
+                                                f"{needed}, so it cannot be extended (a copy rewritten by another "
+                                                "tool?)")
 
 
 def _check_orbit(run, slot, source):

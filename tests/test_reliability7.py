@@ -243,3 +243,49 @@ def test_an_output_named_as_a_runs_partial_is_refused_on_every_path(tmp_path, ti
     assert bool(read_run(tmp_path / "k.h5")["attrs"]["complete"])
     assert_same_records(read_run(tmp_path / "k.h5"), read_run(tmp_path / "other.h5"))
 
+
+# ---- a file whose datasets cannot grow is refused before a resume writes anything ------------------------------------
+
+def _rewrite_records(path, how):
+    """Rewrite the record datasets and ``step`` of the run file ``path`` as they cannot grow: ``contiguous`` (as
+    ``h5repack -l CONTI`` writes them) or chunked with a fixed maximum shape, their values and attributes kept."""
+    import h5py
+    with h5py.File(path, "r+") as f:
+        g = f["collisions"]
+        for name in [n for n in g if n not in ("count", "trajectory", "record", "axis", "axis2")]:
+            ds = g[name]
+            data, attrs = ds[...], {k: v for k, v in ds.attrs.items() if k != "DIMENSION_LIST"}
+            del g[name]
+            if how == "contiguous":
+                new = g.create_dataset(name, data=data)
+            else:
+                new = g.create_dataset(name, data=data, chunks=True, maxshape=data.shape)
+            assert (new.chunks is None) == (how == "contiguous")
+            for k, v in attrs.items():
+                new.attrs[k] = v
+
+
+@pytest.mark.parametrize("how", ["contiguous", "fixed maximum"])
+def test_a_run_file_whose_datasets_cannot_grow_is_refused_before_a_resume_writes(how, tmp_path, tiny_blocks):
+    """An interrupted run file rewritten with its datasets contiguous (as a repack does) or chunked with a fixed
+    maximum shape: `rbx.open` and `rbx plot` read it, but `--resume` failed with a traceback ('Only chunked datasets
+    can be resized', 'dimension cannot exceed the existing maximal size'), exit 1, and left a copy under the -o
+    name. It is now refused in one line naming the dataset, exit 2, with nothing written, in place or into -o."""
+    exp = write_config(tmp_path, strip_random(1500, trajectories=2, every=3, record=("time", "position")))
+    tiny_blocks(2)
+    assert invoke(exp, "-o", tmp_path / "run.h5").exit_code == 130
+    tiny_blocks(None)
+    _rewrite_records(tmp_path / "run.h5", how)
+    with rbx.open(tmp_path / "run.h5") as run:
+        assert not run.complete and run.read("time").shape[1] > 1
+    before = (tmp_path / "run.h5").read_bytes()
+    for args in (("-o", tmp_path / "out.h5"), ()):
+        line = _refusal(invoke("--resume", tmp_path / "run.h5", *args))
+        assert "run.h5: collisions/" in line and "cannot be extended" in line, line
+        assert "cannot be resumed" in line, line
+        assert sorted(p.name for p in tmp_path.iterdir()) == ["exp.yaml", "run.h5"]
+        assert (tmp_path / "run.h5").read_bytes() == before
+    with pytest.raises(rbx.ConfigError, match="cannot be extended"):
+        rbx.resume(tmp_path / "run.h5", output=tmp_path / "out.h5")
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["exp.yaml", "run.h5"]
+
