@@ -509,7 +509,8 @@ def prepare_resume(run_file, output=None, *, force=False, max_size=None, out_key
         check_own_names(out)
     # the source's lock before its file is read: a run still writing it is named in one line (reading a file that
     # HDF5 is writing can fail as "damaged"); continuation.load holds it on for the run
-    locked = _lock_source(source, in_place)
+    unlocked = _lock_source(source, in_place, out_key)
+    locked = unlocked is None
     notes = []
     own = False          # the output is the run's own earlier file, which this continuation replaces
     try:
@@ -533,6 +534,11 @@ def prepare_resume(run_file, output=None, *, force=False, max_size=None, out_key
                                                "renamed; resume it without -o to rename it to its own output")
             finish_complete(source, path, force or own)
             return Resumption("renamed", source, path, notes=notes)
+        if not locked and lock_path(path) == lock_path(source):
+            # OUT.h5 resumed into itself works on a copy beside it (OUT.h5.partial), which its folder cannot take:
+            # the copy failed naming that .partial ("cannot write"), a file that is not there
+            run.close()
+            raise _not_in_place(source, unlocked, out_key)
         note = continuation.version_note(run)
         with run:
             try:
@@ -672,18 +678,25 @@ def _leftover_partial(source, tmp, path, force_hint):
                                f"continue {shown}: remove {show}")
 
 
-def _lock_source(source, in_place):
-    """Take the lock of the file a resume reads -> True; False when its folder cannot be written (a read-only file
-    system: nothing can write the file there either) and the run is written elsewhere. In place it must be
-    taken: :class:`FileError`."""
+def _lock_source(source, in_place, out_key="-o"):
+    """Take the lock of the file a resume reads -> None; the problem (text) when its folder cannot be written (a
+    read-only file system: nothing can write the file there either) and the run may be written elsewhere. In
+    place it must be taken: :class:`FileError` (:func:`_not_in_place`)."""
     try:
         acquire_lock(source)
     except LockNotWritable as exc:
         if in_place:
-            raise FileError(source, None, f"cannot be resumed in place: {exc.problem} (a read-only file system?); "
-                                          "resume it into a writable folder with -o") from None
-        return False
-    return True
+            raise _not_in_place(source, exc.problem, out_key) from None
+        return exc.problem
+    return None
+
+
+def _not_in_place(source, problem, out_key):
+    """The refusal of a resume that would write beside ``source``, whose folder cannot be written (``problem``:
+    why the lock could not be made): say so, and the way on, an output elsewhere."""
+    other = "-o" if out_key.startswith("-") else f"{out_key}="
+    return FileError(source, None, f"cannot be resumed in place: its folder cannot be written ({problem}); resume "
+                                   f"it into a writable folder with {other}")
 
 
 def resume_to_file(r, *, progress=None, should_stop=None, report=None):

@@ -289,3 +289,28 @@ def test_a_run_file_whose_datasets_cannot_grow_is_refused_before_a_resume_writes
         rbx.resume(tmp_path / "run.h5", output=tmp_path / "out.h5")
     assert sorted(p.name for p in tmp_path.iterdir()) == ["exp.yaml", "run.h5"]
 
+
+# ---- a resume in place in a read-only folder says so ---------------------------------------------------------------
+
+def test_a_resume_into_itself_in_a_read_only_folder_says_the_folder_cannot_be_written(tmp_path, tiny_blocks):
+    """`--resume OUT.h5` of an interrupted run on a read-only file system said 'OUT.h5.partial: cannot write:
+    Read-only file system', naming a file that does not exist and giving no way on. It now says the run cannot be
+    resumed there, its folder cannot be written, and to resume it into a writable folder with -o, which works."""
+    from tests.test_reliability3 import tmpfs
+    exp = write_config(tmp_path, strip_random(1500, trajectories=2, every=3, record=("time",)))
+    with tmpfs(tmp_path / "disk", "16m") as disk:
+        tiny_blocks(2)
+        assert invoke(exp, "-o", disk / "i.h5").exit_code == 130
+        tiny_blocks(None)
+        res = subprocess.run(["mount", "-o", "remount,ro", str(disk)], capture_output=True, text=True)
+        if res.returncode != 0:
+            pytest.skip(f"cannot make the tmpfs read-only: {res.stderr.strip()}")
+        line = _refusal(invoke("--resume", disk / "i.h5"))
+        assert "i.h5.partial" not in line and "i.h5: cannot be resumed in place" in line, line
+        assert "its folder cannot be written" in line and "into a writable folder with -o" in line, line
+        with pytest.raises(rbx.FileError, match="its folder cannot be written"):
+            rbx.resume(disk / "i.h5")
+        res = invoke("--resume", disk / "i.h5", "-o", tmp_path / "out.h5")
+        assert res.exit_code == 0, res.stderr
+        assert sorted(p.name for p in disk.iterdir()) == ["i.h5"]
+    assert bool(read_run(tmp_path / "out.h5")["attrs"]["complete"])
