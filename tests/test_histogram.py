@@ -257,6 +257,28 @@ def test_cli_user_errors(tmp_path):
     assert r.returncode == 2 and "missing.yaml" in r.stderr and "Traceback" not in r.stderr
 
 
+def test_cli_writes_only_where_its_files_may_go_and_says_so_before_sampling(tmp_path):
+    """The figure as rbx plot's -o: not through a link, not over a file that is not a figure (even with --force),
+    not into a missing folder; and a read-only folder for the return angles is found before the samples are drawn
+    (they were drawn, then lost to a traceback). Each one line, exit 2, nothing written."""
+    conf = write_config(tmp_path / "h.yaml")
+    (tmp_path / "notes.txt").write_text("mine\n")
+    os.symlink(tmp_path / "notes.txt", tmp_path / "link.png")
+    (tmp_path / "text.png").write_text("mine\n")
+    for fig, words in (("link.png", "symbolic link"), ("text.png", "is not a figure"),
+                       ("no/such/h.png", "does not exist")):
+        r = rbx("histogram", str(conf), "-o", str(tmp_path / fig), "--data", str(tmp_path / "a.h5"), "--force")
+        assert r.returncode == 2 and r.stderr.count("\n") == 1 and words in r.stderr, (fig, r.stderr)
+    assert (tmp_path / "notes.txt").read_text() == (tmp_path / "text.png").read_text() == "mine\n"
+    assert not (tmp_path / "a.h5").exists() and not (tmp_path / "no").exists()
+    from tests.test_reliability3 import tmpfs
+    with tmpfs(tmp_path / "ro", "1m") as ro:
+        subprocess.run(["mount", "-o", "remount,ro", str(ro)], check=True)
+        r = rbx("histogram", str(conf), "-o", str(tmp_path / "h.png"), "--data", str(ro / "a.h5"))
+        assert r.returncode == 2 and r.stderr.count("\n") == 1 and "cannot be written" in r.stderr, r.stderr
+        assert "Traceback" not in r.stderr and not (tmp_path / "h.png").exists()
+
+
 def test_cli_reports_trajectories_that_did_not_return(tmp_path):
     conf = write_config(tmp_path / "short.yaml", run="{collisions: 2, trajectories: 500, seed: 2}")
     r = rbx("histogram", str(conf))

@@ -9,9 +9,9 @@ import time
 
 import click
 
-from .common import (Command, Progress, UserError, check_cluster_options, check_memory, connect, display_path,
-                     duration, ending_on_signals, parse_sets, pending_signal, quiet_option, report_and_exit,
-                     plural, set_option, summary, user_errors)
+from .common import (Command, Progress, UserError, check_cluster_options, check_figure_target, check_memory, connect,
+                     display_path, duration, ending_on_signals, parse_sets, pending_signal, quiet_option,
+                     report_and_exit, plural, set_option, summary, user_errors)
 
 
 @click.command(cls=Command)
@@ -125,6 +125,17 @@ def _histogram(config, out, data, trajectories, seed, sets, force, quiet, cluste
                    "to another disk with --data")
     if os.path.exists(fig_path) and not force:
         raise UserError(fig_path, None, "exists; use --force to overwrite it")
+    # where the figure goes, as rbx plot -o: no folder made, no link written through, only a figure replaced; and
+    # both files' folders writable: found before the samples are drawn, not after (they were lost)
+    check_figure_target(fig_path)
+    for path, name in ((h5_path, key), (fig_path, "-o")):
+        if not os.path.isdir(os.path.dirname(path)):
+            raise UserError(path, None, f"the folder {display_path(os.path.dirname(path))} does not exist (rbx "
+                                        f"makes no folders: create it first, or give {name} another path)")
+        if not os.access(os.path.dirname(path), os.W_OK):
+            raise UserError(path, None, f"its folder {display_path(os.path.dirname(path))} cannot be written (a "
+                                        f"read-only file system, or no permission): give {name} in a writable "
+                                        "folder")
 
     with connect(cluster) as on:
         progress = Progress("histogram", quiet=quiet, trajectories=cfg.run.trajectories)
@@ -142,7 +153,8 @@ def _histogram(config, out, data, trajectories, seed, sets, force, quiet, cluste
                         f"no sample returned within {plural(cfg.run.collisions, 'collision')}: nothing to compare, "
                         "nothing written; raise run.collisions")
     try:
-        write_returns(h5_path, cfg, result)
+        with user_errors():     # a lock that cannot be made, a file of another kind: one line
+            write_returns(h5_path, cfg, result)
     except OSError as exc:
         if exc.errno in NO_ROOM:     # not the user's input: the disk filled meanwhile (or a size limit), exit 1
             click.echo(f"rbx: {display_path(h5_path)}: cannot write: {exc.strerror}: no room on the disk (or a size "
@@ -157,7 +169,6 @@ def _histogram(config, out, data, trajectories, seed, sets, force, quiet, cluste
                                     f"{title}\nreturn angles to {wall}: {len(result.angle)} of {result.samples} "
                                     f"billiard-measure samples", not_returned=result.not_returned)
     try:
-        os.makedirs(os.path.dirname(fig_path), exist_ok=True)
         fig.savefig(fig_path, dpi=150)
     except (OSError, ValueError) as exc:
         raise UserError(fig_path, None, f"cannot write the figure: {getattr(exc, 'strerror', None) or exc}") \
