@@ -489,6 +489,18 @@ def test_poincare_axes_are_named_with_their_sign(scenes):
     assert fig.axes[0].get_xlabel().startswith("x ") and fig.axes[0].get_ylabel().startswith("y ")
 
 
+def test_a_run_without_records_is_said_to_hold_none_not_a_bad_range():
+    # a .partial stopped before its first block was saved: "--records: : selects no records (the run has 0: 0–-1)"
+    # blamed an option the user never gave
+    from rbx.cli.common import UserError
+    from rbx.cli.plot import check_records
+    with pytest.raises(UserError) as info:
+        check_records(slice(None), 0, "o.h5.partial")
+    assert "holds no records yet" in str(info.value) and "--records" not in str(info.value), str(info.value)
+    with pytest.raises(UserError, match="selects no records"):
+        check_records(slice(5, 9), 3, "o.h5")
+
+
 def test_strided_records_are_drawn_as_points(scenes):
     """Every 2nd record: the collisions between them are missing, so no straight flight joins two of them; the
     orbit is drawn as points, as for a run that records every 2nd collision."""

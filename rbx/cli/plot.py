@@ -172,7 +172,11 @@ def parse_records(text):
 
 
 def check_records(records, available, file):
-    """Refuse a --records range that selects nothing (it drew a blank figure)."""
+    """Refuse a --records range that selects nothing (it drew a blank figure), and a run that holds no records
+    yet (a run stopped before its first block was saved)."""
+    if available == 0:
+        raise UserError(file, None, "holds no records yet (stopped before its first block was saved): resume it "
+                                    "with rbx simulate --resume, then draw it")
     if len(range(available)[records]) == 0:
         a, b, c = records.start, records.stop, records.step
         text = ":".join("" if v is None else str(v) for v in ((a, b) if c is None else (a, b, c)))
