@@ -30,7 +30,7 @@ from .driver import check_size, prepare_resume, resume_to_file
 from .model import ConfigError, Experiment
 from .progress import Progress
 from .runfile import Run
-from .simulation import MemorySink, Simulation
+from .simulation import MemorySink, Simulation, memory_problem
 
 # nothing heavy at import: the CLI takes StopFlag from here before it installs its signal handlers
 __all__ = ["load", "simulate", "resume", "open"]
@@ -158,7 +158,13 @@ def simulate(experiment, *, collisions=None, trajectories=None, seed=None, outpu
     (a file then holds every round finished before, ``complete = False``)."""
     overrides = {k: v for k, v in (("collisions", collisions), ("trajectories", trajectories), ("seed", seed),
                                    ("max_size", max_size)) if v is not None}
+    if output is not None and not isinstance(output, (str, os.PathLike)):
+        raise TypeError(f"output: a file path (str or os.PathLike), got {type(output).__name__}")
     exp = _load(experiment, overrides or None)
+    problem = memory_problem(exp.run.trajectories)
+    if problem:     # refused as rbx simulate refuses it, not a MemoryError after minutes of setting up
+        given = "trajectories" in overrides
+        raise ConfigError(None if given else exp.source, "trajectories" if given else "run.trajectories", problem)
     repeated = repeated_orbits(exp)
     if repeated:
         warnings.warn(f"{exp.source}: {repeated}", RuntimeWarning, stacklevel=2)

@@ -22,6 +22,7 @@ import dataclasses
 import difflib
 import gc
 import math
+import numbers
 import os
 import re
 import types
@@ -467,6 +468,8 @@ class _Checker:
         return value
 
     def integer(self, value, key, lo=None, hi=None):
+        if isinstance(value, numbers.Integral) and not isinstance(value, bool):
+            value = int(value)          # NumPy's integers too (np.int64(100) from an array or a range)
         if isinstance(value, str) and _SCIENTIFIC.match(value):
             value = float(value)
         if isinstance(value, float) and math.isfinite(value) and value.is_integer():

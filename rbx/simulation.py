@@ -4,6 +4,7 @@ each block of records to a sink (the HDF5 writer, or memory for the API and test
 Memory stays flat: a block holds at most a few million values whatever the run's length.
 """
 import copy
+import os
 import time
 from concurrent.futures import ThreadPoolExecutor, wait
 
@@ -63,6 +64,25 @@ def block_work(geom):
 class NonFiniteState(ArithmeticError):
     """A trajectory's state stopped being finite: the run stops (its file keeps the last checkpoint, incomplete)
     rather than end the trajectory as if it had escaped."""
+
+
+#: bytes of one trajectory's state, generously (position, velocity, spin and orientation matrices, counters, key):
+#: what :func:`memory_problem` counts for a run
+STATE_BYTES = 400
+
+
+def memory_problem(trajectories, per_trajectory=STATE_BYTES):
+    """Why an ensemble's state alone would not fit in this machine's memory (``per_trajectory`` bytes each) -> the
+    problem as text, or None: refused before minutes of setting up, rather than a MemoryError after them."""
+    try:
+        available = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
+    except (ValueError, OSError, AttributeError):   # not a POSIX system: let the allocation decide
+        return None
+    need = trajectories * per_trajectory
+    if need <= available:
+        return None
+    return (f"{trajectories} trajectories need about {need / 2**30:.3g} GiB of memory, more than this machine has "
+            f"({available / 2**30:.3g} GiB)")
 
 
 class Simulation:

@@ -103,25 +103,19 @@ def warn_repeated(cfg, overrides, changes=None):
         click.echo(f"rbx: warning: {where}: {message}", err=True)
 
 
-#: bytes per trajectory, generously: the state (position, velocity, spin and orientation matrices, counters, key)
-#: for a run; for the return-angle experiment also its draws and results
-BYTES_PER_TRAJECTORY = {"simulate": 400, "histogram": 1200}
+#: bytes per trajectory, generously, beyond a run's state (rbx.simulation.STATE_BYTES): for the return-angle
+#: experiment its draws and results
+EXTRA_BYTES_PER_TRAJECTORY = {"simulate": 0, "histogram": 800}
 
 
 def check_memory(cfg, overrides, command="simulate"):
     """Refuse an ensemble whose state alone would not fit in this machine's memory, rather than spend minutes
     setting it up and then crash (``rbx histogram`` with 10⁹ samples died with MemoryError)."""
-    import os
-    M = cfg.run.trajectories
-    try:
-        available = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
-    except (ValueError, OSError, AttributeError):   # not a POSIX system: let the allocation decide
-        return
-    need = M * BYTES_PER_TRAJECTORY[command]
-    if need > available:
+    from ..simulation import STATE_BYTES, memory_problem
+    problem = memory_problem(cfg.run.trajectories, STATE_BYTES + EXTRA_BYTES_PER_TRAJECTORY[command])
+    if problem:
         file, key = (None, "--trajectories") if overrides.get("trajectories") else (cfg.source, "run.trajectories")
-        raise UserError(file, key, f"{M} trajectories need about {need / 2**30:.3g} GiB of memory, more than this "
-                                   f"machine has ({available / 2**30:.3g} GiB)")
+        raise UserError(file, key, problem)
 
 
 _PENDING = []
