@@ -220,7 +220,12 @@ ensemble: {{trajectories: 32, collisions: 80000, seed: 11}}
 ```
 
     rbx sweep STUDY.yaml -o RESULTS.nc [--scheduler ADDRESS] [--resume] [--force] [--quiet]
+              [--set KEY=VALUE] [--trajectories M] [--collisions N]     # a shipped study, shortened
     rbx plot RESULTS.nc --kind sweep [--y OBSERVABLE] [--x KEY] [--logx] [--logy] [-o FIG.png]
+
+From Python the same: `rbx.sweep("STUDY.yaml", "RESULTS.nc", trajectories=4, collisions=5000,
+sets={{"ball.radius": 0.05}})` is `rbx sweep STUDY.yaml -o RESULTS.nc --trajectories 4 --collisions 5000 --set
+ball.radius=0.05` (the same checks, and the same numbers); it returns the results as an `xarray.Dataset`.
 
 The results file opens with `xarray.open_dataset`: one dimension per varied key, `<observable>` and
 `<observable>_stderr` (and companions such as `mean_free_path_santalo`, `return_path_kac`, `regular_share_low/high`),
