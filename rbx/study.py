@@ -850,7 +850,7 @@ def _sweep(study, output, scheduler, resume, force, progress, base, changes):
                 if ds.attrs.get("study_digest") != st.digest:
                     raise FileError(source, "--resume", "the study changed since this file was started (its "
                                                         "digest differs): run it afresh with --force")
-                _check_resumable(ds, _empty(st, exp0), source)
+                _check_resumable(ds, _empty(st, exp0), source, st, points)
                 if source == output and int(ds["done"].values.min()) == 1:
                     return ds
         elif not force:
@@ -905,10 +905,19 @@ def _sweep(study, output, scheduler, resume, force, progress, base, changes):
     return ds
 
 
-def _check_resumable(ds, template, path):
+#: the observables whose value is a number at every computed point (rbx.lyapunov raises rather than give none; the
+#: energy of a run that went non-finite stops it; a mean free path counts at least the flight to the first
+#: collision): a NaN there in a point marked done is not a result
+NEVER_NAN = frozenset({"lyapunov", "energy_drift", "mean_free_path"})
+
+
+def _check_resumable(ds, template, path, study=None, points=()):
     """Refuse (:class:`FileError` naming the variable) a results file to resume whose variables are not those this
     study writes, of their shapes: a file with the study's digest but ``done`` missing, of another shape or not
-    0/1 (damaged, or made by hand) gave a traceback, or was taken as finished."""
+    0/1 (damaged, or made by hand) gave a traceback, or was taken as finished. Refused too: coordinates other than
+    the study's values (compared exactly: the points computed now would be stored under the file's labels), and
+    points marked done that hold a non-finite value where their observable always gives a number, a seed other
+    than the study's for the point, or a non-finite wall time (their values would be kept as results)."""
     fix = "not the results of this study as rbx sweep writes them: run it afresh with --force"
     for name, var in template.variables.items():
         if name not in ds.variables:
@@ -922,6 +931,44 @@ def _check_resumable(ds, template, path):
     done = ds["done"].values
     if not np.all((done == 0) | (done == 1)):
         raise FileError(path, "done", f"holds values other than 0 and 1; {fix}")
+    for name, var in template.coords.items():
+        mine, theirs = np.asarray(var.values), np.asarray(ds[name].values)
+        if mine.dtype.kind in "OUS":
+            mine, theirs = mine.astype(str), theirs.astype(str)
+        if theirs.dtype.kind in "iufb" and mine.dtype.kind in "iufb" or mine.dtype.kind == theirs.dtype.kind:
+            equal = theirs.shape == mine.shape and bool(np.all(theirs == mine))
+        else:
+            equal = False
+        if not equal:
+            raise FileError(path, name, f"holds the values {_shown(theirs)} where this study's are {_shown(mine)}; "
+                                        f"{fix}")
+    if study is None:
+        return
+    finished = done.astype(bool)
+    for name in [n for n, _ in study.measure if n in NEVER_NAN] + ["wall_time"]:
+        values = np.asarray(ds[name].values, float)
+        bad = finished & ~np.all(np.isfinite(values.reshape(done.shape + (-1,))), axis=-1)
+        if bad.any():
+            raise FileError(path, name, f"is not a number at {int(bad.sum())} of the points marked done (the "
+                                        f"first: {_point_label(study, np.argwhere(bad)[0])}); {fix}")
+    seeds = np.asarray(ds["seed"].values)
+    for index, point in points:
+        if finished[index] and int(seeds[index]) != study.seed(point):
+            raise FileError(path, "seed", f"holds {int(seeds[index])} at the point "
+                                          f"{_point_label(study, index)}, where this study's seed is "
+                                          f"{study.seed(point)}; {fix}")
+
+
+def _shown(values, most=4):
+    shown = ", ".join(str(v) if not isinstance(v, float) else f"{v:g}" for v in values.ravel()[:most].tolist())
+    return f"[{shown}{', …' if values.size > most else ''}]"
+
+
+def _point_label(study, index):
+    index = tuple(int(i) for i in np.atleast_1d(index))
+    if study.zip:
+        return ", ".join(f"{k} = {v[index[0]]}" for k, v in zip(study.keys, study.values))
+    return ", ".join(f"{k} = {v[i]}" for k, v, i in zip(study.keys, study.values, index))
 
 
 class StudyInterrupted(KeyboardInterrupt):

@@ -709,6 +709,37 @@ def test_a_results_file_to_resume_without_the_studys_variables_is_one_line(tmp_p
         assert not (tmp_path / "c.nc").exists()
 
 
+def test_a_results_file_to_resume_with_other_coordinates_or_impossible_done_values_is_one_line(tmp_path):
+    """A results file with the study's digest whose coordinates are not the study's values, or whose points marked
+    done hold a NaN mean free path or another seed (made by hand): --resume continued it, the points computed now
+    stored under the file's labels and the done ones kept as results, exit 0."""
+    import h5py
+    study = {"base": SINAI, "vary": {"ball.inertia": [0.3, 0.6]}, "measure": ["mean_free_path"],
+             "ensemble": {"trajectories": 2, "collisions": 50, "seed": 2}}
+    (tmp_path / "study.yaml").write_text(yaml.safe_dump(study))
+    sweep(str(tmp_path / "study.yaml"), str(tmp_path / "r.nc"))
+    damages = {"ball.inertia": lambda f: f["ball.inertia"].write_direct(np.array([3.0, 6.0])),
+               "mean_free_path": lambda f: f["mean_free_path"].write_direct(np.array([np.nan, np.nan])),
+               "seed": lambda f: f["seed"].write_direct(np.array([12345, 0], np.int64))}
+    for key, damage in damages.items():
+        partial = tmp_path / "c.nc.partial"
+        partial.write_bytes((tmp_path / "r.nc").read_bytes())
+        with h5py.File(partial, "a") as f:
+            f["done"].write_direct(np.array([1, 0], np.int8))       # the first point done, the second to run
+            damage(f)
+        res = rbx_cli("sweep", "study.yaml", "-o", "c.nc", "--resume", cwd=tmp_path)
+        assert res.returncode == 2 and res.stderr.count("\n") == 1 and "Traceback" not in res.stderr, res.stderr
+        assert res.stderr.startswith(f"rbx: c.nc.partial: {key}: "), res.stderr
+        assert "run it afresh with --force" in res.stderr, res.stderr
+        assert not (tmp_path / "c.nc").exists()
+    # the same file as it was written, with the second point to run: continued to the whole results
+    partial.write_bytes((tmp_path / "r.nc").read_bytes())
+    with h5py.File(partial, "a") as f:
+        f["done"].write_direct(np.array([1, 0], np.int8))
+    res = rbx_cli("sweep", "study.yaml", "-o", "c.nc", "--resume", "--quiet", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+
+
 def test_a_failed_write_over_kept_points_says_how_much_room_a_write_needs(tmp_path):
     """The results are replaced whole: a new copy is written beside the old one, then renamed over it, so a disk
     that holds the results once cannot take the next write. The line says so, with the size (it said only 'free
