@@ -47,6 +47,7 @@ from .geometry import (HALFSPACE, SEGMENT, box_collision, contact_normal, normal
 from .model import FIELD, FIELDS
 from .primitives import P_NORMAL, P_POINT
 from .physics import collide, collide_axis
+from .rng import draw_bits
 from .rules import EXIT, Rules, choose  # noqa: F401 - Rules: a group of the kernels, defined with the rules
 from .tangent import last_flight, orthonormalise, step
 from .trig import sincos
@@ -485,8 +486,14 @@ def _make_kernel(spec):
                 # 4. rule
                 w = prim_wall[p]
                 if TREE:
-                    node, d = choose(w, nu, Aj, th, key, d, rules.root, rules.kind, rules.first, rules.nchild,
-                                     rules.children, rules.threshold, rules.axis, rules.phase, n, ROUND_HEMI)
+                    node = rules.pair_child[w, 0]
+                    if node >= 0:       # a random choice between two constant rules: one draw, one comparison
+                        m = draw_bits(key, d) >> np.uint64(11)
+                        node = rules.pair_child[w, np.int64(m >= rules.pair_threshold[w])]
+                        d += 1
+                    else:
+                        node, d = choose(w, nu, Aj, th, key, d, rules.root, rules.kind, rules.first, rules.nchild,
+                                         rules.children, rules.threshold, rules.axis, rules.phase, n, ROUND_HEMI)
                 else:
                     node = rules.root[w]
                 rk = rules.rank[node]

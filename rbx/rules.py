@@ -47,6 +47,10 @@ class Rules(NamedTuple):
     axis: np.ndarray        # (nodes, n) body-frame axis (hemisphere nodes)
     phase: np.ndarray       # (nodes, walls) 2D hemisphere nodes on flat walls, else NaN (rbx.rules.phases)
     basis: np.ndarray       # (nodes, walls, n-1, n) roughness basis (constant nodes)
+    #: (walls, 2) the two leaves of a wall whose root is a random choice between two constant rules (the common
+    #: shape, as in the paper's random strip), else −1; the root's threshold in ``pair_threshold`` (walls,)
+    pair_child: np.ndarray
+    pair_threshold: np.ndarray
 
 
 @dataclass
@@ -70,9 +74,17 @@ class CompiledRules:
 
     def kernel_arrays(self):
         """The arrays the kernels read, as the group :class:`Rules`."""
+        pair_child = np.full((len(self.root), 2), -1, np.int64)
+        pair_threshold = np.zeros(len(self.root), np.uint64)
+        for w, r in enumerate(self.root):
+            k = self.first[r]
+            if self.kind[r] == RANDOM and self.nchild[r] == 2 and \
+                    all(self.kind[self.children[k + c]] == CONSTANT for c in (0, 1)):
+                pair_child[w] = self.children[k:k + 2]
+                pair_threshold[w] = self.threshold[k]
         return Rules(root=self.root, kind=self.kind, rank=self.rank, first=self.first, nchild=self.nchild,
-                     children=self.children,
-                     threshold=self.threshold, axis=self.axis, phase=self.phase, basis=self.basis)
+                     children=self.children, threshold=self.threshold, axis=self.axis, phase=self.phase,
+                     basis=self.basis, pair_child=pair_child, pair_threshold=pair_threshold)
 
 
 def compile_rules(wall_rules, geom):

@@ -130,6 +130,26 @@ def test_integer_thresholds_pick_the_child_the_float_draw_picks(probs):
         assert node == r.children[r.first[r.root[0]] + by_int(int(draw_bits(key, d)) >> 11)]
 
 
+def test_a_wall_whose_rule_is_a_random_choice_of_two_constants_takes_the_kernels_short_pick():
+    # engine: such a wall's leaf is picked with one draw and one comparison (Rules.pair_child, pair_threshold),
+    # without the walk; any other shape takes the walk. The same child as the walk (rules.choose) on real draws
+    two = {"rule": "random", "choices": [SMOOTH, ROUGH], "probabilities": [0.3, 0.7]}
+    three = {"rule": "random", "choices": [SMOOTH, ROUGH, SMOOTH], "probabilities": [0.2, 0.3, 0.5]}
+    nested = {"rule": "random", "choices": [SMOOTH, _hemisphere([0, 1])], "probabilities": [0.5, 0.5]}
+    rect = {"kind": "rectangle", "width": 2.0, "height": 1.0}
+    r = _sim(rect, two).rules.kernel_arrays()
+    assert np.all(r.pair_child >= 0) and np.all(r.pair_threshold == rules.thresholds([0.3])[0])
+    for rule in (three, nested, ROUGH, _hemisphere([0, 1])):
+        assert np.all(_sim(rect, rule).rules.kernel_arrays().pair_child == -1), rule
+    sim = _sim(rect, two)
+    k = sim.rules.kernel_arrays()
+    key = np.uint64(777)
+    for d in range(500):
+        m = int(draw_bits(key, d)) >> 11
+        short = k.pair_child[0, int(m >= int(k.pair_threshold[0]))]
+        assert short == _choose(sim.rules, 0, [0.0, 1.0], 0.0, False, key, d)[0]
+
+
 def test_a_random_rule_runs_the_map_without_a_branch_on_the_rank_and_the_same_orbit():
     # a random rule sets engine.S_BLEND (a run-time bit: no kernel of its own): the collision map computes the rough
     # change at rank 0 too, times 0, where a branch on the drawn rank would be mispredicted half the time. The same
