@@ -818,12 +818,25 @@ def sweep(study, output=None, *, scheduler=None, resume=False, force=False, prog
     if output is None:
         return _sweep(study, None, scheduler, resume, force, progress, base, changes)
     output = os.path.abspath(os.fspath(output))
+    _check_not_own_name(output)
     check_own_names(output)        # a FIFO named as the lock would block its read
     acquire_lock(output)
     try:
         return _sweep(study, output, scheduler, resume, force, progress, base, changes)
     finally:
         release_lock(output)
+
+
+def _check_not_own_name(output):
+    """Refuse results named as rbx names the files beside another output (``X.nc.partial``, ``X.nc.lock``, …): a
+    sweep wrote its results there, which ``--resume -o X.nc`` then took for its own unfinished results (and
+    ``--force`` removed), or over a live run's lock. As ``rbx simulate`` refuses such an output."""
+    from .driver import OWN_SUFFIXES
+    for suffix, what in OWN_SUFFIXES:
+        if output.endswith(suffix) and len(os.path.basename(output)) > len(suffix):
+            raise FileError(None, "-o", f"{display_path(output)} is the name rbx gives "
+                                        f"{display_path(output[:-len(suffix)])}'s {what}; give another name, such "
+                                        "as results.nc")
 
 
 def _sweep(study, output, scheduler, resume, force, progress, base, changes):

@@ -740,6 +740,20 @@ def test_a_results_file_to_resume_with_other_coordinates_or_impossible_done_valu
     assert res.returncode == 0, res.stderr
 
 
+@pytest.mark.parametrize("suffix", [".partial", ".lock"])
+def test_results_named_as_rbxs_own_file_beside_another_are_refused(suffix, tmp_path):
+    """`-o X.nc.partial` (or `X.nc.lock`) is the name rbx gives the unfinished results of `-o X.nc` (or its run
+    lock): a sweep wrote its results there, exit 0, where a later `--resume -o X.nc` or `--force` takes it for its
+    own. Refused in one line, as rbx simulate refuses such an output, nothing written."""
+    study = {"base": SINAI, "vary": {"ball.inertia": [0.3, 0.6]}, "measure": ["mean_free_path"],
+             "ensemble": {"trajectories": 2, "collisions": 50, "seed": 2}}
+    (tmp_path / "study.yaml").write_text(yaml.safe_dump(study))
+    res = rbx_cli("sweep", "study.yaml", "-o", f"x.nc{suffix}", "--quiet", cwd=tmp_path)
+    assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
+    assert res.stderr.startswith(f"rbx: -o: x.nc{suffix} is the name rbx gives x.nc's "), res.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["study.yaml"]
+
+
 def test_a_failed_write_over_kept_points_says_how_much_room_a_write_needs(tmp_path):
     """The results are replaced whole: a new copy is written beside the old one, then renamed over it, so a disk
     that holds the results once cannot take the next write. The line says so, with the size (it said only 'free
