@@ -327,6 +327,10 @@ class Cluster:
                     lost = answer
             if found or not answers:        # no worker at all: the run waits for them (said by the caller)
                 return found
+        if getattr(self.client, "status", "running") not in ("running", "newly-created"):
+            # the client lost its scheduler (killed, shut down): not the workers
+            raise SchedulerUnreachable(self.key, "the scheduler is gone (shut down, or the network to it lost): "
+                                                 f"the client's connection is {self.client.status}")
         why = f" ({_first_line(lost)})" if lost is not None else ""
         raise SchedulerUnreachable(self.key, f"no worker answered{why}: the workers were lost (killed, or the "
                                              "network to them); start them again")

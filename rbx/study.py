@@ -39,7 +39,7 @@ import yaml
 from . import __version__, observables as obs
 from .analysis import scene_title, unbounded_axes
 from .api import _load as load, cluster_for, simulate
-from .cluster import connect
+from .cluster import ClusterError, SchedulerUnreachable, connect
 from .config import other_kind, parse_yaml, read_text, repeated_orbits
 from .dynamics import lyapunov
 from .histogram import return_experiment
@@ -888,6 +888,12 @@ def _sweep(study, output, scheduler, resume, force, progress, base, changes):
         for index, point in todo:
             try:
                 values, collisions, seconds = run_point(st, point, scheduler=client)
+            except SchedulerUnreachable as exc:
+                if client is None:
+                    raise
+                # the cluster the study started on is lost (its scheduler killed, its workers gone): a run that
+                # stopped, not a bad address
+                raise ClusterError(exc.key, exc.problem) from None
             except MemoryError:
                 raise ConfigError(st.file, "ensemble.trajectories",
                                   f"{st.ensemble['trajectories']} trajectories of a point do not fit in this "

@@ -557,3 +557,34 @@ def test_a_worker_killed_while_the_client_checks_the_workers_is_left_out_not_tak
     assert_same(remote, local)
     with h5py.File(tmp_path / "remote.h5") as f:
         assert sorted(f) == ["collisions", "final"]
+
+
+def test_a_scheduler_lost_mid_study_is_one_line_exit_1_and_how_to_continue(tmp_path):
+    """rbx sweep --scheduler with the scheduler killed after the first point was written: it said "no worker
+    answered … the workers were lost; start them again" (exit 2, a user error), after Dask's own ERROR line; as
+    rbx simulate says it: one line naming the lost scheduler, what the results file keeps and the --resume line,
+    exit 1."""
+    sinai = str(Path(__file__).resolve().parents[1] / "configs" / "examples" / "sinai.yaml")
+    study = {"base": sinai, "vary": {"ball.inertia": [0.3, 0.6, 0.9]}, "measure": ["lyapunov"],
+             "ensemble": {"trajectories": 2, "collisions": 3_000_000, "seed": 2}}
+    (tmp_path / "study.yaml").write_text(yaml.safe_dump(study, sort_keys=False))
+    dask = LocalDask(tmp_path / "dask", 1)
+    try:
+        # the first write comes once the points took about a second, and leaves a point to run
+        proc = start(["sweep", "study.yaml", "-o", "out.nc", "--quiet", "--trajectories", 2, "--scheduler",
+                      dask.address], tmp_path, tmp_path / "out.nc.partial")
+        assert proc.poll() is None, "the study ended before the scheduler was killed"
+        os.killpg(dask.procs[0].pid, signal.SIGKILL)
+        dask.procs[0].wait()
+        _, err = proc.communicate(timeout=300)
+    finally:
+        dask.stop()
+    assert proc.returncode == 1, err
+    line, = err.strip().splitlines()
+    assert line.startswith("rbx: out.nc.partial: --scheduler: ") and "the scheduler is gone" in line, line
+    assert line.endswith("Continue with: rbx sweep study.yaml -o out.nc --trajectories 2 --resume (with "
+                         "--scheduler, or locally)"), line
+    import xarray as xr
+    with xr.open_dataset(tmp_path / "out.nc.partial") as ds:
+        kept = int(ds["done"].sum())
+    assert 1 <= kept < 3 and f"the file holds the {kept} of 3 points finished before" in line, line

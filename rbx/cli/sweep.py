@@ -59,7 +59,8 @@ def sweep(study, output, scheduler, resume, force, trajectories, collisions, set
         changes = {"sets": parse_sets(sets), "ensemble": {"trajectories": trajectories, "collisions": collisions}}
         with ending_on_signals(stop):
             try:
-                ds = _sweep(study, output, scheduler, resume, force, progress, checking, changes)
+                ds = _sweep(study, output, scheduler, resume, force, progress, checking, changes,
+                            _again(sets, trajectories, collisions))
             except StudyInterrupted as exc:
                 stop.running = True     # a second signal now only notes itself: the line below is printed
                 interrupted = exc
@@ -75,10 +76,7 @@ def sweep(study, output, scheduler, resume, force, trajectories, collisions, set
         report_and_exit(exc, debug)
     bar.close()
     if interrupted is not None:
-        again = [a for item in sets for a in ("--set", item)]
-        again += [a for flag, v in (("--trajectories", trajectories), ("--collisions", collisions)) if v is not None
-                  for a in (flag, str(v))]
-        _interrupted(interrupted, stop.signum or signal.SIGINT, study, again)
+        _interrupted(interrupted, stop.signum or signal.SIGINT, study, _again(sets, trajectories, collisions))
     points = int(ds["done"].size)
     if not counts or counts[0][0] == counts[0][1]:
         summary(quiet, f"nothing to do: {display_path(output)} holds all {plural(points, 'point')} of the study")
@@ -89,6 +87,13 @@ def sweep(study, output, scheduler, resume, force, trajectories, collisions, set
                    f"{plural(int(ds.attrs['ensemble_collisions']), 'collision')}"
                    + (f" ({ran} run now, {counts[0][0]} before)" if counts[0][0] else "") +
                    f" in {duration(time.perf_counter() - began)}")
+
+
+def _again(sets, trajectories, collisions):
+    """The options a --resume must give again (part of the study's digest) -> list of arguments."""
+    again = [a for item in sets for a in ("--set", item)]
+    return again + [a for flag, v in (("--trajectories", trajectories), ("--collisions", collisions)) if v is not None
+                    for a in (flag, str(v))]
 
 
 def _kept(output):
@@ -123,11 +128,14 @@ def _interrupted(exc, signum, study, again=()):
 LONG_CHECK = 10_000
 
 
-def _sweep(study, output, scheduler, resume, force, progress, checking=None, changes=None):
+def _sweep(study, output, scheduler, resume, force, progress, checking=None, changes=None, again=()):
     from ..cluster import ClusterError, SchedulerUnreachable
     from ..paths import DiskFull
     from ..study import load_study
     from ..study import sweep as run
+    from .common import _quiet_dask
+    if scheduler is not None:
+        _quiet_dask()        # Dask's own log lines of a lost connection: rbx says itself what went wrong
     with user_errors():
         try:
             with warnings.catch_warnings(record=True) as said:      # one line each, as the other commands say them
@@ -140,12 +148,26 @@ def _sweep(study, output, scheduler, resume, force, progress, checking=None, cha
             raise UserError(None, "--scheduler", exc.problem) from None
         except ValueError as exc:        # a point whose trajectories all left the table before measuring
             raise UserError(study, None, str(exc)) from None
-        except ClusterError as exc:
-            click.echo(f"rbx: {exc}; the points finished before are in {display_path(output)}.partial", err=True)
+        except ClusterError as exc:         # as rbx simulate says a lost cluster: one line, exit 1
+            click.echo(_cluster_lost(exc, study, output, again), err=True)
             raise SystemExit(1) from None
         except DiskFull as exc:          # as rbx simulate's full disk: one line, exit 1
             click.echo(f"rbx: {exc}", err=True)
             raise SystemExit(1) from None
+
+
+def _cluster_lost(exc, study, output, again):
+    """The line of a study stopped by a lost cluster: what went wrong, what the results file keeps, how to go on."""
+    import os
+
+    from ..study import kept_points, partial_path
+    said = f"--scheduler: {exc.problem}"       # the option this command was given (the API's key is scheduler)
+    path, kept, total = kept_points(partial_path(os.path.abspath(output)))
+    if not kept:
+        return f"rbx: {said}; the study stopped before its first point was written, nothing was kept"
+    return (f"rbx: {display_path(path)}: {said}; the study stopped, the file holds the {kept} of {total} points "
+            f"finished before. Continue with: rbx sweep {shlex.quote(study)} -o {shlex.quote(display_path(output))} "
+            + "".join(f"{shlex.quote(a)} " for a in again) + "--resume (with --scheduler, or locally)")
 
 
 # ---- rbx plot RESULTS.nc --kind sweep ---------------------------------------------------------------------------
