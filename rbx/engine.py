@@ -275,6 +275,7 @@ S_AXES = 4096       # bounded by an axis-aligned box (Table.box): a division per
 S_ROUND_HEMI = 8192  # 2D: a hemisphere rule on a wall without one normal: cos θ, sin θ (rbx.rules.choose)
 S_TANGENT = 16384   # carry tangent vectors (Tangent) along the orbit: the Lyapunov spectrum, the flow's Jacobian
 S_BLEND = 32768     # the rank is drawn at random: the map computed without a branch on it (rbx.physics.rough_factor)
+S_PAIRS = 65536     # every wall's rule is a random choice between two constant rules: picked without the walk
 #: the bits compiled into the kernel; the others are tested at run time (a predictable branch). Each compiled
 #: combination in use costs a compile of 5–15 s the first time (then it is on disk), so the bits compiled are the
 #: ones that pay: the dimension (loops of constant length, state in registers), spin arithmetic, the slab's closed
@@ -296,12 +297,13 @@ RUNTIME_BITS = ~COMPILED_BITS
 
 def make_spec(n, orient=False, spin=True, tree=False, record=False, compensated=False, snap=False,
               slab=False, stop_wall=False, periodic=False, exit=False, axes=False, round_hemisphere=False,
-              tangent=False, blend=False):
+              tangent=False, blend=False, pairs=False):
     """The ``spec`` bits from flags (:class:`rbx.simulation.Simulation` derives them from the config)."""
     flags = ((n == 3, S_DIM3), (orient, S_ORIENT), (spin, S_SPIN), (tree, S_TREE), (record, S_RECORD),
              (compensated, S_COMPENSATED), (snap, S_SNAP), (slab, S_SLAB),
              (stop_wall, S_STOP_WALL), (periodic, S_PERIODIC), (exit, S_EXIT), (axes, S_AXES),
-             (round_hemisphere, S_ROUND_HEMI), (tangent, S_TANGENT), (blend, S_BLEND))
+             (round_hemisphere, S_ROUND_HEMI), (tangent, S_TANGENT), (blend, S_BLEND),
+             (pairs, S_PAIRS))
     return sum(bit for on, bit in flags if on)
 
 
@@ -367,6 +369,7 @@ def _make_kernel(spec):
         n = N
         on = settings.flags                        # the run-time bits are read from here (the compiled ones: constants)
         blend = BLEND and (on & S_BLEND) != 0
+        pairs = TREE and (on & S_PAIRS) != 0
         codes, prim_wall, params, tol = table.codes, table.prim_wall, table.params, table.tol
         first_hit = table.first_hit
         R, kappa, every, renorm_every = settings.R, settings.kappa, settings.every, settings.renorm_every
@@ -486,8 +489,7 @@ def _make_kernel(spec):
                 # 4. rule
                 w = prim_wall[p]
                 if TREE:
-                    node = rules.pair_child[w, 0]
-                    if node >= 0:       # a random choice between two constant rules: one draw, one comparison
+                    if pairs:       # every wall a random choice between two constant rules: one draw, one comparison
                         m = draw_bits(key, d) >> np.uint64(11)
                         node = rules.pair_child[w, np.int64(m >= rules.pair_threshold[w])]
                         d += 1

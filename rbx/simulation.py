@@ -192,7 +192,8 @@ class Simulation:
             record=bool(self.record), compensated=self.numerics.compensated,
             snap=self.numerics.snap, slab=self.geom.slab, stop_wall=self.stop_wall >= 0,
             periodic=self.geom.lattice is not None, exit=bool(np.any(r.kind == rules.EXIT)),
-            axes=self.geom.axis_box is not None, round_hemisphere=r.round_hemisphere, blend=r.uses_random)
+            axes=self.geom.axis_box is not None, round_hemisphere=r.round_hemisphere, blend=r.uses_random,
+            pairs=r.all_pairs)
         return (bits | self.force_bits) & ~self.drop_bits
 
     def kernel_groups(self):

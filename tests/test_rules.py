@@ -139,8 +139,16 @@ def test_a_wall_whose_rule_is_a_random_choice_of_two_constants_takes_the_kernels
     rect = {"kind": "rectangle", "width": 2.0, "height": 1.0}
     r = _sim(rect, two).rules.kernel_arrays()
     assert np.all(r.pair_child >= 0) and np.all(r.pair_threshold == rules.thresholds([0.3])[0])
+    assert _sim(rect, two).spec() & engine.S_PAIRS
     for rule in (three, nested, ROUGH, _hemisphere([0, 1])):
         assert np.all(_sim(rect, rule).rules.kernel_arrays().pair_child == -1), rule
+        assert not _sim(rect, rule).spec() & engine.S_PAIRS
+    # one wall of another rule: the pick is not used at all (a constant wall must draw nothing)
+    mixed = rbx.load({"table": rect, "boundary": {"default": two, "walls": {"left": ROUGH}},
+                      "ball": {"radius": 0.1}, "initial": {"position": [1.0, 0.5], "velocity": [0.6, 0.8],
+                                                          "angular_velocity": 1.0},
+                      "run": {"collisions": 10, "trajectories": 1, "seed": 3}})
+    assert not Simulation(mixed).spec() & engine.S_PAIRS
     sim = _sim(rect, two)
     k = sim.rules.kernel_arrays()
     key = np.uint64(777)
@@ -162,15 +170,17 @@ def test_a_random_rule_runs_the_map_without_a_branch_on_the_rank_and_the_same_or
          "run": {"collisions": 4000, "trajectories": 2, "seed": 3},
          "output": {"record": ["time", "position", "velocity", "angular_velocity", "orientation", "rank"]}}
     runs = []
-    for drop in (0, engine.S_BLEND):
+    for drop in (0, engine.S_BLEND, engine.S_PAIRS):      # and the same with the walk instead of the short pick
         sim = Simulation(rbx.load(d), drop_bits=drop)
-        assert bool(sim.spec() & engine.S_BLEND) == (drop == 0)
+        both = engine.S_BLEND | engine.S_PAIRS
+        assert sim.spec() & both == both & ~drop
         sink = MemorySink()
         sim.run(sink)
         runs.append(sink.records)
     assert set(np.unique(runs[0]["rank"])) == {0, 1}
     for f in runs[0]:
-        np.testing.assert_array_equal(runs[0][f], runs[1][f], err_msg=f)
+        for other in runs[1:]:
+            np.testing.assert_array_equal(runs[0][f], other[f], err_msg=f)
     assert not _sim({"kind": "strip", "width": 1.0}, _hemisphere([0, 1])).spec() & engine.S_BLEND
 
 
