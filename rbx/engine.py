@@ -47,7 +47,7 @@ from .geometry import (HALFSPACE, SEGMENT, box_collision, contact_normal, normal
 from .model import FIELD, FIELDS
 from .primitives import P_NORMAL, P_POINT
 from .physics import collide, collide_axis
-from .rng import draw_bits
+from .rng import draw53
 from .rules import EXIT, Rules, choose  # noqa: F401 - Rules: a group of the kernels, defined with the rules
 from .tangent import last_flight, orthonormalise, step
 from .trig import sincos
@@ -490,8 +490,7 @@ def _make_kernel(spec):
                 w = prim_wall[p]
                 if TREE:
                     if pairs:       # every wall a random choice between two constant rules: one draw, one comparison
-                        m = draw_bits(key, d) >> np.uint64(11)
-                        node = rules.pair_child[w, np.int64(m >= rules.pair_threshold[w])]
+                        node = rules.pair_child[w, np.int64(draw53(key, d) >= rules.pair_threshold[w])]
                         d += 1
                     else:
                         node, d = choose(w, nu, Aj, th, key, d, rules.root, rules.kind, rules.first, rules.nchild,

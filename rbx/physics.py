@@ -40,9 +40,10 @@ def project_roughness(work, rank, basis, node, wall, n):
 @jit_hot
 def rough_factor(rank, blend):
     """1.0, or with ``blend`` 0.0 at rank 0 and 1.0 above: the map's rough change is multiplied by it. Where a
-    wall's rank is drawn at each collision (a random or hemisphere rule), a branch on it is mispredicted about
-    every other time (about 13 ns on the strip); computing the rough change always and multiplying it by 0 costs
-    a few operations. x − 0·y is x, so the state is the specular map's to the sign of a zero."""
+    wall's rank is drawn at random (engine.S_BLEND), a branch on it is mispredicted about every other time (about
+    13 ns on the strip); computing the rough change always and multiplying it by 0 costs a few operations.
+    x − 0·y is x, so the state is the specular map's to the sign of a zero. (A hemisphere rule keeps the branch:
+    its rank follows the orbit, which the branch predicts ahead.)"""
     if blend:
         return np.float64(rank > 0)
     return 1.0
@@ -56,8 +57,9 @@ def collide(v, W, nu, R, kappa, rank, basis, node, wall, work, n, blend):
     The normal velocity is reversed exactly (``v·ν`` changes sign), so the next flight leaves the wall.
     ``basis[node, wall]`` holds the roughness basis (rows) and ``work`` is scratch space of shape (3, n): the
     kernel passes whole arrays and indices, since every array view costs reference counting in the hot loop.
-    ``n`` is the dimension, passed in so that the kernels compile it as a constant. ``blend`` (a constant of the
-    kernel) computes the rough change at rank 0 too and multiplies it by 0 (:func:`rough_factor`).
+    ``n`` is the dimension, passed in so that the kernels compile it as a constant. ``blend`` (the kernel's
+    run-time bit engine.S_BLEND) computes the rough change at rank 0 too and multiplies it by 0
+    (:func:`rough_factor`).
     """
     vn = 0.0
     for i in range(n):

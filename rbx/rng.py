@@ -39,9 +39,16 @@ def draw_bits(key, counter):
 
 
 @jit
+def draw53(key, counter):
+    """The top 53 of :func:`draw_bits`: an integer m in [0, 2⁵³), the draw m·2⁻⁵³ of :func:`uniform` (the rule
+    trees compare m with integer thresholds, :func:`rbx.rules.thresholds`)."""
+    return draw_bits(key, counter) >> np.uint64(11)
+
+
+@jit
 def uniform(key, counter):
     """Draw number ``counter`` of the stream ``key`` -> float in [0, 1) with 53 random bits."""
-    return np.float64(draw_bits(key, counter) >> np.uint64(11)) * (1.0 / 9007199254740992.0)
+    return np.float64(draw53(key, counter)) * (1.0 / 9007199254740992.0)
 
 
 def uniforms(seed, trajectory, purpose, start, count):

@@ -29,7 +29,7 @@ import numpy as np
 from ._jit import jit, jit_hot
 from .model import Constant, Exit, Hemisphere, Random, roughness_direction
 from .primitives import HALFSPACE, P_NORMAL, SEGMENT
-from .rng import draw_bits
+from .rng import draw53
 
 CONSTANT, HEMISPHERE, RANDOM, EXIT = 0, 1, 2, 3
 
@@ -486,7 +486,7 @@ def random_step(k, count, key, draws, threshold):
     thresholds do not decrease and the last is never reached, so that link is ``k`` plus the number of the others
     that m reaches: counted without a branch on the draw, which a loop searching for the link would mispredict
     about every other time (with probability ½ for each of two children)."""
-    m = draw_bits(key, draws) >> np.uint64(11)
+    m = draw53(key, draws)
     j = k
     for c in range(count - 1):
         j += np.int64(m >= threshold[k + c])
