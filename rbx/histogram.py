@@ -41,8 +41,8 @@ class Returns:
     returned: np.ndarray           # (M,) bool: came back within run.collisions
     collisions: np.ndarray         # (M,) collisions made (up to and including the return)
     angle: np.ndarray              # (K,) return angles of the K returned trajectories, in trajectory order
-    ks_statistic: float
-    ks_pvalue: float
+    ks_statistic: float            # of the returned angles
+    ks_pvalue: float               # NaN when some sample did not return (a test of the truncation, not the law)
     seconds: float
 
     @property
@@ -107,6 +107,10 @@ def return_experiment(cfg, progress=None, _spin_scale=1.0, cluster=None, should_
     _, nu = analysis.locate(geom, hit[returned], fin["position"][returned])
     angle = analysis.normal_angle(fin["velocity"][returned], fin["angular_velocity"][returned], nu, R, kappa)
     stat, p = analysis.ks_cos_law(angle, d) if len(angle) else (np.nan, np.nan)
+    if not returned.all():
+        # the slow returns are missing, and they are not a random share: a p-value would test the truncation,
+        # so there is none (NaN); D is kept as a description of the returned angles
+        p = np.nan
     return Returns(wall, d, initial, returned, np.asarray(fin["collisions"]), angle, stat, p,
                    time.perf_counter() - start)
 

@@ -19,6 +19,7 @@ import numpy as np
 from .analysis import (free_corridors, santalo_constant, table_measure, unbounded_axes, velocity_dimension, wall_measure,
                        wilson)
 from .dynamics import REGULAR_THRESHOLD, escape_times, exponential_rate
+from .escape import levels_off
 from .model import Exit, rule_leaves
 
 __all__ = ["Observable", "REGISTRY", "register", "get", "PointRuns", "Value", "PARAMETERS", "axis_label",
@@ -322,14 +323,21 @@ register(Observable(
 
 def _trapped_share(runs, options):
     esc = escape_times(runs.run)
-    return _share(int(np.sum(~esc.exited)), len(esc.exited))
+    value = _share(int(np.sum(~esc.exited)), len(esc.exited))
+    value.companions["levelled"] = float(levels_off(esc.path, esc.exited))
+    return value
 
 
 register(Observable(
-    "trapped_share", "1", "share of trajectories that never reach an exit wall within the run", _trapped_share,
+    "trapped_share", "1", "share of trajectories that never reach an exit wall within the run; a trapped share "
+    "only where survival has levelled off by the end of the run (the companion levelled)", _trapped_share,
     final=True, exit=True, label="share never reaching the exit",
     companions=(Companion("low", "1", "Wilson interval, lower bound (z = 1)"),
-                Companion("high", "1", "Wilson interval, upper bound (z = 1)")),
+                Companion("high", "1", "Wilson interval, upper bound (z = 1)"),
+                Companion("levelled", "1", "1 where survival has levelled off by the end of the run (the share "
+                                          "is then the trapped share), 0 where it still falls (the share then "
+                                          "counts the orbits not out yet, and shrinks with longer runs)",
+                          label="survival levelled off")),
     error="half-width of the Wilson interval (z = 1)"))
 
 
@@ -436,7 +444,8 @@ def _on_a_wall(exp, options):
 
 register(Observable(
     "return_angle_ks", "1", "Kolmogorov–Smirnov p-value of the return angles to the sampled wall against the "
-    "billiard measure's law sin^(d−1) φ (rbx histogram)", _return_angle_ks, returns=True, problem=_on_a_wall,
+    "billiard measure's law sin^(d−1) φ (rbx histogram); NaN when some sample did not return within the run (the "
+    "slow returns missing, the test would test the truncation)", _return_angle_ks, returns=True, problem=_on_a_wall,
     label="KS p-value of the return angles", symbol="p",
     companions=(Companion("statistic", "1", "the KS statistic", label="KS statistic of the return angles"),
                 Companion("returned", "1", "share of the samples that returned within the run",

@@ -1246,7 +1246,7 @@ RETURNS_ATTRS = {
     "not_returned": "the others", "velocity_dimension": "d = n + n(n−1)/2",
     "predicted_density": "density of φ the invariance of the billiard measure predicts",
     "predicted_cdf": "its distribution function", "ks_statistic": "Kolmogorov–Smirnov D against it",
-    "ks_pvalue": "its p-value", "seconds": "time the experiment took",
+    "ks_pvalue": "its p-value (NaN when some sample did not return)", "seconds": "time the experiment took",
 }
 
 

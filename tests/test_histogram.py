@@ -117,6 +117,8 @@ def test_trajectories_that_do_not_return_are_counted():
     assert 0 < res.not_returned < 2000
     assert len(res.angle) == 2000 - res.not_returned
     assert np.all(res.collisions[res.returned] == 2)
+    # the returned angles are the fast returns only: no p-value (a test of the truncation), D describes them
+    assert np.isnan(res.ks_pvalue) and 0 < res.ks_statistic < 1
 
 
 def test_ten_to_the_five_samples_in_two_dimensions():
@@ -286,6 +288,7 @@ def test_cli_reports_trajectories_that_did_not_return(tmp_path):
     assert "did not return within 2 collisions" in r.stderr
     with h5py.File(tmp_path / "returns.h5") as f:
         missing = int(f["returns"].attrs["not_returned"])
+        assert np.isnan(f["returns"].attrs["ks_pvalue"])          # the file gives no p-value either
     assert 0 < missing < 500
     # the slow returns are the ones left out: a p-value of the others would test the truncation, so none is given,
     # and stdout says why and what to do

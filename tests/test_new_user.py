@@ -74,6 +74,11 @@ def test_a_table_that_traps_gets_its_trapped_share_with_its_interval(trap):
     k, n = int(np.sum(~esc.exited)), len(esc.exited)
     assert 0 < k < n // 5            # a few per cent trapped: the case the plot must recognise
     share, low, high = wilson(k, n)
+    # the observable of a study gives the same share and says that survival has levelled off
+    from rbx.observables import PointRuns, get
+    value = get("trapped_share").compute(PointRuns(rbx.open(str(trap / "trap.h5")).experiment,
+                                                   rbx.open(str(trap / "trap.h5"))), {})
+    assert value.value == share and value.companions["levelled"] == 1.0
     said = res.stdout
     assert f"trapped share {100 * share:.3g} % (Wilson interval, z = 1: {100 * low:.3g}–{100 * high:.3g} %) of " \
            f"{n} starts" in said, said
