@@ -152,6 +152,14 @@ def test_a_lock_a_full_disk_left_empty_blocks_nothing(tmp_path):
     assert res.returncode == 1, res.stderr
     line = one_line(res)
     assert "File too large" in line and "nothing was saved" in line, line
+    assert res.stderr == line + "\n"           # Numba's warning that it could make no semaphore is not shown
+    # rbx histogram on the same disk: the same one line, which says the reason once
+    hist = Path(__file__).resolve().parents[1] / "configs" / "experiments" / "histogram.yaml"
+    res = subprocess.run(["bash", "-c", f"trap '' XFSZ; ulimit -f 0; exec {RBX} histogram {hist} --trajectories 20 "
+                          "-o h.png --data h.h5 --quiet"], cwd=tmp_path, capture_output=True, text=True, timeout=900)
+    assert res.returncode == 1 and res.stderr.count("\n") == 1, res.stderr
+    assert res.stderr.count("no room on the disk") == 1 and "nothing was saved" in res.stderr, res.stderr
+    assert not list(tmp_path.glob("h.*"))
     assert sorted(p.name for p in tmp_path.glob("z.h5*")) == []
     res = rbx_cli("simulate", "exp.yaml", "-o", "z.h5", "--quiet", cwd=tmp_path)
     assert res.returncode == 0, res.stderr

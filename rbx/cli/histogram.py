@@ -102,7 +102,7 @@ def _histogram(config, out, data, trajectories, seed, sets, force, quiet, cluste
     from ..cluster import ClusterError
     from ..histogram import return_experiment
     from ..driver import check_size, returns_bytes, write_returns
-    from ..paths import NO_ROOM
+    from ..paths import NO_ROOM, DiskFull
 
     check_cluster_options(cluster)
 
@@ -157,8 +157,9 @@ def _histogram(config, out, data, trajectories, seed, sets, force, quiet, cluste
             write_returns(h5_path, cfg, result)
     except OSError as exc:
         if exc.errno in NO_ROOM:     # not the user's input: the disk filled meanwhile (or a size limit), exit 1
-            click.echo(f"rbx: {display_path(h5_path)}: cannot write: {exc.strerror}: no room on the disk (or a size "
-                       "limit, ulimit -f?); nothing was saved", err=True)
+            why = exc.strerror if isinstance(exc, DiskFull) else (     # rbx's own says it already
+                f"{exc.strerror}: no room on the disk (or a size limit, ulimit -f?)")
+            click.echo(f"rbx: {display_path(h5_path)}: cannot write: {why}; nothing was saved", err=True)
             raise SystemExit(1) from None
         raise UserError(h5_path, None, f"cannot write: {exc.strerror or exc}") from None
 

@@ -2,6 +2,7 @@
 import os
 import signal
 import sys
+import warnings
 
 import click
 
@@ -39,6 +40,11 @@ def main():
         # Numba itself fails with a traceback when it reads this at import
         sys.stderr.write(f"rbx: NUMBA_NUM_THREADS: must be a positive integer, got '{threads}'\n")
         sys.exit(2)
+    # Numba's thread pool asks for a semaphore when it starts and, where none can be made (a full or size-limited
+    # disk, no /dev/shm), warns in five lines that its start-up is then not safe across processes. rbx runs its
+    # slices on its own threads (rbx.engine.run_slices) and never starts Numba's pool in two processes at once
+    # that share anything; what fails next on such a disk is said in rbx's own one line
+    warnings.filterwarnings("ignore", message="Could not obtain multiprocessing lock")
     try:
         cli(prog_name="rbx")
     except (KeyboardInterrupt, Interrupted):   # Ctrl-C before a command installed its own handler (importing)
