@@ -1,15 +1,20 @@
 """The examples record what the plot kinds they are made for need: each ``configs/examples/*.yaml`` names its kinds
 in its first line (``# plots: orbit, phase, birkhoff --wall bottom``), and a short run of it *as it ships* (its
-trajectories, recorded fields and ``every``; fewer collisions) draws every one of them through the CLI's own
+trajectories, recorded fields and ``every``; fewer collisions; the real ``rbx simulate`` in a process) draws every
+one of them through the CLI's own
 :func:`rbx.cli.plot.make_figure` — the Lorentz gas recorded no spin, so its phase portrait was refused, and the
 rectangle recorded every 10th collision while its orbit's subtitle said "lines: the first 25 collisions".
 ``make gallery`` (scripts/gallery.py) draws docs/gallery.md from the same runs."""
 import importlib.util
 import os
-import warnings
+import subprocess
+import sys
 
+import h5py
 import matplotlib
+import numpy as np
 import pytest
+import yaml
 
 import rbx
 from rbx.cli.plot import KINDS, make_figure
@@ -34,13 +39,19 @@ def test_every_example_names_the_plot_kinds_it_is_made_for():
 
 
 @pytest.mark.parametrize("name", examples())
-def test_an_example_as_it_ships_draws_every_kind_it_lists(name, tmp_path):
+def test_an_example_as_it_ships_runs_and_draws_every_kind_it_lists(name, tmp_path):
+    """The real ``rbx simulate`` of the example (fewer collisions) writes a complete file of the records it asks
+    for, and every kind the example lists is drawn from that file."""
     import matplotlib.pyplot as plt
     config = os.path.join(EXAMPLES, f"{name}.yaml")
     exp = rbx.load(config)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)
-        rbx.simulate(exp, collisions=min(300, exp.run.collisions), output=str(tmp_path / "run.h5"))
+    collisions = min(300, exp.run.collisions)
+    out = tmp_path / "run.h5"
+    res = subprocess.run([sys.executable, "-c", "from rbx.cli.main import main; main()", "simulate", config,
+                          "-o", str(out), "--collisions", str(collisions), "--quiet"],
+                         capture_output=True, text=True, timeout=300)
+    assert res.returncode == 0, res.stderr
+    _check_file(out, collisions)
     for kind, options in gallery.example_kinds(config):
         fig = make_figure(str(tmp_path / "run.h5"), kind, **options)   # a UserError here: the example lacks a field
         if kind == "orbit":
@@ -49,6 +60,26 @@ def test_an_example_as_it_ships_draws_every_kind_it_lists(name, tmp_path):
             if exp.output.every > 1:
                 assert "lines" not in subtitle, subtitle
         plt.close(fig)
+
+
+def _check_file(out, collisions):
+    with h5py.File(out) as f:
+        assert f.attrs["complete"]
+        n = int(f.attrs["dimension"])
+        cfg = yaml.safe_load(f.attrs["config"])
+        assert cfg["run"]["collisions"] == collisions
+        g = f["collisions"]
+        M = cfg["run"]["trajectories"]
+        count = g["count"][:]
+        assert count.shape == (M,)
+        every = cfg["output"]["every"]
+        assert np.all(count <= collisions // every + 1) and np.all(count >= 1)
+        if "position" in g:
+            assert g["position"].shape[:2] == (M, g["step"].shape[0]) and g["position"].shape[2] == n
+            np.testing.assert_array_equal(g["step"][:], np.arange(g["step"].shape[0]) * every)
+        if "wall" in g:
+            assert np.all(g["wall"][:, 0] == -1)
+        assert np.all(f["final/collisions"][:] <= collisions)
 
 
 def test_an_orbit_of_records_that_skip_collisions_says_it_draws_points(tmp_path):
