@@ -1,8 +1,7 @@
 """The examples record what the plot kinds they are made for need: each ``configs/examples/*.yaml`` names its kinds
 in its first line (``# plots: orbit, phase, birkhoff --wall bottom``), and a short run of it *as it ships* (its
 trajectories, recorded fields and ``every``; fewer collisions; the real ``rbx simulate`` in a process) draws every
-one of them through the CLI's own
-:func:`rbx.cli.plot.make_figure` — the Lorentz gas recorded no spin, so its phase portrait was refused, and the
+one of them through the CLI's own :func:`rbx.cli.plot.make_figure` — the Lorentz gas recorded no spin, so its phase portrait was refused, and the
 rectangle recorded every 10th collision while its orbit's subtitle said "lines: the first 25 collisions".
 ``make gallery`` (scripts/gallery.py) draws docs/gallery.md from the same runs."""
 import importlib.util
