@@ -163,6 +163,13 @@ def test_an_option_the_kind_does_not_use_is_refused(lorentz):
     assert line.startswith("rbx: --wall: is for --kind birkhoff only")
     res = cli("plot", lorentz, "--kind", "series", "--coordinate", "vx", "-o", "s.png", "--quiet", cwd=lorentz.parent)
     assert res.returncode == 0, res.stderr
+    # the escape plot reads each trajectory's whole run: a --records range changed nothing but its title
+    line = one_line(cli("plot", lorentz, "--kind", "escape", "--records", "0:5", cwd=lorentz.parent))
+    assert line == "rbx: --records: --kind escape does not use it", line
+    # a study's figure draws its points: records and trajectories of runs are not in its file
+    for option, value in (("--records", "0:5"), ("--trajectories", "0")):
+        line = one_line(cli("plot", "study.nc", "--kind", "sweep", option, value, cwd=lorentz.parent))
+        assert line == f"rbx: {option}: --kind sweep does not use it", line
 
 
 def test_the_3d_kinds_name_every_3d_table(lorentz):

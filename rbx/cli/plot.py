@@ -100,7 +100,10 @@ KIND_OPTIONS = {"colour": ("--color", ("phase",)), "coordinate": ("--coordinate"
                 "scales": ("--scales", ("series",)), "fit_from": ("--fit-from", ("diffusion", "escape")),
                 "wall": ("--wall", ("birkhoff",)), "plane": ("--plane", ("poincare",)),
                 "y": ("--y", ("sweep",)), "x": ("--x", ("sweep",)), "logx": ("--logx", ("sweep",)),
-                "logy": ("--logy", ("sweep",))}
+                "logy": ("--logy", ("sweep",)),
+                # the escape plot reads each trajectory's end (its whole run), a study's figure its points
+                "records": ("--records", tuple(k for k in KINDS if k not in ("escape", "sweep"))),
+                "trajectories": ("--trajectories", tuple(k for k in KINDS if k != "sweep"))}
 
 
 def _check_kind_options(ctx, kind):
@@ -109,8 +112,10 @@ def _check_kind_options(ctx, kind):
     from click.core import ParameterSource
     for name, (option, kinds) in KIND_OPTIONS.items():
         if kind not in kinds and ctx.get_parameter_source(name) == ParameterSource.COMMANDLINE:
-            used = " and ".join(f"--kind {k}" for k in kinds)
-            raise UserError(None, option, f"is for {used} only; --kind {kind} does not use it")
+            if len(kinds) <= 3:
+                used = " and ".join(f"--kind {k}" for k in kinds)
+                raise UserError(None, option, f"is for {used} only; --kind {kind} does not use it")
+            raise UserError(None, option, f"--kind {kind} does not use it")
 
 
 def _plot(run_file, kind, out, records, trajectories, colour, coordinate, scales, fit_from, dpi, wall=None,
