@@ -35,6 +35,9 @@ class Companion:
     dim: str | None = None          # an extra dimension (its coordinate from ``Observable.coords``)
     label: str = ""                 # what it is in a few words, for an axis ("Kac's mean return path")
     symbol: str = ""                # its symbol ("4A/ℓ")
+    #: a value of the observable's own quantity to compare it with (Santaló's, Kac's): a study's figure draws it
+    #: dashed on the observable's panel; other companions (a share, a flag, a statistic) have panels of their own
+    reference: bool = False
 
 
 @dataclass
@@ -80,6 +83,8 @@ class Observable:
     level: str = "about 68 %"      # the share of repeated measurements the error bar's interval would cover
     label: str = ""                 # what it is in a few words, for an axis ("Lyapunov exponent"); default: the name
     symbol: str = ""                # its symbol ("λ₁"), beside the words on an axis
+    #: where a point has no value (NaN) though it ran: why, for a study's figure ("" where it always has one)
+    missing: str = ""
 
     @property
     def simulate(self):
@@ -157,6 +162,21 @@ def variable_label(name, unit=None, units=True):
                 words = c.label or c.description.split(":")[0]
                 return axis_label(words, c.symbol, c.unit if units else None), c.symbol or words
     return axis_label(name, "", unit if units else None), name
+
+
+def references(name):
+    """The results file's variables a study's figure draws dashed beside variable ``name``: the companions of the
+    observable ``name`` marked :attr:`Companion.reference` -> list of names (none for any other variable)."""
+    rec = REGISTRY.get(name)
+    return [] if rec is None else [f"{name}_{c.suffix}" for c in rec.companions if c.reference]
+
+
+def missing_reason(name):
+    """Why a point of observable ``name`` (or of one of its companions) may hold no value -> text, or ''."""
+    for rec in REGISTRY.values():
+        if name == rec.name or any(name == f"{rec.name}_{c.suffix}" for c in rec.companions):
+            return rec.missing
+    return ""
 
 
 def error_bars(name):
@@ -354,11 +374,15 @@ def _return_path(runs, options):
     esc = escape_times(runs.run)
     p = esc.path[esc.exited]
     kac = kac_return_path(runs.experiment)
-    if len(p) < 2:
-        return Value(math.nan, math.nan, {"kac": kac, "ratio": math.nan, "ratio_stderr": math.nan})
+    unreturned = float(np.mean(~esc.exited))
+    if len(p) < 2 or unreturned > 0:
+        # a trajectory still out at the end of the run is one of the longest returns: the mean of the others is
+        # biased low, far beyond its standard error (a Sinai table with a hole, 30 collisions per trajectory:
+        # Kac's ratio 0.58 ± 0.04; every orbit returned: 1.03 ± 0.10): no value
+        return Value(math.nan, math.nan, {"kac": kac, "ratio": math.nan, "ratio_stderr": math.nan,
+                                          "unreturned": unreturned})
     mean, err = float(p.mean()), float(p.std(ddof=1) / math.sqrt(len(p)))
-    return Value(mean, err, {"kac": kac, "ratio": mean / kac, "ratio_stderr": err / kac,
-                             "unreturned": float(np.mean(~esc.exited))})
+    return Value(mean, err, {"kac": kac, "ratio": mean / kac, "ratio_stderr": err / kac, "unreturned": unreturned})
 
 
 def _on_exit_wall(exp, options):
@@ -370,9 +394,11 @@ def _on_exit_wall(exp, options):
 
 register(Observable(
     "return_path", "L", "mean path in (x, R√κ·θ) of the trajectories started with the billiard measure on the exit "
-    "wall until they return to it (those that do within the run)", _return_path, final=True, exit=True,
+    "wall until they return to it; NaN when some did not return within the run (the longest returns missing, the "
+    "mean of the others is biased low)", _return_path, final=True, exit=True,
     problem=_on_exit_wall, label="mean return path", symbol="⟨ℓ⟩",
-    companions=(Companion("kac", "L", "Kac/Santaló: C_d·|table|/|hole| (4A/ℓ for a disc)",
+    missing="no value where some trajectory had not returned by the end of the run (raise collisions)",
+    companions=(Companion("kac", "L", "Kac/Santaló: C_d·|table|/|hole| (4A/ℓ for a disc)", reference=True,
                           label="Kac's mean return path"),
                 Companion("ratio", "1", "mean return path / Kac's value",
                           label="mean return path / Kac's"),
@@ -402,7 +428,7 @@ register(Observable(
     fields=("position",), every_collision=True, options={"segments": 10}, label="mean free path", symbol="⟨ℓ⟩",
     companions=(Companion("santalo", "L", "Santaló's mean free path of a point in the shrunk table: "
                                           "πA/P in 2D (4V/S in 3D)",
-                          label="Santaló's mean free path", symbol="πA/P"),)))
+                          label="Santaló's mean free path", symbol="πA/P", reference=True),)))
 
 
 def _wall_share(runs, options):
@@ -447,6 +473,7 @@ register(Observable(
     "billiard measure's law sin^(d−1) φ (rbx histogram); NaN when some sample did not return within the run (the "
     "slow returns missing, the test would test the truncation)", _return_angle_ks, returns=True, problem=_on_a_wall,
     label="KS p-value of the return angles", symbol="p",
+    missing="no p-value where some sample had not returned by the end of the run (raise collisions)",
     companions=(Companion("statistic", "1", "the KS statistic", label="KS statistic of the return angles"),
                 Companion("returned", "1", "share of the samples that returned within the run",
                           label="share returned within the run")),
@@ -475,4 +502,4 @@ register(Observable(
     "energy_drift", "1", "health check: mean relative change of the kinetic energy over the run", _energy_drift,
     fields=("velocity", "angular_velocity"), label="energy drift", symbol="|ΔE|/E",
     companions=(Companion("max", "1", "largest relative change", label="largest energy drift",
-                          symbol="max |ΔE|/E"),)))
+                          symbol="max |ΔE|/E", reference=True),)))

@@ -109,6 +109,18 @@ def test_kac_return_path_and_return_angles():
     assert 0 < err < 0.05 and abs(ratio - 1) < 3 * err
     assert float(ds["trapped_share"][0]) < 0.01 and float(ds["return_path_unreturned"][0]) < 0.01
     assert float(ds["trapped_share_levelled"][0]) == 0      # every orbit returns: nothing levels off
+    from rbx.cli.sweep import sweep_panel
+    # dashed beside the points: Kac's value, not a share or a flag of the same unit
+    assert [r["label"] for r in sweep_panel(ds, "return_path")[0]["references"]] == ["Kac's mean return path"]
+    assert sweep_panel(ds, "trapped_share")[0]["references"] == []
+    # too short for every orbit to return: the mean of the quick returns would be biased low (Kac's ratio far
+    # below 1 with a small error), so there is no value, and the figure says why
+    cut = sweep({**study, "ensemble": {**study["ensemble"], "collisions": 30}})
+    assert np.isnan(float(cut["return_path"][0])) and np.isnan(float(cut["return_path_ratio"][0]))
+    assert float(cut["return_path_unreturned"][0]) > 0.01
+    panel, _ = sweep_panel(cut, "return_path")
+    assert panel["note"].endswith("1 of 1 points: no value where some trajectory had not returned by the end of "
+                                  "the run (raise collisions)"), panel["note"]
     rough = {"base": SINAI, "set": {"initial": {"sample": "billiard", "wall": "left"}},
              "vary": {"ball.inertia": [0.2, 1.0]}, "measure": ["return_angle_ks"],
              "ensemble": {"trajectories": 3000, "collisions": 3000, "seed": 6}}
@@ -119,6 +131,8 @@ def test_kac_return_path_and_return_angles():
     short = sweep({**rough, "vary": {"ball.inertia": [0.5]},
                    "ensemble": {"trajectories": 300, "collisions": 3, "seed": 6}})
     assert 0 < float(short["return_angle_ks_returned"][0]) < 1 and np.isnan(float(short["return_angle_ks"][0]))
+    panel, _ = sweep_panel(short, "return_angle_ks")
+    assert panel["references"] == [] and "no p-value where some sample had not returned" in panel["note"]
 
 
 def test_adding_a_point_changes_no_other_point():

@@ -211,13 +211,14 @@ def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=Non
     """The panel spec of :func:`rbx.plotting.sweep_figure` for variable ``y`` (default: the first measured)
     against the varied key ``x`` (default: the first), one line per value of a second varied key (or of the
     variable's own extra dimension, such as wall), error bars from ``<y>_stderr`` or the Wilson bounds
-    ``<y>_low``/``<y>_high``, and the companions in the same unit (Santaló's, Kac's value) dashed -> (panel,
-    title)."""
+    ``<y>_low``/``<y>_high``, the reference companions (Santaló's, Kac's value: :func:`rbx.observables.references`)
+    dashed, and a note saying why where finished points hold no value -> (panel, title)."""
     import json
 
     import numpy as np
 
-    from ..observables import error_bars, parameter_label, variable_label
+    from ..observables import error_bars, missing_reason, parameter_label, variable_label
+    from ..observables import references as reference_names
     varied = json.loads(ds.attrs["varied"])
     measured = json.loads(ds.attrs["measure"])
     y = y or measured[0]
@@ -254,6 +255,9 @@ def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=Non
     def pick(array, sel):
         return array.isel({d: i for d, i in sel.items() if d in array.dims}).values.reshape(-1)
 
+    # dashed beside the points: the values of the same quantity to compare with (Santaló's, Kac's), as the
+    # observable's record marks them; a share, a flag or a statistic in the same unit is not one
+    dashed = [c for c in reference_names(y) if c in ds.data_vars]
     lines = [{}] if not other else [{other[0]: i} for i in range(ds.sizes[other[0]])]
     for k, sel in enumerate(lines):
         keep = pick(done, sel).astype(bool)
@@ -262,11 +266,9 @@ def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=Non
             err = err[..., keep]
         name = f"{osym} = {_fmt(ds[other[0]].values[sel[other[0]]])}" if other else (label or ysym)
         series.append({"x": xs[keep], "y": pick(var, sel)[keep], "err": err, "label": name})
-        for comp in ds.data_vars:
+        for comp in dashed:
             c = ds[comp]
-            if (comp.startswith(y + "_") and comp not in (f"{y}_stderr", f"{y}_low", f"{y}_high")
-                    and not comp.endswith("_stderr") and c.attrs.get("units") == unit
-                    and set(c.dims) <= set(var.dims)):
+            if set(c.dims) <= set(var.dims):
                 references.append({"x": xs[keep], "y": pick(c, sel)[keep],
                                    "label": variable_label(comp, units=False)[0] if k == 0 else None,
                                    "color": "0.3" if len(lines) == 1 else f"C{k}"})
@@ -274,8 +276,17 @@ def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=Non
     seconds = float(np.nansum(ds["wall_time"].values))
     panel = {"series": series, "references": references, "xlabel": xlabel, "ylabel": ylabel, "logx": logx,
              "logy": logy}
+    notes = []
     if any(s["err"] is not None and np.any(np.asarray(s["err"]) > 0) for s in series) and error_bars(y):
-        panel["note"] = error_bars(y)          # what a bar is, from the observable's record
+        notes.append(error_bars(y))            # what a bar is, from the observable's record
+    finished = done.values.astype(bool)
+    values = np.asarray(var.values, float).reshape(finished.shape + (-1,))
+    empty = int(np.sum(finished & ~np.any(np.isfinite(values), axis=-1)))
+    if empty:                                   # points that ran but hold no number: a gap says why
+        why = missing_reason(y) or "no value"
+        notes.append(f"{empty} of {int(finished.sum())} points: {why}")
+    if notes:
+        panel["note"] = "\n".join(notes)
     title = (f"{ds.attrs.get('title', '')}\n{ysym} against {xsym} · {plural(int(M), 'trajectory')} × "
              f"{plural(int(N), 'collision')} per point · "
              f"{int(done.values.sum())} of {done.size} points · run time {duration(seconds)}")
