@@ -135,7 +135,7 @@ class Progress:
             return
         M = self.trajectories
         if self.bar is None:
-            if time.perf_counter() - self.start < self.delay and done < total:
+            if time.perf_counter() - self.start < self.delay:       # a run shorter than that never shows one
                 return
             from tqdm.auto import tqdm
             columns, rows = _size(self.stream)

@@ -210,6 +210,13 @@ def test_the_bar_is_drawn_on_terminals_and_notebooks_only():
         bar(10, 10)
         bar.close()
         assert ("\r" in stream.getvalue() and "eta" in stream.getvalue()) == drawn, stream.getvalue()
+    # a run done within the delay shows no bar, even at its end (it drew "100.0% ? collisions/s eta ?")
+    stream = OutStream()
+    bar = Progress("simulate", delay=60, stream=stream, trajectories=3)
+    bar(5, 10)
+    bar(10, 10)
+    bar.close()
+    assert stream.getvalue() == ""
 
 
 @pytest.mark.parametrize("words,cword,expected", [
