@@ -502,3 +502,6 @@ def test_trajectories_that_left_during_their_warm_up_are_said_apart_from_those_m
     regular = [x for x in lines if x.startswith("regular orbits")]
     assert len(regular) == 1 and f"of the {measured} measured (the other {4 - measured} left the table during " \
                                  "their warm-up)" in regular[0], regular
+    # what ± and the interval cover is said, as on a study's figure
+    assert lines[2] == "  (±: one standard error, about 68 %)", lines
+    assert "(Wilson interval, z = 1, about 68 %: " in regular[0], regular

@@ -104,6 +104,7 @@ def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as
     click.echo(f"{plural(M, 'trajectory')}{unmeasured}, {plural(int(result.collisions.sum()), 'collision')} "
                f"measured over time "
                f"{result.time.sum():.6g} (after {result.warmup} warm-up collisions each, which are not counted)")
+    click.echo(f"  (±: one {_get('lyapunov').error}, {_get('lyapunov').level})")
     for k, (lam, err) in enumerate(zip(result.exponents, result.stderr), 1):
         click.echo(f"  λ{k:<2} = {lam: .6f} ± {err:.6f}")
     if len(result.exponents) == d:
@@ -126,7 +127,7 @@ def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as
         of = (f"{regular} of the {measured} measured (the other {M - measured} left the table during their "
               "warm-up)" if measured < M else f"{regular} of {measured}")
         click.echo(f"regular orbits (own λ1 < {REGULAR_THRESHOLD}): {of}, share {share:.3f} "
-                   f"(Wilson interval {low:.3f} … {high:.3f})")
+                   f"(Wilson interval, z = 1, {_get('regular_share').level}: {low:.3f} … {high:.3f})")
         if 0 < regular < measured:
             click.echo("the exponents above pool the regular and the chaotic orbits; each orbit's own exponents: "
                        "--json (per_trajectory)")
@@ -134,3 +135,10 @@ def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as
         click.echo(f"{plural(int(result.ended.sum()), 'trajectory')} left the table (an exit or an escape) before "
                    "the end")
     summary(quiet, said)
+
+
+
+def _get(name):
+    """The observable ``name``'s record (what its error is and the level it covers, as a study's figure says)."""
+    from ..observables import get
+    return get(name)
