@@ -246,6 +246,12 @@ def test_diffusion_figure_reports_the_fit(runs):
         fit = analysis.fit_diffusion(run.step.astype(float), x)
     assert fit.low < fit.coefficient < fit.high and fit.coefficient > 0
     assert f"{fit.coefficient:.4g}" in legend
+    # the Gaussian panel tests the displacements against the fitted variance only where there are enough of them
+    from rbx.plotting import MIN_KS_SAMPLES
+    assert ("KS p = " in legend) == (x.shape[0] >= MIN_KS_SAMPLES), legend
+    few = " ".join(t.get_text() for t in make_figure(runs["random"], "diffusion", trajectories="0-2").legends[0]
+                   .get_texts())
+    assert "KS p" not in few and f"no KS test: 3 trajectories, fewer than {MIN_KS_SAMPLES}" in few, few
 
 
 # ---- errors ----------------------------------------------------------------------------------------------------
