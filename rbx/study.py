@@ -40,7 +40,7 @@ from . import __version__, observables as obs
 from .analysis import scene_title, unbounded_axes
 from .api import _load as load, cluster_for, simulate
 from .cluster import ClusterError, SchedulerUnreachable, connect
-from .config import other_kind, parse_yaml, read_text, repeated_orbits
+from .config import other_kind, parse_yaml, read_text, repeated_orbits, start_groups
 from .dynamics import lyapunov
 from .histogram import return_experiment
 from .model import ConfigError
@@ -676,12 +676,15 @@ def study_title(study, exp0=None):
 
 
 def _attrs(study, exp0):
-
+    """The results file's attributes. ``ensemble_orbits``: how many distinct orbits each point's ensemble holds (its
+    trajectories, unless fixed starts with no random numbers repeat each other: a study's figure says so)."""
     p = provenance()
+    groups = start_groups(exp0)
+    orbits = study.ensemble["trajectories"] if groups is None else int(len(np.unique(groups)))
     return {"rbx_study": 1, "study": study.source, "study_canonical": study.text, "study_digest": study.digest,
             "study_file": study.file or "", "title": study_title(study, exp0), "varied": json.dumps(study.keys),
             "zip": int(study.zip), "measure": json.dumps([n for n, _ in study.measure]),
-            "ensemble_trajectories": study.ensemble["trajectories"],
+            "ensemble_trajectories": study.ensemble["trajectories"], "ensemble_orbits": orbits,
             "ensemble_collisions": study.ensemble["collisions"], "ensemble_seed": study.ensemble["seed"],
             "rbx_version": __version__, "numba_version": p["numba_version"], "numpy_version": p["numpy_version"],
             "python_version": p["python_version"], "created": p["created"], "host": p["host"],

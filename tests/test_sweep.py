@@ -624,10 +624,17 @@ def test_a_study_of_copies_of_one_orbit_is_warned_about(tmp_path):
                                "from the same state"), lines[0]
     with pytest.warns(RuntimeWarning, match="copies of one orbit"):
         load_study(study)
+    # the results file and its figure say it too: the ensemble of each point is 4 copies of one orbit
+    from rbx.cli.sweep import open_results, sweep_panel
+    ds = open_results(str(tmp_path / "copies.nc"))
+    assert ds.attrs["ensemble_orbits"] == 1
+    assert "4 trajectories (copies of 1 orbit) × 300 collisions" in sweep_panel(ds)[1]
     study["set"] = {"initial": {"sample": "billiard"}}
     (tmp_path / "sampled.yaml").write_text(yaml.safe_dump(study))
     res = rbx_cli("sweep", "sampled.yaml", "-o", "sampled.nc", "--quiet", cwd=tmp_path)
     assert res.returncode == 0 and res.stderr == "", res.stderr
+    ds = open_results(str(tmp_path / "sampled.nc"))
+    assert ds.attrs["ensemble_orbits"] == 4 and "4 trajectories × 300 collisions" in sweep_panel(ds)[1]
 
 
 def test_a_studys_set_can_give_a_fixed_start_for_a_sampled_one():

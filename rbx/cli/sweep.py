@@ -287,7 +287,11 @@ def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=Non
         notes.append(f"{empty} of {int(finished.sum())} points: {why}")
     if notes:
         panel["note"] = "\n".join(notes)
-    title = (f"{ds.attrs.get('title', '')}\n{ysym} against {xsym} · {plural(int(M), 'trajectory')} × "
+    orbits = int(ds.attrs.get("ensemble_orbits", M))
+    ensemble = plural(int(M), "trajectory")
+    if orbits < M:      # fixed starts, no random numbers: the bars are the spread of copies (rbx sweep warned)
+        ensemble += f" (copies of {plural(orbits, 'orbit')})"
+    title = (f"{ds.attrs.get('title', '')}\n{ysym} against {xsym} · {ensemble} × "
              f"{plural(int(N), 'collision')} per point · "
              f"{int(done.values.sum())} of {done.size} points · run time {duration(seconds)}")
     if y == "lyapunov" or y.startswith("lyapunov_per_collision") or y.startswith("lyapunov_spectrum"):
