@@ -551,7 +551,8 @@ def phase_figure(panels, colour, title, colour_label, categorical=True, labels=N
         legend_outside(axes[-1], markerscale=1.0)
     if not categorical:
         from matplotlib.cm import ScalarMappable
-        fig.colorbar(ScalarMappable(norm=norm, cmap="viridis"), ax=axes, label=colour_label, shrink=0.85)
+        fig.colorbar(ScalarMappable(norm=norm, cmap="viridis"), ax=axes, label=colour_label, shrink=0.5,
+                     location="bottom", aspect=40)
     return fig
 
 
