@@ -17,6 +17,7 @@ import yaml
 
 import rbx
 from rbx.cli.plot import KINDS, make_figure
+from tests.test_plot import readable
 
 matplotlib.use("Agg")
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -59,6 +60,10 @@ def test_an_example_as_it_ships_runs_and_draws_every_kind_it_lists(name, tmp_pat
             if exp.output.every > 1:
                 assert "lines" not in subtitle, subtitle
         plt.close(fig)
+        if kind == "phase":     # coloured by the step, the colour bar beside the legend squeezed a panel
+            fig = make_figure(str(out), kind, colour="step", **options)
+            assert readable(fig) == [], readable(fig)
+            plt.close(fig)
 
 
 def _check_file(out, collisions):

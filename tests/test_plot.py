@@ -392,6 +392,11 @@ def readable(fig):
                                  and y0 - tol <= pts[:, 1].min() and pts[:, 1].max() <= y1 + tol):
                 problems.append(f"data {pts.min(axis=0)}–{pts.max(axis=0)} outside the limits {(x0, x1, y0, y1)}")
         axes_box = ax.get_window_extent(renderer)
+        for other in data_axes:         # another panel's axis labels over this one's data (a squeezed panel)
+            for label in (other.xaxis.label, other.yaxis.label) if other is not ax and ax.name != "3d" else ():
+                if label.get_visible() and label.get_text() and overlaps(label.get_window_extent(renderer),
+                                                                          axes_box):
+                    problems.append(f"the label '{label.get_text()[:30]}' lies over the axes '{ax.get_title()}'")
         for legend in [a.get_legend() for a in data_axes if a.get_legend()] + list(fig.legends):
             if overlaps(legend.get_window_extent(renderer), axes_box):
                 problems.append(f"a legend covers the axes '{ax.get_title()}'")
@@ -419,6 +424,9 @@ def test_every_kind_on_every_scene_is_readable(scenes, scene):
             continue
         assert readable(fig) == [], (kind, readable(fig))
         drawn.append(kind)
+        if kind == "phase":             # coloured by the step: a colour bar besides the legend
+            fig = make_figure(scenes[scene], kind, colour="step")
+            assert readable(fig) == [], (kind, "step", readable(fig))
     assert "orbit" in drawn or scene == "escape-sinai"   # that example records no positions
 
 
