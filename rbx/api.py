@@ -74,7 +74,8 @@ def _warn_unused_seed(exp, overrides, stacklevel):
     if overrides.get("seed") is not None or seed_change(overrides):
         message = unused_seed(exp)
         if message:
-            warnings.warn(f"{exp.source}: seed: {message}", RuntimeWarning, stacklevel=stacklevel)
+            key = "seed" if overrides.get("seed") is not None else "run.seed"      # the keyword, or the dotted key
+            warnings.warn(f"{exp.source}: {key}: {message}", RuntimeWarning, stacklevel=stacklevel)
 
 
 def _load(config, overrides=None, *, base=None):

@@ -738,7 +738,7 @@ def _open_h5(path, mode="r"):
     except OSError as exc:
         raise FileError(path, None, f"cannot read: {exc.strerror or exc}") from None
     if not is_hdf5:
-        raise FileError(path, None, "not an HDF5 file (or unreadable)")
+        raise FileError(path, None, _not_hdf5(path))
     try:
         return h5py.File(path, mode)
     except OSError as exc:
@@ -754,6 +754,23 @@ def _open_h5(path, mode="r"):
                                         "recovered: remove it and run the config again") from None
         raise FileError(path, None, f"cannot open the HDF5 file (damaged or locked by another program?): "
                                     f"{_first_line(exc)}") from None
+
+
+def _not_hdf5(path):
+    """What a file that is not HDF5 is, where its text says (a config, a study, a table or a boundary file, by
+    their keys: :data:`rbx.config.FILE_KINDS`), and what to do with it -> the problem of a :class:`FileError`."""
+    from .config import FILE_KINDS
+    try:
+        with open(path, "rb") as f:
+            data = yaml.safe_load(f.read(1 << 16).decode("utf-8"))
+    except (OSError, UnicodeDecodeError, yaml.YAMLError):
+        data = None
+    if isinstance(data, dict):
+        keys = {str(k) for k in data}
+        for name, marks, todo in FILE_KINDS.values():
+            if keys & set(marks):
+                return f"is {name} ({', '.join(marks)}), not a run file: {todo.rstrip(':')}"
+    return "not an HDF5 file (or unreadable)"
 
 
 def _finish_journal(path, mode):

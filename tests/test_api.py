@@ -229,6 +229,11 @@ def test_open_of_a_file_that_is_not_a_run(tmp_path, cli_files):
     text.write_text("not hdf5")
     with pytest.raises(rbx.FileError, match="notes.h5: not an HDF5 file"):
         rbx.open(text)
+    # a config given for a run: said what it is and what to do with it, as the CLI says
+    config = os.path.join(ROOT, "configs", "examples", "strip.yaml")
+    with pytest.raises(rbx.FileError, match=r"strip.yaml: is an experiment config \(table, boundary, ball, initial\), "
+                                            "not a run file: run it with rbx simulate"):
+        rbx.open(config)
     with pytest.raises(rbx.FileError, match="file not found"):
         rbx.open(tmp_path / "missing.h5")
     other = tmp_path / "other.h5"

@@ -235,7 +235,7 @@ def test_copies_of_one_orbit_are_warned_about_and_their_diffusion_refused(tmp_pa
     assert (tmp_path / "random_diffusion.png").stat().st_size > 10_000
 
 
-def test_the_api_warns_of_copies_of_one_orbit():
+def test_the_api_warns_of_copies_of_one_orbit(tmp_path):
     with pytest.warns(RuntimeWarning, match="the 3 trajectories all start from the same state"):
         rbx.simulate(STRIP, collisions=20, trajectories=3)
     with warnings.catch_warnings():
@@ -245,6 +245,12 @@ def test_the_api_warns_of_copies_of_one_orbit():
     assert rbx.config.repeated_orbits(rbx.load(STRIP, {"initial": [
         {"position": [0, 0.5], "velocity": [0.6, 0.8]}, {"position": [0, 0.5], "velocity": [0.6, 0.8]},
         {"position": [0, 0.4], "velocity": [0.6, 0.8]}]})).startswith("only 2 of the 3 trajectories")
+    # the CLI names the key to change: the list of starts, not run.trajectories (which the user never set)
+    res = cli("simulate", STRIP, "-o", "twice.h5", "--collisions", 50, "--quiet", "--set",
+              "initial=[{position: [0, 0.5], velocity: [0.6, 0.8]}, {position: [0, 0.5], velocity: [0.6, 0.8]}]",
+              cwd=tmp_path)
+    assert res.returncode == 0 and res.stderr.startswith("rbx: warning: ") and ": initial: " in res.stderr and \
+        "run.trajectories" not in res.stderr, res.stderr
 
 
 def test_a_seed_that_nothing_uses_is_warned_about(tmp_path):
@@ -264,10 +270,10 @@ def test_a_seed_that_nothing_uses_is_warned_about(tmp_path):
 
 
 def test_the_api_warns_of_a_seed_that_nothing_uses():
-    with pytest.warns(RuntimeWarning, match="nothing in this run draws random numbers"):
+    with pytest.warns(RuntimeWarning, match="strip.yaml: seed: nothing in this run draws random numbers"):
         rbx.simulate(STRIP, collisions=20, seed=5)
-    with pytest.warns(RuntimeWarning, match="the seed changes nothing"):
-        rbx.load(STRIP, {"run.seed": 5})
+    with pytest.warns(RuntimeWarning, match="strip.yaml: run.seed: .*the seed changes nothing"):
+        rbx.load(STRIP, {"run.seed": 5})             # named as the key was given
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         rbx.simulate(STRIP, collisions=20)                                        # no seed given

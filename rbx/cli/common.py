@@ -93,8 +93,10 @@ def warn_repeated(cfg, overrides, changes=None):
     from ..config import repeated_orbits, seed_change, unused_seed
     message = repeated_orbits(cfg)
     if message:
-        where = "--trajectories" if overrides.get("trajectories") is not None else \
-            f"{display_path(cfg.source)}: run.trajectories"
+        # the key to change: a list of starts that repeat each other, else the number of copies of one start
+        key = "initial" if len(cfg.initial) > 1 else "run.trajectories"
+        where = "--trajectories" if overrides.get("trajectories") is not None and key == "run.trajectories" else \
+            f"{display_path(cfg.source)}: {key}"
         click.echo(f"rbx: warning: {where}: {message}", err=True)
     where = "--seed" if overrides.get("seed") is not None else (
         f"--set {seed_change(changes)}" if seed_change(changes) else None)
