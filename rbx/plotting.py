@@ -721,12 +721,16 @@ def escape_figure(s, S, fit, exits, total, title, unit="path length [L]", expect
     off (said: no trapped share can be read)."""
     fig = _figure(8.4, 5.0, title)
     ax = fig.add_subplot()
-    s, S = np.asarray(s)[np.asarray(S) > 0], np.asarray(S)[np.asarray(S) > 0]   # S = 0 has no place on a log axis
+    # the axis runs to the last exit, and the last level S > 0 is drawn up to it (S = 0 has no place on a log axis:
+    # cut there, the last step lay on the axis' edge)
+    end = float(np.max(s)) if len(s) else 1.0
+    s, S = np.asarray(s)[np.asarray(S) > 0], np.asarray(S)[np.asarray(S) > 0]
+    if len(s) and end > s[-1]:
+        s, S = np.append(s, end), np.append(S, S[-1])
     counted = f"{exits} of {total} exited"
     if at_last:
         counted += f": {exits - at_last} before the run's last collision, {at_last} at it"
     ax.step(s, S, where="post", color=_colour(0), lw=1.2, label=f"Kaplan–Meier survival ({counted})")
-    end = float(np.max(s)) if len(s) else 1.0
     if trapped is not None:
         share, low, high = trapped
         ax.axhspan(low, high, color=_colour(1), alpha=0.25, lw=0)

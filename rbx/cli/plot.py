@@ -473,7 +473,8 @@ def _escape(run, rec, traj, fit_from=0.1, **_):
         fit = None
     expected = None if trapped is not None else _small_hole_rate(run, exp)
     censored = int(np.sum(~exited))
-    title = _title(run, f"escape through {', '.join(walls)} ({censored} still inside: censored)", traj, rec)
+    inside = f"{censored} still inside: censored" if censored else "every one exited"
+    title = _title(run, f"escape through {', '.join(walls)} ({inside})", traj, rec)
     # a trajectory that exits at its last collision ended with the run: rbx simulate's summary does not count it
     # among those that "ended earlier"; the legend says both
     at_last = int(np.sum(exited & (np.asarray(run.final["collisions"])[sel] >= exp.run.collisions)))

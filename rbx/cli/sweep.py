@@ -271,7 +271,7 @@ def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=Non
             if set(c.dims) <= set(var.dims):
                 references.append({"x": xs[keep], "y": pick(c, sel)[keep],
                                    "label": variable_label(comp, units=False)[0] if k == 0 else None,
-                                   "color": "0.3" if len(lines) == 1 else f"C{k}"})
+                                   "color": "0.3"})      # grey: a reference, whichever line it is beside
     M, N = ds.attrs["ensemble_trajectories"], ds.attrs["ensemble_collisions"]
     seconds = float(np.nansum(ds["wall_time"].values))
     panel = {"series": series, "references": references, "xlabel": xlabel, "ylabel": ylabel, "logx": logx,
