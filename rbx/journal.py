@@ -136,7 +136,8 @@ class JournaledFile:
         try:
             _lock(self.fd)
         except BaseException:
-            os.close(self.fd)
+            fd, self.fd = self.fd, None         # closed once, and never again by close()
+            os.close(fd)
             raise
         self.pos = 0
         #: the first OSError of a write or read (then nothing more is committed: the file stays at its last commit)
@@ -636,13 +637,17 @@ class JournalView(JournaledFile):
             if j is not None:
                 _check_file(self.fd, j)
             pages = dict(j.pages) if j is not None else {}
+            if 0 not in pages:
+                pages[0] = _file_page(self.fd, 0)
+            size = os.fstat(self.fd).st_size
         except BaseException:
-            os.close(self.fd)
+            # closed here, and forgotten: __del__ would close the same number again later, by then perhaps a file
+            # the caller has opened since (a line of its log went into another file)
+            fd, self.fd = self.fd, None
+            os.close(fd)
             raise
-        if 0 not in pages:
-            pages[0] = _file_page(self.fd, 0)
         self.pos, self.failure = 0, None
-        self.size = max(os.fstat(self.fd).st_size, j.size if j is not None else 0)
+        self.size = max(size, j.size if j is not None else 0)
         self.overlay = {k: bytearray(v) for k, v in pages.items()}
         self.committed, self.cut = self.size, (max(pages) + 1) * PAGE
 

@@ -472,3 +472,29 @@ def test_a_journal_an_older_rbx_left_is_applied_to_its_own_file_only(tmp_path):
     assert "is torn" in str(info.value)
     with _open_h5(path) as f:
         assert f.attrs["version"] == 2 and np.all(f["x"][...] == 2.0)
+
+
+def test_a_view_refused_by_a_live_writers_lock_closes_its_file_once(tmp_path):
+    """Reading a file a live run holds (its lock taken): the view closed its file descriptor when the shared lock
+    was refused and kept the number, so its __del__ closed it again later, by then a file the caller had opened
+    meanwhile: a script polling a run with rbx.open wrote its own log line into another file."""
+    import fcntl
+    import gc
+    path = tmp_path / "run.h5"
+    path.write_bytes(bytes(2 * PAGE))
+    writer = os.open(path, os.O_RDWR)
+    fcntl.flock(writer, fcntl.LOCK_EX)                  # what a live run holds while it writes
+    try:
+        for _ in range(3):
+            mine = None
+            try:
+                journal.JournalView(str(path), shared=True)
+            except OSError as exc:
+                assert "open in another program" in str(exc)
+                mine = open(tmp_path / "mylog.txt", "w")     # takes the number the view gave back
+            gc.collect()                # the error and its view are gone: the view's __del__ must not close it
+            mine.write("my line\n")
+            mine.close()                # a descriptor closed under it: OSError (EBADF) here
+            assert (tmp_path / "mylog.txt").read_text() == "my line\n"
+    finally:
+        os.close(writer)
