@@ -71,18 +71,30 @@ class NonFiniteState(ArithmeticError):
 STATE_BYTES = 400
 
 
-def memory_problem(trajectories, per_trajectory=STATE_BYTES):
-    """Why an ensemble's state alone would not fit in this machine's memory (``per_trajectory`` bytes each) -> the
-    problem as text, or None: refused before minutes of setting up, rather than a MemoryError after them."""
+def memory_problem(trajectories, per_trajectory=STATE_BYTES, records=0):
+    """Why an ensemble's state (``per_trajectory`` bytes each), and the ``records`` bytes a run in memory keeps
+    (:func:`records_bytes`), would not fit in this machine's memory -> the problem as text, or None: refused before
+    minutes of setting up, rather than a MemoryError (or the system's out-of-memory killer) after them."""
     try:
         available = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
     except (ValueError, OSError, AttributeError):   # not a POSIX system: let the allocation decide
         return None
-    need = trajectories * per_trajectory
-    if need <= available:
+    state = trajectories * per_trajectory
+    if state + records <= available:
         return None
-    return (f"{trajectories} trajectories need about {need / 2**30:.3g} GiB of memory, more than this machine has "
+    if state <= available:
+        return (f"the records kept in memory need about {records / 2**30:.3g} GiB, more than this machine has "
+                f"({available / 2**30:.3g} GiB)")
+    return (f"{trajectories} trajectories need about {state / 2**30:.3g} GiB of memory, more than this machine has "
             f"({available / 2**30:.3g} GiB)")
+
+
+def records_bytes(cfg):
+    """Bytes of the records a run kept in memory holds (:class:`MemorySink`: every recorded field of every record
+    of every trajectory) -> int (a Python int: 10¹⁸ collisions do not overflow)."""
+    n = cfg.dimension
+    per = sum(FIELD[name].size(n) * np.dtype(FIELD[name].dtype).itemsize for name in cfg.output.record)
+    return int(cfg.run.trajectories) * (int(cfg.run.collisions) // int(cfg.output.every) + 1) * int(per)
 
 
 class Simulation:

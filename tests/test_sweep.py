@@ -17,6 +17,7 @@ import yaml
 
 import rbx
 from rbx import analysis
+from rbx.model import ConfigError
 from rbx.study import load_study, sweep
 
 from reference import wavefront_sums
@@ -342,6 +343,19 @@ def test_an_ensemble_too_large_for_memory_is_one_line(tmp_path):
     res = rbx_cli("sweep", "study.yaml", "-o", "out.nc", cwd=tmp_path)
     assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
     assert "ensemble.trajectories" in res.stderr and "memory" in res.stderr and "Traceback" not in res.stderr
+    # a few trajectories, but records of 10¹⁸ collisions each kept in memory for the mean free path: the process
+    # grew by 0.5 GB/s until the system's out-of-memory killer ended it (exit 137, no line)
+    study = specular_study(trajectories=4, collisions=100)
+    (tmp_path / "long.yaml").write_text(yaml.safe_dump(study))
+    res = rbx_cli("sweep", "long.yaml", "-o", "out.nc", "--collisions", "1000000000000000000", cwd=tmp_path)
+    assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
+    assert "long.yaml: ensemble.collisions: the records kept in memory need about" in res.stderr, res.stderr
+    with pytest.raises(ConfigError, match="ensemble.collisions: the records kept in memory"):
+        rbx.sweep(study, collisions=10**18)
+    # a run in memory: the same check, naming the key given
+    with pytest.raises(ConfigError, match="^collisions: the records kept in memory need about"):
+        rbx.simulate(rbx.load(SINAI), collisions=10**15)
+    assert not list(tmp_path.glob("out.nc*"))
 
 
 @pytest.mark.parametrize("vary, key, words", [
