@@ -272,9 +272,13 @@ def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segme
     is the local one, bit for bit. An unreachable scheduler raises :class:`rbx.cluster.SchedulerUnreachable`, a
     task that fails :class:`rbx.cluster.ClusterError`."""
     exp = _load(experiment, collisions, trajectories, seed)
+    for name, value, low in (("segments", segments, 1), ("warmup", warmup, 0)):
+        # a whole number in range, as the CLI's --segments and --warmup take: warmup=-1000 ran (and measured over
+        # more collisions than the run made), 0.5 became 0, True 1
+        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer))
+                                  or value < low):
+            raise ValueError(f"{name} must be an integer ≥ {low}, not {value!r}")
     segments = int(segments)
-    if segments < 1:
-        raise ValueError("segments must be at least 1")
     if scheduler is None and slices is not None:
         raise TypeError("slices cuts the ensemble for a cluster: give scheduler too")
     N = exp.run.collisions

@@ -468,10 +468,27 @@ def _measure(spec, fail):
             if k not in rec.options:
                 fail(f"measure.{name}.{k}", "unknown option" + (f" (options: {', '.join(rec.options)})"
                                                                 if rec.options else " (it takes none)"))
+            ok, what = OPTION_VALUES.get(k, (lambda v: True, ""))
+            if not ok(options[k]):
+                fail(f"measure.{name}.{k}", f"must be {what}, got {options[k]!r}")
         opts = dict(rec.options)
         opts.update(options)
         out.append((name, opts))
     return out
+
+
+def _whole(v, low):
+    return isinstance(v, (int, np.integer)) and not isinstance(v, bool) and v >= low
+
+
+#: what each option of an observable takes -> (test, words): checked where the study is read, with the key
+OPTION_VALUES = {
+    "segments": (lambda v: _whole(v, 1), "an integer ≥ 1"),
+    "warmup": (lambda v: v is None or _whole(v, 0), "an integer ≥ 0 (collisions; null: a tenth of the run)"),
+    "spectrum": (lambda v: isinstance(v, bool), "true or false"),
+    "fit_from": (lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v < 1,
+                 "a number from 0 up to 1 (a quantile of the exit paths)"),
+}
 
 
 #: a study of at most this many points has every point's config built and checked before any point runs; a larger

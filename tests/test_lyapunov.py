@@ -460,6 +460,15 @@ def test_the_number_of_exponents_is_checked(K):
         lyapunov(_scene(SINAI, SMOOTH, 100), exponents=K)
 
 
+@pytest.mark.parametrize("option, value", [("warmup", -1000), ("warmup", 0.5), ("warmup", True),
+                                           ("warmup", float("nan")), ("segments", 0), ("segments", 2.5)])
+def test_the_warm_up_and_the_segments_are_checked(option, value):
+    """As the CLI's --warmup and --segments: warmup=-1000 measured over more collisions than the run made (with an
+    error bar half the right one), 0.5 became 0, True 1, NaN a raw ValueError of int()."""
+    with pytest.raises(ValueError, match=f"^{option} must be an integer ≥ [01], not "):
+        lyapunov(_scene(SINAI, SMOOTH, 100), **{option: value})
+
+
 def test_lyapunov_command_follows_k_vectors(tmp_path):
     import subprocess
     import sys

@@ -281,6 +281,18 @@ BAD = {
 }
 
 
+@pytest.mark.parametrize("option, value, words", [
+    ("warmup", -5, "an integer ≥ 0"), ("warmup", 0.5, "an integer ≥ 0"), ("segments", 0, "an integer ≥ 1"),
+    ("spectrum", "yes", "true or false")])
+def test_an_observables_option_is_checked_where_the_study_is_read(option, value, words):
+    """A negative warm-up reached rbx.lyapunov, which measured over more collisions than the run made; now the
+    study's key is named before anything runs."""
+    study = {"base": SINAI, "vary": {"ball.inertia": [0.5]}, "measure": [{"lyapunov": {option: value}}],
+             "ensemble": {"trajectories": 2, "collisions": 200, "seed": 1}}
+    with pytest.raises(ConfigError, match=f"measure.lyapunov.{option}: must be {words}"):
+        load_study(study)
+
+
 @pytest.mark.parametrize("name", list(BAD))
 def test_a_bad_study_is_one_line_naming_the_key(name, tmp_path):
     body, key, words = BAD[name]
