@@ -5,6 +5,7 @@ The linearised dynamics and Benettin's method run in compiled code (:mod:`rbx.ta
 orbit; the derivation of the tangent map is in docs/tangent-map.md, the escape statistics in docs/dynamics.md.
 """
 import contextlib
+import os
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -406,6 +407,13 @@ def escape_times(run):
     exited at its final time; one still alive is censored at the time it reached. Started with the billiard
     measure on an exit wall (``initial: {sample: billiard, wall: NAME}``), the times are return times to that wall:
     Kac's lemma gives their mean (docs/dynamics.md)."""
+    if isinstance(run, (str, os.PathLike)):      # a run file's path, as rbx.open takes it
+        from .runfile import Run
+        with Run.open(os.fspath(run)) as opened:
+            return escape_times(opened)
+    if not hasattr(run, "final"):
+        raise TypeError(f"escape_times takes a run (rbx.open, rbx.simulate) or a run file's path, not "
+                        f"{type(run).__name__}")
     final = run.final
     if not final or "alive" not in final:
         raise ValueError("the run has no final state (it never ran a block)")

@@ -142,6 +142,9 @@ def test_the_exits_counted_agree_with_the_summary(tmp_path):
     rbx.simulate(rbx.load(SINAI), collisions=100, output=run)
     final = rbx.open(run).final
     exited = escape_times(rbx.open(run)).exited
+    np.testing.assert_array_equal(rbx.escape_times(run).exited, exited)       # a path, as rbx.open takes it
+    with pytest.raises(TypeError, match="a run .* or a run file's path, not int"):
+        rbx.escape_times(5)
     earlier = int(np.sum(~final["alive"] & (final["collisions"] < 100)))    # rbx simulate's "ended earlier"
     at_last = int(np.sum(exited & (final["collisions"] == 100)))
     assert at_last > 0 and earlier + at_last == exited.sum()
