@@ -977,6 +977,12 @@ def _check_resumable(ds, template, path, study=None, points=()):
     done = ds["done"].values
     if not np.all((done == 0) | (done == 1)):
         raise FileError(path, "done", f"holds values other than 0 and 1; {fix}")
+    for key in ("measure", "varied", "ensemble_trajectories", "ensemble_collisions", "ensemble_seed"):
+        # the attributes a figure of the finished file reads: carried into it by the resume (a file edited by
+        # hand then gave tracebacks when plotted)
+        if key in template.attrs and str(ds.attrs.get(key)) != str(template.attrs[key]):
+            raise FileError(path, key, f"is {str(ds.attrs.get(key))[:40]!r} where this study's is "
+                                       f"{str(template.attrs[key])[:40]!r}; {fix}")
     for name, var in template.coords.items():
         mine, theirs = np.asarray(var.values), np.asarray(ds[name].values)
         if mine.dtype.kind in "OUS":

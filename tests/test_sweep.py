@@ -772,7 +772,10 @@ def test_a_results_file_to_resume_with_other_coordinates_or_impossible_done_valu
     sweep(str(tmp_path / "study.yaml"), str(tmp_path / "r.nc"))
     damages = {"ball.inertia": lambda f: f["ball.inertia"].write_direct(np.array([3.0, 6.0])),
                "mean_free_path": lambda f: f["mean_free_path"].write_direct(np.array([np.nan, np.nan])),
-               "seed": lambda f: f["seed"].write_direct(np.array([12345, 0], np.int64))}
+               "seed": lambda f: f["seed"].write_direct(np.array([12345, 0], np.int64)),
+               # attributes its figure reads: carried into the finished file, which then plotted with a traceback
+               "varied": lambda f: f.attrs.modify("varied", "[]"),
+               "measure": lambda f: f.attrs.__delitem__("measure")}
     for key, damage in damages.items():
         partial = tmp_path / "c.nc.partial"
         partial.write_bytes((tmp_path / "r.nc").read_bytes())
@@ -784,6 +787,19 @@ def test_a_results_file_to_resume_with_other_coordinates_or_impossible_done_valu
         assert res.stderr.startswith(f"rbx: c.nc.partial: {key}: "), res.stderr
         assert "run it afresh with --force" in res.stderr, res.stderr
         assert not (tmp_path / "c.nc").exists()
+    # the figure of a finished file edited so: one line naming the attribute, not a traceback
+    from rbx.cli.common import UserError
+    from rbx.cli.sweep import open_results
+    for key, edit, words in (("measure", lambda f: f.attrs.__delitem__("measure"), "missing"),
+                             ("varied", lambda f: f.attrs.modify("varied", "table.width"), "is not a JSON list"),
+                             ("varied", lambda f: f.attrs.modify("varied", '["table.width"]'), "names 'table.width'"),
+                             ("measure", lambda f: f.attrs.modify("measure", '{"a": 1}'), "is not a list of names")):
+        edited = tmp_path / "edited.nc"
+        edited.write_bytes((tmp_path / "r.nc").read_bytes())
+        with h5py.File(edited, "a") as f:
+            edit(f)
+        with pytest.raises(UserError, match=f"{key}: {words}"):
+            open_results(str(edited))
     # the same file as it was written, with the second point to run: continued to the whole results
     partial.write_bytes((tmp_path / "r.nc").read_bytes())
     with h5py.File(partial, "a") as f:

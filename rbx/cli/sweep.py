@@ -204,7 +204,39 @@ def open_results(path):
         raise UserError(path, None, f"not a NetCDF file rbx sweep wrote ({str(exc).splitlines()[0]})") from None
     if "rbx_study" not in ds.attrs:
         raise UserError(path, None, "not a results file of rbx sweep")
+    _check_results_attrs(ds, path)
     return ds
+
+
+def _check_results_attrs(ds, path):
+    """The attributes a study's figure reads, checked for what they are (a file edited by hand gave a KeyError,
+    JSONDecodeError, IndexError or TypeError traceback): ``measure`` and ``varied`` JSON lists of the file's
+    variables, ``done`` and ``wall_time`` present, the ensemble's size whole numbers."""
+    import json
+
+    import numpy as np
+
+    def bad(key, problem):
+        raise UserError(path, key, f"{problem}: the file was not written as rbx sweep writes it; run the study again")
+    for key in ("measure", "varied"):
+        try:
+            names = json.loads(ds.attrs[key])
+        except KeyError:
+            bad(key, "missing")
+        except (TypeError, ValueError):
+            bad(key, f"is not a JSON list ({str(ds.attrs[key])[:40]!r})")
+        if not (isinstance(names, list) and names and all(isinstance(n, str) for n in names)):
+            bad(key, f"is not a list of names ({str(ds.attrs[key])[:40]!r})")
+        missing = [n for n in names if n not in ds.variables]
+        if missing:
+            bad(key, f"names '{missing[0]}', which the file does not hold")
+    for name in ("done", "wall_time"):
+        if name not in ds.data_vars:
+            bad(name, "missing")
+    for key in ("ensemble_trajectories", "ensemble_collisions"):
+        value = ds.attrs.get(key)
+        if not (isinstance(value, (int, np.integer)) and value >= 1):
+            bad(key, f"is not a whole number ≥ 1 ({value!r})")
 
 
 def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=None):
