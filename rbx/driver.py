@@ -29,7 +29,7 @@ from .locks import LockNotWritable, acquire_lock, lock_holder, lock_path, releas
 from .locks import busy as _busy
 from .progress import plural
 from .paths import (NO_ROOM, DiskFull, FileError, check_own_kind, check_own_names, check_replaceable, creation_path,
-                    display_path, format_size, temporary_path, what_it_is)
+                    display_path, format_size, other_commands_file, temporary_path, what_it_is)
 from .runfile import (H5Sink, Run, _text, close_journal, commit, config_yaml, data_bytes, file_path, fill_returns,
                       is_true, journal_of, open_journaled)
 
@@ -120,6 +120,10 @@ def check_target(path, force, key, file=None, config_source=None, partial_ok=Fal
             raise FileError(file, key, f"{show} is the config file itself" if i == 0 else
                             f"{show} is a file the config includes ({display_path(source)})")
     forget_second_name(temporary_path(path), path)
+    for p in (path, temporary_path(path)):      # a study's results under these names: never taken for a run's
+        problem = other_commands_file(p, "run")
+        if problem is not None:
+            raise problem
     if os.path.exists(path) and not force:
         raise FileError(path, None, f"exists; use {force_hint} to overwrite it")
     check_own_kind(path, key, file)     # with force: never a config, a table or notes named as the output

@@ -45,7 +45,8 @@ from .dynamics import lyapunov
 from .histogram import return_experiment
 from .model import ConfigError
 from .locks import acquire_lock, release_lock
-from .paths import DiskFull, check_own_kind, check_own_names, check_replaceable, config_file_problem, display_path
+from .paths import (DiskFull, check_own_kind, check_own_names, check_replaceable, config_file_problem, display_path,
+                    other_commands_file)
 from .runfile import FileError, provenance
 from .simulation import memory_problem, records_bytes
 
@@ -880,6 +881,10 @@ def _sweep(study, output, scheduler, resume, force, progress, base, changes):
                 if f and os.path.isfile(f) and os.path.exists(p) and os.path.samefile(p, f):
                     raise FileError(p, "-o", f"is {what}: give the results a file of their own, such as "
                                              "results.nc")
+        for p in (output, partial):      # a run of rbx simulate under these names: never taken for the study's
+            problem = other_commands_file(p, "study")
+            if problem is not None:
+                raise problem
         if resume:
             source = partial if os.path.exists(partial) else output if os.path.exists(output) else None
             if source is not None:

@@ -842,3 +842,28 @@ def test_a_failed_write_over_kept_points_says_how_much_room_a_write_needs(tmp_pa
     assert " kB, beside it before replacing it, so it needs that much free): free some room and continue with " \
            "--resume" in said, said
     assert path.read_bytes() == before
+
+
+def test_a_file_of_the_other_command_under_the_outputs_name_is_refused_whatever_the_options(tmp_path):
+    """A killed rbx simulate's k.h5.partial beside rbx sweep -o k.h5: the sweep called it the study's file, and
+    --force deleted the resumable run; a study's v.h5.partial beside rbx simulate -o v.h5 was called a killed run
+    to resume with rbx simulate (which then failed), and --force deleted the finished points. Each command now says
+    what the file is, and touches it with no option."""
+    from rbx.paths import FileError
+    study = {"base": SINAI, "vary": {"ball.inertia": [0.3]}, "measure": ["mean_free_path"],
+             "ensemble": {"trajectories": 2, "collisions": 50, "seed": 2}}
+    rbx.simulate(rbx.load(SINAI), collisions=20, output=str(tmp_path / "run.h5"))
+    run_bytes = (tmp_path / "run.h5").read_bytes()
+    (tmp_path / "k.h5.partial").write_bytes(run_bytes)
+    for options in ({"force": True}, {"resume": True}, {}):
+        with pytest.raises(FileError, match="k.h5.partial: is the unfinished run file of rbx simulate: continue it "
+                                            "with rbx simulate --resume"):
+            sweep(study, str(tmp_path / "k.h5"), **options)
+    assert (tmp_path / "k.h5.partial").read_bytes() == run_bytes and not (tmp_path / "k.h5").exists()
+    sweep(study, str(tmp_path / "r.nc"))
+    results = (tmp_path / "r.nc").read_bytes()
+    (tmp_path / "v.h5.partial").write_bytes(results)
+    for force in (True, False):
+        with pytest.raises(FileError, match=r"v.h5.partial: is the unfinished results of a study \(rbx sweep\)"):
+            rbx.simulate(rbx.load(SINAI), collisions=20, output=str(tmp_path / "v.h5"), force=force)
+    assert (tmp_path / "v.h5.partial").read_bytes() == results and not (tmp_path / "v.h5").exists()
