@@ -7,8 +7,10 @@
 The lowest of the run-file modules: :mod:`rbx.locks`, :mod:`rbx.runfile` and :mod:`rbx.driver` import it, it
 imports none of them.
 """
+import contextlib
 import errno
 import os
+import secrets
 import stat
 
 #: the largest config (or table, boundary) file rbx reads: a YAML config is a few kB
@@ -182,6 +184,30 @@ def other_commands_file(path, mine):
                 if unfinished else "remove it if it is not needed")
     return FileError(path, None, f"is {what}: {then}; give this {'study' if mine == 'study' else 'run'}'s "
                                  "output another name")
+
+
+@contextlib.contextmanager
+def written_whole(path):
+    """A new name beside ``path`` (its folder, its extension last, so that a writer that reads the format off the
+    name still does) to write a figure or an animation to -> yields it; once written, it replaces ``path`` in one
+    rename. A failure (a full disk, Ctrl-C) removes it and leaves ``path`` as it was: a figure written in place was
+    left truncated, where a good one had been."""
+    folder, name = os.path.split(os.path.abspath(path))
+    stem, ext = os.path.splitext(name)
+    while True:
+        tmp = os.path.join(folder, f".{stem}.{secrets.token_hex(4)}.part{ext}")
+        try:        # created as any new file is (the umask's permissions), and never one already there
+            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+            break
+        except FileExistsError:
+            continue
+    try:
+        yield tmp
+        os.replace(tmp, path)
+    except BaseException:
+        with contextlib.suppress(OSError):
+            os.remove(tmp)
+        raise
 
 
 def open_regular(path):

@@ -61,10 +61,12 @@ def styled(build):
 
 
 def save(fig, path, dpi=None):
-    """``fig.savefig(path)`` with rbx's style (dpi: the style's unless given), its panels lettered."""
+    """``fig.savefig(path)`` with rbx's style (dpi: the style's unless given), its panels lettered; written whole
+    beside ``path`` and then renamed to it (:func:`rbx.paths.written_whole`), so that a failure leaves no part."""
+    from .paths import written_whole
     letter_panels(fig)
-    with style():
-        fig.savefig(path, dpi=dpi if dpi is not None else "figure")
+    with style(), written_whole(path) as tmp:
+        fig.savefig(tmp, dpi=dpi if dpi is not None else "figure")
 
 
 def letter_panels(fig):

@@ -428,3 +428,24 @@ def test_resuming_into_a_symbolic_link_is_refused_before_any_work(tmp_path):
     assert res.returncode == 2 and res.stderr.count("\n") == 1 and "symbolic link" in res.stderr, res.stderr
     assert not (tmp_path / "link.h5.partial").exists() and (tmp_path / "link.h5").is_symlink()
     assert victim.read_bytes() == before
+
+
+def test_a_figure_that_cannot_be_written_whole_leaves_the_one_it_would_replace(tmp_path):
+    """rbx plot -o good.png on a full disk (here a size limit) wrote in place: the good figure was left truncated
+    (exit 2), a new name a 0-byte file. A figure and an animation are written beside their name and renamed to it:
+    the old file stays whole, nothing else is left, and a full disk is exit 1, one line, as for a run."""
+    write_config(tmp_path, strip_random(200, trajectories=1, every=1, record=("time", "position", "velocity",
+                                                                               "orientation")))
+    assert rbx_cli("simulate", "exp.yaml", "-o", "r.h5", "--quiet", cwd=tmp_path).returncode == 0
+    for command, name in ((["plot", "r.h5", "--kind", "orbit"], "good.png"),
+                          (["animate", "r.h5", "--frames", "20"], "good.gif")):
+        res = rbx_cli(*command, "-o", name, "--quiet", cwd=tmp_path)
+        assert res.returncode == 0, res.stderr
+        good = (tmp_path / name).read_bytes()
+        args = " ".join(command)
+        res = subprocess.run(["bash", "-c", f"trap '' XFSZ; ulimit -f 4; exec {RBX} {args} -o {name} "
+                              "--quiet"], cwd=tmp_path, capture_output=True, text=True, timeout=900)
+        assert res.returncode == 1 and res.stderr.count("\n") == 1, res.stderr
+        assert "no room on the disk" in res.stderr and "nothing was replaced" in res.stderr, res.stderr
+        assert (tmp_path / name).read_bytes() == good
+        assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".")) == []

@@ -12,8 +12,9 @@ import time
 import click
 import numpy as np
 
-from .common import (Command, UserError, check_figure_target, display_path, duration, interrupted_exit, quiet_option,
-                     report_and_exit, summary, user_errors)
+from ..paths import written_whole
+from .common import (Command, UserError, cannot_write, check_figure_target, display_path, duration, interrupted_exit,
+                     quiet_option, report_and_exit, summary, user_errors)
 
 NEEDED = ("time", "position", "velocity", "orientation")
 
@@ -89,9 +90,10 @@ def write_animation(run_file, out, trajectory=0, records=None, fps=20, frames=20
     title = f"{scene}\ntrajectory {trajectory} · collisions {steps[0]}–{steps[0] + len(data['time']) - 1}"
     try:
         os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
-        _render(out, ext, geom, R, data["position"], data["time"], t, pos, theta, title, fps, dpi)
+        with written_whole(out) as tmp:
+            _render(tmp, ext, geom, R, data["position"], data["time"], t, pos, theta, title, fps, dpi)
     except OSError as exc:
-        raise UserError(out, None, f"cannot write the animation: {exc.strerror or exc}") from None
+        cannot_write(out, exc, "the animation")
     return out
 
 

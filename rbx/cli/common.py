@@ -407,3 +407,15 @@ def check_figure_target(path):
             raise UserError(path, None, "exists and is not a figure (not a PNG, PDF, SVG, PostScript, JPEG, TIFF, GIF "
                                         "or MP4 file: a run, a config, notes?); rbx replaces only figures: give "
                                         "another name")
+
+
+def cannot_write(path, exc, what="the figure"):
+    """A figure or an animation that could not be written -> raises: a full disk (or a size limit) is not the
+    user's input, one line and exit 1 (as for a run); anything else a :class:`UserError` (exit 2)."""
+    from ..paths import NO_ROOM
+    reason = getattr(exc, "strerror", None) or exc
+    if getattr(exc, "errno", None) in NO_ROOM:
+        click.echo(f"rbx: {display_path(path)}: cannot write {what}: {reason}: no room on the disk (or a size limit, "
+                   f"ulimit -f?); nothing was replaced", err=True)
+        raise SystemExit(1)
+    raise UserError(path, None, f"cannot write {what}: {reason}")

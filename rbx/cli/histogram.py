@@ -9,9 +9,9 @@ import time
 
 import click
 
-from .common import (Command, Progress, UserError, check_cluster_options, check_figure_target, check_memory, connect,
-                     display_path, duration, ending_on_signals, parse_sets, pending_signal, quiet_option,
-                     report_and_exit, plural, set_option, summary, user_errors)
+from .common import (Command, Progress, UserError, cannot_write, check_cluster_options, check_figure_target,
+                     check_memory, connect, display_path, duration, ending_on_signals, parse_sets, pending_signal,
+                     plural, quiet_option, report_and_exit, set_option, summary, user_errors)
 
 
 @click.command(cls=Command)
@@ -102,7 +102,7 @@ def _histogram(config, out, data, trajectories, seed, sets, force, quiet, cluste
     from ..cluster import ClusterError
     from ..histogram import return_experiment
     from ..driver import check_size, returns_bytes, write_returns
-    from ..paths import NO_ROOM, DiskFull
+    from ..paths import NO_ROOM, DiskFull, written_whole
 
     check_cluster_options(cluster)
 
@@ -170,10 +170,10 @@ def _histogram(config, out, data, trajectories, seed, sets, force, quiet, cluste
                                     f"{title}\nreturn angles to {wall}: {len(result.angle)} of {result.samples} "
                                     f"billiard-measure samples", not_returned=result.not_returned)
     try:
-        fig.savefig(fig_path, dpi=150)
+        with written_whole(fig_path) as tmp:
+            fig.savefig(tmp, dpi=150)
     except (OSError, ValueError) as exc:
-        raise UserError(fig_path, None, f"cannot write the figure: {getattr(exc, 'strerror', None) or exc}") \
-            from None
+        cannot_write(fig_path, exc)
 
     d = result.d
     click.echo(f"{result.samples} samples on {wall}, {result.samples - result.not_returned} returned "

@@ -6,8 +6,8 @@ import time
 import click
 import numpy as np
 
-from .common import (Command, Choice, UserError, check_figure_target, display_path, duration, interrupted_exit,
-                     plural, quiet_option, report_and_exit, summary, user_errors)
+from .common import (Choice, Command, UserError, cannot_write, check_figure_target, display_path, duration,
+                     interrupted_exit, plural, quiet_option, report_and_exit, summary, user_errors)
 
 #: the plot kinds (``--kind``); kind K is drawn by the function ``_K`` below
 KINDS = ("orbit", "orbit3d", "phase", "series", "diffusion", "escape", "birkhoff", "poincare", "sweep")
@@ -129,7 +129,7 @@ def _plot(run_file, kind, out, records, trajectories, colour, coordinate, scales
     try:
         save(fig, path, dpi=dpi)
     except (OSError, ValueError) as exc:
-        raise UserError(path, None, f"cannot write the figure: {getattr(exc, 'strerror', None) or exc}") from None
+        cannot_write(path, exc)
     return path, getattr(fig, "rbx_result", None)     # what the picture measured, for stdout (escape)
 
 

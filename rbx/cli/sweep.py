@@ -6,8 +6,9 @@ import warnings
 
 import click
 
-from .common import (Command, Progress, UserError, check_figure_target, display_path, duration, ending_on_signals,
-                     hard_exit, parse_sets, pending_signal, plural, quiet_option, report_and_exit, summary, user_errors)
+from .common import (Command, Progress, UserError, cannot_write, check_figure_target, display_path, duration,
+                     ending_on_signals, hard_exit, parse_sets, pending_signal, plural, quiet_option, report_and_exit,
+                     summary, user_errors)
 
 
 @click.command(cls=Command)
@@ -187,7 +188,7 @@ def plot_sweep(path, kind, out, y, x, logx, logy, dpi):
     try:
         save(fig, out, dpi=dpi)
     except (OSError, ValueError) as exc:
-        raise UserError(out, None, f"cannot write the figure: {getattr(exc, 'strerror', None) or exc}") from None
+        cannot_write(out, exc)
     return out
 
 
