@@ -60,7 +60,7 @@ MISTAKES = {
         (["histogram", "x.yaml", "--seed"], "--seed"),
         (["histogram", "x.yaml", "--task-collisions", "0"], "--task-collisions"),
         (["histogram", "x.yaml"], "x.yaml"),
-        (["histogram", "folder"], "CONFIG"),
+        (["histogram", "folder"], "folder"),                   # the file given, not the placeholder
         (["histogram", "x.yaml", "--set", "=0.2"], "--set"),
         (["histogram", "x.yaml", "--data"], "--data"),
     ],
@@ -73,7 +73,7 @@ MISTAKES = {
         (["lyapunov", "x.yaml", "--collisions", "1e3"], "--collisions"),
         (["lyapunov", "x.yaml", "--json", "yes"], "lyapunov"),
         (["lyapunov", "x.yaml"], "x.yaml"),
-        (["lyapunov", "folder"], "CONFIG"),
+        (["lyapunov", "folder"], "folder"),
         (["lyapunov", "x.yaml", "--set", "ball.inertia"], "--set"),
     ],
     "sweep": [
@@ -83,7 +83,7 @@ MISTAKES = {
         (["sweep", "x.yaml", "y.yaml", "-o", "r.nc"], "sweep"),
         (["sweep", "x.yaml", "-o"], "-o"),
         (["sweep", "x.yaml", "-o", "r.nc"], "x.yaml"),
-        (["sweep", "folder", "-o", "r.nc"], "STUDY.yaml"),
+        (["sweep", "folder", "-o", "r.nc"], "folder"),
     ],
     "animate": [
         (["animate"], "RUN.h5"),

@@ -9,6 +9,7 @@ own usage errors (a bad option value, a missing argument, an unknown option or c
 """
 import contextlib
 import os
+import re
 import signal
 import sys
 
@@ -201,6 +202,10 @@ def usage_line(exc, command_path):
     see = f" (see '{command_path} --help')"
     if isinstance(exc, click.BadParameter) and exc.param is not None and exc.ctx is not None:
         where = ", ".join(x.strip("'") for x in exc.param.get_error_hint(exc.ctx).split(" / "))
+        named = re.match(r"(?:File|Path|Directory) '(.+)' (.+?)\.?$", flat(exc.message or ""))
+        if isinstance(exc.param, click.Argument) and named:
+            # a file argument: the file the user gave, not the argument's placeholder ('STUDY.yaml: File 'x' …')
+            return f"{display_path(named.group(1))}: {named.group(2)} (given as {where})"
         return f"{where}: {flat(exc.message or exc.format_message())}"
     if isinstance(exc, click.NoSuchOption):
         maybe = f"; did you mean {' or '.join(exc.possibilities)}?" if exc.possibilities else ""
