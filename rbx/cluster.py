@@ -168,6 +168,14 @@ def connect(scheduler, key="--scheduler", slices=None, task_collisions=None):
                 address = _scheduler_file(text, key)      # file must not make Dask's Client wait and retry)
             else:
                 address = _address(text)
+            scheme = address.partition("://")[0]
+            if scheme != "tcp":
+                # tls:// needs certificates, inproc:// a scheduler in this very process, ucx:// and ws:// their own
+                # settings: none of which a command line passes (Dask took tls://… for a scheduler that answered
+                # wrongly, inproc://x for a broken address)
+                raise SchedulerUnreachable(key, f"{text}: rbx connects to a scheduler over tcp:// (give "
+                                                f"tcp://HOST:PORT or a scheduler file); for {scheme}://, pass a "
+                                                "distributed.Client set up for it from Python (scheduler=client)")
             try:
                 identity = _probe(address, CONNECT_TIMEOUT)
             except ValueError as exc:          # no port, an unknown protocol

@@ -398,7 +398,7 @@ def free_port():
 
 
 @pytest.mark.parametrize("address", ["tcp://127.0.0.1:{port}", "127.0.0.1:{port}", "nonsense://where",
-                                     "scheduler.json"])
+                                     "scheduler.json", "tls://127.0.0.1:{port}", "inproc://x"])
 def test_an_unreachable_scheduler_is_one_line_and_exit_2(address, tmp_path):
     port = free_port()
     address = address.format(port=port)
@@ -409,7 +409,10 @@ def test_an_unreachable_scheduler_is_one_line_and_exit_2(address, tmp_path):
     assert res.returncode == 2, res.stderr
     lines = res.stderr.strip().splitlines()
     assert len(lines) == 1 and lines[0].startswith("rbx: --scheduler: "), res.stderr
-    if "nonsense" not in address:
+    if address.startswith(("nonsense", "tls", "inproc")):
+        # tls:// was said to have "answered, but not as a Dask scheduler", inproc://x "not enough values to unpack"
+        assert "rbx connects to a scheduler over tcp://" in lines[0], lines[0]
+    else:
         assert "cannot reach a Dask scheduler" in lines[0] and "Connection refused" in lines[0]
     assert not list(tmp_path.glob("run.h5*"))                # nothing written
 
