@@ -689,6 +689,8 @@ def _lock_source(source, in_place, out_key="-o"):
     try:
         acquire_lock(source)
     except LockNotWritable as exc:
+        if not os.path.lexists(source):     # nothing to resume: said as such, not as a folder to write elsewhere
+            raise FileError(source, None, "file not found") from None
         if in_place:
             raise _not_in_place(source, exc.problem, out_key) from None
         return exc.problem

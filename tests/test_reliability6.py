@@ -41,6 +41,9 @@ def test_a_pending_journal_on_a_read_only_disk_is_read_and_resumed_into_a_writab
         assert res.returncode == 0, res.stderr
         assert_same_records(read_run(tmp_path / "out.h5"), read_run(tmp_path / "ref.h5"))
         assert (disk / "o.h5.partial.journal").exists()         # the read-only folder as it was
+        # a file that is not there is not there, read-only folder or not (it was "cannot be resumed in place")
+        res = rbx_cli("simulate", "--resume", disk / "none.h5.partial", cwd=tmp_path)
+        assert res.returncode == 2 and res.stderr.endswith("none.h5.partial: file not found\n"), res.stderr
 
 
 @pytest.mark.parametrize("name", ["o.h5.partial", "o.h5"])
