@@ -44,7 +44,7 @@ from .config import other_kind, parse_yaml, read_text, repeated_orbits, start_gr
 from .dynamics import lyapunov
 from .histogram import return_experiment
 from .model import ConfigError
-from .locks import acquire_lock, release_lock
+from .locks import LockNotWritable, acquire_lock, release_lock
 from .paths import (DiskFull, check_own_kind, check_own_names, check_replaceable, config_file_problem, display_path,
                     other_commands_file)
 from .runfile import FileError, provenance
@@ -842,7 +842,16 @@ def sweep(study, output=None, *, scheduler=None, resume=False, force=False, prog
     output = os.path.abspath(os.fspath(output))
     _check_not_own_name(output)
     check_own_names(output)        # a FIFO named as the lock would block its read
-    acquire_lock(output)
+    try:
+        acquire_lock(output)
+    except LockNotWritable as exc:
+        partial = partial_path(output)
+        if resume and os.path.exists(partial):
+            # the finished points are in the .partial; a sweep resumes only beside its output: say how to go on
+            raise FileError(partial, None, f"cannot be resumed in place: its folder cannot be written ({exc.problem})"
+                                           f"; copy it to a writable folder and resume there: rbx sweep STUDY -o "
+                                           f"FOLDER/{os.path.basename(output)} --resume") from None
+        raise
     try:
         return _sweep(study, output, scheduler, resume, force, progress, base, changes)
     finally:

@@ -2,10 +2,12 @@
 a run that fits it, a resume is checked against every key that makes its orbit, and a large study starts at once.
 Each test was seen to fail on the code before its change."""
 import os
+import shutil
 import subprocess
 import sys
 
 import pytest
+import yaml
 
 import rbx
 from tests.test_interrupt import (assert_same_records, read_run, reference_run, strip_random, without_path,
@@ -243,3 +245,28 @@ def test_a_new_run_keeps_the_journal_of_a_partial_that_was_moved_away(tmp_path):
     assert not (tmp_path / "o.h5").exists() and not (tmp_path / "o.h5.lock").exists()
     res = rbx_cli("simulate", "exp.yaml", "-o", "o.h5", "--quiet", "--force", cwd=tmp_path, timeout=HANG)
     assert res.returncode == 0 and (tmp_path / "o.h5").exists() and not orphan.exists(), res.stderr
+
+
+def test_a_studys_unfinished_results_in_a_read_only_folder_say_how_to_go_on(tmp_path):
+    """rbx sweep --resume of a study whose .partial lies in a read-only folder said only "cannot create the run's
+    lock file: Read-only file system"; it says to copy the file to a writable folder, which resumes there."""
+    sinai = os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "configs", "examples",
+                         "sinai.yaml")
+    study = {"base": sinai, "vary": {"ball.inertia": [0.3, 0.6]}, "measure": ["mean_free_path"],
+             "ensemble": {"trajectories": 2, "collisions": 50, "seed": 2}}
+    with tmpfs(tmp_path / "disk", "8m") as disk:
+        (disk / "study.yaml").write_text(yaml.safe_dump(study))
+        assert rbx_cli("sweep", "study.yaml", "-o", "r.nc", "--quiet", cwd=disk).returncode == 0
+        os.replace(disk / "r.nc", disk / "r.nc.partial")
+        res = subprocess.run(["mount", "-o", "remount,ro", str(disk)], capture_output=True, text=True)
+        if res.returncode != 0:
+            pytest.skip(f"cannot make the tmpfs read-only: {res.stderr.strip()}")
+        res = rbx_cli("sweep", "study.yaml", "-o", "r.nc", "--resume", cwd=disk)
+        assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
+        assert res.stderr.startswith("rbx: r.nc.partial: cannot be resumed in place: its folder cannot be written") \
+            and "copy it to a writable folder and resume there: rbx sweep STUDY -o FOLDER/r.nc --resume" \
+            in res.stderr, res.stderr
+        shutil.copy(disk / "r.nc.partial", tmp_path / "r.nc.partial")
+    (tmp_path / "study.yaml").write_text(yaml.safe_dump(study))
+    res = rbx_cli("sweep", "study.yaml", "-o", "r.nc", "--resume", "--quiet", cwd=tmp_path)
+    assert res.returncode == 0 and (tmp_path / "r.nc").exists(), res.stderr
