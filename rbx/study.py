@@ -1017,6 +1017,18 @@ def _check_resumable(ds, template, path, study=None, points=()):
         if bad.any():
             raise FileError(path, name, f"is not a number at {int(bad.sum())} of the points marked done (the "
                                         f"first: {_point_label(study, np.argwhere(bad)[0])}); {fix}")
+    # an error bar is a non-negative number or none (NaN), and a count of collisions a whole number ≥ 0: an inf
+    # error or −5 collisions of a point marked done were kept as results
+    checks = [(f"{name}_stderr", lambda v: np.isnan(v) | (np.isfinite(v) & (v >= 0)),
+               "is not an error (a number ≥ 0, or none)") for name, _ in study.measure if f"{name}_stderr" in ds]
+    checks.append(("collisions", lambda v: np.isfinite(v) & (v >= 0) & (v == np.floor(v)),
+                   "is not a count of collisions"))
+    for name, ok, what in checks:
+        values = np.asarray(ds[name].values, float).reshape(done.shape + (-1,))
+        bad = finished & ~np.all(ok(values), axis=-1)
+        if bad.any():
+            raise FileError(path, name, f"{what} at {int(bad.sum())} of the points marked done (the first: "
+                                        f"{_point_label(study, np.argwhere(bad)[0])}); {fix}")
     seeds = np.asarray(ds["seed"].values)
     for index, point in points:
         if finished[index] and int(seeds[index]) != study.seed(point):

@@ -773,6 +773,8 @@ def test_a_results_file_to_resume_with_other_coordinates_or_impossible_done_valu
     damages = {"ball.inertia": lambda f: f["ball.inertia"].write_direct(np.array([3.0, 6.0])),
                "mean_free_path": lambda f: f["mean_free_path"].write_direct(np.array([np.nan, np.nan])),
                "seed": lambda f: f["seed"].write_direct(np.array([12345, 0], np.int64)),
+               "mean_free_path_stderr": lambda f: f["mean_free_path_stderr"].write_direct(np.array([np.inf, 0.0])),
+               "collisions": lambda f: f["collisions"].write_direct(np.array([-5, 0], f["collisions"].dtype)),
                # attributes its figure reads: carried into the finished file, which then plotted with a traceback
                "varied": lambda f: f.attrs.modify("varied", "[]"),
                "measure": lambda f: f.attrs.__delitem__("measure")}
