@@ -424,9 +424,6 @@ def test_every_kind_on_every_scene_is_readable(scenes, scene):
             continue
         assert readable(fig) == [], (kind, readable(fig))
         drawn.append(kind)
-        if kind == "phase":             # coloured by the step: a colour bar besides the legend
-            fig = make_figure(scenes[scene], kind, colour="step")
-            assert readable(fig) == [], (kind, "step", readable(fig))
     assert "orbit" in drawn or scene == "escape-sinai"   # that example records no positions
 
 
