@@ -326,7 +326,7 @@ def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=Non
         ensemble += f" (copies of {plural(orbits, 'orbit')})"
     title = (f"{ds.attrs.get('title', '')}\n{ysym} against {xsym} · {ensemble} × "
              f"{plural(int(N), 'collision')} per point · "
-             f"{int(done.values.sum())} of {done.size} points · run time {duration(seconds)}")
+             f"{int(done.values.sum())} of {done.size} points · {duration(seconds)} computing them")
     if y == "lyapunov" or y.startswith("lyapunov_per_collision") or y.startswith("lyapunov_spectrum"):
         title += "\n" + pooled_note(ds, ysym, int(M))
     note = horizon_note(ds, y)
