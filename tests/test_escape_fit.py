@@ -132,6 +132,9 @@ def test_a_few_orbits_inside_a_falling_tail_are_no_trapped_share(tmp_path):
     inside = f"({np.sum(~esc.exited)} of 3000 still inside)"
     assert f"survival still falling at the end of the run {inside}: no trapped share can be read; run longer" in said
     assert f"still falling at the end of the run {inside}: no trapped share can be read; run longer" in texts
+    # a rate read while the curve still falls is of its window: said so where one is given
+    assert ("escape rate γ = " in said) == ("(a longer run may bend the curve towards a level and change the rate)"
+                                             in said), said
 
 
 def test_the_exits_counted_agree_with_the_summary(tmp_path):

@@ -498,6 +498,10 @@ def _escape(run, rec, traj, fit_from=0.1, **_):
     elif falling:
         said += (f"; survival still falling at the end of the run ({falling} of {len(sel)} still inside): no trapped "
                  "share can be read; run longer")
+        if fit is not None and fit.follows:
+            # a table that traps bends the curve towards its plateau only later: the rate read before that
+            # depends on the window (a short run of a rough Sinai table: 0.0126 ± 0.0004, the whole run 0.0110)
+            said += " (a longer run may bend the curve towards a level and change the rate)"
     fig.rbx_result = said
     return fig
 
