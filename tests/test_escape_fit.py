@@ -156,3 +156,6 @@ def test_the_exits_counted_agree_with_the_summary(tmp_path):
     assert f"Kaplan–Meier survival ({exited.sum()} of 2000 exited: {earlier} before the run's last collision, " \
            f"{at_last} at it)" in texts, texts
     assert "no trapped share can be read" in fig.rbx_result and "trapped share:" not in " ".join(texts)
+    # a rate is fitted, of a curve still falling: said to be of its window
+    assert "escape rate γ = " in fig.rbx_result and "a longer run may bend the curve" in fig.rbx_result, \
+        fig.rbx_result
