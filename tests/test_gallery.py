@@ -60,7 +60,8 @@ def test_an_example_as_it_ships_runs_and_draws_every_kind_it_lists(name, tmp_pat
             if exp.output.every > 1:
                 assert "lines" not in subtitle, subtitle
         plt.close(fig)
-        if kind == "phase":     # coloured by the step, the colour bar beside the legend squeezed a panel
+        if kind == "phase" and name == "strip":   # coloured by the step, the colour bar beside the legend squeezed
+            # a panel until its label lay over the other (5 examples; the strip's is the quickest to draw)
             fig = make_figure(str(out), kind, colour="step", **options)
             assert readable(fig) == [], readable(fig)
             plt.close(fig)
