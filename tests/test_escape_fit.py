@@ -129,6 +129,11 @@ def test_a_few_orbits_inside_a_falling_tail_are_no_trapped_share(tmp_path):
     fig = make_figure(run, "escape")
     said, texts = fig.rbx_result, legend(fig)
     assert "; trapped share" not in said and not any(t.startswith("trapped share") for t in texts), (said, texts)
+    # a study's escape_rate is the figure's number, and none where the figure finds no exponential law
+    from rbx.observables import PointRuns, get
+    value = get("escape_rate").compute(PointRuns(rbx.open(run).experiment, rbx.open(run)), {"fit_from": 0.1})
+    # (this rectangle's decay is not exponential: a study gave it 0.260 ± 0.006 while the figure said no rate)
+    assert said.startswith("no escape rate") and np.isnan(value.value), (said, value)
     inside = f"({np.sum(~esc.exited)} of 3000 still inside)"
     assert f"survival still falling at the end of the run {inside}: no trapped share can be read; run longer" in said
     assert f"still falling at the end of the run {inside}: no trapped share can be read; run longer" in texts
@@ -156,6 +161,9 @@ def test_the_exits_counted_agree_with_the_summary(tmp_path):
     assert f"Kaplan–Meier survival ({exited.sum()} of 2000 exited: {earlier} before the run's last collision, " \
            f"{at_last} at it)" in texts, texts
     assert "no trapped share can be read" in fig.rbx_result and "trapped share:" not in " ".join(texts)
-    # a rate is fitted, of a curve still falling: said to be of its window
+    # a rate is fitted, of a curve still falling: said to be of its window; a study's escape_rate is that number
     assert "escape rate γ = " in fig.rbx_result and "a longer run may bend the curve" in fig.rbx_result, \
         fig.rbx_result
+    from rbx.observables import PointRuns, get
+    value = get("escape_rate").compute(PointRuns(rbx.open(run).experiment, rbx.open(run)), {"fit_from": 0.1})
+    assert f"escape rate γ = {value.value:.4g} ± {value.stderr:.2g} " in fig.rbx_result, (fig.rbx_result, value)
