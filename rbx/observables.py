@@ -38,6 +38,9 @@ class Companion:
     #: a value of the observable's own quantity to compare it with (Santaló's, Kac's): a study's figure draws it
     #: dashed on the observable's panel; other companions (a share, a flag, a statistic) have panels of their own
     reference: bool = False
+    #: a 0/1 flag: where it is 0, the observable's value is not what its name promises; a study's figure says so,
+    #: with this text, for the points where it is 0
+    caveat: str = ""
 
 
 @dataclass
@@ -169,6 +172,13 @@ def references(name):
     observable ``name`` marked :attr:`Companion.reference` -> list of names (none for any other variable)."""
     rec = REGISTRY.get(name)
     return [] if rec is None else [f"{name}_{c.suffix}" for c in rec.companions if c.reference]
+
+
+def caveats(name):
+    """The 0/1 companions of observable ``name`` whose 0 says its value is not what its name promises -> list of
+    (variable name, text) (:attr:`Companion.caveat`)."""
+    rec = REGISTRY.get(name)
+    return [] if rec is None else [(f"{name}_{c.suffix}", c.caveat) for c in rec.companions if c.caveat]
 
 
 def missing_reason(name):
@@ -351,7 +361,8 @@ register(Observable(
 def _trapped_share(runs, options):
     esc = escape_times(runs.run)
     value = _share(int(np.sum(~esc.exited)), len(esc.exited))
-    value.companions["levelled"] = float(levels_off(esc.path, esc.exited))
+    # every orbit out is survival levelled at 0: a trapped share of 0, read as such
+    value.companions["levelled"] = float(bool(esc.exited.all()) or levels_off(esc.path, esc.exited))
     return value
 
 
@@ -361,10 +372,13 @@ register(Observable(
     final=True, exit=True, label="share never reaching the exit",
     companions=(Companion("low", "1", "Wilson interval, lower bound (z = 1)"),
                 Companion("high", "1", "Wilson interval, upper bound (z = 1)"),
-                Companion("levelled", "1", "1 where survival has levelled off by the end of the run (the share "
-                                          "is then the trapped share), 0 where it still falls (the share then "
+                Companion("levelled", "1", "1 where survival has levelled off by the end of the run, or every "
+                                          "orbit left (the share is then the trapped share), 0 where it still "
+                                          "falls (the share then "
                                           "counts the orbits not out yet, and shrinks with longer runs)",
-                          label="survival levelled off")),
+                          label="survival levelled off",
+                          caveat="survival still falling at the end of the run: a share of orbits not out yet, "
+                                 "not a trapped share (run longer)")),
     error="half-width of the Wilson interval (z = 1)"))
 
 

@@ -489,6 +489,8 @@ OPTION_VALUES = {
     "spectrum": (lambda v: isinstance(v, bool), "true or false"),
     "fit_from": (lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and 0 <= v < 1,
                  "a number from 0 up to 1 (a quantile of the exit paths)"),
+    "threshold": (lambda v: isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0,
+                  "a number > 0 (an orbit's own λ₁ below it is regular)"),
 }
 
 

@@ -109,11 +109,12 @@ def test_kac_return_path_and_return_angles():
     ratio, err = float(ds["return_path_ratio"][0]), float(ds["return_path_ratio_stderr"][0])
     assert 0 < err < 0.05 and abs(ratio - 1) < 3 * err
     assert float(ds["trapped_share"][0]) < 0.01 and float(ds["return_path_unreturned"][0]) < 0.01
-    assert float(ds["trapped_share_levelled"][0]) == 0      # every orbit returns: nothing levels off
+    assert float(ds["trapped_share_levelled"][0]) == 1      # every orbit returned: levelled at 0, a share of 0
     from rbx.cli.sweep import sweep_panel
     # dashed beside the points: Kac's value, not a share or a flag of the same unit
     assert [r["label"] for r in sweep_panel(ds, "return_path")[0]["references"]] == ["Kac's mean return path"]
-    assert sweep_panel(ds, "trapped_share")[0]["references"] == []
+    panel = sweep_panel(ds, "trapped_share")[0]
+    assert panel["references"] == [] and "survival still falling" not in panel.get("note", "")
     # too short for every orbit to return: the mean of the quick returns would be biased low (Kac's ratio far
     # below 1 with a small error), so there is no value, and the figure says why
     cut = sweep({**study, "ensemble": {**study["ensemble"], "collisions": 30}})
@@ -122,6 +123,10 @@ def test_kac_return_path_and_return_angles():
     panel, _ = sweep_panel(cut, "return_path")
     assert panel["note"].endswith("1 of 1 points: no value where some trajectory had not returned by the end of "
                                   "the run (raise collisions)"), panel["note"]
+    # the same short run's trapped share counts orbits not out yet: the figure says so at that point
+    assert float(cut["trapped_share_levelled"][0]) == 0
+    assert "1 of 1 points: survival still falling at the end of the run: a share of orbits not out yet, not a " \
+           "trapped share (run longer)" in sweep_panel(cut, "trapped_share")[0]["note"]
     rough = {"base": SINAI, "set": {"initial": {"sample": "billiard", "wall": "left"}},
              "vary": {"ball.inertia": [0.2, 1.0]}, "measure": ["return_angle_ks"],
              "ensemble": {"trajectories": 3000, "collisions": 3000, "seed": 6}}
@@ -283,13 +288,15 @@ BAD = {
 
 @pytest.mark.parametrize("option, value, words", [
     ("warmup", -5, "an integer ≥ 0"), ("warmup", 0.5, "an integer ≥ 0"), ("segments", 0, "an integer ≥ 1"),
-    ("spectrum", "yes", "true or false")])
+    ("spectrum", "yes", "true or false"), ("threshold", -1, "a number > 0"), ("threshold", float("nan"), "a number"),
+    ("threshold", "abc", "a number > 0")])
 def test_an_observables_option_is_checked_where_the_study_is_read(option, value, words):
     """A negative warm-up reached rbx.lyapunov, which measured over more collisions than the run made; now the
     study's key is named before anything runs."""
-    study = {"base": SINAI, "vary": {"ball.inertia": [0.5]}, "measure": [{"lyapunov": {option: value}}],
+    name = "regular_share" if option == "threshold" else "lyapunov"
+    study = {"base": SINAI, "vary": {"ball.inertia": [0.5]}, "measure": [{name: {option: value}}],
              "ensemble": {"trajectories": 2, "collisions": 200, "seed": 1}}
-    with pytest.raises(ConfigError, match=f"measure.lyapunov.{option}: must be {words}"):
+    with pytest.raises(ConfigError, match=f"measure.{name}.{option}: must be {words}"):
         load_study(study)
 
 
@@ -869,3 +876,17 @@ def test_a_file_of_the_other_command_under_the_outputs_name_is_refused_whatever_
         with pytest.raises(FileError, match=r"v.h5.partial: is the unfinished results of a study \(rbx sweep\)"):
             rbx.simulate(rbx.load(SINAI), collisions=20, output=str(tmp_path / "v.h5"), force=force)
     assert (tmp_path / "v.h5.partial").read_bytes() == results and not (tmp_path / "v.h5").exists()
+
+
+def test_a_reference_is_one_grey_line_where_it_is_the_same_beside_every_line_else_one_per_line():
+    """Santaló's mean free path does not depend on κ: drawn once per κ in the first line's colour, the legend's
+    entry matched a line hidden under the others; the largest energy drift differs per κ: in one grey it could not
+    be told apart."""
+    from rbx.cli.sweep import sweep_panel
+    ds = sweep({"base": SINAI, "set": SPECULAR, "vary": {"ball.radius": [0.05, 0.1], "ball.inertia": [0.3, 0.6]},
+                "measure": ["mean_free_path", "energy_drift"],
+                "ensemble": {"trajectories": 4, "collisions": 1000, "seed": 1}})
+    refs = sweep_panel(ds, "mean_free_path")[0]["references"]
+    assert [(r["label"], r["color"]) for r in refs] == [("Santaló's mean free path πA/P", "0.3")]
+    refs = sweep_panel(ds, "energy_drift")[0]["references"]
+    assert [r["color"] for r in refs] == ["C0", "C1"] and refs[0]["label"] and refs[1]["label"] is None

@@ -250,7 +250,7 @@ def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=Non
 
     import numpy as np
 
-    from ..observables import error_bars, missing_reason, parameter_label, variable_label
+    from ..observables import caveats, error_bars, missing_reason, parameter_label, variable_label
     from ..observables import references as reference_names
     varied = json.loads(ds.attrs["varied"])
     measured = json.loads(ds.attrs["measure"])
@@ -301,10 +301,15 @@ def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=Non
         series.append({"x": xs[keep], "y": pick(var, sel)[keep], "err": err, "label": name})
         for comp in dashed:
             c = ds[comp]
-            if set(c.dims) <= set(var.dims):
+            # one grey line where the reference is the same beside every line (Santaló's value does not depend on
+            # κ), else one per line in its colour (the largest drift of each)
+            shared = not other or other[0] not in c.dims or all(
+                np.array_equal(pick(c, {other[0]: 0}), pick(c, {other[0]: i}), equal_nan=True)
+                for i in range(ds.sizes[other[0]]))
+            if set(c.dims) <= set(var.dims) and (k == 0 or not shared):
                 references.append({"x": xs[keep], "y": pick(c, sel)[keep],
                                    "label": variable_label(comp, units=False)[0] if k == 0 else None,
-                                   "color": "0.3"})      # grey: a reference, whichever line it is beside
+                                   "color": "0.3" if shared else f"C{k}"})
     M, N = ds.attrs["ensemble_trajectories"], ds.attrs["ensemble_collisions"]
     seconds = float(np.nansum(ds["wall_time"].values))
     panel = {"series": series, "references": references, "xlabel": xlabel, "ylabel": ylabel, "logx": logx,
@@ -318,6 +323,11 @@ def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=Non
     if empty:                                   # points that ran but hold no number: a gap says why
         why = missing_reason(y) or "no value"
         notes.append(f"{empty} of {int(finished.sum())} points: {why}")
+    for flag, text in caveats(y):               # points whose value is not what the name promises
+        if flag in ds:
+            off = int(np.sum(finished & (np.asarray(ds[flag].values, float).reshape(finished.shape) == 0)))
+            if off:
+                notes.append(f"{off} of {int(finished.sum())} points: {text}")
     if notes:
         panel["note"] = "\n".join(notes)
     orbits = int(ds.attrs.get("ensemble_orbits", M))
