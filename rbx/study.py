@@ -904,8 +904,20 @@ def _sweep(study, output, scheduler, resume, force, progress, base, changes):
                 except Exception as exc:     # not a results file
                     raise FileError(source, None, f"cannot read as a study's results: {exc}") from None
                 if ds.attrs.get("study_digest") != st.digest:
-                    raise FileError(source, "--resume", "the study changed since this file was started (its "
-                                                        "digest differs): run it afresh with --force")
+                    # what changed, where the file says it: an option given now (--collisions) reads as "the study
+                    # changed", and --force would throw the finished points away
+                    now = {"ensemble_trajectories": (st.ensemble["trajectories"], "--trajectories"),
+                           "ensemble_collisions": (st.ensemble["collisions"], "--collisions"),
+                           "ensemble_seed": (st.ensemble["seed"], "ensemble.seed")}
+                    changed = [f"{key} {ds.attrs.get(key)} in the file, {value} now ({option} or the study's "
+                               f"ensemble)" for key, (value, option) in now.items()
+                               if key in ds.attrs and str(ds.attrs[key]) != str(value)]
+                    what = changed[0] if changed else "its text, its base or a file it includes"
+                    raise FileError(source, "--resume", f"the study changed since this file was started ({what}): "
+                                                        "resume with the study and options it was started with, or "
+                                                        "run it afresh with --force, which discards its "
+                                                        f"{int(np.sum(ds['done'].values)) if 'done' in ds else 0} "
+                                                        "finished points")
                 _check_resumable(ds, _empty(st, exp0), source, st, points)
                 if source == output and int(ds["done"].values.min()) == 1:
                     return ds

@@ -708,6 +708,13 @@ def test_sweep_set_and_ensemble_options_change_every_point(tmp_path):
         res = rbx_cli("sweep", "study.yaml", "-o", "bad.nc", *args, cwd=tmp_path)
         assert res.returncode == 2 and res.stderr.count("\n") == 1 and words in res.stderr, (args, res.stderr)
         assert not (tmp_path / "bad.nc").exists()
+    # a resume with another --collisions names it, and says what --force would discard (it said only "the study
+    # changed … run it afresh with --force")
+    res = rbx_cli("sweep", "study.yaml", "-o", "out.nc", "--resume", "--set", "ball.radius=0.05", "--trajectories",
+                  "3", "--collisions", "300", cwd=tmp_path)
+    assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
+    assert "(ensemble_collisions 200 in the file, 300 now (--collisions or the study's ensemble))" in res.stderr \
+        and "--force, which discards its 2 finished points" in res.stderr, res.stderr
 
 
 def test_the_api_sweep_shortens_a_study_as_the_command_line_does(tmp_path):
