@@ -45,7 +45,7 @@ import os
 import struct
 import zlib
 
-from .paths import open_regular
+from .paths import JOURNAL_SUFFIX, open_regular
 
 #: the overlay's page size: a write below ``committed`` copies the pages it touches
 PAGE = 4096
@@ -117,7 +117,7 @@ def _resize(self, size=None):
 
 
 def journal_path(path):
-    return f"{path}.journal"
+    return f"{path}{JOURNAL_SUFFIX}"
 
 
 class JournaledFile:

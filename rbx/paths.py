@@ -154,6 +154,10 @@ def rbx_kind(path):
     if fd is None:
         return None
     os.close(fd)
+    if os.path.lexists(path + JOURNAL_SUFFIX):
+        # a journal beside it: a run killed while a checkpoint was copied in (a torn file HDF5 cannot open until the
+        # journal is applied); only runs are written through a journal (rbx.journal)
+        return "run"
     try:
         import h5py
         with h5py.File(path, "r", locking=False) as f:
@@ -186,6 +190,10 @@ def other_commands_file(path, mine):
                                  "output another name")
 
 
+#: the name of a run file's write-ahead journal beside it (``rbx.journal.journal_path``: this module imports no other)
+JOURNAL_SUFFIX = ".journal"
+
+
 @contextlib.contextmanager
 def written_whole(path):
     """A new name beside ``path`` (its folder, its extension last, so that a writer that reads the format off the
@@ -193,9 +201,10 @@ def written_whole(path):
     rename. A failure (a full disk, Ctrl-C) removes it and leaves ``path`` as it was: a figure written in place was
     left truncated, where a good one had been."""
     folder, name = os.path.split(os.path.abspath(path))
-    stem, ext = os.path.splitext(name)
+    ext = os.path.splitext(name)[1]       # '' for '.png' itself: the writer's default format, as for that name
     while True:
-        tmp = os.path.join(folder, f".{stem}.{secrets.token_hex(4)}.part{ext}")
+        # short (a name of 250 characters must still have room) and hidden; the extension last
+        tmp = os.path.join(folder, f".rbx-{secrets.token_hex(4)}{ext}")
         try:        # created as any new file is (the umask's permissions), and never one already there
             os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
             break

@@ -1005,7 +1005,8 @@ def _check_resumable(ds, template, path, study=None, points=()):
     done = ds["done"].values
     if not np.all((done == 0) | (done == 1)):
         raise FileError(path, "done", f"holds values other than 0 and 1; {fix}")
-    for key in ("measure", "varied", "ensemble_trajectories", "ensemble_collisions", "ensemble_seed"):
+    for key in ("measure", "varied", "ensemble_trajectories", "ensemble_collisions", "ensemble_seed",
+                "ensemble_orbits"):
         # the attributes a figure of the finished file reads: carried into it by the resume (a file edited by
         # hand then gave tracebacks when plotted)
         if key in template.attrs and str(ds.attrs.get(key)) != str(template.attrs[key]):

@@ -809,7 +809,11 @@ def test_a_results_file_to_resume_with_other_coordinates_or_impossible_done_valu
     for key, edit, words in (("measure", lambda f: f.attrs.__delitem__("measure"), "missing"),
                              ("varied", lambda f: f.attrs.modify("varied", "table.width"), "is not a JSON list"),
                              ("varied", lambda f: f.attrs.modify("varied", '["table.width"]'), "names 'table.width'"),
-                             ("measure", lambda f: f.attrs.modify("measure", '{"a": 1}'), "is not a list of names")):
+                             ("measure", lambda f: f.attrs.modify("measure", '{"a": 1}'), "is not a list of names"),
+                             ("ensemble_orbits", lambda f: f.attrs.__setitem__("ensemble_orbits", "abc"),
+                              "is not a whole number ≥ 1"),
+                             ("varied", lambda f: (f.create_dataset("sc", data=1.0),
+                                                   f.attrs.modify("varied", '["sc"]')), "which is not a coordinate")):
         edited = tmp_path / "edited.nc"
         edited.write_bytes((tmp_path / "r.nc").read_bytes())
         with h5py.File(edited, "a") as f:
@@ -876,6 +880,13 @@ def test_a_file_of_the_other_command_under_the_outputs_name_is_refused_whatever_
                                             "with rbx simulate --resume"):
             sweep(study, str(tmp_path / "k.h5"), **options)
     assert (tmp_path / "k.h5.partial").read_bytes() == run_bytes and not (tmp_path / "k.h5").exists()
+    # a run killed while its checkpoint was copied in: HDF5 cannot open the file until its journal is applied, and
+    # --force removed it (the journal left with nothing to apply to)
+    (tmp_path / "t.h5.partial").write_bytes(run_bytes[:len(run_bytes) // 2])
+    (tmp_path / "t.h5.partial.journal").write_bytes(b"a journal")
+    with pytest.raises(FileError, match="t.h5.partial: is the unfinished run file of rbx simulate"):
+        sweep(study, str(tmp_path / "t.h5"), force=True)
+    assert (tmp_path / "t.h5.partial").exists()
     sweep(study, str(tmp_path / "r.nc"))
     results = (tmp_path / "r.nc").read_bytes()
     (tmp_path / "v.h5.partial").write_bytes(results)

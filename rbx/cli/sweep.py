@@ -231,12 +231,19 @@ def _check_results_attrs(ds, path):
         missing = [n for n in names if n not in ds.variables]
         if missing:
             bad(key, f"names '{missing[0]}', which the file does not hold")
+        dims = [ds[n].ndim for n in names]
+        if key == "varied" and any(d != 1 for d in dims):
+            bad(key, f"names '{names[dims.index(next(d for d in dims if d != 1))]}', which is not a coordinate")
+        if key == "measure" and any(d == 0 for d in dims):
+            bad(key, f"names '{names[dims.index(0)]}', which holds no value per point")
     for name in ("done", "wall_time"):
         if name not in ds.data_vars:
             bad(name, "missing")
-    for key in ("ensemble_trajectories", "ensemble_collisions"):
-        value = ds.attrs.get(key)
-        if not (isinstance(value, (int, np.integer)) and value >= 1):
+        if ds[name].dtype.kind not in "iufb":
+            bad(name, f"holds {ds[name].dtype} values, not numbers")
+    for key in ("ensemble_trajectories", "ensemble_collisions", "ensemble_orbits"):
+        value = ds.attrs.get(key, 1)            # ensemble_orbits: files written before it have none
+        if not (isinstance(value, (int, np.integer)) and not isinstance(value, bool) and value >= 1):
             bad(key, f"is not a whole number ≥ 1 ({value!r})")
 
 
