@@ -813,7 +813,7 @@ def test_a_results_file_to_resume_with_other_coordinates_or_impossible_done_valu
                              ("ensemble_orbits", lambda f: f.attrs.__setitem__("ensemble_orbits", "abc"),
                               "is not a whole number ≥ 1"),
                              ("varied", lambda f: (f.create_dataset("sc", data=1.0),
-                                                   f.attrs.modify("varied", '["sc"]')), "which is not a coordinate")):
+                                                   f.attrs.modify("varied", '["sc"]')), "names 'sc', which is not a coordinate")):
         edited = tmp_path / "edited.nc"
         edited.write_bytes((tmp_path / "r.nc").read_bytes())
         with h5py.File(edited, "a") as f:
