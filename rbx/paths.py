@@ -201,7 +201,7 @@ def written_whole(path):
     rename. A failure (a full disk, Ctrl-C) removes it and leaves ``path`` as it was: a figure written in place was
     left truncated, where a good one had been."""
     folder, name = os.path.split(os.path.abspath(path))
-    ext = os.path.splitext(name)[1]       # '' for '.png' itself: the writer's default format, as for that name
+    ext = os.path.splitext(name)[1] or (name if name.count(".") == 1 and name.startswith(".") else "")  # '.png' 
     while True:
         # short (a name of 250 characters must still have room) and hidden; the extension last
         tmp = os.path.join(folder, f".rbx-{secrets.token_hex(4)}{ext}")

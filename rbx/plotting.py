@@ -66,7 +66,9 @@ def save(fig, path, dpi=None):
     from .paths import written_whole
     letter_panels(fig)
     with style(), written_whole(path) as tmp:
-        fig.savefig(tmp, dpi=dpi if dpi is not None else "figure")
+        # a name without an extension: the default format named, or matplotlib appends its extension to the name
+        fmt = None if os.path.splitext(tmp)[1] else matplotlib.rcParams["savefig.format"]
+        fig.savefig(tmp, dpi=dpi if dpi is not None else "figure", format=fmt)
 
 
 def letter_panels(fig):

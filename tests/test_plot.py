@@ -874,3 +874,17 @@ def test_a_birkhoff_map_names_its_walls_over_their_stretches(runs):
         assert labels == list(names), labels
         middles = [s0 + length / 2 for s0, length in (analysis.wall_span(geom, w) for w in range(len(names)))]
         np.testing.assert_allclose(top.get_xticks(), middles)
+
+
+def test_a_figure_is_written_whole_under_any_name_the_file_system_takes(tmp_path):
+    """Written beside its name and renamed (rbx.paths.written_whole): a name of 250 characters failed with 'File
+    name too long' (the temporary name was longer), '.png' with "Format 'part' is not supported"."""
+    from matplotlib.figure import Figure
+    from rbx.plotting import save
+    for name in ("a" * 246 + ".png", ".png", "b.svg", "noext"):
+        fig = Figure()
+        fig.add_subplot().plot([0, 1], [1, 0])
+        save(fig, str(tmp_path / name))
+        assert (tmp_path / name).stat().st_size > 0
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted([".png", "a" * 246 + ".png", "b.svg", "noext"])
+    assert (tmp_path / ".png").read_bytes()[:4] == (tmp_path / "noext").read_bytes()[:4] == b"\x89PNG"
