@@ -247,3 +247,15 @@ def test_the_readme_says_the_compile_notice_is_for_terminals_only():
     quick = text[text.index("The first `rbx simulate` of a table compiles"):]
     quick = quick[:quick.index("`make reproduce-figures`")]
     assert "on a terminal" in quick, quick
+
+
+def test_a_command_stopped_by_sigterm_says_sigterm_and_exits_143():
+    """rbx plot and rbx animate said 'interrupted by SIGINT' and exited 130 for a SIGTERM: the one line names the
+    signal that came (noted by the handler main() installs), and the exit is 128 + its number."""
+    code = ("import os, signal\n"
+            "from rbx.cli.common import interrupted_exit, note_interrupt\n"
+            "signal.signal(signal.SIGTERM, note_interrupt)\n"
+            "try:\n    os.kill(os.getpid(), signal.SIGTERM)\n    signal.pause()\n"
+            "except KeyboardInterrupt:\n    interrupted_exit()\n")
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 143 and res.stderr == "rbx: interrupted by SIGTERM; nothing written\n", res.stderr

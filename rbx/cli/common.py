@@ -139,13 +139,15 @@ def pending_signal():
     return _PENDING[0] if _PENDING else 0
 
 
-def interrupted_exit(signum=signal.SIGINT):
+def interrupted_exit(signum=None):
     """Ctrl-C (or ``signum``) in a command that writes nothing until it is done (plot, histogram, lyapunov): one
     line, exit 128 + signum (click would print 'Aborted!' and exit 1).
 
     By ``os._exit``, not ``sys.exit``: the kernels' threads cannot be interrupted, and Python's exit joins them,
     so a Ctrl-C in ``rbx lyapunov`` waited for the running segment (minutes for a long run). Nothing is being
     written here: the files the command had open were closed as the exception unwound to this point."""
+    if signum is None:          # the signal that was noted (SIGTERM said SIGINT, exit 130 for 143), else Ctrl-C
+        signum = pending_signal() or signal.SIGINT
     click.echo(f"rbx: interrupted by {signal.Signals(signum).name}; nothing written", err=True)
     hard_exit(128 + int(signum))
 

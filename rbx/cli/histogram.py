@@ -172,7 +172,7 @@ def _histogram(config, out, data, trajectories, seed, sets, force, quiet, cluste
     try:
         with written_whole(fig_path) as tmp:
             fig.savefig(tmp, dpi=150)
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, RuntimeError) as exc:     # RuntimeError: a format's tool missing (pgf: LaTeX)
         cannot_write(fig_path, exc)
 
     d = result.d

@@ -128,7 +128,7 @@ def _plot(run_file, kind, out, records, trajectories, colour, coordinate, scales
     from ..plotting import save
     try:
         save(fig, path, dpi=dpi)
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, RuntimeError) as exc:     # RuntimeError: a format's tool missing (pgf: LaTeX)
         cannot_write(path, exc)
     return path, getattr(fig, "rbx_result", None)     # what the picture measured, for stdout (escape)
 

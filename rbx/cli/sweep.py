@@ -187,7 +187,7 @@ def plot_sweep(path, kind, out, y, x, logx, logy, dpi):
     check_figure_target(out)
     try:
         save(fig, out, dpi=dpi)
-    except (OSError, ValueError) as exc:
+    except (OSError, ValueError, RuntimeError) as exc:     # RuntimeError: a format's tool missing (pgf: LaTeX)
         cannot_write(out, exc)
     return out
 
