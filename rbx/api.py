@@ -258,7 +258,9 @@ def resume(path, *, output=None, force=False, max_size=None, progress=False, sch
 
 def open(path):   # noqa: A001 - the name docs/reference.md §9 gives it
     """A run file read back -> :class:`Run`. Raises :class:`FileError` if ``path`` is not an rbx run file."""
-    return Run.open(os.fspath(path))
+    if not isinstance(path, (str, bytes, os.PathLike)):
+        raise TypeError(f"rbx.open: path is the path of a run file (a str or os.PathLike), not {type(path).__name__}")
+    return Run.open(os.fsdecode(os.fspath(path)))       # a bytes path is the path it names
 
 
 def _progress(progress):

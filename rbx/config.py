@@ -451,6 +451,8 @@ class _Checker:
     def number(self, value, key, positive=False, lo=None, hi=None, lo_open=False, hi_open=False):
         if isinstance(value, str) and _SCIENTIFIC.match(value):
             value = float(value)
+        if isinstance(value, numbers.Real) and not isinstance(value, (bool, np.bool_)):
+            value = float(value) if not isinstance(value, numbers.Integral) else int(value)   # NumPy's too
         if isinstance(value, bool) or not isinstance(value, (int, float)):
             self.fail(key, f"expected a number, got {_kind(value)}")
         try:

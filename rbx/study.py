@@ -252,7 +252,7 @@ def load_study(study, base=None, progress=None, sets=None, ensemble=None):
         v = ensemble.get(k, 0 if k == "seed" else None)
         if v is None:
             fail(f"ensemble.{k}", "missing")
-        if isinstance(v, bool) or not isinstance(v, int) or v < lo:
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or v < lo:     # NumPy's too
             fail(f"ensemble.{k}", f"expected an integer ≥ {lo}, got {v!r}")
         ens[k] = int(v)
     first = {k: _plain(v[0]) for k, v in zip(keys, values)}
@@ -841,7 +841,9 @@ def sweep(study, output=None, *, scheduler=None, resume=False, force=False, prog
         raise TypeError(f"rbx.sweep: sets is a mapping {{'ball.inertia': 0.2, …}}, not {type(sets).__name__}")
     if output is None:
         return _sweep(study, None, scheduler, resume, force, progress, base, changes)
-    output = os.path.abspath(os.fspath(output))
+    if not isinstance(output, (str, bytes, os.PathLike)):
+        raise TypeError(f"rbx.sweep: output is a file path (a str or os.PathLike), not {type(output).__name__}")
+    output = os.path.abspath(os.fsdecode(os.fspath(output)))        # a bytes path is the path it names
     _check_not_own_name(output)
     check_own_names(output)        # a FIFO named as the lock would block its read
     try:

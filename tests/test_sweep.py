@@ -908,3 +908,17 @@ def test_a_reference_is_one_grey_line_where_it_is_the_same_beside_every_line_els
     assert [(r["label"], r["color"]) for r in refs] == [("Santaló's mean free path πA/P", "0.3")]
     refs = sweep_panel(ds, "energy_drift")[0]["references"]
     assert [r["color"] for r in refs] == ["C0", "C1"] and refs[0]["label"] and refs[1]["label"] is None
+
+
+def test_the_api_takes_numpys_numbers_and_bytes_paths_as_the_rest_of_it_does(tmp_path):
+    """rbx.sweep refused np.int64 trajectories ("expected an integer ≥ 1, got np.int64(2)") where rbx.simulate takes
+    them, and a bytes output gave a raw TypeError; rbx.open(b"run.h5") said "file not found" for a file there."""
+    study = {"base": SINAI, "vary": {"ball.inertia": [0.3]}, "measure": ["mean_free_path"],
+             "ensemble": {"trajectories": 2, "collisions": 50, "seed": 2}}
+    out = os.fsencode(str(tmp_path / "r.nc"))
+    ds = rbx.sweep(study, out, trajectories=np.int64(2), collisions=np.int64(60))
+    assert ds.attrs["ensemble_collisions"] == 60 and (tmp_path / "r.nc").exists()
+    run = rbx.simulate(rbx.load(SINAI), collisions=20, output=str(tmp_path / "run.h5"), max_size=np.int64(10**9))
+    assert run.complete and rbx.open(os.fsencode(str(tmp_path / "run.h5"))).complete
+    with pytest.raises(TypeError, match="rbx.open: path is the path of a run file"):
+        rbx.open(5)
