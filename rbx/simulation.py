@@ -79,14 +79,23 @@ def memory_problem(trajectories, per_trajectory=STATE_BYTES, records=0):
         available = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
     except (ValueError, OSError, AttributeError):   # not a POSIX system: let the allocation decide
         return None
+    try:        # a limit on the process's memory (ulimit -v), less what it holds already (the interpreter, NumPy)
+        import resource
+        limit = resource.getrlimit(resource.RLIMIT_AS)[0]
+        if limit != resource.RLIM_INFINITY:
+            with open("/proc/self/statm") as f:
+                used = int(f.read().split()[0]) * os.sysconf("SC_PAGE_SIZE")
+            available = min(available, max(limit - used, 0))
+    except (ImportError, OSError, ValueError):
+        pass
     state = trajectories * per_trajectory
     if state + records <= available:
         return None
     if state <= available:
-        return (f"the records kept in memory need about {records / 2**30:.3g} GiB, more than this machine has "
+        return (f"the records kept in memory need about {records / 2**30:.3g} GiB, more than this process may have "
                 f"({available / 2**30:.3g} GiB)")
-    return (f"{trajectories} trajectories need about {state / 2**30:.3g} GiB of memory, more than this machine has "
-            f"({available / 2**30:.3g} GiB)")
+    return (f"{trajectories} trajectories need about {state / 2**30:.3g} GiB of memory, more than this process may "
+            f"have ({available / 2**30:.3g} GiB)")
 
 
 def records_bytes(cfg):

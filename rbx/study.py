@@ -48,7 +48,7 @@ from .locks import LockNotWritable, acquire_lock, release_lock
 from .paths import (DiskFull, check_own_kind, check_own_names, check_replaceable, config_file_problem, display_path,
                     other_commands_file)
 from .runfile import FileError, provenance
-from .simulation import memory_problem, records_bytes
+from .simulation import STATE_BYTES, memory_problem, records_bytes
 
 __all__ = ["sweep", "load_study", "Study", "point_seed", "StudyInterrupted"]
 
@@ -952,9 +952,13 @@ def _sweep(study, output, scheduler, resume, force, progress, base, changes):
                 # stopped, not a bad address
                 raise ClusterError(exc.key, exc.problem) from None
             except MemoryError:
+                if kept > st.ensemble["trajectories"] * STATE_BYTES:      # the records, more than the state
+                    raise ConfigError(st.file, "ensemble.collisions", "the records a point keeps do not fit in this "
+                                                                      "process's memory: fewer collisions per point") \
+                        from None
                 raise ConfigError(st.file, "ensemble.trajectories",
                                   f"{st.ensemble['trajectories']} trajectories of a point do not fit in this "
-                                  "machine's memory: fewer per point") from None
+                                  "process's memory: fewer per point") from None
             _store(ds, index, st, values, collisions, seconds, st.seed(point))
             finished += 1
             if output is not None and finished < total and (

@@ -371,6 +371,12 @@ def test_an_ensemble_too_large_for_memory_is_one_line(tmp_path):
     assert "long.yaml: ensemble.collisions: the records kept in memory need about" in res.stderr, res.stderr
     with pytest.raises(ConfigError, match="ensemble.collisions: the records kept in memory"):
         rbx.sweep(study, collisions=10**18)
+    # under a limit on the process's memory (ulimit -v), the limit is what counts (the machine's 24 GB were, and a
+    # MemoryError named the trajectories)
+    res = subprocess.run(["bash", "-c", f"ulimit -v 4000000; exec {RBX} sweep long.yaml -o out.nc --collisions "
+                          "100000000"], cwd=tmp_path, capture_output=True, text=True, timeout=300)
+    assert res.returncode == 2 and "long.yaml: ensemble.collisions: the records kept in memory need about" \
+        in res.stderr and "more than this process may have" in res.stderr, res.stderr
     # a run in memory: the same check, naming the key given
     with pytest.raises(ConfigError, match="^collisions: the records kept in memory need about"):
         rbx.simulate(rbx.load(SINAI), collisions=10**15)
