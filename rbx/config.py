@@ -366,8 +366,11 @@ def _binary_problem(path):
         head = b""
     if head != HDF5_SIGNATURE:
         return "not a text (UTF-8) file"
-    if str(path).endswith(".nc"):
-        return "is a study's results file (NetCDF), not a YAML file: draw it with rbx plot --kind sweep"
+    from .paths import rbx_kind
+    kind = rbx_kind(path)            # by what the file holds, not its name (a study's .partial ends in .partial)
+    if kind == "study" or (kind is None and str(path).endswith(".nc")):
+        return ("is a study's results file (NetCDF), not a YAML file: draw it with rbx plot --kind sweep"
+                + (", continue it with rbx sweep STUDY --resume" if str(path).endswith(".partial") else ""))
     return "is a run file (HDF5), not a YAML file: draw it with rbx plot, continue it with rbx simulate --resume"
 
 

@@ -501,6 +501,9 @@ def prepare_resume(run_file, output=None, *, force=False, max_size=None, out_key
     against ``output.max_size`` (or ``max_size``: bytes or a text such as '50 GB', named by ``size_key``) and the
     free space. Raises :class:`FileError` or :class:`rbx.model.ConfigError`."""
     source = resumed_source(run_file)
+    problem = other_commands_file(source, "run", renaming=False)    # a study's results: how to continue them
+    if problem is not None:
+        raise problem
     default = source[:-len(".partial")] if source.endswith(".partial") else source
     path = os.path.abspath(os.fspath(output)) if output else default
     if output:

@@ -171,9 +171,10 @@ def rbx_kind(path):
     return None
 
 
-def other_commands_file(path, mine):
+def other_commands_file(path, mine, renaming=True):
     """The refusal of ``path`` when it is rbx's file of another command than ``mine`` ('run' or 'study'), however
-    it is asked (``--force``, ``--resume``): what it is and how to go on with it -> :class:`FileError`, or None."""
+    it is asked (``--force``, ``--resume``): what it is and how to go on with it (``renaming``: and to give the
+    output another name) -> :class:`FileError`, or None."""
     kind = rbx_kind(path)
     if kind is None or kind == mine:
         return None
@@ -186,8 +187,8 @@ def other_commands_file(path, mine):
         what = "the unfinished results of a study (rbx sweep)" if unfinished else "a study's results (rbx sweep)"
         then = ("continue them with rbx sweep STUDY -o NAME --resume (NAME without .partial), or remove it"
                 if unfinished else "remove it if it is not needed")
-    return FileError(path, None, f"is {what}: {then}; give this {'study' if mine == 'study' else 'run'}'s "
-                                 "output another name")
+    tail = f"; give this {'study' if mine == 'study' else 'run'}'s output another name" if renaming else ""
+    return FileError(path, None, f"is {what}: {then}{tail}")
 
 
 #: the name of a run file's write-ahead journal beside it (``rbx.journal.journal_path``: this module imports no other)

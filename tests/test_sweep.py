@@ -900,6 +900,13 @@ def test_a_file_of_the_other_command_under_the_outputs_name_is_refused_whatever_
         with pytest.raises(FileError, match=r"v.h5.partial: is the unfinished results of a study \(rbx sweep\)"):
             rbx.simulate(rbx.load(SINAI), collisions=20, output=str(tmp_path / "v.h5"), force=force)
     assert (tmp_path / "v.h5.partial").read_bytes() == results and not (tmp_path / "v.h5").exists()
+    # resumed as a run, or given as a config: what it is, and how to continue it ("not an rbx run file (no root
+    # attribute 'dimension')", "continue it with rbx simulate --resume")
+    with pytest.raises(FileError, match=r"v.h5.partial: is the unfinished results of a study \(rbx sweep\): "
+                                        "continue them with rbx sweep STUDY"):
+        rbx.resume(str(tmp_path / "v.h5.partial"))
+    with pytest.raises(ConfigError, match="v.h5.partial: is a study's results file .*continue it with rbx sweep"):
+        rbx.load(str(tmp_path / "v.h5.partial"))
 
 
 def test_a_reference_is_one_grey_line_where_it_is_the_same_beside_every_line_else_one_per_line():
