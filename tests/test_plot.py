@@ -586,11 +586,20 @@ def test_a_figure_is_written_only_where_a_careful_user_expects(runs, tmp_path):
     line = rbx_fails("plot", run, "--kind", "orbit", "-o", str(link))
     assert "is a symbolic link" in line and "does not write through links" in line, line
     line = rbx_fails("plot", run, "--kind", "orbit", "-o", str(notes))
-    assert line.endswith("exists and is not a figure (not a PNG, PDF, SVG, PostScript, JPEG, TIFF, GIF or MP4 file: "
-                         "a run, a config, notes?); rbx replaces only figures: give another name"), line
+    assert line.endswith("exists and is not a figure (not a PNG, PDF, SVG, PostScript, JPEG, TIFF, GIF, WebP or MP4 "
+                         "file: a run, a config, notes?); rbx replaces only figures: give another name"), line
     assert notes.read_text() == "mine\n"
-    # a figure is replaced, as before
+    # a figure is replaced, as before, in each format rbx writes (a WebP, an .svgz or raw pixels it had written
+    # itself were called "not a figure")
     exe = os.path.join(os.path.dirname(sys.executable), "rbx")
+    from rbx.cli.common import check_figure_target
+    from rbx.plotting import save
+    from matplotlib.figure import Figure as MplFigure
+    for ext in ("webp", "svgz", "raw"):
+        fig = MplFigure()
+        fig.add_subplot().plot([0, 1])
+        save(fig, str(tmp_path / f"f.{ext}"))
+        check_figure_target(str(tmp_path / f"f.{ext}"))
     png = tmp_path / "x.png"
     for _ in range(2):
         r = subprocess.run([exe, "plot", run, "--kind", "orbit", "-o", str(png), "--quiet"], capture_output=True,

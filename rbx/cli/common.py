@@ -388,7 +388,10 @@ quiet_option = click.option("--quiet", is_flag=True, help="No progress bar and n
 #: is known by its ``ftyp`` box at byte 4): such a file, or an empty one, is replaced; anything else named as the
 #: figure (a run, a config, notes) is not
 FIGURE_SIGNATURES = (b"\x89PNG\r\n\x1a\n", b"%PDF-", b"<?xml", b"<svg", b"%!PS", b"\xff\xd8\xff", b"II*\x00",
-                     b"MM\x00*", b"GIF8")
+                     b"MM\x00*", b"GIF8", b"\x1f\x8b")      # the last: gzip, an .svgz
+#: formats matplotlib writes with no signature to know them by (raw pixels): such a file named as the figure is
+#: taken for one
+UNSIGNED_FORMATS = (".raw", ".rgba")
 
 
 def check_figure_target(path):
@@ -407,12 +410,14 @@ def check_figure_target(path):
     if os.path.isfile(path):
         try:
             with open(path, "rb") as f:
-                head = f.read(8)
+                head = f.read(12)
         except OSError as exc:
             raise UserError(path, None, f"cannot read it: {exc.strerror or exc}") from None
-        if head and head[4:8] != b"ftyp" and not any(head[:len(sig)] == sig[:len(head)] for sig in FIGURE_SIGNATURES):
-            raise UserError(path, None, "exists and is not a figure (not a PNG, PDF, SVG, PostScript, JPEG, TIFF, GIF "
-                                        "or MP4 file: a run, a config, notes?); rbx replaces only figures: give "
+        webp = head[:4] == b"RIFF" and head[8:12] == b"WEBP"
+        if head and head[4:8] != b"ftyp" and not webp and not path.lower().endswith(UNSIGNED_FORMATS) \
+                and not any(head[:len(sig)] == sig[:len(head)] for sig in FIGURE_SIGNATURES):
+            raise UserError(path, None, "exists and is not a figure (not a PNG, PDF, SVG, PostScript, JPEG, TIFF, GIF, "
+                                        "WebP or MP4 file: a run, a config, notes?); rbx replaces only figures: give "
                                         "another name")
 
 
