@@ -317,3 +317,16 @@ def test_cli_refuses_a_histogram_of_no_return(tmp_path):
     assert "no sample returned" in r.stderr and "raise run.collisions" in r.stderr
     assert "Warning" not in r.stderr + r.stdout
     assert not (tmp_path / "none.png").exists() and not (tmp_path / "returns.h5").exists()
+
+
+def test_a_figure_that_cannot_be_written_says_the_samples_are_kept(tmp_path):
+    """The samples are written first; a figure that then fails (here a .pgf without LaTeX) said only that, exit 2,
+    and the user did not know the samples were there."""
+    import shutil
+    if shutil.which("xelatex"):
+        pytest.skip("LaTeX is installed: a .pgf figure is written")
+    conf = write_config(tmp_path / "c.yaml", run="{collisions: 1000, trajectories: 50, seed: 2}")
+    r = rbx("histogram", str(conf), "-o", str(tmp_path / "h.pgf"), "--quiet")
+    assert r.returncode == 2 and r.stderr.count("\n") == 1 and "Traceback" not in r.stderr, r.stderr
+    assert "cannot write the figure" in r.stderr and "the samples are kept in" in r.stderr, r.stderr
+    assert (tmp_path / "returns.h5").exists() and not (tmp_path / "h.pgf").exists()

@@ -421,13 +421,15 @@ def check_figure_target(path):
                                         "another name")
 
 
-def cannot_write(path, exc, what="the figure"):
+def cannot_write(path, exc, what="the figure", kept=""):
     """A figure or an animation that could not be written -> raises: a full disk (or a size limit) is not the
-    user's input, one line and exit 1 (as for a run); anything else a :class:`UserError` (exit 2)."""
+    user's input, one line and exit 1 (as for a run); anything else a :class:`UserError` (exit 2). ``kept``: what
+    the command wrote before that stays (rbx histogram's samples), said at the end of the line."""
     from ..paths import NO_ROOM
     reason = getattr(exc, "strerror", None) or exc
+    kept = f"; {kept}" if kept else ""
     if getattr(exc, "errno", None) in NO_ROOM:
         click.echo(f"rbx: {display_path(path)}: cannot write {what}: {reason}: no room on the disk (or a size limit, "
-                   f"ulimit -f?); nothing was replaced", err=True)
+                   f"ulimit -f?); nothing was replaced{kept}", err=True)
         raise SystemExit(1)
-    raise UserError(path, None, f"cannot write {what}: {reason}")
+    raise UserError(path, None, f"cannot write {what}: {reason}{kept}")
