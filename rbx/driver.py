@@ -29,7 +29,7 @@ from .locks import LockNotWritable, acquire_lock, lock_holder, lock_path, releas
 from .locks import busy as _busy
 from .progress import plural
 from .paths import (NO_ROOM, DiskFull, FileError, check_own_kind, check_own_names, check_replaceable, creation_path,
-                    display_path, format_size, other_commands_file, temporary_path, what_it_is)
+                    display_path, format_size, other_commands_file, rbx_kind, temporary_path, what_it_is)
 from .runfile import (H5Sink, Run, _text, close_journal, commit, config_yaml, data_bytes, file_path, fill_returns,
                       is_true, journal_of, open_journaled)
 
@@ -413,7 +413,17 @@ def write_returns(path, cfg, result, force_hint="--force"):
     new = creation_path(path)
     made = False
     try:
-        h5 = create(path, force_hint=force_hint)
+        try:
+            h5 = create(path, force_hint=force_hint)
+        except FileError as exc:
+            tmp = temporary_path(path)
+            if exc.file and os.path.abspath(exc.file) == os.path.abspath(tmp) and rbx_kind(tmp) == "run":
+                # a killed rbx simulate's .partial under the samples' name: never removed (not even with --force,
+                # which the refusal offered though it was given): what it is, and how to go on
+                raise FileError(tmp, None, "is the unfinished run file of a killed rbx simulate (or one writing "
+                                           f"it): continue it with rbx simulate --resume {display_path(tmp)}, or "
+                                           "give the samples another name (--data)") from None
+            raise
         made = True
         try:
             with h5:

@@ -330,3 +330,19 @@ def test_a_figure_that_cannot_be_written_says_the_samples_are_kept(tmp_path):
     assert r.returncode == 2 and r.stderr.count("\n") == 1 and "Traceback" not in r.stderr, r.stderr
     assert "cannot write the figure" in r.stderr and "the samples are kept in" in r.stderr, r.stderr
     assert (tmp_path / "returns.h5").exists() and not (tmp_path / "h.pgf").exists()
+
+
+def test_a_killed_runs_partial_under_the_samples_name_is_named_and_kept(tmp_path):
+    """rbx histogram --data k.h5 --force beside a killed rbx simulate's k.h5.partial said "remove it or use
+    --force" (given already). It says whose file it is and how to continue it, and leaves it."""
+    import rbx as api
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    api.simulate(api.load(os.path.join(root, "configs", "examples", "strip.yaml")), collisions=20,
+                 output=str(tmp_path / "run.h5"))
+    (tmp_path / "returns.h5.partial").write_bytes((tmp_path / "run.h5").read_bytes())
+    conf = write_config(tmp_path / "c.yaml", run="{collisions: 1000, trajectories: 50, seed: 2}")
+    r = rbx("histogram", str(conf), "-o", str(tmp_path / "h.png"), "--force", "--quiet", cwd=tmp_path)
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert "returns.h5.partial: is the unfinished run file of a killed rbx simulate" in r.stderr and \
+        "rbx simulate --resume" in r.stderr and "--force" not in r.stderr, r.stderr
+    assert (tmp_path / "returns.h5.partial").read_bytes() == (tmp_path / "run.h5").read_bytes()
