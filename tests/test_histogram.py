@@ -346,3 +346,15 @@ def test_a_killed_runs_partial_under_the_samples_name_is_named_and_kept(tmp_path
     assert "returns.h5.partial: is the unfinished run file of a killed rbx simulate" in r.stderr and \
         "rbx simulate --resume" in r.stderr and "--force" not in r.stderr, r.stderr
     assert (tmp_path / "returns.h5.partial").read_bytes() == (tmp_path / "run.h5").read_bytes()
+
+
+def test_the_config_named_as_the_figure_is_refused_as_such(tmp_path):
+    """rbx histogram c.yaml -o c.yaml said "exists; use --force to overwrite it", then, with --force, that it is no
+    figure: it says at once that it is the config."""
+    conf = write_config(tmp_path / "c.yaml", run="{collisions: 1000, trajectories: 50, seed: 2}")
+    for extra in ((), ("--force",)):
+        r = rbx("histogram", str(conf), "-o", str(conf), *extra, cwd=tmp_path)
+        assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+        assert r.stderr.endswith("c.yaml: -o: is the config: give the figure a name of its own, such as "
+                                 "histogram.png\n"), r.stderr
+    assert conf.read_text().startswith("table:") and not (tmp_path / "returns.h5").exists()

@@ -123,6 +123,10 @@ def _histogram(config, out, data, trajectories, seed, sets, force, quiet, cluste
         check_size(cfg, h5_path, need=returns_bytes(cfg), what=f"{plural(cfg.run.trajectories, 'sample')}' return "
                    "angles", option="--set output.max_size=", hint="; free some space, or write the return angles "
                    "to another disk with --data")
+    for source, what in ((config, "the config"), *((f, "a file the config includes") for f in cfg.includes)):
+        # never offered --force for it (which then refused it as no figure)
+        if source and os.path.isfile(source) and os.path.exists(fig_path) and os.path.samefile(fig_path, source):
+            raise UserError(fig_path, "-o", f"is {what}: give the figure a name of its own, such as histogram.png")
     if os.path.exists(fig_path) and not force:
         raise UserError(fig_path, None, "exists; use --force to overwrite it")
     # where the figure goes, as rbx plot -o: no folder made, no link written through, only a figure replaced; and
