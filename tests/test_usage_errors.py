@@ -259,3 +259,22 @@ def test_a_command_stopped_by_sigterm_says_sigterm_and_exits_143():
             "except KeyboardInterrupt:\n    interrupted_exit()\n")
     res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
     assert res.returncode == 143 and res.stderr == "rbx: interrupted by SIGTERM; nothing written\n", res.stderr
+
+
+def test_a_noted_interrupt_lost_in_a_callback_is_not_reported_as_a_traceback():
+    """SIGTERM at the instant an import ran its module-lock callback: Python printed "Exception ignored in …
+    Traceback … KeyboardInterrupt" before rbx's one line (the signal was noted, and said by the command)."""
+    code = ("import weakref\n"
+            "from rbx.cli.common import quiet_noted_interrupts\n"
+            "class A: pass\n"
+            "def cb(_):\n    raise KeyboardInterrupt\n"
+            "def run():\n    a = A(); r = weakref.ref(a, cb); del a\n"
+            "run()\n"                                   # reported by Python, as before
+            "quiet_noted_interrupts()\n"
+            "run()\n"                                   # left out
+            "def other(_):\n    raise ValueError('kept')\n"
+            "a = A(); r = weakref.ref(a, other); del a\n")   # anything else still reported
+    res = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert res.returncode == 0, res.stderr
+    assert res.stderr.count("Exception ignored") == 2 and res.stderr.count("KeyboardInterrupt") == 1 \
+        and "ValueError: kept" in res.stderr, res.stderr

@@ -134,6 +134,19 @@ def note_interrupt(signum, frame):
     raise KeyboardInterrupt
 
 
+def quiet_noted_interrupts():
+    """Where :func:`note_interrupt`'s KeyboardInterrupt is raised inside a callback (an import's module-lock
+    callback, a finaliser), Python prints it as "Exception ignored in …" with a traceback and drops it; the signal
+    is noted (:func:`pending_signal`) and the command says it in its own line, so that report is left out. Other
+    such reports are printed as Python prints them."""
+    default = sys.unraisablehook
+
+    def hook(unraisable):
+        if not isinstance(unraisable.exc_value, KeyboardInterrupt):
+            default(unraisable)
+    sys.unraisablehook = hook
+
+
 def pending_signal():
     """The signal :func:`note_interrupt` saw first, or 0."""
     return _PENDING[0] if _PENDING else 0
