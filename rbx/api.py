@@ -30,7 +30,7 @@ from .driver import check_size, prepare_resume, resume_to_file
 from .model import ConfigError, Experiment
 from .progress import Progress
 from .runfile import Run
-from .simulation import MemorySink, Simulation, memory_problem, records_bytes
+from .simulation import MemorySink, Simulation, memory_refusal, records_bytes
 
 # nothing heavy at import: the CLI takes StopFlag from here before it installs its signal handlers
 __all__ = ["load", "simulate", "resume", "open"]
@@ -163,9 +163,9 @@ def simulate(experiment, *, collisions=None, trajectories=None, seed=None, outpu
         raise TypeError(f"output: a file path (str or os.PathLike), got {type(output).__name__}")
     exp = _load(experiment, overrides or None)
     kept = records_bytes(exp) if output is None else 0          # a run in memory keeps its records there
-    problem = memory_problem(exp.run.trajectories, records=kept)
-    if problem:     # refused as rbx simulate refuses it, not a MemoryError after minutes of setting up
-        key = "collisions" if memory_problem(exp.run.trajectories) is None else "trajectories"  # the records, else
+    refusal = memory_refusal(exp.run.trajectories, records=kept)
+    if refusal:     # refused as rbx simulate refuses it, not a MemoryError after minutes of setting up
+        key, problem = refusal
         given = key in overrides
         raise ConfigError(None if given else exp.source, key if given else f"run.{key}",
                           problem + ("; record fewer fields, or every k-th collision (output.every), or write a file "

@@ -98,6 +98,15 @@ def memory_problem(trajectories, per_trajectory=STATE_BYTES, records=0):
             f"have ({available / 2**30:.3g} GiB)")
 
 
+def memory_refusal(trajectories, records=0):
+    """:func:`memory_problem` with what to lower -> None, or ("trajectories" where the state alone does not fit,
+    else "collisions": the records are too many, problem)."""
+    problem = memory_problem(trajectories, records=records)
+    if problem is None:
+        return None
+    return ("collisions" if memory_problem(trajectories) is None else "trajectories"), problem
+
+
 def records_bytes(cfg):
     """Bytes of the records a run kept in memory holds (:class:`MemorySink`: every recorded field of every record
     of every trajectory) -> int (a Python int: 10¹⁸ collisions do not overflow)."""

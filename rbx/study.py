@@ -48,7 +48,7 @@ from .locks import LockNotWritable, acquire_lock, release_lock
 from .paths import (DiskFull, check_own_kind, check_own_names, check_replaceable, config_file_problem, display_path,
                     other_commands_file)
 from .runfile import FileError, provenance
-from .simulation import STATE_BYTES, memory_problem, records_bytes
+from .simulation import STATE_BYTES, memory_refusal, records_bytes
 
 __all__ = ["sweep", "load_study", "Study", "point_seed", "StudyInterrupted"]
 
@@ -880,11 +880,11 @@ def _sweep(study, output, scheduler, resume, force, progress, base, changes):
     need = _needs(st)
     exp0 = st.experiment(points[0][1], need["fields"], need["every"])
     kept = records_bytes(exp0)          # a point keeps the records its observables read in memory
-    problem = memory_problem(st.ensemble["trajectories"], records=kept)
-    if problem:         # before anything is written, and named by the study's own key
-        if memory_problem(st.ensemble["trajectories"]) is None:       # the state fits: the records are too many
-            raise ConfigError(st.file, "ensemble.collisions", f"{problem}: fewer collisions per point")
-        raise ConfigError(st.file, "ensemble.trajectories", f"{problem}: fewer per point")
+    refusal = memory_refusal(st.ensemble["trajectories"], records=kept)
+    if refusal:         # before anything is written, and named by the study's own key
+        key, problem = refusal
+        raise ConfigError(st.file, f"ensemble.{key}", f"{problem}: fewer {'collisions ' if key == 'collisions' else ''}"
+                                                      "per point")
     ds = None
     if output is not None:
         partial = partial_path(output)
