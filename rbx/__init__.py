@@ -11,7 +11,7 @@ import importlib
 
 __version__ = "0.1.0"
 
-_LAZY = {"load": "api", "simulate": "api", "resume": "api", "open": "api", "Run": "runfile", "FileError": "runfile",
+_LAZY = {"load": "api", "simulate": "api", "resume": "api", "open": "api", "Run": "reader", "FileError": "paths",
          "ConfigError": "model", "lyapunov": "dynamics", "escape_times": "dynamics", "sweep": "study"}
 
 

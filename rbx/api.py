@@ -29,7 +29,7 @@ from .config import repeated_orbits, seed_change, unused_seed
 from .driver import check_size, prepare_resume, resume_to_file
 from .model import ConfigError, Experiment
 from .progress import Progress
-from .runfile import Run
+from .reader import Run
 from .simulation import MemorySink, Simulation, memory_refusal, records_bytes
 
 # nothing heavy at import: the CLI takes StopFlag from here before it installs its signal handlers

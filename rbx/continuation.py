@@ -31,7 +31,7 @@ STATE_KEYS = ("time", "position", "velocity", "angular_velocity", "orientation",
 
 
 def load(run, source, lock=True):
-    """Read an incomplete run (a :class:`rbx.runfile.Run` opened from its file; the file is only read) ->
+    """Read an incomplete run (a :class:`rbx.reader.Run` opened from its file; the file is only read) ->
     (Simulation, write_initial, done). ``lock``: take the file's run lock, held until the run's file is done
     (False: a file on a read-only file system, which nothing can write).
 

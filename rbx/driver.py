@@ -30,8 +30,9 @@ from .locks import busy as _busy
 from .progress import plural
 from .paths import (NO_ROOM, DiskFull, FileError, check_own_kind, check_own_names, check_replaceable, creation_path,
                     display_path, format_size, other_commands_file, rbx_kind, temporary_path, what_it_is)
-from .runfile import (H5Sink, Run, _text, close_journal, commit, config_yaml, data_bytes, file_path, fill_returns,
-                      is_true, journal_of, open_journaled)
+from .reader import Run
+from .runfile import (H5Sink, _text, close_journal, commit, config_yaml, data_bytes, file_path, fill_returns, is_true,
+                      journal_of, open_journaled)
 
 # ---- the .partial lifecycle --------------------------------------------------------------------------------------
 

@@ -408,7 +408,7 @@ def escape_times(run):
     measure on an exit wall (``initial: {sample: billiard, wall: NAME}``), the times are return times to that wall:
     Kac's lemma gives their mean (docs/dynamics.md)."""
     if isinstance(run, (str, os.PathLike)):      # a run file's path, as rbx.open takes it
-        from .runfile import Run
+        from .reader import Run
         with Run.open(os.fspath(run)) as opened:
             return escape_times(opened)
     if not hasattr(run, "final"):

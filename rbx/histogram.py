@@ -9,7 +9,7 @@ billiard measure predicts: density ∝ cos φ·sin^(d−2) φ, distribution func
 The return map of a wall is the first-return map of the boundary map to that wall, so it preserves the billiard
 measure restricted to the wall whenever the boundary map preserves it (Theorem `invariance`). The post-collision
 state is the one compared: it is the state the boundary map acts on. The file of ``rbx histogram`` (group
-``returns/``) is written and read by :mod:`rbx.runfile` (``write_returns``, ``read_returns``).
+``returns/``) is written by :mod:`rbx.driver` (``write_returns``, with :func:`rbx.runfile.fill_returns`) and read by :func:`rbx.reader.read_returns`.
 """
 import dataclasses
 import time

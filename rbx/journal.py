@@ -367,7 +367,7 @@ def _write_journal(tmp, parts):
 def _lock(fd, shared=False):
     """Lock the file as HDF5 locks a file it writes (``flock``, exclusive), so that HDF5 refuses to open it for
     reading meanwhile, as it did before rbx wrote through a file object (h5py's fileobj driver takes no lock):
-    ``rbx.runfile._open_h5`` then says which run writes it. Not where HDF5 would not lock either
+    ``rbx.reader._open_h5`` then says which run writes it. Not where HDF5 would not lock either
     (``HDF5_USE_FILE_LOCKING=FALSE``), nor where the file system has no locks."""
     import fcntl
     if os.environ.get("HDF5_USE_FILE_LOCKING", "").upper() in ("FALSE", "0"):

@@ -4,7 +4,7 @@
 (:func:`config_file_problem`) and replaces only regular files (:func:`check_replaceable`) that it wrote itself
 (:func:`check_own_kind`).
 
-The lowest of the run-file modules: :mod:`rbx.locks`, :mod:`rbx.runfile` and :mod:`rbx.driver` import it, it
+The lowest of the run-file modules: :mod:`rbx.locks`, :mod:`rbx.runfile`, :mod:`rbx.reader` and :mod:`rbx.driver` import it, it
 imports none of them.
 """
 import contextlib

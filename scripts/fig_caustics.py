@@ -13,7 +13,7 @@ from matplotlib.figure import Figure as MplFigure
 
 from figlib import ROUNDING, Figure, arguments
 from rbx import orbits
-from rbx.runfile import Run
+from rbx.reader import Run
 from rbx.plotting import draw_table_2d
 
 SHOWN = 160          # segments drawn in the orbit panel

@@ -18,7 +18,7 @@ from matplotlib.figure import Figure as MplFigure
 
 from figlib import ROUNDING, Figure, arguments, geomspace, log10
 from rbx import analysis
-from rbx.runfile import Run
+from rbx.reader import Run
 
 SCALES = (1e-3, 3e-2, 1.0)      # fractions of the run drawn in the three panels (10³, 3·10⁴, 10⁶ collisions)
 MEMORY_FROM = 100               # "long range": lags from 100 collisions ...

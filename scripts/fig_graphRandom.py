@@ -23,7 +23,7 @@ from scipy import stats
 from fig_graph import SCALES, draw_memory, draw_scales, orbit_measures, read_orbit, record_orbit
 from figlib import ROUNDING, Figure, arguments, geomspace
 from rbx import analysis
-from rbx.runfile import Run
+from rbx.reader import Run
 
 FIT_FROM = 0.1          # the diffusion fit uses the last 90% of the run
 MEMORYLESS = 0.02       # largest |ρ| at long lags for "no memory" (noise: ~0.006 on 10⁶ collisions)

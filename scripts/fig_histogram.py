@@ -18,8 +18,8 @@ from scipy import stats
 
 from figlib import Figure, arguments
 from rbx import analysis
-from rbx.runfile import FileError
-from rbx.runfile import read_returns as read_returns_file
+from rbx.paths import FileError
+from rbx.reader import read_returns as read_returns_file
 
 P_PASS = 0.01       # KS p-value below which the law is rejected
 

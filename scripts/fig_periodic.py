@@ -22,7 +22,7 @@ from matplotlib.figure import Figure as MplFigure
 
 from figlib import ROUNDING, Figure, arguments, geomspace
 from rbx import orbits
-from rbx.runfile import Run
+from rbx.reader import Run
 from rbx.plotting import draw_table_2d
 
 TYPICAL_SHOWN = 200

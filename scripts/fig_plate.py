@@ -25,7 +25,7 @@ from matplotlib.ticker import MaxNLocator
 
 from figlib import ROUNDING, Figure, arguments, fixed, geomspace
 from rbx import analysis
-from rbx.runfile import Run
+from rbx.reader import Run
 
 SHOWN_3D = 200       # collisions drawn in space
 SHOWN_2D = 60        # collisions drawn as a path in the horizontal projection

@@ -21,7 +21,8 @@ from click.testing import CliRunner
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
 
-from rbx.runfile import FileError, Run
+from rbx.paths import FileError
+from rbx.reader import Run
 from rbx.cli.main import cli
 
 RBX = str(Path(sys.executable).with_name("rbx"))
@@ -376,7 +377,7 @@ def test_relative_table_and_output_paths_resolve_from_the_config_folder(tmp_path
     assert result.exit_code == 2 and result.stderr.strip() == "rbx: exp/out.h5: exists; use --force to overwrite it"
 
 
-# ---- --resume of files that cannot be resumed, and the reader of plot, resume and the API (rbx.runfile.Run) -------
+# ---- --resume of files that cannot be resumed, and the reader of plot, resume and the API (rbx.reader.Run) -------
 
 def make_files(folder):
     """Files that are not rbx runs: missing, text, an HDF5 file of something else, a run without positions."""

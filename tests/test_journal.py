@@ -19,7 +19,8 @@ import pytest
 import rbx
 from rbx import journal
 from rbx.journal import PAGE, JournaledFile
-from rbx.runfile import FileError, _open_h5
+from rbx.paths import FileError
+from rbx.reader import _open_h5
 from tests.test_interrupt import assert_same_records, read_run, strip_random, write_config
 
 RBX_MAIN = "from rbx.cli.main import main; sys.argv[0] = 'rbx'; main()"
@@ -297,7 +298,8 @@ def test_a_file_being_written_is_locked_against_hdf5_readers(tmp_path):
     path = tmp_path / "run.h5.partial"
     writer = textwrap.dedent(f"""
         import sys, time
-        from rbx.runfile import acquire_lock, commit, open_journaled
+        from rbx.locks import acquire_lock
+        from rbx.runfile import commit, open_journaled
         acquire_lock({str(tmp_path / "run.h5")!r})
         h5 = open_journaled({str(path)!r}, create=True)
         h5.flush()

@@ -19,7 +19,7 @@ from rbx import analysis
 from rbx.cli.main import cli
 from rbx.cli.plot import make_figure
 from rbx.cli.common import UserError
-from rbx.runfile import Run
+from rbx.reader import Run
 
 ROUGH = "{rule: constant, rank: 1}"
 RUNS = {

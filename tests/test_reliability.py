@@ -11,6 +11,7 @@ import time
 import h5py
 import pytest
 
+import rbx.locks as locks
 import rbx.runfile as runfile
 from tests.test_interrupt import (RBX, assert_same_records, check_valid_partial, invoke, read_run, reference_run,
                                   scene, strip_random, tiny_blocks, write_config)  # noqa: F401 - tiny_blocks: a fixture
@@ -113,28 +114,28 @@ def test_which_locks_are_stale(tmp_path, monkeypatch):
         f"host: {host}\npid: {gone.pid}\nstarted: x\nprocess_start: 1\n": True,
         f"host: {host}\npid: {os.getppid()}\nstarted: x\nprocess_start: 1\n": True,     # pid reused since
         f"host: {host}\npid: {os.getppid()}\nstarted: x\nprocess_start: "
-        f"{runfile._process_start(os.getppid())}\n": False,                              # that very process
+        f"{locks._process_start(os.getppid())}\n": False,                              # that very process
         f"host: {host}-elsewhere\npid: {gone.pid}\nstarted: x\nprocess_start: 1\n": False,
     }
     warned = []
     for text, stale in cases.items():
         lock.write_text(text)
         if stale:
-            runfile.acquire_lock(out, warn=warned.append)
+            locks.acquire_lock(out, warn=warned.append)
             assert f"pid: {me}\n" in lock.read_text() and "stale lock" in warned[-1]
-            runfile.release_lock(out)
+            locks.release_lock(out)
             assert not lock.exists()
         else:
             with pytest.raises(runfile.FileError, match="another rbx run is writing it"):
-                runfile.acquire_lock(out, warn=warned.append)
+                locks.acquire_lock(out, warn=warned.append)
             assert lock.read_text() == text                  # left alone
     lock.unlink()
     # this process may take its own lock twice (a resume holds it from reading the file to renaming it)
-    runfile.acquire_lock(out)
-    runfile.acquire_lock(out)
-    runfile.release_lock(out)
+    locks.acquire_lock(out)
+    locks.acquire_lock(out)
+    locks.release_lock(out)
     assert lock.exists()
-    runfile.release_lock(out)
+    locks.release_lock(out)
     assert not lock.exists()
 
 

@@ -54,7 +54,7 @@ DEFAULT_COLLISIONS = 200
 
 def write_animation(run_file, out, trajectory=0, records=None, fps=20, frames=200, dpi=80):
     """Write the animation -> its path. Problems with the file, the selection or the format raise UserError."""
-    from ..runfile import Run
+    from ..reader import Run
     from .plot import check_records, parse_records
     ext = os.path.splitext(out)[1].lower()
     if ext not in (".gif", ".mp4"):

@@ -1,5 +1,5 @@
 """What every command shares: the user-error convention (exit 2, one line), the ``--scheduler`` options, the
-progress bar. (Run files are opened with :class:`rbx.runfile.Run`; its :class:`rbx.runfile.FileError` becomes a
+progress bar. (Run files are opened with :class:`rbx.reader.Run`; its :class:`rbx.paths.FileError` becomes a
 user error here.)
 
 A user error is printed as ``rbx: <file>: <key>: <problem>`` on stderr (the parts that apply) and the command
@@ -22,9 +22,9 @@ EXIT_USER_ERROR = 2
 
 
 def display_path(path):
-    """A path as the user would write it (:func:`rbx.runfile.display_path`; imported when first needed, so that
+    """A path as the user would write it (:func:`rbx.paths.display_path`; imported when first needed, so that
     ``--help`` stays instant)."""
-    from ..runfile import display_path as display
+    from ..paths import display_path as display
     return display(path)
 
 
@@ -47,7 +47,7 @@ def fail(file, key, problem):
 
 
 def from_config_error(exc):
-    """A :class:`rbx.config.ConfigError` (or :class:`rbx.runfile.FileError`) as a :class:`UserError`."""
+    """A :class:`rbx.config.ConfigError` (or :class:`rbx.paths.FileError`) as a :class:`UserError`."""
     return UserError(exc.file, exc.key, exc.problem)
 
 
@@ -55,7 +55,7 @@ def from_config_error(exc):
 def user_errors():
     """Turn the library's user errors (a bad config, a file that is not what is needed) into :class:`UserError`."""
     from ..model import ConfigError
-    from ..runfile import FileError
+    from ..paths import FileError
     try:
         yield
     except (ConfigError, FileError) as exc:
@@ -188,7 +188,7 @@ def hard_exit(code):
     interrupted) and runs the finalisers of Numba and LLVM, which crashed (exit −11, after the line was printed)
     when a Ctrl-C had stopped a compile midway. The output is flushed and the run locks this process holds are
     removed first; nothing else is being written when a command ends this way."""
-    from ..runfile import release_held_locks
+    from ..locks import release_held_locks
     sys.stdout.flush()
     sys.stderr.flush()
     release_held_locks()

@@ -138,7 +138,7 @@ def make_figure(run_file, kind, records=slice(None), trajectories=None, **option
 
     ``trajectories``: text as for --trajectories, or None for the kind's default; ``options``: colour,
     coordinate, scales, fit_from, wall, plane. Problems with the file or the selection raise :class:`UserError`."""
-    from ..runfile import Run
+    from ..reader import Run
 
     with user_errors():
         if os.path.isfile(run_file) and run_file.endswith((".yaml", ".yml")):
