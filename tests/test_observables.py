@@ -10,7 +10,7 @@ import pytest
 
 import rbx
 from rbx import analysis
-from rbx.study import sweep
+from rbx.sweeping import sweep
 
 SPECULAR = {"rule": "constant", "rank": 0}
 

@@ -18,7 +18,8 @@ import yaml
 import rbx
 from rbx import analysis
 from rbx.model import ConfigError
-from rbx.study import load_study, sweep
+from rbx.study import load_study
+from rbx.sweeping import sweep
 
 from reference import wavefront_sums
 
@@ -331,7 +332,7 @@ def test_the_title_says_what_the_whole_study_varies(specular):
     assert "varied: table.radius: 2 values, 0.2–0.35" in title
     two = load_study({"base": SINAI, "vary": {"ball.inertia": [0.1, 1.0], "table.radius": [0.2, 0.3, 0.4]},
                       "measure": ["mean_free_path"], "ensemble": {"trajectories": 1, "collisions": 10}})
-    from rbx.study import study_title
+    from rbx.sweeping import study_title
     text = study_title(two)
     assert "κ = 0.1–1" in text and "radius 0.2–0.4" in text
     assert text.endswith("varied: ball.inertia: 2 values, 0.1–1; table.radius: 3 values, 0.2–0.4")
@@ -642,7 +643,7 @@ def test_a_large_grid_checks_each_value_of_each_key_once(monkeypatch):
     assert not st.__dict__.get("_experiments")          # none kept: a large study's would fill the memory
     # the results' title reads its ranges off the same points: it built all 3600 configs (the 1000 × 100 grid sat
     # silent for 67 s before its first point)
-    from rbx.study import study_title
+    from rbx.sweeping import study_title
     built.clear()
     title = study_title(st)
     assert len(built) <= 60 + 60 - 1
@@ -853,7 +854,7 @@ def test_a_failed_write_over_kept_points_says_how_much_room_a_write_needs(tmp_pa
     that holds the results once cannot take the next write. The line says so, with the size (it said only 'free
     some room', and the same line came back at every --resume)."""
     from rbx.paths import DiskFull
-    from rbx.study import _write
+    from rbx.sweeping import _write
     study = {"base": SINAI, "vary": {"ball.inertia": [0.3, 0.6]}, "measure": ["mean_free_path"],
              "ensemble": {"trajectories": 2, "collisions": 50, "seed": 2}}
     ds = sweep(study)

@@ -1,4 +1,4 @@
-"""``rbx sweep STUDY.yaml -o RESULTS.nc``: a parameter study (docs/studies.md; :mod:`rbx.study`)."""
+"""``rbx sweep STUDY.yaml -o RESULTS.nc``: a parameter study (docs/studies.md; :mod:`rbx.study`, :mod:`rbx.sweeping`)."""
 import shlex
 import signal
 import time
@@ -34,7 +34,7 @@ def sweep(study, output, scheduler, resume, force, trajectories, collisions, set
     """Run the study STUDY.yaml: the observables of `measure` at every point of `vary`, an ensemble per point,
     with standard errors, into RESULTS.nc (xarray.open_dataset reads it)."""
     from ..api import StopFlag
-    from ..study import StudyInterrupted
+    from ..sweeping import StudyInterrupted
     began = time.perf_counter()
     stop = StopFlag(pending=pending_signal)
     bar = Progress("sweep", delay=0.0, quiet=quiet, unit="points")       # over the whole study
@@ -101,7 +101,7 @@ def _kept(output):
     """The results file a resume would continue and what it holds -> StudyInterrupted(path, kept, total), or None."""
     import os
 
-    from ..study import StudyInterrupted, kept_points, partial_path
+    from ..sweeping import StudyInterrupted, kept_points, partial_path
     for path in (partial_path(output), output):
         if os.path.exists(path):
             found, kept, total = kept_points(path)
@@ -133,7 +133,7 @@ def _sweep(study, output, scheduler, resume, force, progress, checking=None, cha
     from ..cluster import ClusterError, SchedulerUnreachable
     from ..paths import DiskFull
     from ..study import load_study
-    from ..study import sweep as run
+    from ..sweeping import sweep as run
     from .common import _quiet_dask
     if scheduler is not None:
         _quiet_dask()        # Dask's own log lines of a lost connection: rbx says itself what went wrong
@@ -161,7 +161,7 @@ def _cluster_lost(exc, study, output, again):
     """The line of a study stopped by a lost cluster: what went wrong, what the results file keeps, how to go on."""
     import os
 
-    from ..study import kept_points, partial_path
+    from ..sweeping import kept_points, partial_path
     said = f"--scheduler: {exc.problem}"       # the option this command was given (the API's key is scheduler)
     path, kept, total = kept_points(partial_path(os.path.abspath(output)))
     if not kept:

@@ -1,0 +1,590 @@
+"""Running a study (:mod:`rbx.study` reads and checks it): ``rbx sweep``, :func:`sweep`; docs/studies.md.
+
+Points run one after the other in this process, each on the engine's thread pool (or a Dask cluster:
+``scheduler=``); :func:`run_point` runs one point and measures every observable. The results file (NetCDF,
+h5netcdf) is rewritten atomically as points finish (spaced so that the writes take at most a twentieth of the run:
+:data:`WRITE_SPACING`) as ``OUT.partial`` and renamed to ``OUT`` at the end; ``resume=True`` computes only the
+points it lacks, and refuses a study whose canonical text changed (``study_digest``).
+"""
+import contextlib
+import io
+import json
+import os
+import shlex
+import sys
+import time
+import warnings
+from collections.abc import Mapping
+
+import numpy as np
+
+from . import __version__, observables as obs
+from .analysis import scene_title
+from .api import cluster_for, simulate
+from .cluster import ClusterError, SchedulerUnreachable, connect
+from .config import start_groups
+from .dynamics import lyapunov
+from .histogram import return_experiment
+from .locks import LockNotWritable, acquire_lock, release_lock
+from .model import ConfigError
+from .paths import (DiskFull, FileError, check_own_kind, check_own_names, check_replaceable, display_path,
+                    other_commands_file)
+from .runfile import provenance
+from .simulation import STATE_BYTES, memory_refusal, records_bytes
+from .study import Study, _representatives, load_study, needs
+
+__all__ = ["sweep", "run_point", "StudyInterrupted", "kept_points", "partial_path", "study_title"]
+
+
+# ---- running ------------------------------------------------------------------------------------------------------
+
+def run_point(study, point, scheduler=None):
+    """Run one point and measure every observable -> ({name: Value}, collisions, seconds)."""
+
+    need = needs(study)
+    began = time.perf_counter()
+    exp = study.experiment(point, need["fields"], need["every"])
+    runs = obs.PointRuns(exp)
+    collisions = 0
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)     # repeated orbits: the study's numbers say it
+        if need["simulate"]:
+            runs.run = simulate(exp, scheduler=scheduler)
+            collisions += int(np.sum(runs.run.final["collisions"]))
+        if need["tangent"]:
+            runs.lyapunov = lyapunov(exp, segments=need["segments"], warmup=need["warmup"], scheduler=scheduler)
+            collisions += int(np.sum(runs.lyapunov.collisions))
+        if need["returns"]:
+            with cluster_for(scheduler, "scheduler") as on:
+                runs.returns = return_experiment(exp, cluster=on)
+            collisions += int(np.sum(runs.returns.collisions))
+    values = {name: obs.get(name).compute(runs, options) for name, options in study.measure}
+    if need["tangent"]:
+        values["lyapunov_regular"], values["lyapunov_orbits"] = runs.lyapunov.regular(_threshold(study))
+    return values, collisions, time.perf_counter() - began
+
+
+def _threshold(study):
+    """The own λ₁ below which an orbit counts as regular: regular_share's threshold when measured, else its
+    default."""
+    return float(dict(study.measure).get("regular_share", {}).get("threshold", obs.REGULAR_THRESHOLD))
+
+
+# ---- the results file -----------------------------------------------------------------------------------------------
+
+def _empty(study, exp0):
+    """The results dataset with every number NaN and ``done`` False."""
+    import xarray as xr
+    dims, shape = study.dims, study.shape
+    coords = {}
+    for i, (k, v) in enumerate(zip(study.keys, study.values)):
+        dim = dims[0] if study.zip else dims[i]
+        coords[k] = xr.Variable((dim,), v, {"units": _key_unit(k), "long_name": k})
+    data = {}
+    extra = {}
+    for name, options in study.measure:
+        rec = obs.get(name)
+        if rec.coords is not None:
+            extra.update(rec.coords(exp0))
+        vdims = dims + ((rec.dim,) if rec.dim else ())
+        vshape = shape + ((len(extra[rec.dim]),) if rec.dim else ())
+        data[name] = xr.Variable(vdims, np.full(vshape, np.nan), {"units": rec.unit, "description": rec.description,
+                                                                  "options": json.dumps(options)})
+        data[f"{name}_stderr"] = xr.Variable(vdims, np.full(vshape, np.nan),
+                                             {"units": rec.unit, "description": f"{rec.error} of {name}"})
+        for c in rec.companions:
+            if c.dim and not (name == "lyapunov" and options.get("spectrum")):
+                continue
+            cdims = dims + ((c.dim,) if c.dim else ())
+            cshape = shape + ((len(extra[c.dim]),) if c.dim else ())
+            data[f"{name}_{c.suffix}"] = xr.Variable(cdims, np.full(cshape, np.nan),
+                                                     {"units": c.unit, "description": c.description})
+    for dim, vals in extra.items():
+        coords[dim] = xr.Variable((dim,), np.asarray(vals, dtype=str) if np.asarray(vals).dtype == object
+                                  else np.asarray(vals))
+    if needs(study)["tangent"]:
+        thr = _threshold(study)
+        data["lyapunov_orbits"] = xr.Variable(dims, np.zeros(shape, np.int64), {
+            "units": "trajectory", "description": "trajectories whose own λ₁ was measured (those that left the "
+                                                  "table before any collision was counted have none)"})
+        data["lyapunov_regular"] = xr.Variable(dims, np.zeros(shape, np.int64), {
+            "units": "trajectory", "threshold": thr,
+            "description": f"of those, the regular ones: own λ₁ below {thr:g} per unit time (the point's λ₁ "
+                           "pools them with the chaotic ones)"})
+    data["collisions"] = xr.Variable(dims, np.zeros(shape, np.int64),
+                                     {"units": "collision", "description": "collisions run at the point (all runs)"})
+    data["wall_time"] = xr.Variable(dims, np.full(shape, np.nan), {"units": "s", "description":
+                                                                    "wall-clock time of the point"})
+    data["seed"] = xr.Variable(dims, np.zeros(shape, np.int64), {"description": "run.seed of the point"})
+    data["done"] = xr.Variable(dims, np.zeros(shape, np.int8), {"description": "1: the point is computed"})
+    ds = xr.Dataset(data, coords=coords)
+    ds.attrs.update(_attrs(study, exp0))
+    return ds
+
+
+def _key_unit(key):
+    if key in obs.PARAMETERS:
+        return obs.PARAMETERS[key][2]
+    return "L" if key.startswith("table.") else "1"
+
+
+_PUNCT = "(),;:"
+
+
+def study_title(study, exp0=None):
+    """What the whole study shows: the scene's title (:func:`rbx.analysis.scene_title`) with each word that
+    changes from point to point given as its range over the points ('κ = 0.05–1'), then the varied keys and their
+    ranges ('ball.inertia: 8 values, 0.05–1') -> str. (The first point's title alone named its κ as the study's.)"""
+    need = needs(study)
+    # the words that change from point to point, read off the points that stand for the study (each value of each
+    # key of a large grid once: building all 10⁵ configs of one took 67 s before its first point)
+    titles = [scene_title(study.experiment(p, need["fields"], need["every"])) for p in _representatives(study)[0]]
+    words = [t.split(" ") for t in titles]
+    if len({len(w) for w in words}) == 1:
+        merged = []
+        for column in zip(*words):
+            if len(set(column)) == 1:
+                merged.append(column[0])
+                continue
+            core = [w.strip(_PUNCT) for w in column]
+            head = column[0][:len(column[0]) - len(column[0].lstrip(_PUNCT))]
+            tail = column[0][len(column[0].rstrip(_PUNCT)):]
+            try:
+                nums = [float(w) for w in core]
+                span = f"{min(nums):g}–{max(nums):g}"
+            except ValueError:
+                span = "/".join(dict.fromkeys(core))
+            merged.append(head + span + tail)
+        scene = " ".join(merged)
+    else:                 # the description changes shape from point to point: name the first and say so
+        scene = f"{titles[0]} (at the first point)"
+    varied = []
+    for key, values in zip(study.keys, study.values):
+        nums = [float(v) for v in values if isinstance(v, (int, float)) and not isinstance(v, bool)]
+        span = f"{min(nums):g}–{max(nums):g}" if len(nums) == len(values) and len(values) > 1 else \
+            ", ".join(str(v) for v in values)
+        varied.append(f"{key}: {len(values)} value{'s' if len(values) != 1 else ''}, {span}")
+    return f"{scene}\nvaried{' together' if study.zip and len(study.keys) > 1 else ''}: " + "; ".join(varied)
+
+
+def _attrs(study, exp0):
+    """The results file's attributes. ``ensemble_orbits``: how many distinct orbits each point's ensemble holds (its
+    trajectories, unless fixed starts with no random numbers repeat each other: a study's figure says so)."""
+    p = provenance()
+    groups = start_groups(exp0)
+    orbits = study.ensemble["trajectories"] if groups is None else int(len(np.unique(groups)))
+    return {"rbx_study": 1, "study": study.source, "study_canonical": study.text, "study_digest": study.digest,
+            "study_file": study.file or "", "title": study_title(study, exp0), "varied": json.dumps(study.keys),
+            "zip": int(study.zip), "measure": json.dumps([n for n, _ in study.measure]),
+            "ensemble_trajectories": study.ensemble["trajectories"], "ensemble_orbits": orbits,
+            "ensemble_collisions": study.ensemble["collisions"], "ensemble_seed": study.ensemble["seed"],
+            "rbx_version": __version__, "numba_version": p["numba_version"], "numpy_version": p["numpy_version"],
+            "python_version": p["python_version"], "created": p["created"], "host": p["host"],
+            "command": shlex.join(sys.argv), "complete": 0}
+
+
+def _store(ds, index, study, values, collisions, seconds, seed):
+    # into the variables' arrays by position (xarray's labelled assignment took 13 ms a point)
+    at = tuple(int(i) for i in index)
+
+    def put(name, x):
+        ds[name].values[at] = x
+    for name, _ in study.measure:
+        v = values[name]
+        put(name, v.value)
+        put(f"{name}_stderr", v.stderr)
+        for suffix, x in v.companions.items():
+            key = f"{name}_{suffix}"
+            if key in ds:
+                put(key, x)
+    for name in ("lyapunov_orbits", "lyapunov_regular"):
+        if name in values and name in ds:
+            put(name, values[name])
+    put("collisions", collisions)
+    put("wall_time", seconds)
+    put("seed", seed)
+    put("done", 1)
+
+
+#: the results file is rewritten after a finished point once the points since the last write (or since the start)
+#: took this many times as long as a write (and at the end): writing it after every point cost 0.2 s a
+#: point, more than a point of 10⁶ collisions (0.14 s); so the writes cost at most 1/20 of the run, and a kill
+#: loses at most the points of the last ~20 writes' time, which --resume runs again (the same numbers)
+WRITE_SPACING = 20
+#: what a write is taken to cost before this process has timed one (8 points of one observable: 16 ms CPU, 40 ms
+#: wall here); so the first write comes after a second of points, not after the first point: written after the
+#: first point of 10⁶ collisions, it made a study 1.11 times as long as one run of the same collisions (CPU)
+FIRST_WRITE_COST = 0.05
+_write_cost = None          # the last write's time in this process
+
+
+def _write(ds, path):
+    """Write ``ds`` to ``path`` atomically: made in memory, written to a temporary file in the same folder,
+    flushed to disk, renamed. A write that fails (a full disk, a file-size limit) leaves ``path`` as it was and
+    raises :class:`rbx.paths.DiskFull` (HDF5 itself never meets the failure: made on the disk, a full disk gave an
+    h5py traceback, then a segmentation fault as the half-written file was closed)."""
+    global _write_cost
+    began = time.perf_counter()
+    tmp = f"{path}.tmp"
+    image = io.BytesIO()
+    _to_netcdf(ds, image)
+    try:
+        with open(tmp, "wb") as fh:
+            fh.write(image.getbuffer())
+            fh.flush()
+            os.fsync(fh.fileno())
+    except OSError as exc:
+        with contextlib.suppress(OSError):
+            os.remove(tmp)
+        size = _bytes_text(len(image.getbuffer()))
+        if os.path.exists(path):
+            kept = (f"{display_path(path)} is as it was (a write makes a whole new copy, {size}, beside it before "
+                    "replacing it, so it needs that much free): free some room and continue with --resume")
+        else:
+            kept = (f"nothing of the study was on disk yet, so no point is kept (its results need {size} free): "
+                    "free some room and run the study again")
+        raise DiskFull(f"{display_path(path)}: cannot write the study's results ({exc.strerror or exc}); "
+                       + kept) from None
+    os.replace(tmp, path)
+    _write_cost = time.perf_counter() - began
+
+
+def _bytes_text(n):
+    """A size for people: ``14.5 kB``, ``3.2 MB``."""
+    for factor, unit in ((1e9, "GB"), (1e6, "MB"), (1e3, "kB")):
+        if n >= factor:
+            return f"{n / factor:.3g} {unit}"
+    return f"{n} bytes"
+
+
+def _to_netcdf(ds, path):
+    """``ds`` into a new NetCDF-4 file at ``path`` through h5netcdf, each variable as it is (xarray reads it back
+    identical, tested): a third cheaper than ``Dataset.to_netcdf``, whose encoding pass (fill values, chunks,
+    CF conventions) the results' plain arrays do not need (8 points: 15 → 10 ms CPU, the study's last write)."""
+    import h5netcdf
+    import h5py
+    with warnings.catch_warnings(), h5netcdf.File(path, "w", invalid_netcdf=True) as f:
+        warnings.simplefilter("ignore", UserWarning)        # "invalid netcdf features": a dotted name, a flag
+        f.attrs.update(ds.attrs)
+        for dim, size in ds.sizes.items():
+            f.dimensions[dim] = size
+        for name, var in ds.variables.items():
+            data = np.asarray(var.values)
+            if data.dtype.kind in "OU":                     # text (wall names): HDF5 variable-length strings
+                out = f.create_variable(name, var.dims, dtype=h5py.string_dtype(), data=data.astype(object))
+            else:
+                out = f.create_variable(name, var.dims, data=data)
+            out.attrs.update(var.attrs)
+
+
+def _read(path):
+    import xarray as xr
+    # phony_dims: a variable without dimension scales (a file damaged or made by hand) is read, not warned about
+    with xr.open_dataset(path, engine="h5netcdf", phony_dims="access") as ds:
+        return ds.load()
+
+
+def partial_path(output):
+    return f"{output}.partial"
+
+
+def sweep(study, output=None, *, scheduler=None, resume=False, force=False, progress=None, base=None,
+          trajectories=None, collisions=None, sets=None):
+    """Run a study -> :class:`xarray.Dataset` (docs/studies.md).
+
+    ``study``: a study file or mapping (``base=``: the file or folder a mapping's relative paths start from);
+    ``trajectories``, ``collisions`` replace its ``ensemble`` entries and ``sets`` (``{dotted config key: value}``)
+    changes the base at every point after the study's own ``set``, as ``rbx sweep --trajectories M --collisions N
+    --set KEY=VALUE`` do (a shipped study shortened without copying it; checked as they are, an error naming such
+    a key ``--set KEY``; part of the study's digest, so a resume gives them again);
+    ``output``: the results file (NetCDF via h5netcdf), committed after every point as ``output.partial`` and
+    renamed at the end; an existing one is refused unless ``force`` (start again) or ``resume`` (compute only
+    the points it lacks; a study whose canonical text changed is refused). ``scheduler``: a Dask scheduler
+    address, scheduler file or ``distributed.Client`` that every point's runs use (the same numbers as a local
+    run). ``progress(done, total)``: called after each point. A bad study raises :class:`rbx.ConfigError`.
+
+    The results file is written under the run lock ``output.lock`` that ``rbx simulate`` takes too: a second
+    sweep, or a run, writing the same file is refused, naming the one that holds it."""
+    changes = {"sets": sets, "ensemble": {"trajectories": trajectories, "collisions": collisions}}
+    if isinstance(study, Study) and (sets or trajectories is not None or collisions is not None):
+        raise TypeError("rbx.sweep: trajectories, collisions and sets change a study file or mapping, not a loaded "
+                        "Study (give them to load_study)")
+    if sets is not None and not isinstance(sets, Mapping):
+        raise TypeError(f"rbx.sweep: sets is a mapping {{'ball.inertia': 0.2, …}}, not {type(sets).__name__}")
+    if output is None:
+        return _sweep(study, None, scheduler, resume, force, progress, base, changes)
+    if not isinstance(output, (str, bytes, os.PathLike)):
+        raise TypeError(f"rbx.sweep: output is a file path (a str or os.PathLike), not {type(output).__name__}")
+    output = os.path.abspath(os.fsdecode(os.fspath(output)))        # a bytes path is the path it names
+    _check_not_own_name(output)
+    check_own_names(output)        # a FIFO named as the lock would block its read
+    try:
+        acquire_lock(output)
+    except LockNotWritable as exc:
+        partial = partial_path(output)
+        if resume and os.path.exists(partial):
+            # the finished points are in the .partial; a sweep resumes only beside its output: say how to go on
+            raise FileError(partial, None, f"cannot be resumed in place: its folder cannot be written ({exc.problem})"
+                                           f"; copy it to a writable folder and resume there: rbx sweep STUDY -o "
+                                           f"FOLDER/{os.path.basename(output)} --resume") from None
+        raise
+    try:
+        return _sweep(study, output, scheduler, resume, force, progress, base, changes)
+    finally:
+        release_lock(output)
+
+
+def _check_not_own_name(output):
+    """Refuse results named as rbx names the files beside another output (``X.nc.partial``, ``X.nc.lock``, …): a
+    sweep wrote its results there, which ``--resume -o X.nc`` then took for its own unfinished results (and
+    ``--force`` removed), or over a live run's lock. As ``rbx simulate`` refuses such an output."""
+    from .driver import OWN_SUFFIXES
+    for suffix, what in OWN_SUFFIXES:
+        if output.endswith(suffix) and len(os.path.basename(output)) > len(suffix):
+            raise FileError(None, "-o", f"{display_path(output)} is the name rbx gives "
+                                        f"{display_path(output[:-len(suffix)])}'s {what}; give another name, such "
+                                        "as results.nc")
+
+
+def _sweep(study, output, scheduler, resume, force, progress, base, changes):
+    st = load_study(study, base, **changes)      # the path of rbx sweep --set, --trajectories, --collisions
+    points = st.points()
+    need = needs(st)
+    exp0 = st.experiment(points[0][1], need["fields"], need["every"])
+    kept = records_bytes(exp0)          # a point keeps the records its observables read in memory
+    refusal = memory_refusal(st.ensemble["trajectories"], records=kept)
+    if refusal:         # before anything is written, and named by the study's own key
+        key, problem = refusal
+        raise ConfigError(st.file, f"ensemble.{key}", f"{problem}: fewer {'collisions ' if key == 'collisions' else ''}"
+                                                      "per point")
+    ds = None
+    if output is not None:
+        partial = partial_path(output)
+        for p in (output, partial):      # never over the study, its base or a file they include
+            for f, what in ((st.file, "the study file"), (exp0.source, "the study's base config"),
+                            *((f, "a file the study's base includes") for f in exp0.includes)):
+                if f and os.path.isfile(f) and os.path.exists(p) and os.path.samefile(p, f):
+                    raise FileError(p, "-o", f"is {what}: give the results a file of their own, such as "
+                                             "results.nc")
+        for p in (output, partial):      # a run of rbx simulate under these names: never taken for the study's
+            problem = other_commands_file(p, "study")
+            if problem is not None:
+                raise problem
+        if resume:
+            source = partial if os.path.exists(partial) else output if os.path.exists(output) else None
+            if source is not None:
+                try:
+                    ds = _read(source)
+                except Exception as exc:     # not a results file
+                    raise FileError(source, None, f"cannot read as a study's results: {exc}") from None
+                if ds.attrs.get("study_digest") != st.digest:
+                    # what changed, where the file says it: an option given now (--collisions) reads as "the study
+                    # changed", and --force would throw the finished points away
+                    now = {"ensemble_trajectories": (st.ensemble["trajectories"], "--trajectories"),
+                           "ensemble_collisions": (st.ensemble["collisions"], "--collisions"),
+                           "ensemble_seed": (st.ensemble["seed"], "ensemble.seed")}
+                    changed = [f"{key} {ds.attrs.get(key)} in the file, {value} now ({option} or the study's "
+                               f"ensemble)" for key, (value, option) in now.items()
+                               if key in ds.attrs and str(ds.attrs[key]) != str(value)]
+                    what = changed[0] if changed else "its text, its base or a file it includes"
+                    raise FileError(source, "--resume", f"the study changed since this file was started ({what}): "
+                                                        "resume with the study and options it was started with, or "
+                                                        "run it afresh with --force, which discards its "
+                                                        f"{int(np.sum(ds['done'].values)) if 'done' in ds else 0} "
+                                                        "finished points")
+                _check_resumable(ds, _empty(st, exp0), source, st, points)
+                if source == output and int(ds["done"].values.min()) == 1:
+                    return ds
+        elif not force:
+            for p in (output, partial):
+                if os.path.lexists(p):
+                    raise FileError(p, None, "exists: --force starts the study again, --resume continues it")
+        for p in (output, partial):       # replaced only if a regular file rbx wrote: never a device, a FIFO, a
+            check_replaceable(p, "-o", None)  # link, a study file or notes
+            check_own_kind(p, "-o", None)
+        os.makedirs(os.path.dirname(output), exist_ok=True)
+    if ds is None:
+        ds = _empty(st, exp0)
+    done = ds["done"].values
+    todo = [(i, p) for i, p in points if not done[i]]
+    total, finished = len(points), len(points) - len(todo)
+    stored = finished       # the finished points the results file on disk holds
+    client = _client(scheduler)
+    try:
+        if progress is not None:
+            progress(finished, total)
+        written = time.perf_counter()   # when the file was last written (the start counts as one)
+        for index, point in todo:
+            try:
+                values, collisions, seconds = run_point(st, point, scheduler=client)
+            except SchedulerUnreachable as exc:
+                if client is None:
+                    raise
+                # the cluster the study started on is lost (its scheduler killed, its workers gone): a run that
+                # stopped, not a bad address
+                raise ClusterError(exc.key, exc.problem) from None
+            except MemoryError:
+                if kept > st.ensemble["trajectories"] * STATE_BYTES:      # the records, more than the state
+                    raise ConfigError(st.file, "ensemble.collisions", "the records a point keeps do not fit in this "
+                                                                      "process's memory: fewer collisions per point") \
+                        from None
+                raise ConfigError(st.file, "ensemble.trajectories",
+                                  f"{st.ensemble['trajectories']} trajectories of a point do not fit in this "
+                                  "process's memory: fewer per point") from None
+            _store(ds, index, st, values, collisions, seconds, st.seed(point))
+            finished += 1
+            if output is not None and finished < total and (
+                    time.perf_counter() - written >= WRITE_SPACING * (_write_cost or FIRST_WRITE_COST)):
+                _write(ds, partial)
+                written, stored = time.perf_counter(), finished
+            if progress is not None:
+                progress(finished, total)
+    except BaseException as exc:
+        # the points finished since the last write are kept too (a Ctrl-C, a lost cluster, a point that failed):
+        # --resume then runs only the others
+        if output is not None and finished > stored:
+            _write_held(ds, partial)
+        if isinstance(exc, KeyboardInterrupt) and output is not None:
+            raise StudyInterrupted(*kept_points(partial, st.digest)[:2], total) from None
+        raise
+    finally:
+        if client is not None and client is not scheduler:
+            client.close()
+    ds.attrs["complete"] = 1
+    if output is not None:
+        _write(ds, partial)
+        os.replace(partial, output)
+    return ds
+
+
+#: the observables whose value is a number at every computed point (rbx.lyapunov raises rather than give none; the
+#: energy of a run that went non-finite stops it; a mean free path counts at least the flight to the first
+#: collision): a NaN there in a point marked done is not a result
+NEVER_NAN = frozenset({"lyapunov", "energy_drift", "mean_free_path"})
+
+
+def _check_resumable(ds, template, path, study=None, points=()):
+    """Refuse (:class:`FileError` naming the variable) a results file to resume whose variables are not those this
+    study writes, of their shapes: a file with the study's digest but ``done`` missing, of another shape or not
+    0/1 (damaged, or made by hand) gave a traceback, or was taken as finished. Refused too: coordinates other than
+    the study's values (compared exactly: the points computed now would be stored under the file's labels), and
+    points marked done that hold a non-finite value where their observable always gives a number, a seed other
+    than the study's for the point, or a non-finite wall time (their values would be kept as results)."""
+    fix = "not the results of this study as rbx sweep writes them: run it afresh with --force"
+    for name, var in template.variables.items():
+        if name not in ds.variables:
+            raise FileError(path, name, f"missing; {fix}")
+        got = ds.variables[name]
+        if got.dims != var.dims or got.shape != var.shape:
+            raise FileError(path, name, f"has dimensions {dict(zip(got.dims, got.shape))}, where this study's "
+                                        f"are {dict(zip(var.dims, var.shape))}; {fix}")
+        if var.dtype.kind in "iufb" and got.dtype.kind not in "iufb":
+            raise FileError(path, name, f"holds {got.dtype} values, not numbers; {fix}")
+    done = ds["done"].values
+    if not np.all((done == 0) | (done == 1)):
+        raise FileError(path, "done", f"holds values other than 0 and 1; {fix}")
+    for key in ("measure", "varied", "ensemble_trajectories", "ensemble_collisions", "ensemble_seed",
+                "ensemble_orbits"):
+        # the attributes a figure of the finished file reads: carried into it by the resume (a file edited by
+        # hand then gave tracebacks when plotted)
+        if key in template.attrs and str(ds.attrs.get(key)) != str(template.attrs[key]):
+            raise FileError(path, key, f"is {str(ds.attrs.get(key))[:40]!r} where this study's is "
+                                       f"{str(template.attrs[key])[:40]!r}; {fix}")
+    for name, var in template.coords.items():
+        mine, theirs = np.asarray(var.values), np.asarray(ds[name].values)
+        if mine.dtype.kind in "OUS":
+            mine, theirs = mine.astype(str), theirs.astype(str)
+        if theirs.dtype.kind in "iufb" and mine.dtype.kind in "iufb" or mine.dtype.kind == theirs.dtype.kind:
+            equal = theirs.shape == mine.shape and bool(np.all(theirs == mine))
+        else:
+            equal = False
+        if not equal:
+            raise FileError(path, name, f"holds the values {_shown(theirs)} where this study's are {_shown(mine)}; "
+                                        f"{fix}")
+    if study is None:
+        return
+    finished = done.astype(bool)
+    for name in [n for n, _ in study.measure if n in NEVER_NAN] + ["wall_time"]:
+        values = np.asarray(ds[name].values, float)
+        bad = finished & ~np.all(np.isfinite(values.reshape(done.shape + (-1,))), axis=-1)
+        if bad.any():
+            raise FileError(path, name, f"is not a number at {int(bad.sum())} of the points marked done (the "
+                                        f"first: {_point_label(study, np.argwhere(bad)[0])}); {fix}")
+    # an error bar is a non-negative number or none (NaN), and a count of collisions a whole number ≥ 0: an inf
+    # error or −5 collisions of a point marked done were kept as results
+    checks = [(f"{name}_stderr", lambda v: np.isnan(v) | (np.isfinite(v) & (v >= 0)),
+               "is not an error (a number ≥ 0, or none)") for name, _ in study.measure if f"{name}_stderr" in ds]
+    checks.append(("collisions", lambda v: np.isfinite(v) & (v >= 0) & (v == np.floor(v)),
+                   "is not a count of collisions"))
+    for name, ok, what in checks:
+        values = np.asarray(ds[name].values, float).reshape(done.shape + (-1,))
+        bad = finished & ~np.all(ok(values), axis=-1)
+        if bad.any():
+            raise FileError(path, name, f"{what} at {int(bad.sum())} of the points marked done (the first: "
+                                        f"{_point_label(study, np.argwhere(bad)[0])}); {fix}")
+    seeds = np.asarray(ds["seed"].values)
+    for index, point in points:
+        if finished[index] and int(seeds[index]) != study.seed(point):
+            raise FileError(path, "seed", f"holds {int(seeds[index])} at the point "
+                                          f"{_point_label(study, index)}, where this study's seed is "
+                                          f"{study.seed(point)}; {fix}")
+
+
+def _shown(values, most=4):
+    shown = ", ".join(str(v) if not isinstance(v, float) else f"{v:g}" for v in values.ravel()[:most].tolist())
+    return f"[{shown}{', …' if values.size > most else ''}]"
+
+
+def _point_label(study, index):
+    index = tuple(int(i) for i in np.atleast_1d(index))
+    if study.zip:
+        return ", ".join(f"{k} = {v[index[0]]}" for k, v in zip(study.keys, study.values))
+    return ", ".join(f"{k} = {v[i]}" for k, v, i in zip(study.keys, study.values, index))
+
+
+class StudyInterrupted(KeyboardInterrupt):
+    """A study stopped by a signal: ``path`` (None: nothing of the study written) holds ``kept`` of its ``total``
+    points, which ``resume=True`` (``rbx sweep --resume``) continues."""
+
+    def __init__(self, path, kept, total):
+        super().__init__(path, kept, total)
+        self.path, self.kept, self.total = path, kept, total
+
+
+def kept_points(path, digest=None):
+    """The finished points a results file holds -> (path, number, points of its study), or (None, 0, 0) when
+    there is no such file (or it is another study's, or unreadable)."""
+    if not os.path.exists(path):
+        return None, 0, 0
+    try:
+        ds = _read(path)
+        if digest is not None and ds.attrs.get("study_digest") != digest:
+            return None, 0, 0
+        done = np.asarray(ds["done"].values)
+        return path, int(np.sum(done == 1)), int(done.size)
+    except Exception:         # not a results file, or one without a readable 'done'
+        return None, 0, 0
+
+
+def _write_held(ds, path):
+    """:func:`_write`, with SIGINT and SIGTERM held off meanwhile (a second Ctrl-C would cut the write short) and a
+    failure let pass: the file on disk then stays as it was (the write replaces it whole or not at all)."""
+    import signal
+    import threading
+    main = threading.current_thread() is threading.main_thread()
+    old = {s: signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGTERM)} if main else {}
+    try:
+        _write(ds, path)
+    except Exception:
+        pass
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def _client(scheduler):
+    """One Dask client for the whole study (each point's runs would otherwise connect anew)."""
+    if scheduler is None or not isinstance(scheduler, (str, os.PathLike)):
+        return scheduler
+    cluster = connect(scheduler, key="scheduler")
+    return cluster.client
