@@ -26,6 +26,7 @@ from .paths import FileError, display_path, what_it_is
 from .progress import plural
 from .runfile import (INDEX_DATASETS, REQUIRED_ATTRS, ROOT_ATTRS, SCHEMA_VERSION, STATE_GROUPS, _plain, _text,
                       is_true, latest_state, root_attrs)
+from .yamlfile import FILE_KINDS
 
 
 # ---- opening a file for reading ----------------------------------------------------------------------------------
@@ -84,8 +85,7 @@ def _open_h5(path, mode="r"):
 
 def _not_hdf5(path):
     """What a file that is not HDF5 is, where its text says (a config, a study, a table or a boundary file, by
-    their keys: :data:`rbx.config.FILE_KINDS`), and what to do with it -> the problem of a :class:`FileError`."""
-    from .config import FILE_KINDS
+    their keys: :data:`rbx.yamlfile.FILE_KINDS`), and what to do with it -> the problem of a :class:`FileError`."""
     try:
         with open(path, "rb") as f:
             data = yaml.safe_load(f.read(1 << 16).decode("utf-8"))

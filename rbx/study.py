@@ -31,7 +31,8 @@ import yaml
 from . import observables as obs
 from .analysis import unbounded_axes
 from .api import _load as load
-from .config import other_kind, parse_yaml, read_text, repeated_orbits
+from .config import repeated_orbits
+from .yamlfile import other_kind, parse_yaml, read_text
 from .model import ConfigError
 from .paths import config_file_problem, display_path
 

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import yaml
 
-from rbx import config, model
+from rbx import config, model, yamlfile
 from rbx.config import ConfigError
 from rbx.runfile import config_yaml
 from tests.catalog import SCENES
@@ -95,7 +95,7 @@ def test_duplicate_keys_are_errors_but_merge_keys_work(experiment):
                                         "run: {<<: *base, seed: 9}").replace("base:", "x-base:"))
     err = error_of(experiment)   # the anchor's own key is unknown, but the merge itself parses
     assert err.key == "x-base"
-    data = yaml.load(experiment.read_text(), Loader=config._Loader)
+    data = yaml.load(experiment.read_text(), Loader=yamlfile._Loader)
     assert data["run"] == {"collisions": 100, "trajectories": 2, "seed": 9}
 
 
@@ -230,17 +230,17 @@ def test_extreme_speeds_inside_the_limits_run_without_nan(scale):
 
 def test_numbers_follow_yaml_1_2():
     # a leading zero is decimal (YAML 1.1: octal), 0o/0x prefixes as in YAML 1.2, digits may be grouped with _
-    data = config.parse_yaml("a: 010\nb: 0o17\nc: 0x1f\nd: 1_000_000\ne: 1e6\nf: 1:30\ng: .5\n", "f")
+    data = yamlfile.parse_yaml("a: 010\nb: 0o17\nc: 0x1f\nd: 1_000_000\ne: 1e6\nf: 1:30\ng: .5\n", "f")
     assert data == {"a": 10, "b": 15, "c": 31, "d": 1000000, "e": 1e6, "f": "1:30", "g": 0.5}
     assert isinstance(data["e"], float) and isinstance(data["d"], int)
 
 
 def test_expanded_size_counts_shared_parts_each_time():
     leaf = [1, 2]
-    assert config.expanded_size({"a": leaf, "b": leaf}) == 1 + 2 * (1 + 2) + 2     # the dict, two lists, two keys
+    assert yamlfile.expanded_size({"a": leaf, "b": leaf}) == 1 + 2 * (1 + 2) + 2     # the dict, two lists, two keys
     loop = []
     loop.append(loop)                                                             # `&a [*a]`
-    assert config.expanded_size(loop) == float("inf")
+    assert yamlfile.expanded_size(loop) == float("inf")
     with pytest.raises(ConfigError) as info:
         config.from_dict({"table": loop})
     assert "refers to itself" in info.value.problem
@@ -345,17 +345,17 @@ def test_an_alias_bomb_is_still_refused_in_one_line(tmp_path):
     # "billion laughs": 30 levels, each a list naming the one before 10 times: 10³⁰ values from 30 lines
     text = "a0: &a0 [lol]\n" + "".join(f"a{i}: &a{i} [{', '.join([f'*a{i - 1}'] * 10)}]\n" for i in range(1, 31))
     with pytest.raises(ConfigError) as info:
-        config.parse_yaml(text, "bomb.yaml")
+        yamlfile.parse_yaml(text, "bomb.yaml")
     assert "aliases are expanded" in info.value.problem and "bomb" in info.value.problem
-    expanded, written = config.alias_count(config._load_yaml(text))
+    expanded, written = yamlfile.alias_count(yamlfile._load_yaml(text))
     assert expanded > 10 ** 30 and written < 400
 
 
 def test_alias_count_counts_uses_of_shared_parts_only():
     leaf = [1, 2]
-    assert config.alias_count({"a": leaf, "b": leaf}) == (1 + 2 * (1 + 2) + 2, 1 + (1 + 2) + 1 + 2)
+    assert yamlfile.alias_count({"a": leaf, "b": leaf}) == (1 + 2 * (1 + 2) + 2, 1 + (1 + 2) + 1 + 2)
     honest = [[float(i), 0.0] for i in range(1000)]
-    expanded, written = config.alias_count(honest)
+    expanded, written = yamlfile.alias_count(honest)
     assert expanded == written == 1 + 3 * 1000
 
 
@@ -395,16 +395,16 @@ def test_libyaml_reads_what_the_python_loader_reads():
             "j: 2001-12-14\nk: ~\nl: &x {m: [1, 2]}\nn: *x\no: {<<: *x, q: 3}\n")
     text += ("p: !!binary aGVsbG8=\nq: !!set {a, b}\nr: !!omap [{x: 1}, {y: 2}]\ns: !!str 12\nt: '1e3'\nu: 1e3\n"
              "v: -0.0\nw: 1_000.5\nx: &r [*r]\n")
-    fast, slow = config._load_yaml(text), yaml.load(text, Loader=config._Loader)
+    fast, slow = yamlfile._load_yaml(text), yaml.load(text, Loader=yamlfile._Loader)
     assert repr(fast) == repr(slow)
     plain = yaml.safe_dump({"initial": [{"position": [0.1 * i, -0.0], "velocity": [1e-300, 2.5e10]}
                                         for i in range(50)], "n": [None, True, "yes", 3]})
-    assert repr(config._load_yaml(plain)) == repr(yaml.load(plain, Loader=config._Loader))
+    assert repr(yamlfile._load_yaml(plain)) == repr(yaml.load(plain, Loader=yamlfile._Loader))
     for bad in ("a: 1\na: 2\n", "a: [1, 2\n", "a: b: c\n", "x: " + "9" * 5000 + "\n"):
         with pytest.raises(ConfigError) as fast_error:
-            config.parse_yaml(bad, "f.yaml")
+            yamlfile.parse_yaml(bad, "f.yaml")
         try:
-            yaml.load(bad, Loader=config._Loader)
+            yaml.load(bad, Loader=yamlfile._Loader)
         except yaml.YAMLError as exc:
             mark = getattr(exc, "problem_mark", None)
             assert f"line {mark.line + 1}, column {mark.column + 1}" in fast_error.value.problem

@@ -73,7 +73,7 @@ def parse_sets(sets):
     """The ``--set KEY=VALUE`` options -> ``{key: value}`` in order, each VALUE read as YAML (as in a config file:
     ``0.2`` a number, ``[0, 0.5]`` a list, ``{rule: exit}`` a mapping, nothing after ``=`` null). A KEY given twice
     is refused."""
-    from ..config import parse_yaml
+    from ..yamlfile import parse_yaml
     out = {}
     for item in sets:
         key, eq, text = item.partition("=")
