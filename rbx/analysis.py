@@ -29,6 +29,27 @@ def velocity_dimension(n):
     return n + n * (n - 1) // 2
 
 
+def spin_free(experiment):
+    """True when no orbit of the experiment ever spins: its starts carry no spin (point-particle starts, or explicit
+    states without angular velocity) and every wall's rule is specular (rank 0) or an exit, so the spin stays 0.
+    Its orbits then live in the point particle's phase space, velocity dimension n, not n + n(n−1)/2."""
+    start = experiment.initial
+    if start and isinstance(start[0], str):
+        if start[0] != "point_particle":
+            return False
+    elif not all(np.all(np.asarray(s["angular_velocity"]) == 0) for s in start):
+        return False
+    return all(leaf.rank in (0, -1) for rule in experiment.wall_rules for leaf in rule_leaves(rule))
+
+
+def orbit_velocity_dimension(experiment):
+    """The dimension of the velocity space the experiment's orbits fill: n for a spin-free experiment
+    (:func:`spin_free`), else :func:`velocity_dimension` (v and R√κ·ω). Santaló's constant and the small-hole escape
+    rate take it: |hole|/(π·|table|) for a point particle in 2D, |hole|/(4·|table|) for a disc with spin."""
+    n = experiment.dimension
+    return n if spin_free(experiment) else velocity_dimension(n)
+
+
 def normal_angle(velocity, angular_velocity, normal, R, kappa):
     """Angle φ ∈ [0, π] between the state's velocity in metric-orthonormal coordinates (v, R√κ·ω) and the inward
     normal (ν, 0) of the wall -> (M,).  cos φ = (v·ν)/sqrt(|v|² + κR²|ω|²); φ < π/2 for a post-collision state."""

@@ -223,13 +223,13 @@ class Lyapunov:
         rough table can trap beside chaotic ones — with its Wilson interval (z = 1) -> (share, low, high)."""
         return wilson(*self.regular(threshold))
 
-    def to_dict(self):
+    def to_dict(self, threshold=REGULAR_THRESHOLD):
         """Plain data for JSON: exponents and stderr (per unit time), per collision, their sum, each trajectory's
-        own exponents (null where it measured no time), the regular share, the time and collisions measured (the
-        warm-up excluded; an exit's contact is a collision, as in rbx simulate)."""
+        own exponents (null where it measured no time), the regular share (below ``threshold`` per unit time), the
+        time and collisions measured (the warm-up excluded; an exit's contact is a collision, as in rbx simulate)."""
         def finite(x):
             return float(x) if np.isfinite(x) else None
-        share, low, high = self.regular_share()
+        share, low, high = self.regular_share(threshold)
         return {"exponents": [float(x) for x in self.exponents], "stderr": [float(x) for x in self.stderr],
                 "per_collision": [finite(x) for x in self.per_collision()],
                 "sum": float(np.sum(self.exponents)), "time": float(np.sum(self.time)),
@@ -240,7 +240,7 @@ class Lyapunov:
                 "coordinates": list(self.coordinates), "title": self.title,
                 "ended_early": int(np.sum(self.ended)) if self.ended is not None else 0,
                 "per_trajectory": [[finite(x) for x in row] for row in self.per_trajectory],
-                "regular_share": {"threshold": REGULAR_THRESHOLD, "share": finite(share), "low": finite(low),
+                "regular_share": {"threshold": float(threshold), "share": finite(share), "low": finite(low),
                                   "high": finite(high)}}
 
 

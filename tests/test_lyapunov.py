@@ -381,6 +381,19 @@ def test_lyapunov_command_prints_json(tmp_path):
     assert share["low"] <= share["share"] <= share["high"]
     bad = CliRunner().invoke(cli, ["lyapunov", str(path), "--collisions", "-3"])
     assert bad.exit_code == 2 and bad.output.count("\n") == 1
+    # the threshold is a rate in the table's units: --threshold sets it (a table 100 times larger needs 0.0002)
+    lam1 = np.sort(api.per_trajectory[:, 0])
+    middle = float(0.5 * (lam1[0] + lam1[-1]))
+    given = CliRunner().invoke(cli, ["lyapunov", str(path), "--collisions", "600", "--json", "--threshold",
+                                     repr(middle)])
+    share = json.loads(given.output)["regular_share"]
+    assert share["threshold"] == middle and share["share"] == float(np.mean(api.per_trajectory[:, 0] < middle))
+    text = CliRunner().invoke(cli, ["lyapunov", str(path), "--collisions", "600", "--trajectories", "3",
+                                    "--threshold", repr(middle)])
+    assert f"own λ1 < {middle:g} per unit time" in text.output, text.output
+    for wrong in ("0", "-1", "nan", "inf"):
+        bad = CliRunner().invoke(cli, ["lyapunov", str(path), "--collisions", "600", "--threshold", wrong])
+        assert bad.exit_code == 2 and "--threshold" in bad.output and bad.output.count("\n") == 1, bad.output
 
 
 def test_no_measurement_is_refused_not_reported_as_zero_or_nan(tmp_path):

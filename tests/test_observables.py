@@ -114,3 +114,26 @@ def test_the_study_plot_of_diffusion_says_where_it_is_no_coefficient():
     assert "not a diffusion coefficient at 1 of 1 points" in titles[0][0] and "0.2 wide" in titles[0][0], titles[0]
     assert titles[0][1].startswith("slope of the MSD (no coefficient)"), titles[0]
     assert "not a diffusion coefficient" not in titles[1][0] and "coefficient D" in titles[1][1], titles[1]
+
+
+@pytest.mark.parametrize("table, pi_a_over_p, chord", [
+    ({"kind": "circle", "radius": 1.0}, math.pi * 0.9 / 2, 16 * 0.9 / (3 * math.pi)),   # the shrunk table: r = 0.9
+    ({"kind": "rectangle", "width": 2.0, "height": 1.0}, math.pi * 1.8 * 0.8 / 5.2, None)])   # 1.8 × 0.8
+def test_mean_free_path_of_point_particle_starts_is_santalos_in_an_integrable_table(table, pi_a_over_p, chord):
+    """Point-particle starts are drawn with the flow's measure, which meets an orbit of long chords more often; in a
+    table that is not ergodic each orbit keeps its chord, so pooling orbits of equal collisions gave the flow's mean
+    chord (16r/3π in a circle of radius r: 1.526 ± 0.015 against πA/P = 1.414). Each orbit weighted by its
+    collisions per unit path gives Santaló's πA/P."""
+    from rbx.observables import PointRuns, get
+    exp = rbx.load({"table": table, "boundary": {"default": {"rule": "constant", "rank": 0}},
+                    "ball": {"radius": 0.1, "inertia": 0.5}, "initial": {"sample": "point_particle"},
+                    "run": {"collisions": 2000, "trajectories": 400, "seed": 3},
+                    "output": {"record": ["position"], "every": 1}})
+    runs = PointRuns(exp)
+    runs.run = rbx.simulate(exp)
+    v = get("mean_free_path").compute(runs, {"segments": 10})
+    santalo = v.companions["santalo"]
+    assert santalo == pytest.approx(pi_a_over_p, rel=1e-12)
+    assert abs(v.value - santalo) < 3 * v.stderr and v.stderr < 0.03 * santalo, (v.value, v.stderr, santalo)
+    if chord is not None:       # the flow's mean chord is told apart at this size
+        assert abs(v.value - chord) > 3 * v.stderr, (v.value, v.stderr, chord)

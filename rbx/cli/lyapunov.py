@@ -1,5 +1,6 @@
 """``rbx lyapunov CONFIG``: the Lyapunov spectrum of the flow (docs/reference.md §10; docs/tangent-map.md)."""
 import json
+import math
 import time
 
 import click
@@ -23,6 +24,9 @@ from ..progress import compile_note, watch_compiles
                                                               "(default: a tenth of the collisions).")
 @click.option("--exponents", type=int, metavar="K",
               help="Follow K tangent vectors instead of all: the K leading exponents (K = 1: λ1 alone, the cheapest).")
+@click.option("--threshold", type=float, metavar="RATE",
+              help="An orbit whose own λ1 per unit time is below RATE counts as regular (default 0.02; in the "
+                   "table's units: a table 100 times larger has exponents 100 times smaller).")
 @click.option("--json", "as_json", is_flag=True, help="Print one JSON object (exponents, stderr, sum, time, …).")
 @click.option("--scheduler", metavar="ADDRESS",
               help="Follow the trajectories on the workers of a Dask cluster: its scheduler's address "
@@ -31,8 +35,8 @@ from ..progress import compile_note, watch_compiles
               help="With --scheduler: tasks, each a slice of the trajectories (default: 4 per worker thread).")
 @quiet_option
 @click.option("--debug", is_flag=True, help="Show a traceback with user errors.")
-def lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, exponents, as_json, scheduler, slices,
-             quiet, debug):
+def lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, exponents, threshold, as_json, scheduler,
+             slices, quiet, debug):
     """The Lyapunov spectrum of the flow, per unit time, largest first, with standard errors.
 
     Benettin's method on the linearised dynamics (free flight, collision time, collision map with the wall's
@@ -45,13 +49,13 @@ def lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, exp
     try:
         with ending_on_signals(stop):
             _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as_json, cluster,
-                      quiet or as_json, began, exponents)
+                      quiet or as_json, began, exponents, threshold)
     except UserError as exc:
         report_and_exit(exc, debug)
 
 
 def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as_json, cluster, quiet, began,
-              exponents=None):
+              exponents=None, threshold=None):
     """``quiet``: no summary line (nor with --json: its output is the JSON object alone, for programs that read
     both streams)."""
     from ..cluster import ClusterError
@@ -60,6 +64,10 @@ def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as
     from ..dynamics import lyapunov as spectrum
 
     check_cluster_options(cluster)
+    if threshold is None:
+        threshold = REGULAR_THRESHOLD
+    elif not (math.isfinite(threshold) and threshold > 0):
+        raise UserError(None, "--threshold", f"must be a positive rate (per unit time), not {threshold}")
 
     overrides = {k: v for k, v in (("collisions", collisions), ("trajectories", trajectories), ("seed", seed))
                  if v is not None}
@@ -92,7 +100,7 @@ def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as
     group = start_groups(exp)
     copies = len(result.time) > 1 and group is not None and len(set(group.tolist())) == 1
     if as_json:
-        out = result.to_dict()
+        out = result.to_dict(threshold)
         if copies:      # copies of one orbit (warned about above): no share, no interval
             out["regular_share"].update(share=None, low=None, high=None, copies_of_one_orbit=True)
         click.echo(json.dumps(out))
@@ -113,20 +121,20 @@ def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as
         click.echo(f"  (the {len(result.exponents)} leading of {d})")
     per = ", ".join(f"λ{k} = {x:.6f}" for k, x in enumerate(result.per_collision(), 1))
     click.echo(f"per collision: {per}")
-    share, low, high = result.regular_share()
+    share, low, high = result.regular_share(threshold)
     if copies:
         # copies of one orbit (warned about above): one orbit, regular or not; no share, no interval
         lam1 = result.per_trajectory[:, 0]
         lam1 = lam1[np.isfinite(lam1)]
         if len(lam1):
-            kind = "regular" if lam1[0] < REGULAR_THRESHOLD else "not regular"
-            click.echo(f"regular orbits (own λ1 < {REGULAR_THRESHOLD}): one orbit, run as {M} copies: {kind} (own "
+            kind = "regular" if lam1[0] < threshold else "not regular"
+            click.echo(f"regular orbits (own λ1 < {threshold:g} per unit time): one orbit, run as {M} copies: {kind} (own "
                        f"λ1 = {lam1[0]:.6f}); copies give no share and no interval")
     elif len(result.time) > 1:
-        regular = result.regular()[0]
+        regular = result.regular(threshold)[0]
         of = (f"{regular} of the {measured} measured (the other {M - measured} left the table during their "
               "warm-up)" if measured < M else f"{regular} of {measured}")
-        click.echo(f"regular orbits (own λ1 < {REGULAR_THRESHOLD}): {of}, share {share:.3f} "
+        click.echo(f"regular orbits (own λ1 < {threshold:g} per unit time): {of}, share {share:.3f} "
                    f"(Wilson interval, z = 1, {_get('regular_share').level}: {low:.3f} … {high:.3f})")
         if 0 < regular < measured:
             click.echo("the exponents above pool the regular and the chaotic orbits; each orbit's own exponents: "

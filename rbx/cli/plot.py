@@ -529,7 +529,7 @@ SMALL_HOLE = 0.1
 def _small_hole_rate(run, exp):
     """(rate, label) of the small-hole escape rate, or None where it does not apply (a large hole, a table whose
     measure is not computed)."""
-    from ..analysis import santalo_constant, table_measure, velocity_dimension, wall_measure
+    from ..analysis import orbit_velocity_dimension, santalo_constant, table_measure, wall_measure
     from ..model import Exit
     geom = run.geometry()
     try:
@@ -541,7 +541,7 @@ def _small_hole_rate(run, exp):
         return None
     if not (np.isfinite(boundary) and 0 < hole <= SMALL_HOLE * boundary):
         return None
-    d = velocity_dimension(run.dimension)
+    d = orbit_velocity_dimension(exp)      # a point particle's starts under specular walls: d = n
     # flux through the holes over the phase volume: |∂Q_hole|/(C_d·|Q|) per unit path (small holes)
     rate = hole / (santalo_constant(d) * volume)
     return rate, (f"small-hole rate |hole|/({santalo_constant(d):.3g}·|table|) = {rate:.4g} "
