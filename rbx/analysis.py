@@ -19,6 +19,7 @@ import numpy as np
 
 from . import rules, tables
 from .model import roughness_direction, rule_leaves
+from .pieces import Lattice, Sphere
 
 # ---- the billiard measure (paper §2.7) -------------------------------------------------------------------------
 
@@ -384,7 +385,6 @@ def free_corridors(geom):
     horizon, Dettmann 2012), while a corridor of lower dimension does not, so only planes are looked at."""
     if geom.lattice is None or geom.pieces is None:
         return None
-    from .pieces import Lattice, Sphere
     period = np.asarray(geom.lattice[1], float)
     n = len(period)
     balls = []

@@ -27,15 +27,20 @@ the tasks still running are cancelled and the file keeps the last checkpointed r
 continues here or locally. A failed task, or a lost scheduler, raises :class:`ClusterError` (the file again holds
 every checkpointed round).
 """
+import asyncio
+import json
 import os
+import platform
 import queue
 import socket
 import sys
 import time
 
+import llvmlite
+import numba
 import numpy as np
 
-from . import __version__
+from . import __version__, _jit
 from .engine import State
 from .model import FIELD
 from .simulation import advance_state, record_buffers, records_block
@@ -90,13 +95,6 @@ def _worker_identity():
     llvmlite) should: the kernels' arithmetic is the same on any CPU (no fast-math, no contraction), but the maths
     library's ``sin``/``cos`` and NumPy's vectorised functions may differ in the last bit between builds and
     processors, so the client warns on a mismatch."""
-    import platform
-
-    import llvmlite
-    import numba
-    import numpy
-
-    from . import _jit
     try:
         from llvmlite import binding
         cpu = os.environ.get("NUMBA_CPU_NAME") or binding.get_host_cpu_name()
@@ -105,7 +103,7 @@ def _worker_identity():
     return {"rbx": __version__, "kernels": os.path.basename(_jit.CACHE_DIR).removeprefix("numba-"),
             "platform": {"machine": platform.machine(), "cpu": cpu, "libc": " ".join(platform.libc_ver()),
                          "numba": numba.__version__, "llvmlite": llvmlite.__version__,
-                         "numpy": numpy.__version__}}
+                         "numpy": np.__version__}}
 
 
 def _address(address):
@@ -119,8 +117,6 @@ def _probe(address, timeout):
 
     A Dask Client that cannot connect waits its whole timeout and then, collected, waits again to close; this
     one connection says at once whether anything answers, and whether it is a scheduler."""
-    import asyncio
-
     from distributed.comm import connect
 
     scheme, _, where = address.partition("://")
@@ -206,7 +202,6 @@ def connect(scheduler, key="--scheduler", slices=None, task_collisions=None):
 
 def _scheduler_file(path, key):
     """The address in a scheduler file (``dask scheduler --scheduler-file``) -> str."""
-    import json
     try:
         with open(path) as f:
             address = json.load(f).get("address")

@@ -15,8 +15,10 @@ A ``.partial`` already marked complete (a run killed between marking it and rena
 :func:`rbx.driver.finish_complete` renames it. The workflow around these (locks, copy, journal, rename) is
 :mod:`rbx.driver`'s: :func:`rbx.driver.prepare_resume`, :func:`rbx.driver.resume_to_file`.
 """
+import json
 import weakref
 
+import h5py
 import numpy as np
 
 from . import __version__, runfile
@@ -135,7 +137,6 @@ def _check_orbit(run, slot, source):
     """The stored config must make the orbit the saved state was computed on: every key of it that does (the
     seed, the table, the rules, the ball, the initial states, the numerics: :func:`rbx.runfile.orbit_digests`)
     as it was at the checkpoint. A state saved by an older rbx carries no such digests: not checked."""
-    import json
     stored = run.h5[slot].attrs.get("orbit") if slot in run.h5 else None
     if stored is None:
         return
@@ -257,7 +258,6 @@ def _rewrite_torn(g, torn):
     """Write the chunks :func:`_torn_chunks` read back, each with a checksum of its values: HDF5 makes the checksum
     (the chunk written to a dataset of the same shape and filter in a file in memory, whose raw chunk is then
     copied), so the chunk reads and keeps being checked like every other."""
-    import h5py
     for f, chunks in torn.items():
         ds = g[f]
         with h5py.File("torn-chunk", "w", driver="core", backing_store=False) as mem:

@@ -16,6 +16,7 @@ from .api import cluster_for, load
 from .cluster import Cluster
 from .engine import State
 from .physics import spin_vector
+from .reader import Run
 from .simulation import Simulation, record_buffers
 from .tangent import coordinate_names, tangent_dimension
 
@@ -408,7 +409,6 @@ def escape_times(run):
     measure on an exit wall (``initial: {sample: billiard, wall: NAME}``), the times are return times to that wall:
     Kac's lemma gives their mean (docs/dynamics.md)."""
     if isinstance(run, (str, os.PathLike)):      # a run file's path, as rbx.open takes it
-        from .reader import Run
         with Run.open(os.fspath(run)) as opened:
             return escape_times(opened)
     if not hasattr(run, "final"):

@@ -40,6 +40,7 @@ the disk).
 """
 import contextlib
 import errno
+import fcntl
 import math
 import os
 import struct
@@ -369,7 +370,6 @@ def _lock(fd, shared=False):
     reading meanwhile, as it did before rbx wrote through a file object (h5py's fileobj driver takes no lock):
     ``rbx.reader._open_h5`` then says which run writes it. Not where HDF5 would not lock either
     (``HDF5_USE_FILE_LOCKING=FALSE``), nor where the file system has no locks."""
-    import fcntl
     if os.environ.get("HDF5_USE_FILE_LOCKING", "").upper() in ("FALSE", "0"):
         return
     try:

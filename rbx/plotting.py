@@ -18,6 +18,7 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
 from . import analysis, geometry, tables
+from .paths import written_whole
 from .tables import SHRUNK_STYLE, TABLE_STYLE
 
 MAX_LEGEND = 10
@@ -63,7 +64,6 @@ def styled(build):
 def save(fig, path, dpi=None):
     """``fig.savefig(path)`` with rbx's style (dpi: the style's unless given), its panels lettered; written whole
     beside ``path`` and then renamed to it (:func:`rbx.paths.written_whole`), so that a failure leaves no part."""
-    from .paths import written_whole
     letter_panels(fig)
     with style(), written_whole(path) as tmp:
         # a name without an extension: the default format named, or matplotlib appends its extension to the name

@@ -37,6 +37,7 @@ import contextlib
 import datetime
 import errno
 import hashlib
+import json
 import os
 import platform
 import shlex
@@ -154,7 +155,6 @@ def orbit_digests(config):
     ``orbit`` attribute of ``final/``); a resume compares it with its stored config's, so that a config changed
     in the file since (``run.seed`` edited) is refused rather than continued with records of two orbits
     (:func:`rbx.continuation.load`)."""
-    import json
     parts = {}
     for key, value in (config if isinstance(config, dict) else {}).items():
         if key == "output":

@@ -11,7 +11,9 @@ import io
 import json
 import os
 import shlex
+import signal
 import sys
+import threading
 import time
 import warnings
 from collections.abc import Mapping
@@ -23,6 +25,7 @@ from .analysis import scene_title
 from .api import cluster_for, simulate
 from .cluster import ClusterError, SchedulerUnreachable, connect
 from .config import start_groups
+from .driver import OWN_SUFFIXES
 from .dynamics import lyapunov
 from .histogram import return_experiment
 from .locks import LockNotWritable, acquire_lock, release_lock
@@ -338,7 +341,6 @@ def _check_not_own_name(output):
     """Refuse results named as rbx names the files beside another output (``X.nc.partial``, ``X.nc.lock``, …): a
     sweep wrote its results there, which ``--resume -o X.nc`` then took for its own unfinished results (and
     ``--force`` removed), or over a live run's lock. As ``rbx simulate`` refuses such an output."""
-    from .driver import OWN_SUFFIXES
     for suffix, what in OWN_SUFFIXES:
         if output.endswith(suffix) and len(os.path.basename(output)) > len(suffix):
             raise FileError(None, "-o", f"{display_path(output)} is the name rbx gives "
@@ -569,8 +571,6 @@ def kept_points(path, digest=None):
 def _write_held(ds, path):
     """:func:`_write`, with SIGINT and SIGTERM held off meanwhile (a second Ctrl-C would cut the write short) and a
     failure let pass: the file on disk then stays as it was (the write replaces it whole or not at all)."""
-    import signal
-    import threading
     main = threading.current_thread() is threading.main_thread()
     old = {s: signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGTERM)} if main else {}
     try:

@@ -18,7 +18,7 @@ import re
 import yaml
 
 from .model import ConfigError
-from .paths import config_file_problem
+from .paths import config_file_problem, rbx_kind
 
 class _Loader(yaml.SafeLoader):
     """Safe YAML with numbers read by the rules of YAML 1.2 (its core schema), not PyYAML's YAML 1.1: ``1e6`` is
@@ -327,7 +327,6 @@ def _binary_problem(path):
         head = b""
     if head != HDF5_SIGNATURE:
         return "not a text (UTF-8) file"
-    from .paths import rbx_kind
     kind = rbx_kind(path)            # by what the file holds, not its name (a study's .partial ends in .partial)
     if kind == "study" or (kind is None and str(path).endswith(".nc")):
         return ("is a study's results file (NetCDF), not a YAML file: draw it with rbx plot --kind sweep"
