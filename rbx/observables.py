@@ -41,6 +41,10 @@ class Companion:
     #: a 0/1 flag: where it is 0, the observable's value is not what its name promises; a study's figure says so,
     #: with this text, for the points where it is 0
     caveat: str = ""
+    #: the value this companion takes where the observable's closed form holds (a ratio to Kac's value: 1): a
+    #: study's figure of this companion draws it as a dashed line, with ``expected_label``
+    expected: float | None = None
+    expected_label: str = ""
 
 
 @dataclass
@@ -133,6 +137,7 @@ PARAMETERS = {
     "table.cap_radius": ("cap radius", "r", "L"),
     "table.stem_width": ("stem width", "w", "L"),
     "table.stem_height": ("stem height", "h", "L"),
+    "boundary.default.rank": ("roughness", "rank", "1"),      # axis "roughness rank", legend "rank = 1"
 }
 
 
@@ -172,6 +177,16 @@ def references(name):
     observable ``name`` marked :attr:`Companion.reference` -> list of names (none for any other variable)."""
     rec = REGISTRY.get(name)
     return [] if rec is None else [f"{name}_{c.suffix}" for c in rec.companions if c.reference]
+
+
+def expected_line(name):
+    """The constant a companion ``name`` takes where its observable's closed form holds, and its legend text ->
+    (value, label), or None (:attr:`Companion.expected`)."""
+    for rec in REGISTRY.values():
+        for c in rec.companions:
+            if name == f"{rec.name}_{c.suffix}" and c.expected is not None:
+                return c.expected, c.expected_label
+    return None
 
 
 def caveats(name):
@@ -429,7 +444,8 @@ register(Observable(
     companions=(Companion("kac", "L", "Kac/Santaló: C_d·|table|/|hole| (4A/ℓ for a disc)", reference=True,
                           label="Kac's mean return path"),
                 Companion("ratio", "1", "mean return path / Kac's value",
-                          label="mean return path / Kac's"),
+                          label="mean return path / Kac's", expected=1.0,
+                          expected_label="1: Kac's lemma (every state returns)"),
                 Companion("ratio_stderr", "1", "standard error of the ratio",
                           label="standard error of the mean return path / Kac's"),
                 Companion("unreturned", "1", "share of trajectories that did not return within the run",

@@ -875,6 +875,9 @@ def sweep_figure(panels, title, width=None):
             ax.plot([], [], " ", label=panel["note"])
         if panel.get("logx"):
             ax.set_xscale("log")
+        elif all(np.all(np.asarray(s["x"], float) == np.round(np.asarray(s["x"], float)))
+                 for s in panel["series"]):
+            ax.xaxis.set_major_locator(MaxNLocator(integer=True))     # a rank, a count: no tick at 0.2
         if panel.get("logy"):
             ax.set_yscale("log")
         ax.set_xlabel(panel.get("xlabel", ""))

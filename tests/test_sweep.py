@@ -936,3 +936,26 @@ def test_the_api_takes_numpys_numbers_and_bytes_paths_as_the_rest_of_it_does(tmp
     assert run.complete and rbx.open(os.fsencode(str(tmp_path / "run.h5"))).complete
     with pytest.raises(TypeError, match="rbx.open: path is the path of a run file"):
         rbx.open(5)
+
+
+def test_a_ratio_to_a_closed_form_is_drawn_with_its_expected_value_and_a_rank_axis_has_whole_ticks(specular):
+    """The ratio of the mean return path to Kac's value is drawn with a dashed line at 1 (it had none); a rank varied
+    on the x axis has ticks at whole numbers only (it had 0.2, 0.4, …) and is named in words, and a rank beside it
+    is 'rank = 1' in the legend, not 'boundary.default.rank = 1'."""
+    from rbx import plotting
+    from rbx.cli.sweep import open_results, sweep_panel
+    from rbx.observables import parameter_label
+    ds = open_results(str(specular[1]))
+    ds["return_path_ratio"] = ds["mean_free_path"] * 0 + [0.97, 1.02]
+    panel, _ = sweep_panel(ds, "return_path_ratio")
+    assert {"x": None, "y": 1.0, "label": "1: Kac's lemma (every state returns)", "color": "0.3"} in \
+        panel["references"]
+    fig = plotting.sweep_figure([panel], "t")
+    assert "1: Kac's lemma (every state returns)" in fig.axes[0].get_legend_handles_labels()[1]
+    assert parameter_label("boundary.default.rank") == ("roughness rank", "rank")
+    ranks = {"series": [{"x": [0, 1], "y": [1.0, 2.0], "err": None, "label": "rank = 0"}], "xlabel": "roughness rank",
+             "ylabel": "y"}
+    fig = plotting.sweep_figure([ranks], "t")
+    fig.canvas.draw()
+    ticks = [t for t in fig.axes[0].get_xticks() if -0.05 <= t <= 1.05]
+    assert ticks and all(float(t).is_integer() for t in ticks), ticks

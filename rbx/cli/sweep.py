@@ -257,7 +257,7 @@ def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=Non
 
     import numpy as np
 
-    from ..observables import caveats, error_bars, missing_reason, parameter_label, variable_label
+    from ..observables import caveats, error_bars, expected_line, missing_reason, parameter_label, variable_label
     from ..observables import references as reference_names
     varied = json.loads(ds.attrs["varied"])
     measured = json.loads(ds.attrs["measure"])
@@ -317,6 +317,9 @@ def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=Non
                 references.append({"x": xs[keep], "y": pick(c, sel)[keep],
                                    "label": variable_label(comp, units=False)[0] if k == 0 else None,
                                    "color": "0.3" if shared else f"C{k}"})
+    if expected_line(y) is not None:         # a ratio to a closed form: 1 where the closed form holds
+        value, words = expected_line(y)
+        references.append({"x": None, "y": value, "label": words, "color": "0.3"})
     M, N = ds.attrs["ensemble_trajectories"], ds.attrs["ensemble_collisions"]
     seconds = float(np.nansum(ds["wall_time"].values))
     panel = {"series": series, "references": references, "xlabel": xlabel, "ylabel": ylabel, "logx": logx,
