@@ -298,7 +298,7 @@ def boundary_area(pieces):
             dth = f["span"] if f["ccw"] else -f["span"]
             th1 = th0 + dth
             # x = cx + ρ cos θ, y = cy + ρ sin θ: ½∫(x y' − y x') dθ
-            area += 0.5 * (c[0] * rho * (np.sin(th1) - np.sin(th0)) - c[1] * rho * (np.cos(th0) - np.cos(th1))
+            area += 0.5 * (c[0] * rho * (np.sin(th1) - np.sin(th0)) + c[1] * rho * (np.cos(th0) - np.cos(th1))
                            + rho * rho * dth)
     return float(area)
 

@@ -647,6 +647,27 @@ def test_green_area_on_known_shapes():
     assert P == pytest.approx(2 * math.sqrt(r * r - h * h) + 2 * r * math.acos(h / r), rel=1e-13)
 
 
+@pytest.mark.parametrize("start", range(4))
+def test_the_signed_area_of_a_boundary_with_arcs_is_its_area_from_any_first_piece(start):
+    """boundary_area (the counter-clockwise check) against closed forms: a 2 × 2 square whose top is a dispersing
+    arc about (1, 3) (radius √2: the square less a circular segment of angle π/2), and one whose top is a cap about
+    (1, 1.5) bulging out. The arc's centre term had the wrong sign: the dented square came out −2.57 (refused as
+    clockwise) when listed from its floor and +3.43 from its dent; the capped one 1.88 instead of 4.88."""
+    from rbx.pieces import Arc, Segment, boundary_area
+    rho = math.sqrt(2.0)
+    dent = [Segment("a", (0., 0.), (2., 0.)), Segment("b", (2., 0.), (2., 2.)),
+            Arc("c", (2., 2.), (0., 2.), (1., 3.), "cw"), Segment("d", (0., 2.), (0., 0.))]
+    segment = 0.5 * rho * rho * (math.pi / 2 - 1.0)          # the circular segment the dent cuts off
+    cap_rho = math.hypot(1.0, 0.5)
+    angle = 2 * math.pi - 2 * math.atan2(1.0, -0.5)          # the cap's arc above the chord y = 2
+    cap = [Segment("a", (0., 0.), (2., 0.)), Segment("b", (2., 0.), (2., 2.)),
+           Arc("c", (2., 2.), (0., 2.), (1., 1.5), "ccw"), Segment("d", (0., 2.), (0., 0.))]
+    cap_area = 4.0 + 0.5 * cap_rho ** 2 * (angle - math.sin(angle))
+    for pieces, area in ((dent, 4.0 - segment), (cap, cap_area)):
+        listed = pieces[start:] + pieces[:start]
+        assert boundary_area(listed) == pytest.approx(area, rel=1e-12), (start, area)
+
+
 def santalo_value(name, c):
     """Closed-form mean free time of the billiard measure (unit speed in (v, R√κω)): 4A/P in 2D, 15π/8·V/S in 3D,
     A, P, V, S those of the free region (shrunk walls, grown obstacles, rounded reflex joints)."""
