@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import analysis
+from .model import Exit, rule_leaves
 from .sampling import sample_billiard
 from .simulation import Simulation
 
@@ -66,6 +67,23 @@ def _quiet(cfg):
     return cfg.replace(output=dataclasses.replace(cfg.output, record=(), every=1))
 
 
+def exit_problem(cfg):
+    """Why the return experiment cannot be run on ``cfg`` because of its exits -> text, or None. A contact with a
+    wall whose rule is (or may resolve to) an exit is the arriving state, no collision map applied: its angle to
+    the inward normal is above 90°, and the Kolmogorov–Smirnov test against the billiard measure's law would
+    reject it with D = 1 whatever the dynamics."""
+    exits = [w for w, rule in enumerate(cfg.wall_rules) if any(isinstance(x, Exit) for x in rule_leaves(rule))]
+    wall = cfg.initial[1] if cfg.initial and cfg.initial[0] == "sample" else None
+    if wall is not None and wall in exits:
+        return (f"the sampled wall '{cfg.wall_names[wall]}' has the rule exit: a return there is no collision "
+                "(no state after a collision map to compare); sample on a wall without exit")
+    if wall is None and exits:
+        return (f"wall '{cfg.wall_names[exits[0]]}' has the rule exit, and without initial.wall the return is the "
+                "next contact on any wall: at an exit it is no collision (no state after a collision map to "
+                "compare); sample on one wall without exit (initial: {sample: billiard, wall: NAME})")
+    return None
+
+
 def return_experiment(cfg, progress=None, _spin_scale=1.0, cluster=None, should_stop=None, on_run=None):
     """Run the return-angle experiment of a validated config with ``initial: {sample: billiard, wall: W}`` ->
     :class:`Returns`.
@@ -81,6 +99,8 @@ def return_experiment(cfg, progress=None, _spin_scale=1.0, cluster=None, should_
     seconds, and a Ctrl-C in it used to wait for the first block); if it returns True, KeyboardInterrupt."""
     if cfg.initial[0] != "sample":
         raise ValueError("the return experiment needs initial: {sample: billiard, wall: NAME}")
+    if exit_problem(cfg):
+        raise ValueError(exit_problem(cfg))
     start = time.perf_counter()
     wall = cfg.initial[1]
     if wall is None:

@@ -20,6 +20,7 @@ from .analysis import (free_corridors, santalo_constant, table_measure, unbounde
                        wilson)
 from .dynamics import REGULAR_THRESHOLD, escape_times
 from .escape import fit_escape, levels_off
+from .histogram import exit_problem
 from .model import Exit, rule_leaves
 
 __all__ = ["Observable", "REGISTRY", "register", "get", "PointRuns", "Value", "PARAMETERS", "axis_label",
@@ -515,10 +516,7 @@ def _on_a_wall(exp, options):
     wall = _sampled_wall(exp)
     if wall is None:
         return "needs starts on one wall (initial: {sample: billiard, wall: W})"
-    if wall in exit_walls(exp):
-        return (f"the sampled wall '{exp.wall_names[wall]}' has the rule exit: a return there is no collision "
-                "(no state after a collision map to compare); sample on a wall without exit")
-    return None
+    return exit_problem(exp)
 
 
 register(Observable(

@@ -358,3 +358,26 @@ def test_the_config_named_as_the_figure_is_refused_as_such(tmp_path):
         assert r.stderr.endswith("c.yaml: -o: is the config: give the figure a name of its own, such as "
                                  "histogram.png\n"), r.stderr
     assert conf.read_text().startswith("table:") and not (tmp_path / "returns.h5").exists()
+
+
+def test_returns_to_an_exit_are_refused_not_tested(tmp_path):
+    """A contact with an exit wall is the arriving state, no map applied (its angle to the normal above 90°): sampled
+    on the escape example's gate, rbx histogram reported KS D = 1, p = 0 against the billiard measure, exit 0, with
+    an empty histogram. Refused in one line by the command, the API and the study observable alike; without a wall,
+    a table with an exit is refused too (its next contact may be the exit)."""
+    from rbx.observables import get
+    example = os.path.join(os.path.dirname(__file__), "..", "configs", "examples", "escape-sinai.yaml")
+    gate = config.load(example, changes={"initial": {"sample": "billiard", "wall": "gate"}})
+    r = rbx("histogram", example, "--set", "initial={sample: billiard, wall: gate}", "--trajectories", "50",
+            "--data", str(tmp_path / "g.h5"), "-o", str(tmp_path / "g.png"))
+    assert r.returncode == 2 and r.stderr.count("\n") == 1, r.stderr
+    assert "initial.wall: the sampled wall 'gate' has the rule exit" in r.stderr, r.stderr
+    assert not os.listdir(tmp_path)
+    with pytest.raises(ValueError, match="the sampled wall 'gate' has the rule exit"):
+        return_experiment(gate)
+    assert "has the rule exit" in get("return_angle_ks").problem(gate, {})
+    whole = config.load(example)                        # states on every wall: the next contact may be the gate
+    with pytest.raises(ValueError, match="wall 'gate' has the rule exit, and without initial.wall"):
+        return_experiment(whole)
+    floor = config.load(example, changes={"initial": {"sample": "billiard", "wall": "floor"}})
+    assert return_experiment(floor.replace(run={"collisions": 50, "trajectories": 4, "seed": 1})).samples == 4

@@ -100,7 +100,7 @@ def _histogram(config, out, data, trajectories, seed, sets, force, quiet, cluste
     from .. import plotting
     from ..analysis import scene_title
     from ..cluster import ClusterError
-    from ..histogram import return_experiment
+    from ..histogram import exit_problem, return_experiment
     from ..driver import check_size, returns_bytes, write_returns
     from ..paths import NO_ROOM, DiskFull, written_whole
 
@@ -114,6 +114,8 @@ def _histogram(config, out, data, trajectories, seed, sets, force, quiet, cluste
     if cfg.initial[0] != "sample":
         raise UserError(config, "initial", "rbx histogram samples its states: use initial: {sample: billiard, "
                                            "wall: NAME}")
+    if exit_problem(cfg):
+        raise UserError(config, "initial.wall" if cfg.initial[1] is not None else "initial", exit_problem(cfg))
     h5_path, key = _data_path(data, out, cfg, config)
     fig_path = os.path.abspath(out) if out else os.path.splitext(h5_path)[0] + ".png"
     if fig_path == h5_path:
