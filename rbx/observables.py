@@ -365,8 +365,11 @@ def _escape_rate(runs, options):
     esc = escape_times(runs.run)
     if not esc.exited.any():
         return Value(math.nan, math.nan)
-    fit = fit_escape(esc.path, esc.exited, fit_from=float(options["fit_from"]),
-                     trapped=levels_off(esc.path, esc.exited))
+    try:
+        fit = fit_escape(esc.path, esc.exited, fit_from=float(options["fit_from"]),
+                         trapped=levels_off(esc.path, esc.exited))
+    except ValueError:          # too few exits in any window to fit a rate (the figure says so too)
+        return Value(math.nan, math.nan)
     if not (fit.follows and fit.rate > 0 and np.isfinite(fit.rate_err)):
         return Value(math.nan, math.nan)
     return Value(fit.rate, fit.rate_err)
@@ -377,8 +380,8 @@ register(Observable(
     "rbx plot --kind escape (from the fit_from quantile of the exits on, with the level survival tends to where it "
     "levels off); NaN where no exponential law follows the survival", _escape_rate,
     final=True, exit=True, options={"fit_from": 0.1}, label="escape rate", symbol="γ",
-    missing="no value where no exponential law follows the survival (rbx plot --kind escape of a point's run "
-            "shows it)"))
+    missing="no value where no exponential law follows the survival, or too few orbits exited to fit one (rbx "
+            "plot --kind escape of a point's run shows it)"))
 
 
 def _trapped_share(runs, options):

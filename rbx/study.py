@@ -99,7 +99,11 @@ class Study:
                 return load(dict(self.base), changes, base=self.folder)
             return load(self.base, changes)
         except ConfigError as exc:
-            raise self._blame(exc) from None
+            blamed = self._blame(exc)
+            if len(self.keys) > 1:          # the other keys' values may be the cause (2R > h: radius and height)
+                where = ", ".join(f"{k} = {_plain(point[k])}" for k in self.keys)
+                blamed = ConfigError(blamed.file, blamed.key, f"{blamed.problem} (at the point {where})")
+            raise blamed from None
 
     def _blame(self, exc):
         """An error found while building a point, named in the study file: the varied or set key at fault."""

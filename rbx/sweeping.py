@@ -55,7 +55,11 @@ def run_point(study, point, scheduler=None):
             runs.run = simulate(exp, scheduler=scheduler)
             collisions += int(np.sum(runs.run.final["collisions"]))
         if need["tangent"]:
-            runs.lyapunov = lyapunov(exp, segments=need["segments"], warmup=need["warmup"], scheduler=scheduler)
+            try:
+                runs.lyapunov = lyapunov(exp, segments=need["segments"], warmup=need["warmup"],
+                                         scheduler=scheduler)
+            except ValueError as exc:       # every orbit left the table during its warm-up: nothing measured
+                raise ConfigError(study.file, "measure.lyapunov", str(exc)) from None
             collisions += int(np.sum(runs.lyapunov.collisions))
         if need["returns"]:
             with cluster_for(scheduler, "scheduler") as on:
@@ -425,6 +429,8 @@ def _sweep(study, output, scheduler, resume, force, progress, base, changes):
                 # the cluster the study started on is lost (its scheduler killed, its workers gone): a run that
                 # stopped, not a bad address
                 raise ClusterError(exc.key, exc.problem) from None
+            except ConfigError as exc:      # this point's experiment is refused, or measures nothing
+                raise _failed_point(exc, st, index, finished, total, output) from None
             except MemoryError:
                 if kept > st.ensemble["trajectories"] * STATE_BYTES:      # the records, more than the state
                     raise ConfigError(st.file, "ensemble.collisions", "the records a point keeps do not fit in this "
@@ -535,6 +541,20 @@ def _check_resumable(ds, template, path, study=None, points=()):
 def _shown(values, most=4):
     shown = ", ".join(str(v) if not isinstance(v, float) else f"{v:g}" for v in values.ravel()[:most].tolist())
     return f"[{shown}{', …' if values.size > most else ''}]"
+
+
+def _failed_point(exc, study, index, finished, total, output):
+    """The error of a point that cannot be computed (a combination of values the config refuses, orbits that all
+    left before being measured), naming the point and what is kept -> ConfigError. The finished points are written
+    before it is raised; a --resume of the same study stops at the same point again."""
+    problem = exc.problem
+    if "(at the point " not in problem:
+        problem += f" (at the point {_point_label(study, index)})"
+    if output is None or not finished:
+        return ConfigError(exc.file, exc.key, f"{problem}; no point was finished")
+    return ConfigError(exc.file, exc.key, f"{problem}; the {finished} of {total} points finished before it are kept "
+                                          f"in {display_path(partial_path(output))} (--resume stops here again: "
+                                          "change the study, which then starts afresh with --force)")
 
 
 def _point_label(study, index):

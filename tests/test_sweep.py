@@ -441,13 +441,14 @@ def test_the_sweep_plot_names_its_axes_as_a_physicist_would(specular, tmp_path):
     assert sweep_panel(ds, "energy_drift")[0]["ylabel"] == "energy drift |ΔE|/E"        # a pure number: no unit
     assert sweep_panel(ds, "lyapunov_per_collision")[0]["ylabel"] == \
         "Lyapunov exponent per collision λ₁⟨τ⟩ [1/collision]"
-    # one line per value of a second key, named by its symbol; a key without a symbol is shown as itself
+    # one line per value of a second key, named by its symbol; the rank in words
     two = sweep({"base": SINAI, "vary": {"ball.inertia": [0.2, 0.6], "boundary.default.rank": [0, 1]},
                  "measure": ["mean_free_path"], "ensemble": {"trajectories": 1, "collisions": 50}})
     panel, title = sweep_panel(two, x="boundary.default.rank")
-    assert panel["xlabel"] == "boundary.default.rank"
+    assert panel["xlabel"] == "roughness rank"
     assert [s["label"] for s in panel["series"]] == ["κ = 0.2", "κ = 0.6"]
-    assert "⟨ℓ⟩ against boundary.default.rank" in title
+    assert "⟨ℓ⟩ against rank" in title, title
+    assert sweep_panel(two)[0]["series"][0]["label"] == "rank = 0"
     # every observable of the registry, and each companion, is named in words (never by its registry name)
     for name, rec in observables.REGISTRY.items():
         assert observables.variable_label(name)[0].split(" [")[0] != name
@@ -953,9 +954,45 @@ def test_a_ratio_to_a_closed_form_is_drawn_with_its_expected_value_and_a_rank_ax
     fig = plotting.sweep_figure([panel], "t")
     assert "1: Kac's lemma (every state returns)" in fig.axes[0].get_legend_handles_labels()[1]
     assert parameter_label("boundary.default.rank") == ("roughness rank", "rank")
+    assert parameter_label("table.cell") == ("table.cell", "table.cell")       # a key without words: itself
     ranks = {"series": [{"x": [0, 1], "y": [1.0, 2.0], "err": None, "label": "rank = 0"}], "xlabel": "roughness rank",
              "ylabel": "y"}
     fig = plotting.sweep_figure([ranks], "t")
     fig.canvas.draw()
     ticks = [t for t in fig.axes[0].get_xticks() if -0.05 <= t <= 1.05]
     assert ticks and all(float(t).is_integer() for t in ticks), ticks
+
+
+def test_a_point_with_too_few_exits_is_nan_and_a_refused_point_is_named_with_what_is_kept(tmp_path):
+    """escape_rate where too few orbits exit to fit a rate is NaN, as documented (it stopped the study: 'fewer
+    than 20 exits in any window', and every --resume stopped there again); a point whose values the config
+    refuses, met only when it runs, is named with its values and with the finished points kept (the line named
+    neither)."""
+    rect = str(ROOT / "configs" / "examples" / "rectangle.yaml")
+    study = {"base": rect, "set": {"boundary": {"default": {"rule": "constant", "rank": 1},
+                                                "walls": {"left": {"rule": "exit"}}},
+                                   "initial": {"sample": "billiard"}},
+             "vary": {"table.width": [1, 300]}, "measure": ["escape_rate", "trapped_share"],
+             "ensemble": {"trajectories": 300, "collisions": 100, "seed": 1}}
+    ds = sweep(study)
+    assert np.isfinite(float(ds["escape_rate"][0])) and np.isnan(float(ds["escape_rate"][1]))
+    assert np.isfinite(float(ds["trapped_share"][1]))
+    grid = {"base": rect, "set": {"initial": {"sample": "billiard"}},
+            "vary": {"table.height": [1.0, 0.3], "ball.radius": [0.1, 0.2]},
+            "measure": ["energy_drift"], "ensemble": {"trajectories": 1, "collisions": 2, "seed": 1}}
+    (tmp_path / "grid.yaml").write_text(yaml.safe_dump(grid))
+    res = rbx_cli("sweep", "grid.yaml", "-o", "g.nc", cwd=tmp_path)     # checked before any point runs
+    assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
+    assert "does not fit in the rectangle" in res.stderr and res.stderr.endswith(
+        "(at the point ball.radius = 0.2, table.height = 0.3)\n"), res.stderr
+    import rbx.study
+    with pytest.MonkeyPatch.context() as mp:        # a grid too large to check every point: met when it runs
+        mp.chdir(tmp_path)
+        mp.setattr(rbx.study, "CHECK_EVERY_POINT", 1)
+        with pytest.raises(ConfigError) as info:
+            sweep(str(tmp_path / "grid.yaml"), str(tmp_path / "h.nc"))
+    assert info.value.key == "vary.ball.radius" and str(info.value).endswith(
+        "(at the point ball.radius = 0.2, table.height = 0.3); the 3 of 4 points finished before it are kept in "
+        "h.nc.partial (--resume stops here again: change the study, which then starts afresh with --force)"), \
+        str(info.value)
+    assert (tmp_path / "h.nc.partial").exists()
