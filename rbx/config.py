@@ -918,6 +918,22 @@ def start_groups(experiment):
     return np.resize(group, M) if len(states) == 1 else group[:M]
 
 
+def distinct_orbits(experiment):
+    """The experiment with one trajectory per distinct orbit (:func:`start_groups`), or the experiment itself when
+    its trajectories are all different: copies of an orbit add no sample, and counted as samples they shrank a
+    standard error by the square root of their number."""
+    group = start_groups(experiment)
+    if group is None:
+        return experiment
+    first = np.sort(np.unique(group, return_index=True)[1])
+    if len(first) == experiment.run.trajectories:
+        return experiment
+    states = experiment.initial
+    return experiment.replace(initial=[dict(states[i % len(states)]) for i in first],
+                              run={"collisions": experiment.run.collisions, "trajectories": len(first),
+                                   "seed": experiment.run.seed})
+
+
 def repeated_orbits(experiment):
     """A warning for an ensemble whose trajectories repeat each other (a fixed start, trajectories > 1, and no
     random numbers drawn: each copy follows the same orbit) -> text, or None."""

@@ -996,3 +996,19 @@ def test_a_point_with_too_few_exits_is_nan_and_a_refused_point_is_named_with_wha
         "h.nc.partial (--resume stops here again: change the study, which then starts afresh with --force)"), \
         str(info.value)
     assert (tmp_path / "h.nc.partial").exists()
+
+
+def test_a_studys_copies_of_one_orbit_do_not_shrink_its_error_bars():
+    """A fixed start run 8 times with no random rule is one orbit 8 times: each point's errors were the orbit's over
+    √8 (mean free path 0.000110 against 0.000326). Now they are the one orbit's, and the title says copies."""
+    import warnings
+    circle = str(ROOT / "configs" / "examples" / "circle.yaml")
+    study = {"base": circle, "vary": {"ball.inertia": [0.3, 0.6]}, "measure": ["mean_free_path", "lyapunov"],
+             "ensemble": {"trajectories": 1, "collisions": 300, "seed": 1}}
+    one = sweep(study)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)      # copies of one orbit: warned about
+        eight = sweep({**study, "ensemble": {**study["ensemble"], "trajectories": 8}})
+    for name in ("mean_free_path", "mean_free_path_stderr", "lyapunov", "lyapunov_stderr"):
+        assert np.array_equal(one[name].values, eight[name].values), name
+    assert eight.attrs["ensemble_orbits"] == 1 and eight.attrs["ensemble_trajectories"] == 8
