@@ -459,6 +459,7 @@ def _sweep(study, output, scheduler, resume, force, progress, base, changes):
     finally:
         if client is not None and client is not scheduler:
             client.close()
+    _warn_missing_errors(st, ds)
     ds.attrs["complete"] = 1
     if output is not None:
         _write(ds, partial)
@@ -542,6 +543,29 @@ def _check_resumable(ds, template, path, study=None, points=()):
 def _shown(values, most=4):
     shown = ", ".join(str(v) if not isinstance(v, float) else f"{v:g}" for v in values.ravel()[:most].tolist())
     return f"[{shown}{', …' if values.size > most else ''}]"
+
+
+class NoErrorBars(RuntimeWarning):
+    """Numbers of a study stored without a standard error (one orbit in one segment): said once, after the run."""
+
+
+def _warn_missing_errors(study, ds):
+    """Warn once for each measured observable whose finished points hold a value and no standard error (one
+    trajectory, or copies of one orbit, in one segment; energy_drift of one orbit): they were stored as NaN and drawn
+    without a bar, without a word."""
+    done = ds["done"].values.astype(bool)
+    for name, _ in study.measure:
+        err = f"{name}_stderr"
+        if name not in ds or err not in ds:
+            continue
+        value = np.asarray(ds[name].values, float)[done].reshape(int(done.sum()), -1)
+        bar = np.asarray(ds[err].values, float)[done].reshape(int(done.sum()), -1)
+        lacking = int(np.sum(np.any(np.isfinite(value) & ~np.isfinite(bar), axis=1)))     # points (any wall, …)
+        if lacking:
+            warnings.warn(f"{display_path(study.file) if study.file else 'the study'}: measure.{name}: "
+                          f"{lacking} of {int(done.sum())} finished points hold no standard error: one orbit per "
+                          "point in one segment gives none (more trajectories, of distinct orbits, or segments)",
+                          NoErrorBars, stacklevel=3)
 
 
 def _failed_point(exc, study, index, finished, total, output):

@@ -255,3 +255,16 @@ def test_the_birkhoff_map_of_the_strips_unbounded_wall(tmp_path):
     assert lo <= points[:, 0].min() and points[:, 0].max() <= hi
     line = one_line(cli("plot", "strip.h5", "--kind", "birkhoff", cwd=tmp_path))
     assert line.endswith("the table is unbounded: choose one wall with --wall"), line
+
+
+def test_a_complete_run_that_recorded_nothing_is_said_so_and_its_escape_drawn(tmp_path):
+    """A run with output.record: [] was refused by every --kind as 'holds no records yet … resume it', while its
+    resume said it was complete. Its escape plot reads the final states; the other kinds say what it lacks."""
+    from rbx.cli.common import UserError
+    out = str(tmp_path / "none.h5")
+    rbx.simulate(rbx.load(os.path.join(EXAMPLES, "escape-sinai.yaml"),
+                          {"output.record": [], "run.trajectories": 200}), output=out)
+    fig = make_figure(out, "escape")
+    assert fig.texts[0].get_text().endswith("no records kept (output.record: [])"), fig.texts[0].get_text()
+    with pytest.raises(UserError, match=r"recorded no fields \(output.record: \[\]\)"):
+        make_figure(out, "orbit")

@@ -1012,3 +1012,23 @@ def test_a_studys_copies_of_one_orbit_do_not_shrink_its_error_bars():
     for name in ("mean_free_path", "mean_free_path_stderr", "lyapunov", "lyapunov_stderr"):
         assert np.array_equal(one[name].values, eight[name].values), name
     assert eight.attrs["ensemble_orbits"] == 1 and eight.attrs["ensemble_trajectories"] == 8
+
+
+def test_points_without_an_error_bar_are_said_once_per_observable(tmp_path):
+    """One trajectory in one segment gives no standard error: the study stored NaN and drew the points without a bar
+    and without a word (rbx lyapunov refuses the same case). rbx sweep warns once per observable, naming it."""
+    rect = str(ROOT / "configs" / "examples" / "rectangle.yaml")
+    study = {"base": rect, "vary": {"ball.inertia": [0.5]},
+             "measure": [{"mean_free_path": {"segments": 1}}, {"wall_share": {"segments": 1}}, "energy_drift"],
+             "ensemble": {"trajectories": 1, "collisions": 50}}
+    (tmp_path / "s.yaml").write_text(yaml.safe_dump(study))
+    res = rbx_cli("sweep", "s.yaml", "-o", "s.nc", "--quiet", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    lines = res.stderr.splitlines()
+    for name in ("mean_free_path", "wall_share", "energy_drift"):
+        assert f"rbx: warning: s.yaml: measure.{name}: 1 of 1 finished points hold no standard error: one orbit " \
+               "per point in one segment gives none (more trajectories, of distinct orbits, or segments)" in lines
+    assert len(lines) == 3, res.stderr
+    from rbx.sweeping import NoErrorBars
+    with pytest.warns(NoErrorBars, match="measure.energy_drift"):
+        sweep({**study, "measure": ["energy_drift"]})

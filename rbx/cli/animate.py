@@ -78,7 +78,7 @@ def write_animation(run_file, out, trajectory=0, records=None, fps=20, frames=20
                                                 f"has {run.every}): the flights between records are not straight")
             if records is None:
                 rec = slice(0, DEFAULT_COLLISIONS + 1)
-            check_records(rec, len(run.step), run.path)
+            check_records(rec, len(run.step), run.path, run)
             data = {f: run.read(f, [trajectory], rec)[0] for f in NEEDED}
             steps = run.step[rec]
             geom, R, scene = run.geometry(), run.radius, run.scene()

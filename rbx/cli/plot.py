@@ -147,7 +147,8 @@ def make_figure(run_file, kind, records=slice(None), trajectories=None, **option
         run = Run.open(run_file)
         with run:
             traj = parse_trajectories(trajectories, run.trajectories, DEFAULT_TRAJECTORIES[kind], run.path)
-            check_records(records, len(run.step), run.path)
+            if kind != "escape":        # the escape plot reads the final states, not the records
+                check_records(records, len(run.step), run.path, run)
             if kind == "sweep":
                 raise UserError(run.path, None, "--kind sweep draws the results of rbx sweep (a .nc file), not a run")
             try:
@@ -176,9 +177,13 @@ def parse_records(text):
     return slice(*vals)
 
 
-def check_records(records, available, file):
-    """Refuse a --records range that selects nothing (it drew a blank figure), and a run that holds no records
-    yet (a run stopped before its first block was saved)."""
+def check_records(records, available, file, run=None):
+    """Refuse a --records range that selects nothing (it drew a blank figure), a run that holds no records yet (a
+    run stopped before its first block was saved) and a ``run`` that recorded no field (``output.record: []``)."""
+    if available == 0 and run is not None and run.complete and not run.fields:
+        raise UserError(file, None, "recorded no fields (output.record: []): record what the picture needs (its "
+                                    "config's output.record) and run it again; --kind escape draws such a run, from "
+                                    "its final states")
     if available == 0:
         raise UserError(file, None, "holds no records yet (stopped before its first block was saved): resume it "
                                     "with rbx simulate --resume, then draw it")
@@ -239,9 +244,9 @@ def _span(items):
 def _title(run, what, traj, rec):
     steps = run.step[rec]
     trange = f"trajectory {traj[0]}" if len(traj) == 1 else f"trajectories {_span(traj)}"
-    srange = f"collisions {steps.min()}–{steps.max()}" if len(steps) else "no records"
+    srange = f"collisions {steps.min()}–{steps.max()}" if len(steps) else "no records kept (output.record: [])"
     extra = "" if run.complete else " · INCOMPLETE RUN"
-    every = f" (a record every {run.every} collisions)" if run.every > 1 else ""
+    every = f" (a record every {run.every} collisions)" if run.every > 1 and len(steps) else ""
     return f"{run.scene()}\n{what} · {trange} of {run.trajectories} · {srange}{every}{extra}"
 
 

@@ -133,6 +133,7 @@ def _sweep(study, output, scheduler, resume, force, progress, checking=None, cha
     from ..cluster import ClusterError, SchedulerUnreachable
     from ..paths import DiskFull
     from ..study import load_study
+    from ..sweeping import NoErrorBars
     from ..sweeping import sweep as run
     from .common import _quiet_dask
     if scheduler is not None:
@@ -144,7 +145,15 @@ def _sweep(study, output, scheduler, resume, force, progress, checking=None, cha
                 st = load_study(study, progress=checking, **(changes or {}))
             for w in said:
                 click.echo(f"rbx: warning: {w.message}", err=True)
-            return run(st, output, scheduler=scheduler, resume=resume, force=force, progress=progress)
+            with warnings.catch_warnings(record=True) as said:
+                warnings.simplefilter("always", NoErrorBars)
+                ds = run(st, output, scheduler=scheduler, resume=resume, force=force, progress=progress)
+            for w in said:
+                if issubclass(w.category, NoErrorBars):
+                    click.echo(f"rbx: warning: {w.message}", err=True)
+                else:       # anything else as Python would have shown it
+                    warnings.showwarning(w.message, w.category, w.filename, w.lineno)
+            return ds
         except SchedulerUnreachable as exc:
             raise UserError(None, "--scheduler", exc.problem) from None
         except ValueError as exc:        # a point whose trajectories all left the table before measuring
