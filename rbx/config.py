@@ -267,6 +267,12 @@ def _from_dict(data, source, overrides, base, cwd_hint=False, includes=()):
         with np.errstate(all="ignore"):
             geom = tables.build(kind, tparams, radius)
             if not np.all(np.isfinite(geom.params)):
+                try:        # a rule of the kind's own keys says more (a mushroom's stem as wide as its cap)
+                    _check_fits(kind, tparams, radius, geom, c, tc, tkey)
+                except ConfigError:
+                    raise
+                except Exception:   # noqa: BLE001 - the check itself cannot read such a table: the overflow says it
+                    pass
                 tc.fail(tkey or None, "the table's numbers overflow once it is built (coordinates too large, or "
                                       "walls too nearly parallel)")
             _check_fits(kind, tparams, radius, geom, c, tc, tkey)

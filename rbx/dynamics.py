@@ -290,6 +290,8 @@ def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segme
     N = exp.run.collisions
     warmup = N // 10 if warmup is None else int(warmup)
     measured = N - warmup
+    if measured <= 0:
+        raise ValueError(f"a warm-up of {warmup} collisions leaves none of the {N} to measure")
     if measured < segments:
         raise ValueError(f"{N} collisions leave {measured} after the warm-up: fewer than {segments} segments")
     cuts = warmup + np.round(np.linspace(0, measured, segments + 1)).astype(np.int64)

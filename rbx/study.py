@@ -185,6 +185,13 @@ def load_study(study, base=None, progress=None, sets=None, ensemble=None):
         if problem and file is None and base is None and not os.path.isabs(os.path.expanduser(base_value)):
             problem += (f" (a mapping's relative paths are resolved from the working folder, {folder}: give base=, "
                         "the study file or folder they are relative to, or an absolute path)")
+        if not problem:             # a study, a table or a boundary file named as the base: say it of base:
+            try:
+                other = other_kind(parse_yaml(read_text(base_path), base_path), "config")
+            except ConfigError:     # not YAML, or too large: said where the base is read, with its own key
+                other = None
+            if other:
+                problem = f"{base_value} {other.split(':')[0]}: base names the experiment config each point runs"
         if problem:
             fail("base", problem)
         base_value = base_path
@@ -229,6 +236,7 @@ def load_study(study, base=None, progress=None, sets=None, ensemble=None):
     if zipped and len({len(v) for v in values}) > 1:
         fail("vary", "with zip: true every key needs as many values (" +
              ", ".join(f"{k}: {len(v)}" for k, v in zip(keys, values)) + ")")
+    _check_distinct(keys, values, zipped, fail)
     measure = _measure(data["measure"], fail)
     ensemble = data["ensemble"]
     if not isinstance(ensemble, Mapping):
@@ -245,6 +253,15 @@ def load_study(study, base=None, progress=None, sets=None, ensemble=None):
         if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or v < lo:     # NumPy's too
             fail(f"ensemble.{k}", f"expected an integer ≥ {lo}, got {v!r}")
         ens[k] = int(v)
+    for name, options in measure:           # the tangent loop's warm-up and segments against the collisions
+        if name == "lyapunov":
+            N, segments = ens["collisions"], int(options.get("segments", 10))
+            warmup = N // 10 if options.get("warmup") is None else int(options["warmup"])
+            if warmup >= N:
+                fail("measure.lyapunov.warmup", f"{warmup} collisions leave none of the ensemble's {N} to measure")
+            if N - warmup < segments:
+                fail("measure.lyapunov.segments", f"{segments} segments in the {N - warmup} collisions measured "
+                                                  f"after the warm-up of {warmup}: fewer segments, or more collisions")
     first = {k: _plain(v[0]) for k, v in zip(keys, values)}
     canonical = {"base": _canonical_base(base_value, folder, fixed, first), "set": fixed,
                  "vary": {k: [_plain(x) for x in v] for k, v in zip(keys, values)}, "zip": zipped,
@@ -399,13 +416,31 @@ def _number(x, key, fail):
     return x
 
 
+def _check_distinct(keys, values, zipped, fail):
+    """Two points of a study are never the same point: with zip, no two columns of values alike (a value repeated
+    in one key is fine: (0.4, 0.05) and (0.2, 0.05) are two points; it was refused); else no value twice in one
+    key, whether listed or made by a range ({from: 0.2, to: 0.2, num: 3} gave three identical points with one
+    seed)."""
+    if zipped:
+        seen = {}
+        for i, point in enumerate(zip(*(v.tolist() for v in values))):
+            if point in seen:
+                fail("vary", f"with zip: true, points {seen[point] + 1} and {i + 1} are the same ("
+                             + ", ".join(f"{k} = {_plain(x)}" for k, x in zip(keys, point)) + ")")
+            seen[point] = i
+        return
+    for key, v in zip(keys, values):
+        if len(np.unique(v)) != len(v):
+            twice = _plain(v[np.flatnonzero(np.diff(np.sort(v)) == 0)[0]])
+            fail(f"vary.{key}", f"the value {twice} comes twice (listed twice, or a range whose from and to are "
+                                "equal or too close for its num)")
+
+
 def _values(spec, key, fail):
     if isinstance(spec, (list, tuple)):
         if not spec:
             fail(key, "an empty list: give at least one value")
         vals = [_number(x, key, fail) for x in spec]
-        if len(set(vals)) != len(vals):
-            fail(key, "a value is listed twice")
         if all(isinstance(x, int) for x in vals):
             return np.array(vals, dtype=np.int64)
         return np.array(vals, dtype=float)

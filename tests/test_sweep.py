@@ -1032,3 +1032,46 @@ def test_points_without_an_error_bar_are_said_once_per_observable(tmp_path):
     from rbx.sweeping import NoErrorBars
     with pytest.warns(NoErrorBars, match="measure.energy_drift"):
         sweep({**study, "measure": ["energy_drift"]})
+
+
+def test_two_points_of_a_study_are_never_the_same_point():
+    """A value twice in one key is refused whether listed or made by a range ({from: 0.2, to: 0.2, num: 3} gave
+    three identical points with one seed); with zip: true a value repeated in one key is fine as long as the points
+    differ (it was refused), and two equal points are refused."""
+    base = {"base": SINAI, "measure": ["mean_free_path"], "ensemble": {"trajectories": 2, "collisions": 50}}
+    for vary, words in (({"ball.inertia": [0.2, 0.5, 0.2]}, "the value 0.2 comes twice"),
+                        ({"ball.inertia": {"from": 0.2, "to": 0.2, "num": 3}}, "the value 0.2 comes twice"),
+                        ({"ball.inertia": [1, 2, 1]}, "the value 1 comes twice")):
+        with pytest.raises(ConfigError, match=words) as info:
+            load_study({**base, "vary": vary})
+        assert info.value.key == "vary.ball.inertia"
+    st = load_study({**base, "zip": True, "vary": {"ball.inertia": [0.5, 0.4, 0.2], "ball.radius": [0.1, 0.05, 0.05]}})
+    assert len(st.points()) == 3
+    with pytest.raises(ConfigError, match=r"points 1 and 3 are the same \(ball.inertia = 0.5, ball.radius = 0.1\)"):
+        load_study({**base, "zip": True, "vary": {"ball.inertia": [0.5, 0.4, 0.5], "ball.radius": [0.1, 0.05, 0.1]}})
+
+
+def test_a_studys_own_mistakes_are_named_by_their_key(tmp_path):
+    """A warm-up longer than the ensemble's collisions said '200 collisions leave -100 after the warm-up' with no
+    key, once its first point ran; a study named as its own base said to run it with rbx sweep, while it was."""
+    lyap = str(ROOT / "configs" / "examples" / "lyapunov-sinai.yaml")
+    study = {"base": lyap, "vary": {"ball.inertia": [0.5]}, "measure": [{"lyapunov": {"segments": 5, "warmup": 300}}],
+             "ensemble": {"trajectories": 2, "collisions": 200, "seed": 1}}
+    with pytest.raises(ConfigError, match="300 collisions leave none of the ensemble's 200 to measure") as info:
+        load_study(study)
+    assert info.value.key == "measure.lyapunov.warmup"
+    study["measure"] = [{"lyapunov": {"segments": 50, "warmup": 190}}]
+    with pytest.raises(ConfigError, match="50 segments in the 10 collisions measured") as info:
+        load_study(study)
+    assert info.value.key == "measure.lyapunov.segments"
+    (tmp_path / "self.yaml").write_text(yaml.safe_dump({**study, "base": "self.yaml", "measure": ["mean_free_path"]}))
+    with pytest.raises(ConfigError, match="self.yaml is a study .* base names the experiment config each point "
+                                          "runs") as info:
+        load_study(str(tmp_path / "self.yaml"))
+    assert info.value.key == "base"
+
+
+def test_a_mushroom_stem_as_wide_as_its_cap_is_named_not_an_overflow():
+    with pytest.raises(ConfigError, match="must be less than the cap's diameter") as info:
+        rbx.load(str(ROOT / "configs" / "examples" / "mushroom.yaml"), {"table.stem_width": 2.0})
+    assert info.value.key == "table.stem_width"
