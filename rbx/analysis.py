@@ -347,6 +347,8 @@ def diffusion_problem(geom, coordinate):
             f"{coordinate} is bounded by the energy"
         return f"{what}: diffusion is measured along a position (x, y, z) or the orientation theta"
     axis = DIFFUSING[coordinate]
+    if axis is not None and axis >= geom.dimension:
+        return f"a {geom.dimension}D run has no coordinate {coordinate}"
     if axis is not None and axis not in unbounded_axes(geom):
         return (f"the {geom.kind} table is bounded along {coordinate}: the mean-square displacement saturates, "
                 "there is no diffusion coefficient")

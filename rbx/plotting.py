@@ -604,6 +604,7 @@ def diffusion_figure(steps, msd, fit, displacement, title, coordinate="x", time_
     said in the MSD panel and the fit's label, which names the fitted number b (half the MSD's slope over the
     window), not D."""
     from scipy import stats
+    unit = "rad" if coordinate == "theta" else "L"         # the orientation is an angle
     fig = _figure(11.0, 4.6, title)
     ax = fig.add_subplot(1, 2, 1)
     steps = np.asarray(steps, float)
@@ -615,11 +616,11 @@ def diffusion_figure(steps, msd, fit, displacement, title, coordinate="x", time_
     if horizon:
         # no coefficient: b, half the MSD's slope over the window, a number of the window alone
         label = (f"fit 2bt + c, over the fit window only: b = {fit.coefficient:.4g} ± {fit.half_width:.2g} "
-                 f"L²/collision ({pct}% CI)")
+                 f"{unit}²/collision ({pct}% CI)")
     else:
-        label = f"fit 2Dt + c: D = {fit.coefficient:.4g} ± {fit.half_width:.2g} L²/collision ({pct}% CI)"
+        label = f"fit 2Dt + c: D = {fit.coefficient:.4g} ± {fit.half_width:.2g} {unit}²/collision ({pct}% CI)"
     if time_per_step:
-        label += (f"\n  = {fit.coefficient / time_per_step:.4g} ± {fit.half_width / time_per_step:.2g} L²/T per unit "
+        label += (f"\n  = {fit.coefficient / time_per_step:.4g} ± {fit.half_width / time_per_step:.2g} {unit}²/T per unit "
                   f"time (mean time per collision {time_per_step:.4g} T)")
     if horizon:
         label += "\n  b: half the MSD's slope over the window, not D"
@@ -633,7 +634,7 @@ def diffusion_figure(steps, msd, fit, displacement, title, coordinate="x", time_
     ax.set_ylim(ylim[0], max(ylim[1], float(np.max(band_hi[good], initial=ylim[1]))))
     ax.axvspan(fit.start, fit.stop, color=_colour(2), alpha=0.07, label="fit window")
     ax.set_xlabel("collisions [–]")
-    ax.set_ylabel(f"MSD ⟨Δ{coordinate}²⟩ [L²]")
+    ax.set_ylabel(f"MSD ⟨Δ{coordinate}²⟩ [{unit}²]")
     ax.set_title(f"mean-square displacement, {fit.trajectories} trajectories")   # a fit needs 2 or more
     if horizon:
         ax.set_title(f"mean-square displacement, {fit.trajectories} trajectories\n"
@@ -656,9 +657,9 @@ def diffusion_figure(steps, msd, fit, displacement, title, coordinate="x", time_
         # a test of a handful of displacements tells nothing (p of 3 samples was printed as 0.71)
         test = (f"KS p = {stats.kstest(dx, stats.norm(0.0, sd).cdf).pvalue:.2g}" if len(dx) >= MIN_KS_SAMPLES
                 else f"no KS test: {len(dx)} trajectories, fewer than {MIN_KS_SAMPLES}")
-        ax2.plot(u, stats.norm.pdf(u, 0.0, sd), "k-", lw=1.2, label=f"Gaussian, variance 2DT + c = {var:.3g} L² ({test})")
-    ax2.set_xlabel(f"displacement Δ{coordinate} [L]")
-    ax2.set_ylabel("density [1/L]")
+        ax2.plot(u, stats.norm.pdf(u, 0.0, sd), "k-", lw=1.2, label=f"Gaussian, variance 2DT + c = {var:.3g} {unit}² ({test})")
+    ax2.set_xlabel(f"displacement Δ{coordinate} [{unit}]")
+    ax2.set_ylabel(f"density [1/{unit}]")
     ax2.set_title("displacement distribution")
     legend_outside([ax, ax2], "below")
     return fig

@@ -174,6 +174,33 @@ def test_diffusion_is_given_per_unit_time_as_well_as_per_collision(lorentz):
     assert per_time == pytest.approx(direct, rel=0.5)
 
 
+def test_the_diffusion_of_the_orientation_is_in_radians_and_its_options_are_checked(tmp_path):
+    """theta was labelled in L, L² and 1/L; --coordinate z of a 2D run said the table was bounded along z; --fit-from
+    −1 was taken and NaN said the window held too few records; a window whose interval reaches 0 gave a negative D,
+    exit 0, without a word."""
+    from rbx.cli.common import UserError
+    out = str(tmp_path / "strip.h5")
+    graph = os.path.join(ROOT, "configs", "experiments", "graphRandom", "ensemble.yaml")    # the random strip
+    rbx.simulate(rbx.load(graph, {"run.trajectories": 64, "run.collisions": 400,
+                                  "output.record": ["time", "position", "orientation"], "output.every": 1}),
+                 output=out)
+    fig = make_figure(out, "diffusion", coordinate="theta")
+    labels = [ax.get_ylabel() for ax in fig.axes] + [ax.get_xlabel() for ax in fig.axes]
+    assert "MSD ⟨Δtheta²⟩ [rad²]" in labels and "displacement Δtheta [rad]" in labels and "density [1/rad]" in labels
+    assert "L²" not in " ".join(legend(fig)) and "rad²/collision" in " ".join(legend(fig))
+    with pytest.raises(UserError, match="a 2D run has no coordinate z") as info:
+        make_figure(out, "diffusion", coordinate="z")
+    assert info.value.key == "--coordinate"
+    for wrong in (-1.0, float("nan"), 1.0):
+        with pytest.raises(UserError, match=r"in \[0, 1\)") as info:
+            make_figure(out, "diffusion", fit_from=wrong)
+        assert info.value.key == "--fit-from"
+    late = make_figure(out, "diffusion", fit_from=0.99)           # 4 records: the interval reaches below 0
+    assert late.rbx_result.endswith("its interval reaches 0 or below: no diffusion can be read from this window "
+                                    "(fit from earlier, or run longer)"), late.rbx_result
+    assert "its interval reaches" not in make_figure(out, "diffusion").rbx_result
+
+
 def test_an_option_the_kind_does_not_use_is_refused(lorentz):
     line = one_line(cli("plot", lorentz, "--kind", "orbit", "--coordinate", "vx", cwd=lorentz.parent))
     assert line == "rbx: --coordinate: is for --kind series and --kind diffusion only; --kind orbit does not use it"

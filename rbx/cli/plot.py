@@ -385,8 +385,11 @@ def _diffusion(run, rec, traj, coordinate="x", fit_from=0.1, **_):
     from .. import analysis, plotting
     problem = analysis.diffusion_problem(run.geometry(), coordinate)
     if problem:
-        raise UserError(run.path, "--coordinate" if coordinate not in analysis.DIFFUSING else "--kind diffusion",
-                        problem)
+        own = coordinate not in analysis.DIFFUSING or "has no coordinate" in problem
+        raise UserError(run.path, "--coordinate" if own else "--kind diffusion", problem)
+    if not 0.0 <= fit_from < 1.0:       # NaN too
+        raise UserError(None, "--fit-from", f"diffusion: the share of the run skipped before the fit, in [0, 1), got "
+                                            f"{fit_from}")
     if len(traj) < 2:
         raise ValueError("the diffusion plot needs an ensemble: at least 2 trajectories")
     x, _ = _coordinate(run, coordinate, traj, rec)
@@ -416,15 +419,21 @@ def _diffusion(run, rec, traj, coordinate="x", fit_from=0.1, **_):
                                     time_per_step=per_time, horizon=horizon and horizon[0])
     ci = (f"({round(100 * fit.confidence)}% CI, {fit.trajectories} trajectories, fitted over steps "
           f"{fit.start:.0f}–{fit.stop:.0f})")
+    unit = "rad" if coordinate == "theta" else "L"
     if horizon:
         said = (f"slope of the MSD along {coordinate}, fitted as 2bt + c: b = {fit.coefficient:.4g} ± "
-                f"{fit.half_width:.2g} L²/collision {ci}")
+                f"{fit.half_width:.2g} {unit}²/collision {ci}")
     else:
-        said = f"diffusion coefficient along {coordinate}: D = {fit.coefficient:.4g} ± {fit.half_width:.2g} L²/collision {ci}"
+        said = (f"diffusion coefficient along {coordinate}: D = {fit.coefficient:.4g} ± {fit.half_width:.2g} "
+                f"{unit}²/collision {ci}")
     if per_time:
-        said += f" = {fit.coefficient / per_time:.4g} ± {fit.half_width / per_time:.2g} L²/T"
+        said += f" = {fit.coefficient / per_time:.4g} ± {fit.half_width / per_time:.2g} {unit}²/T"
     if horizon:
         said += f"; not a diffusion coefficient: {horizon[1]}"
+    elif not fit.low > 0:
+        # the MSD does not grow over the window beyond its spread (a window of a few records, or no diffusion)
+        said += ("; its interval reaches 0 or below: no diffusion can be read from this window (fit from earlier, "
+                 "or run longer)")
     fig.rbx_result = said
     return fig
 
