@@ -22,6 +22,8 @@ import threading
 import warnings
 from collections.abc import Mapping
 
+import numpy as np
+
 from . import config as cfgmod
 from . import driver
 from .cluster import connect
@@ -161,6 +163,7 @@ def simulate(experiment, *, collisions=None, trajectories=None, seed=None, outpu
                                    ("max_size", max_size)) if v is not None}
     if output is not None and not isinstance(output, (str, os.PathLike)):
         raise TypeError(f"output: a file path (str or os.PathLike), got {type(output).__name__}")
+    force = flag("force", force)
     exp = _load(experiment, overrides or None)
     kept = records_bytes(exp) if output is None else 0          # a run in memory keeps its records there
     refusal = memory_refusal(exp.run.trajectories, records=kept)
@@ -233,6 +236,7 @@ def resume(path, *, output=None, force=False, max_size=None, progress=False, sch
         if not named[name].strip():
             raise ValueError(f"rbx.resume: {name} is empty: give the path of a run file")
     path, output = named["path"], named.get("output")
+    force = flag("force", force)
     r = _api_keys(lambda: prepare_resume(path, output, force=force, max_size=max_size, out_key="output",
                                          size_key="max_size", force_hint="force=True"))
     for note in r.notes:
@@ -261,6 +265,13 @@ def open(path):   # noqa: A001 - the name docs/reference.md §9 gives it
     if not isinstance(path, (str, bytes, os.PathLike)):
         raise TypeError(f"rbx.open: path is the path of a run file (a str or os.PathLike), not {type(path).__name__}")
     return Run.open(os.fsdecode(os.fspath(path)))       # a bytes path is the path it names
+
+
+def flag(name, value):
+    """A True/False argument -> bool; anything else is a TypeError (``force="no"`` is truthy, and replaced a run)."""
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    raise TypeError(f"{name}: True or False, not {value!r}")
 
 
 def _progress(progress):

@@ -863,10 +863,10 @@ def _plain_part(name, value, exp):
         if name == "ball":
             if value.dimension != exp.dimension:
                 raise ConfigError(None, "ball.dimension", f"is {value.dimension}, but the table is {exp.dimension}D")
-            return {"radius": value.radius, "inertia": value.inertia}
+            return _plain({"radius": value.radius, "inertia": value.inertia})      # NumPy numbers as rbx.load's
         if name == "output":
             return value.resolved()
-        return dataclasses.asdict(value)
+        return _plain(dataclasses.asdict(value))
     if name == "initial":
         if isinstance(value, tuple) and len(value) == 2 and value[0] == "sample":
             wall = value[1]

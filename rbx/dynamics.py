@@ -281,9 +281,10 @@ def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segme
     for name, value, low in (("segments", segments, 1), ("warmup", warmup, 0)):
         # a whole number in range, as the CLI's --segments and --warmup take: warmup=-1000 ran (and measured over
         # more collisions than the run made), 0.5 became 0, True 1
-        if value is not None and (isinstance(value, bool) or not isinstance(value, (int, np.integer))
-                                  or value < low):
-            raise ValueError(f"{name} must be an integer ≥ {low}, not {value!r}")
+        if (value is not None or name == "segments") and (
+                isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < low):
+            raise ValueError(f"{name} must be an integer ≥ {low}, not {value!r}"
+                             + (" (None: a tenth of the run)" if name == "warmup" else ""))
     segments = int(segments)
     if scheduler is None and slices is not None:
         raise TypeError("slices cuts the ensemble for a cluster: give scheduler too")

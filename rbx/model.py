@@ -19,6 +19,7 @@ tests pick it up from the table.
 import copy
 import dataclasses
 import math
+import numbers
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -154,7 +155,8 @@ def check_ball(ball):
 
 def _number(value, key):
     """A finite real number (not a bool) -> float, else :class:`ConfigError` naming ``key``."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
+    # NumPy's numbers too (a float32 as rbx.load takes it), never a bool
+    if isinstance(value, (bool, np.bool_)) or not isinstance(value, numbers.Real):
         raise ConfigError(None, key, f"expected a number, got {type(value).__name__}")
     try:
         value = float(value)

@@ -22,7 +22,7 @@ import numpy as np
 
 from . import __version__, observables as obs
 from .analysis import scene_title
-from .api import cluster_for, simulate
+from .api import cluster_for, flag, simulate
 from .cluster import ClusterError, SchedulerUnreachable, connect
 from .config import distinct_orbits, start_groups
 from .driver import OWN_SUFFIXES
@@ -314,6 +314,10 @@ def sweep(study, output=None, *, scheduler=None, resume=False, force=False, prog
     The results file is written under the run lock ``output.lock`` that ``rbx simulate`` takes too: a second
     sweep, or a run, writing the same file is refused, naming the one that holds it."""
     changes = {"sets": sets, "ensemble": {"trajectories": trajectories, "collisions": collisions}}
+    force, resume = flag("force", force), flag("resume", resume)
+    if study is None or not isinstance(study, (str, bytes, os.PathLike, Mapping, Study)):
+        raise TypeError(f"rbx.sweep: study is a study file's path, a mapping or a loaded Study, not "
+                        f"{type(study).__name__}")
     if isinstance(study, Study) and (sets or trajectories is not None or collisions is not None):
         raise TypeError("rbx.sweep: trajectories, collisions and sets change a study file or mapping, not a loaded "
                         "Study (give them to load_study)")

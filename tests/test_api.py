@@ -400,3 +400,28 @@ def test_the_api_refuses_an_ensemble_beyond_memory_an_output_of_another_type_and
         warnings.simplefilter("ignore", RuntimeWarning)
         run = rbx.simulate(strip, collisions=np.int64(100), trajectories=np.int32(2))
     assert run.experiment.run.collisions == 100 and type(run.experiment.run.collisions) is int
+
+
+def test_hurried_arguments_get_one_clear_refusal(tmp_path):
+    """force="no" is truthy and replaced a run; segments=None was a bare TypeError from int(); rbx.sweep(None) an
+    os TypeError; a float32 was taken by rbx.load's overrides but refused by dataclasses.replace."""
+    import dataclasses
+    circle = str(EXAMPLES / "circle.yaml")
+    out = tmp_path / "x.h5"
+    out.write_bytes(b"not rbx's")
+    with pytest.raises(TypeError, match="force: True or False, not 'no'"):
+        rbx.simulate(circle, output=str(out), force="no")
+    assert out.read_bytes() == b"not rbx's"
+    with pytest.raises(TypeError, match="force: True or False"):
+        rbx.resume(str(out), force=1)
+    with pytest.raises(ValueError, match="segments must be an integer ≥ 1, not None"):
+        rbx.lyapunov(circle, segments=None)
+    with pytest.raises(TypeError, match="study is a study file's path, a mapping or a loaded Study, not NoneType"):
+        rbx.sweep(None)
+    with pytest.raises(TypeError, match="resume: True or False"):
+        rbx.sweep({"base": circle}, resume="yes")
+    exp = rbx.load(circle)
+    by_replace = exp.replace(ball=dataclasses.replace(exp.ball, radius=np.float32(0.1))).ball
+    assert by_replace == rbx.load(circle, {"ball.radius": np.float32(0.1)}).ball
+    with pytest.raises(rbx.ConfigError, match="expected a number, got bool"):
+        dataclasses.replace(exp.ball, radius=np.True_)
