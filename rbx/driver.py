@@ -29,7 +29,7 @@ from .locks import LockNotWritable, acquire_lock, lock_holder, lock_path, releas
 from .locks import busy as _busy
 from .progress import plural
 from .paths import (NO_ROOM, DiskFull, FileError, check_own_kind, check_own_names, check_replaceable, creation_path,
-                    display_path, format_size, other_commands_file, rbx_kind, temporary_path, what_it_is)
+                    display_path, format_size, other_commands_file, temporary_path, what_it_is)
 from .reader import Run
 from .runfile import (H5Sink, _text, close_journal, commit, config_yaml, data_bytes, file_path, fill_returns, is_true,
                       journal_of, open_journaled)
@@ -101,11 +101,13 @@ def _killed_partial(tmp, force_hint, what_force_does):
                                 f"with {again}; or remove it, or use {force_hint} to {what_force_does}")
 
 
-def check_target(path, force, key, file=None, config_source=None, partial_ok=False, force_hint="--force"):
+def check_target(path, force, key, file=None, config_source=None, partial_ok=False, force_hint="--force",
+                 mine="run"):
     """Refuse to write ``path`` when it is a folder, the config or a file it includes (``config_source``: the
     config's path, or a sequence of it and its includes), or (without ``force``) when it exists or
     a run may still be writing its ``.partial``. Raises :class:`FileError`; ``key``/``file`` name where the path
-    came from (``-o``, ``output.path``, ``output``), ``force_hint`` how to force (``--force``, ``force=True``)."""
+    came from (``-o``, ``output.path``, ``output``), ``force_hint`` how to force (``--force``, ``force=True``);
+    ``mine``: the kind of file the caller writes (:func:`rbx.paths.rbx_kind`): another command's is never replaced."""
     show = display_path(path)
     check_own_names(path)        # before the lock is read: a FIFO named as the lock would block its read
     holder = lock_holder(path)
@@ -122,7 +124,7 @@ def check_target(path, force, key, file=None, config_source=None, partial_ok=Fal
                             f"{show} is a file the config includes ({display_path(source)})")
     forget_second_name(temporary_path(path), path)
     for p in (path, temporary_path(path)):      # a study's results under these names: never taken for a run's
-        problem = other_commands_file(p, "run")
+        problem = other_commands_file(p, mine)
         if problem is not None:
             raise problem
     if os.path.exists(path) and not force:
@@ -418,12 +420,12 @@ def write_returns(path, cfg, result, force_hint="--force"):
             h5 = create(path, force_hint=force_hint)
         except FileError as exc:
             tmp = temporary_path(path)
-            if exc.file and os.path.abspath(exc.file) == os.path.abspath(tmp) and rbx_kind(tmp) == "run":
+            problem = other_commands_file(tmp, "returns") if exc.file and \
+                os.path.abspath(exc.file) == os.path.abspath(tmp) else None
+            if problem is not None:
                 # a killed rbx simulate's .partial under the samples' name: never removed (not even with --force,
                 # which the refusal offered though it was given): what it is, and how to go on
-                raise FileError(tmp, None, "is the unfinished run file of a killed rbx simulate (or one writing "
-                                           f"it): continue it with rbx simulate --resume {display_path(tmp)}, or "
-                                           "give the samples another name (--data)") from None
+                raise problem from None
             raise
         made = True
         try:

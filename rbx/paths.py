@@ -146,9 +146,9 @@ def check_own_kind(path, key=None, file=None):
 
 
 def rbx_kind(path):
-    """Which of rbx's HDF5 files ``path`` is, by its root attributes -> 'study' (a study's results, rbx sweep),
-    'run' (a run of rbx simulate or the return angles of rbx histogram), or None (not one of them, unreadable, or
-    nothing there). A file named as another command's output (``k.h5.partial``) is told apart by it: each command
+    """Which of rbx's HDF5 files ``path`` is, by its root attributes and groups -> 'study' (a study's results, rbx
+    sweep), 'returns' (the return angles of rbx histogram: ``returns/``, no ``collisions/``), 'run' (a run of rbx
+    simulate), or None (not one of them, unreadable, or nothing there). A file named as another command's output (``k.h5.partial``) is told apart by it: each command
     took the other's unfinished file for its own (``--force`` removed it, ``--resume`` failed on it)."""
     fd, _ = open_regular(path) if os.path.lexists(path) else (None, None)
     if fd is None:
@@ -161,20 +161,20 @@ def rbx_kind(path):
     try:
         import h5py
         with h5py.File(path, "r", locking=False) as f:
-            attrs = set(f.attrs)
+            attrs, groups = set(f.attrs), set(f)
     except Exception:       # not HDF5, damaged, torn: what the caller's own checks say
         return None
     if "rbx_study" in attrs:
         return "study"
     if {"rbx_version", "dimension", "config"} <= attrs:
-        return "run"
+        return "returns" if "returns" in groups and "collisions" not in groups else "run"
     return None
 
 
 def other_commands_file(path, mine, renaming=True):
-    """The refusal of ``path`` when it is rbx's file of another command than ``mine`` ('run' or 'study'), however
-    it is asked (``--force``, ``--resume``): what it is and how to go on with it (``renaming``: and to give the
-    output another name) -> :class:`FileError`, or None."""
+    """The refusal of ``path`` when it is rbx's file of another command than ``mine`` ('run', 'returns' or
+    'study'), however it is asked (``--force``, ``--resume``): what it is and how to go on with it (``renaming``: and
+    to give the output another name) -> :class:`FileError`, or None."""
     kind = rbx_kind(path)
     if kind is None or kind == mine:
         return None
@@ -183,11 +183,14 @@ def other_commands_file(path, mine, renaming=True):
         what = "the unfinished run file of rbx simulate" if unfinished else "a run file of rbx simulate"
         then = (f"continue it with rbx simulate --resume {display_path(path)}, or remove it" if unfinished
                 else "remove it if it is not needed")
+    elif kind == "returns":
+        what, then = "the return angles of rbx histogram", "remove it if it is not needed"
     else:
         what = "the unfinished results of a study (rbx sweep)" if unfinished else "a study's results (rbx sweep)"
         then = ("continue them with rbx sweep STUDY -o NAME --resume (NAME without .partial), or remove it"
                 if unfinished else "remove it if it is not needed")
-    tail = f"; give this {'study' if mine == 'study' else 'run'}'s output another name" if renaming else ""
+    tail = ("" if not renaming else "; give the return angles another name (--data)" if mine == "returns" else
+            f"; give this {'study' if mine == 'study' else 'run'}'s output another name")
     return FileError(path, None, f"is {what}: {then}{tail}")
 
 

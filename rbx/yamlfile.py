@@ -331,6 +331,8 @@ def _binary_problem(path):
     if kind == "study" or (kind is None and str(path).endswith(".nc")):
         return ("is a study's results file (NetCDF), not a YAML file: draw it with rbx plot --kind sweep"
                 + (", continue it with rbx sweep STUDY --resume" if str(path).endswith(".partial") else ""))
+    if kind == "returns":
+        return "is the return angles of rbx histogram (HDF5), not a YAML file"
     return "is a run file (HDF5), not a YAML file: draw it with rbx plot, continue it with rbx simulate --resume"
 
 

@@ -297,8 +297,12 @@ def test_histogram_never_replaces_the_simulation_by_default_and_data_names_its_f
     conf = histogram_config(tmp_path)
     assert cli("simulate", conf, "--collisions", 30, "--quiet", cwd=tmp_path).returncode == 0
     before = (tmp_path / "returns.h5").read_bytes()
-    line = one_line(cli("histogram", conf, "-o", "fig.png", "--force", cwd=tmp_path))
-    assert line.startswith("rbx: h.yaml: output.path: returns.h5 holds a run of rbx simulate") and "--data" in line
+    refusal = ("rbx: returns.h5: is a run file of rbx simulate: remove it if it is not needed; give the return "
+               "angles another name (--data)")
+    assert one_line(cli("histogram", conf, "-o", "fig.png", "--force", cwd=tmp_path)) == refusal
+    # named with --data too (it was replaced then, as rbx sweep never replaces a run)
+    assert one_line(cli("histogram", conf, "-o", "fig.png", "--data", "returns.h5", "--force", cwd=tmp_path)) == \
+        refusal
     assert (tmp_path / "returns.h5").read_bytes() == before and not (tmp_path / "fig.png").exists()
     res = cli("histogram", conf, "-o", "fig.png", "--data", "angles.h5", "--quiet", cwd=tmp_path)
     assert res.returncode == 0, res.stderr
@@ -312,6 +316,10 @@ def test_histogram_never_replaces_the_simulation_by_default_and_data_names_its_f
     # never the config itself
     line = one_line(cli("histogram", conf, "--data", "h.yaml", "--force", cwd=tmp_path))
     assert "h.yaml is the config file itself" in line, line
+    # nor, the other way round, the return angles replaced by a run
+    line = one_line(cli("simulate", conf, "-o", "angles.h5", "--force", cwd=tmp_path))
+    assert line == ("rbx: angles.h5: is the return angles of rbx histogram: remove it if it is not needed; give this "
+                    "run's output another name"), line
 
 
 def test_lyapunov_of_copies_of_one_orbit_gives_one_orbit_and_no_interval(tmp_path):

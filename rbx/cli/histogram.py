@@ -71,28 +71,14 @@ def _data_path(data, out, cfg, config):
 
 def _check_data_target(path, key, force, cfg, config):
     """The return angles may replace an existing file only with --force (as the figure), never the config or a
-    file it includes, and, by default (output.path), never a run of ``rbx simulate``: the two commands share
-    output.path, and --force once replaced a simulation this way."""
+    file it includes, and never another command's file, a run of ``rbx simulate`` above all, with or without
+    --force (:func:`rbx.paths.other_commands_file`): the two commands share output.path, and --force once replaced a
+    simulation this way."""
     from ..driver import check_target
     file = config if key == "output.path" else None
-    if key != "--data" and _holds_run(path):
-        raise UserError(file, key, f"{display_path(path)} holds a run of rbx simulate, which rbx histogram does not "
-                                   "replace, even with --force: write the return angles elsewhere with --data OUT.h5")
     with user_errors():
         check_target(path, force, key, file=file, config_source=(cfg.source,) + tuple(cfg.includes),
-                     force_hint="--force")
-
-
-def _holds_run(path):
-    """True if ``path`` is an HDF5 file with the collisions of a run (written by rbx simulate)."""
-    if not os.path.isfile(path):
-        return False
-    import h5py
-    try:
-        with h5py.File(path, "r") as f:
-            return "collisions" in f
-    except Exception:       # not HDF5, unreadable: not a run; --force decides as for any file
-        return False
+                     force_hint="--force", mine="returns")
 
 
 def _histogram(config, out, data, trajectories, seed, sets, force, quiet, cluster, began, stop):
