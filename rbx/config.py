@@ -640,7 +640,7 @@ def _plain_states(states, n, geom, R, kappa):
         energy = 0.5 * (np.sum(vel * vel, 1) + kappa * R * R * np.sum(spin * spin, 1))
         reach = np.sqrt(np.sum(vel * vel, 1)) / R
         spin_norm = np.sqrt(np.sum(spin * spin, 1))
-        ok = finite & np.any(vel != 0, 1) & np.isfinite(energy) & (energy >= MIN_ENERGY) & \
+        ok = finite & (np.sum(vel * vel, 1) >= MIN_ENERGY) & np.isfinite(energy) & (energy >= MIN_ENERGY) & \
             (reach * reach < MAX_SPIN_SQUARE) & (spin_norm * spin_norm < MAX_SPIN_SQUARE)
         ok &= geom.clearance(pos) >= -1e-12 * geom.size
     good = m if ok.all() else int(np.argmin(ok))
@@ -671,6 +671,12 @@ def _one_state(s, init, key, n, c, geom, R, kappa):
     vel = np.array(c.vector(s["velocity"], _join(key, "velocity"), n))
     if not np.any(vel):
         c.fail(_join(key, "velocity"), "must be non-zero (a ball at rest never reaches a wall)")
+    with np.errstate(under="ignore"):
+        speed2 = float(np.sum(vel * vel))
+    if not speed2 >= MIN_ENERGY:
+        # a spinning ball with |v| = 1.4e-170 'ended earlier (no wall ahead)', exit 0: |v|² is 0 in floats
+        c.fail(_join(key, "velocity"), f"too small: |v|² = {speed2:.3g} is below {MIN_ENERGY:g}, and the flight to "
+                                       "a wall would never end (scale the velocities up, or the unit of time down)")
     spin = s.get("angular_velocity", 0.0 if n == 2 else [0.0, 0.0, 0.0])
     spin = c.number(spin, _join(key, "angular_velocity")) if n == 2 else \
         np.array(c.vector(spin, _join(key, "angular_velocity"), 3))

@@ -326,7 +326,8 @@ def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segme
     T = float(np.sum(total_time))
     if not T > 0 or int(np.sum(m["collisions"]) - np.sum(m["exits"])) == 0:
         # with no collision measured, the exponents were reported as 0 ± 0 (free flight alone stretches nothing)
-        raise ValueError("no trajectory moved after the warm-up (all left the table)" if not T > 0 else
+        raise ValueError("no trajectory moved after the warm-up: each ended during it (through an exit, or in a "
+                         "flight with no wall ahead, such as along a free corridor)" if not T > 0 else
                          "no collision after the warm-up: every trajectory left the table at its first contact")
     exponents = np.sum(total_sums, axis=0) / T
     stderr = _batch_stderr(seg_time[rows].reshape(-1), seg_exp[rows].reshape(-1, d), exponents)

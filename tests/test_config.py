@@ -506,3 +506,27 @@ def test_an_hdf5_file_given_as_a_config_is_named_a_run(tmp_path):
     with pytest.raises(ConfigError) as info:
         config.load(tmp_path / "binary.yaml")
     assert info.value.problem == "not a text (UTF-8) file"
+
+
+def test_a_speed_whose_square_underflows_is_refused_and_a_corridor_flight_is_named():
+    """|v| = 1.4e-170 with spin passed the energy check (the spin carries it), then 'ended earlier (no wall ahead)'
+    with exit 0: |v|² is 0 in floats. And rbx lyapunov said of a flight along a free corridor that it 'left the
+    table'."""
+    import warnings
+
+    import rbx
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    circle = os.path.join(root, "configs", "examples", "circle.yaml")
+    with pytest.raises(ConfigError, match=r"initial.velocity: too small: \|v\|² = 0 is below 1e-304") as info:
+        rbx.load(circle, {"initial.velocity": [1e-170, 1e-170]})
+    assert info.value.key == "initial.velocity"
+    assert rbx.load(circle, {"initial.velocity": [1e-140, 1e-140]}).initial[0]["velocity"][0] == 1e-140
+    with pytest.raises(ConfigError, match=r"initial\[1\].velocity: too small"):
+        rbx.load(circle, {"initial": [{"position": [0, 0], "velocity": [1, 0]},
+                                      {"position": [0, 0], "velocity": [1e-170, 0]}], "run.trajectories": 2})
+    lorentz = os.path.join(root, "configs", "examples", "lorentz.yaml")
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        with pytest.raises(ValueError, match="each ended during it .* along a free corridor"):
+            rbx.lyapunov(rbx.load(lorentz, {"initial": {"position": [0.5, 0.0], "velocity": [1, 0]},
+                                            "run.trajectories": 1}), collisions=100)
