@@ -859,13 +859,20 @@ def sweep_figure(panels, title, width=None):
     fig = _figure(width, 4.8, title)
     axes = fig.subplots(1, len(panels), squeeze=False)[0]
     for ax, panel in zip(axes, panels):
+        shades = [s["shade"] for s in panel["series"] if "shade" in s]
+        norm = Normalize(min(shades), max(shades)) if shades else None
         for k, s in enumerate(panel["series"]):
             x, y = np.asarray(s["x"], float), np.asarray(s["y"], float)
             err = None if s.get("err") is None else np.asarray(s["err"], float)
             if err is not None:
                 err = np.where(np.isfinite(err), err, 0.0)
-            ax.errorbar(x, y, yerr=err, marker=s.get("marker", "o"), ms=4, lw=1.2, capsize=3,
-                        color=s.get("color", _colour(k)), label=s.get("label"))
+            colour = colormaps["viridis"](norm(s["shade"])) if "shade" in s else s.get("color", _colour(k))
+            ax.errorbar(x, y, yerr=err, marker=s.get("marker", "o"), ms=4 if norm is None else 2.5, lw=1.2,
+                        capsize=3 if norm is None else 0, color=colour, label=s.get("label"))
+        if norm is not None:        # many lines: a colour bar of their key, not a legend entry each
+            from matplotlib.cm import ScalarMappable
+            fig.colorbar(ScalarMappable(norm=norm, cmap="viridis"), ax=ax, label=panel.get("shade_label", ""),
+                         shrink=0.85)
         for k, ref in enumerate(panel.get("references", ())):
             style = dict(color=ref.get("color", "k"), ls=ref.get("ls", "--"), lw=1.0, label=ref.get("label"))
             if ref.get("x") is None:

@@ -1075,3 +1075,26 @@ def test_a_mushroom_stem_as_wide_as_its_cap_is_named_not_an_overflow():
     with pytest.raises(ConfigError, match="must be less than the cap's diameter") as info:
         rbx.load(str(ROOT / "configs" / "examples" / "mushroom.yaml"), {"table.stem_width": 2.0})
     assert info.value.key == "table.stem_width"
+
+
+def test_many_lines_are_coloured_along_a_colour_bar_not_each_in_the_legend():
+    """A second key of 41 values drew 41 legend entries, and matplotlib warned that the layout collapsed."""
+    import warnings
+
+    from rbx import plotting
+    from rbx.cli.sweep import MAX_LEGEND_LINES, sweep_panel
+    rect = str(ROOT / "configs" / "examples" / "rectangle.yaml")
+    ds = sweep({"base": rect, "vary": {"ball.inertia": [0.3, 0.6], "ball.radius": {"from": 0.05, "to": 0.15,
+                                                                                     "num": MAX_LEGEND_LINES + 1}},
+                "set": {"initial": {"sample": "billiard"}}, "measure": ["energy_drift"],
+                "ensemble": {"trajectories": 2, "collisions": 2, "seed": 1}})
+    panel, _ = sweep_panel(ds, "energy_drift", x="ball.inertia")
+    assert all(s["label"] is None and "shade" in s for s in panel["series"]) and len(panel["series"]) == 11
+    assert panel["shade_label"] == "ball radius R [L]"
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")          # no layout warning
+        fig = plotting.sweep_figure([panel], "t")
+        fig.canvas.draw()
+    assert any(ax.get_ylabel() == "ball radius R [L]" for ax in fig.axes)      # the colour bar
+    few, _ = sweep_panel(ds, "energy_drift", x="ball.radius")                # two lines: a legend entry each
+    assert [s["label"] for s in few["series"]] == ["κ = 0.3", "κ = 0.6"]

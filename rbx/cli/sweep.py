@@ -256,6 +256,10 @@ def _check_results_attrs(ds, path):
             bad(key, f"is not a whole number ≥ 1 ({value!r})")
 
 
+#: at most this many lines get a legend entry each; more are coloured along a colour bar of their key's values
+MAX_LEGEND_LINES = 10
+
+
 def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=None):
     """The panel spec of :func:`rbx.plotting.sweep_figure` for variable ``y`` (default: the first measured)
     against the varied key ``x`` (default: the first), one line per value of a second varied key (or of the
@@ -308,13 +312,19 @@ def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=Non
     # observable's record marks them; a share, a flag or a statistic in the same unit is not one
     dashed = [c for c in reference_names(y) if c in ds.data_vars]
     lines = [{}] if not other else [{other[0]: i} for i in range(ds.sizes[other[0]])]
+    # many lines: coloured along a colour bar of the second key's values, not a legend entry each (41 entries
+    # collapsed the figure's layout)
+    shaded = len(lines) > MAX_LEGEND_LINES and np.asarray(ds[other[0]].values).dtype.kind in "iuf"
     for k, sel in enumerate(lines):
         keep = pick(done, sel).astype(bool)
         err = error(sel)
         if err is not None:
             err = err[..., keep]
         name = f"{osym} = {_fmt(ds[other[0]].values[sel[other[0]]])}" if other else (label or ysym)
-        series.append({"x": xs[keep], "y": pick(var, sel)[keep], "err": err, "label": name})
+        line = {"x": xs[keep], "y": pick(var, sel)[keep], "err": err, "label": None if shaded else name}
+        if shaded:
+            line["shade"] = float(ds[other[0]].values[sel[other[0]]])
+        series.append(line)
         for comp in dashed:
             c = ds[comp]
             # one grey line where the reference is the same beside every line (Santaló's value does not depend on
@@ -333,6 +343,8 @@ def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=Non
     seconds = float(np.nansum(ds["wall_time"].values))
     panel = {"series": series, "references": references, "xlabel": xlabel, "ylabel": ylabel, "logx": logx,
              "logy": logy}
+    if shaded:
+        panel["shade_label"] = parameter_label(other[0])[0] if other[0] in varied else other[0]
     notes = []
     if any(s["err"] is not None and np.any(np.asarray(s["err"]) > 0) for s in series) and error_bars(y):
         notes.append(error_bars(y))            # what a bar is, from the observable's record
