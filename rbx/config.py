@@ -671,7 +671,7 @@ def _one_state(s, init, key, n, c, geom, R, kappa):
     vel = np.array(c.vector(s["velocity"], _join(key, "velocity"), n))
     if not np.any(vel):
         c.fail(_join(key, "velocity"), "must be non-zero (a ball at rest never reaches a wall)")
-    with np.errstate(under="ignore"):
+    with np.errstate(all="ignore"):     # an overflow is said below, with the energy
         speed2 = float(np.sum(vel * vel))
     if not speed2 >= MIN_ENERGY:
         # a spinning ball with |v| = 1.4e-170 'ended earlier (no wall ahead)', exit 0: |v|² is 0 in floats

@@ -560,7 +560,7 @@ def _warn_missing_errors(study, ds):
     done = ds["done"].values.astype(bool)
     for name, _ in study.measure:
         err = f"{name}_stderr"
-        if name not in ds or err not in ds:
+        if name not in ds or err not in ds or not obs.get(name).bars:      # a p-value has no error by design
             continue
         value = np.asarray(ds[name].values, float)[done].reshape(int(done.sum()), -1)
         bar = np.asarray(ds[err].values, float)[done].reshape(int(done.sum()), -1)
