@@ -27,7 +27,7 @@ import numpy as np
 from . import config as cfgmod
 from . import driver
 from .cluster import connect
-from .config import repeated_orbits, seed_change, unused_seed
+from .ensembles import repeated_orbits, seed_change, unused_seed
 from .driver import check_size, prepare_resume, resume_to_file
 from .model import ConfigError, Experiment
 from .progress import Progress

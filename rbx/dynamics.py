@@ -14,7 +14,7 @@ from . import engine
 from .analysis import scene_title, wilson
 from .api import cluster_for, load
 from .cluster import Cluster
-from .config import start_groups
+from .ensembles import start_groups
 from .engine import State
 from .physics import spin_vector
 from .reader import Run

@@ -31,7 +31,7 @@ import yaml
 from . import observables as obs
 from .analysis import unbounded_axes
 from .api import _load as load
-from .config import repeated_orbits
+from .ensembles import repeated_orbits
 from .yamlfile import other_kind, parse_yaml, read_text
 from .model import ConfigError
 from .paths import config_file_problem, display_path

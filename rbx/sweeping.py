@@ -24,7 +24,7 @@ from . import __version__, observables as obs
 from .analysis import scene_title
 from .api import cluster_for, flag, simulate
 from .cluster import ClusterError, SchedulerUnreachable, connect
-from .config import distinct_orbits, start_groups
+from .ensembles import distinct_orbits, start_groups
 from .driver import OWN_SUFFIXES
 from .dynamics import lyapunov
 from .histogram import return_experiment

@@ -47,7 +47,7 @@ def test_a_valid_config_is_frozen(experiment):
     assert cfg.table_kind == "strip" and cfg.dimension == 2 and cfg.wall_names == ("bottom", "top")
     assert cfg.run == model.RunSettings(100, 2, 7)
     assert cfg.output.record == ("time", "wall") and cfg.output.every == 2
-    assert cfg.wall_rules == (config.Constant(1), config.Constant(1))
+    assert cfg.wall_rules == (model.Constant(1), model.Constant(1))
     with pytest.raises(dataclasses.FrozenInstanceError):
         cfg.run = None
     with pytest.raises(dataclasses.FrozenInstanceError):
@@ -261,16 +261,16 @@ def test_changes_are_made_to_the_config_before_it_is_validated(experiment):
     replace a rule, a table or a start given with its kind."""
     cfg = config.load(experiment, changes={"table.width": 2, "boundary.walls.top": {"rule": "exit"}})
     assert cfg.table["width"] == 2.0 and cfg.resolved["table"] == {"kind": "strip", "width": 2.0}
-    assert isinstance(cfg.wall_rules[1], model.Exit) and cfg.wall_rules[0] == config.Constant(1)
+    assert isinstance(cfg.wall_rules[1], model.Exit) and cfg.wall_rules[0] == model.Constant(1)
     # the table file a change reached into is still one the output must never overwrite
     assert str(experiment.parent / "tables" / "strip.yaml") in cfg.includes
     # a rule given with its kind replaces the rule there (a hemisphere's axis is no key of a constant rule)
     cfg = config.load(experiment, changes={"boundary": {"default": {"rule": "hemisphere", "axis": [0, 1],
                                                                      "rough": {"rule": "constant", "rank": 1},
                                                                      "smooth": {"rule": "constant", "rank": 0}}}})
-    assert isinstance(cfg.wall_rules[0], config.Hemisphere)
+    assert isinstance(cfg.wall_rules[0], model.Hemisphere)
     cfg = config.load(experiment, changes={"boundary.default": {"rule": "constant", "rank": 0}})
-    assert cfg.wall_rules == (config.Constant(0), config.Constant(0))
+    assert cfg.wall_rules == (model.Constant(0), model.Constant(0))
     # a list item by its index; a section that was not there
     two = {"initial": [{"position": [0, 0.5], "velocity": [1, 0]}, {"position": [0, 0.5], "velocity": [0, 1]}]}
     cfg = config.load(experiment, changes=two)

@@ -242,7 +242,8 @@ def test_the_api_warns_of_copies_of_one_orbit(tmp_path):
         warnings.simplefilter("error")
         rbx.simulate(STRIP, collisions=20)                                               # one trajectory
         rbx.simulate(rbx.load(STRIP, {"boundary": yaml.safe_load(RANDOM)}), collisions=20, trajectories=3)
-    assert rbx.config.repeated_orbits(rbx.load(STRIP, {"initial": [
+    from rbx.ensembles import repeated_orbits
+    assert repeated_orbits(rbx.load(STRIP, {"initial": [
         {"position": [0, 0.5], "velocity": [0.6, 0.8]}, {"position": [0, 0.5], "velocity": [0.6, 0.8]},
         {"position": [0, 0.4], "velocity": [0.6, 0.8]}]})).startswith("only 2 of the 3 trajectories")
     # the CLI names the key to change: the list of starts, not run.trajectories (which the user never set)
@@ -344,7 +345,7 @@ def test_the_readmes_override_example_changes_one_orbit_without_copying_it():
     """The README's override example was 10 copies of the strip's one orbit (a fixed start, no random rule)."""
     import ast
     import re
-    from rbx.config import repeated_orbits
+    from rbx.ensembles import repeated_orbits
     text = " ".join((ROOT / "README.md").read_text().split())
     found = re.search(r'give overrides by dotted key: `rbx\.load\("([^"]+)", (\{[^`]*\})\)`', text)
     exp = rbx.load(ROOT / found.group(1), ast.literal_eval(found.group(2)))

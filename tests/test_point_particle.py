@@ -13,7 +13,7 @@ import pytest
 from scipy import stats
 
 import rbx
-from rbx import config, rng
+from rbx import config, ensembles, rng
 from rbx.config import ConfigError
 from rbx.sampling import _draws, sample_point_particle
 
@@ -166,7 +166,7 @@ def test_config_checks():
     assert e.value.key == "initial.sample"
     exp = rbx.load(_base())
     assert exp.initial == ("point_particle", None) and exp.run.trajectories == 1
-    assert config.draws_random_numbers(exp)
+    assert ensembles.draws_random_numbers(exp)
     again = rbx.load(exp.to_dict())
     assert again.initial == exp.initial
     assert rbx.load(exp, {"ball.inertia": 0.2}).initial == exp.initial

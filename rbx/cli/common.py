@@ -89,9 +89,9 @@ def parse_sets(sets):
 
 def warn_repeated(cfg, overrides, changes=None):
     """The warnings for settings that change nothing, on stderr: an ensemble of copies of one orbit
-    (:func:`rbx.config.repeated_orbits`), and a seed given by ``--seed`` or ``--set run.seed=`` (``changes``) to a
-    run that draws no random numbers (:func:`rbx.config.unused_seed`)."""
-    from ..config import repeated_orbits, seed_change, unused_seed
+    (:func:`rbx.ensembles.repeated_orbits`), and a seed given by ``--seed`` or ``--set run.seed=`` (``changes``) to a
+    run that draws no random numbers (:func:`rbx.ensembles.unused_seed`)."""
+    from ..ensembles import repeated_orbits, seed_change, unused_seed
     message = repeated_orbits(cfg)
     if message:
         # the key to change: a list of starts that repeat each other, else the number of copies of one start

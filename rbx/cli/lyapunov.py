@@ -96,7 +96,7 @@ def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as
     warn_repeated(exp, overrides, changes)        # after every refusal: a user error stays one line
     said = (f"lyapunov: {plural(len(result.time), 'trajectory')} × {plural(exp.run.collisions, 'collision')} in "
             f"{duration(time.perf_counter() - began)}" + (f" ({compile_note()})" if compile_note() else ""))
-    from ..config import start_groups
+    from ..ensembles import start_groups
     group = start_groups(exp)
     copies = len(result.time) > 1 and group is not None and len(set(group.tolist())) == 1
     if as_json:

@@ -443,7 +443,7 @@ def _refuse_one_orbit(run, traj, values, kind, what, why):
     (``values``: the selected trajectories' data, one row each, compared bit for bit)."""
     if len(traj) < 2 or not all(np.array_equal(values[0], v, equal_nan=True) for v in values[1:]):
         return
-    from ..config import start_groups
+    from ..ensembles import start_groups
     cause = ""
     try:
         group = start_groups(run.experiment)
