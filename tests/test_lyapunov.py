@@ -548,3 +548,21 @@ def test_copies_of_one_orbit_give_one_orbits_error_and_an_exit_is_no_regular_orb
     left = np.isfinite(lam1) & ly.ended & (lam1 < 0.02)
     assert left.sum() >= 3            # orbits that left with a small λ₁: the count below tells them apart
     assert ly.regular() == (int(np.sum(np.isfinite(lam1) & ~ly.ended & (lam1 < 0.02))), ly.measured())
+
+
+def test_an_integrable_tables_exponent_is_said_to_be_finite_time():
+    """The specular circle's λ₁ of 3.6e-4 ± 0.5e-4 read as a positive exponent 7 standard errors above 0: when every
+    orbit is regular the command says the values are finite-time ones, and the ± their spread."""
+    from click.testing import CliRunner
+
+    from rbx.cli.main import cli
+    circle = os.path.join(EXAMPLES, "circle.yaml")
+    result = CliRunner().invoke(cli, ["lyapunov", circle, "--set", "boundary.default.rank=0", "--set",
+                                      "initial={sample: billiard}", "--trajectories", "8", "--collisions", "2000",
+                                      "--exponents", "1"])
+    assert result.exit_code == 0, result.output
+    assert "every orbit is regular: their λ1 falls as log t / t, so the values above are finite-time ones" in \
+        result.output
+    chaotic = CliRunner().invoke(cli, ["lyapunov", os.path.join(EXAMPLES, "lyapunov-sinai.yaml"), "--trajectories",
+                                       "4", "--collisions", "600", "--exponents", "1"])
+    assert chaotic.exit_code == 0 and "every orbit is regular" not in chaotic.output, chaotic.output

@@ -139,6 +139,10 @@ def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as
         if 0 < regular < measured:
             click.echo("the exponents above pool the regular and the chaotic orbits; each orbit's own exponents: "
                        "--json (per_trajectory)")
+        elif regular == measured > 0:
+            # an integrable table's λ1 was read as a positive exponent, its bar 7 standard errors above 0
+            click.echo("every orbit is regular: their λ1 falls as log t / t, so the values above are finite-time "
+                       "ones (they shrink with longer runs) and the ± is their spread, not that bias")
     if result.ended is not None and result.ended.any():
         click.echo(f"{plural(int(result.ended.sum()), 'trajectory')} left the table (an exit or an escape) before "
                    "the end")
