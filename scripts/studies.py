@@ -97,9 +97,17 @@ def study1(doc):
 
 `configs/studies/lyapunov-sinai.yaml`, `lyapunov-stadium.yaml` (and their `-specular` references): {ensemble(sinai)},
 trajectories from the billiard measure, λ₁ per unit time by `rbx.lyapunov` (warm-up a tenth, 10 segments; the error
-is the spread of the trajectories when it exceeds the segments'); an orbit is counted regular when its own λ₁ < {thr}.
-Specular: Sinai {pm(float(sinai0['lyapunov'][0]), float(sinai0['lyapunov_stderr'][0]))}, stadium
-{pm(float(stadium0['lyapunov'][0]), float(stadium0['lyapunov_stderr'][0]))}. Run time {duration(total)}.
+is the spread of the trajectories when it exceeds the segments'); an orbit is counted regular when its own λ₁ < {thr}
+per unit time (a threshold in the table's units: a table 100 times larger has exponents 100 times smaller; give
+`{{regular_share: {{threshold: …}}}}` or `rbx lyapunov --threshold` for another scale). Specular (the `-specular`
+files, with the same billiard-measure starts): Sinai {pm(float(sinai0['lyapunov'][0]),
+float(sinai0['lyapunov_stderr'][0]))}, stadium {pm(float(stadium0['lyapunov'][0]),
+float(stadium0['lyapunov_stderr'][0]))}. These are not the classic billiards' λ₁ per unit time: a start from the
+billiard measure carries spin, which a specular wall never changes, so each orbit's centre keeps a speed below 1
+(the error bar is mostly the spread of those speeds). Per collision they agree: the specular Sinai's 0.726 per
+collision against 0.732 from point-particle starts, whose λ₁ = 1.402 ± 0.013 per unit time is the classic value
+(`rbx lyapunov configs/examples/lyapunov-sinai.yaml --set boundary.default.rank=0 --trajectories 8 --collisions
+5000 --exponents 1`, with `--set initial={{sample: point_particle}}` for the latter). Run time {duration(total)}.
 
 {table(rows, ["κ", "Sinai λ₁ [1/T]", "Sinai regular share", "stadium λ₁ [1/T]", "stadium regular share"])}
 """)
@@ -229,14 +237,31 @@ ball.radius=0.05` (the same checks, and the same numbers); it returns the result
 
 The results file opens with `xarray.open_dataset`: one dimension per varied key, `<observable>` and
 `<observable>_stderr` (and companions such as `mean_free_path_santalo`, `return_path_kac`, `regular_share_low/high`),
-per point `collisions`, `wall_time`, `seed`, `done`, the study's text, digest and provenance as attributes.
+per point `collisions`, `wall_time`, `seed`, `done`, the study's text, digest and provenance as attributes, and
+`ensemble_orbits`: how many distinct orbits each point's ensemble holds (fewer than its trajectories where fixed
+starts and no random numbers repeat each other; `rbx sweep` warns, and the study's figure says "copies"). Each
+distinct orbit is run once: copies add no sample, and their errors are those of the distinct orbits.
+Two observables say when their number is not what its name promises: `trapped_share_levelled` is 1 where survival
+has levelled off by the end of the run (the share is then a trapped share) and 0 where it still falls (the share
+counts the orbits not out yet and shrinks with longer runs); `return_path` and `return_angle_ks` are NaN where
+some sample did not return within the run (the slow returns are missing: the mean of the others is biased low, and
+a p-value would test the truncation, not the law), and the study's figure says so; raise `collisions`.
+
+`--resume` continues `RESULTS.nc.partial` (or `RESULTS.nc`) only if it is this study's: the same digest, the
+study's variables in their shapes, coordinates equal to the values the study defines, and points marked done that
+hold a seed equal to the study's and a number where their observable always gives one (`lyapunov`, `energy_drift`,
+`mean_free_path`, and `wall_time`); otherwise it refuses in one line naming the variable, exit 2.
 
 Starts for comparisons with classic billiards: `set: {{initial: {{sample: point_particle}}}}` starts every trajectory
 as a point particle's, the centre uniform in the area of the shrunk table and the direction uniform, |v| = 1 and no
 spin (docs/reference.md §4). With a specular rule this is the classic billiard in its invariant measure: the mean
 free path is then Santaló's πA/P of the shrunk table, the `mean_free_path` observable's companion
 `mean_free_path_santalo` (checked in `tests/test_point_particle.py`, with the disc's mean first flight 8r/3π and
-mean chord 16r/3π). `{{sample: billiard}}` starts on the walls instead, with spin, so the centre is slower:
+mean chord 16r/3π). Such starts meet an orbit of long chords more often, and in a table that is not ergodic (a
+circle, a rectangle, a box) each orbit keeps its chords: `mean_free_path` therefore weights each point-particle
+orbit by its collisions per unit path, as if every orbit had run the same path, which is πA/P in any table
+(circle of radius 0.9: 1.430 ± 0.030 against 1.414; pooled with equal weights it was the flow's mean chord 16r/3π =
+1.528; `tests/test_observables.py`). `{{sample: billiard}}` starts on the walls instead, with spin, so the centre is slower:
 the specular Lorentz gas of study 2 diffuses at D = 0.069 ± 0.001 per unit time from a point particle's starts
 (Machta–Zwanzig's random walk between traps: 0.063; `tests/test_observables.py`) and at 0.058 from the
 billiard measure's.
