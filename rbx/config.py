@@ -786,7 +786,9 @@ def apply_changes(data, changes, file, base, label="override"):
                 if part >= len(child):
                     raise ConfigError(file, key, f"{where} has {len(child)} items (0–{len(child) - 1})")
             elif not isinstance(child, dict):
-                raise ConfigError(file, key, f"{where} is {_kind(child)}, not a mapping: it has no key '{part}'")
+                hint = (f"; a list's items are named by their index in brackets: {where}[{part}]"
+                        if isinstance(child, list) and str(part).isdigit() else "")
+                raise ConfigError(file, key, f"{where} is {_kind(child)}, not a mapping: it has no key '{part}'{hint}")
             parent, name = child, part
         old = parent[name] if isinstance(name, int) else parent.get(name)
         if len(path) == 1 and head in ("table", "boundary") and isinstance(old, str) and isinstance(value, Mapping) \

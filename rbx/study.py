@@ -411,6 +411,10 @@ def _canonical_base(base, folder, fixed=None, first=None):
 
 
 def _number(x, key, fail):
+    if isinstance(x, (list, tuple)):
+        fail(key, f"expected a number, got the list {list(x)!r}: a study varies one number per key; name one item of "
+                  f"a list by its index in brackets ({key.removeprefix('vary.')}[1]), and vary several with zip: "
+                  "true")
     if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
         fail(key, f"expected a finite number, got {x!r}")
     return x

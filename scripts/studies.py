@@ -231,6 +231,10 @@ ensemble: {{trajectories: 32, collisions: 80000, seed: 11}}
               [--set KEY=VALUE] [--trajectories M] [--collisions N]     # a shipped study, shortened
     rbx plot RESULTS.nc --kind sweep [--y OBSERVABLE] [--x KEY] [--logx] [--logy] [-o FIG.png]
 
+A varied key names one number. An item of a list is named by its index in brackets, and `zip: true` (beside
+`vary`) moves several together: the escape example's gate, `table.boundary[3].to[1]` and
+`table.boundary[4].from[1]` zipped over the same values, sweeps the hole's size.
+
 From Python the same: `rbx.sweep("STUDY.yaml", "RESULTS.nc", trajectories=4, collisions=5000,
 sets={{"ball.radius": 0.05}})` is `rbx sweep STUDY.yaml -o RESULTS.nc --trajectories 4 --collisions 5000 --set
 ball.radius=0.05` (the same checks, and the same numbers); it returns the results as an `xarray.Dataset`.

@@ -1098,3 +1098,21 @@ def test_many_lines_are_coloured_along_a_colour_bar_not_each_in_the_legend():
     assert any(ax.get_ylabel() == "ball radius R [L]" for ax in fig.axes)      # the colour bar
     few, _ = sweep_panel(ds, "energy_drift", x="ball.radius")                # two lines: a legend entry each
     assert [s["label"] for s in few["series"]] == ["κ = 0.3", "κ = 0.6"]
+
+
+def test_a_hole_is_swept_by_naming_its_corners_list_items():
+    """Varying the escape example's gate: `table.boundary.3.to: [[0, 0.8], …]` said only 'expected a finite number',
+    and `table.boundary.3.to.1` that table.boundary has no key '3'. A list's items are named in brackets, and zip
+    moves both ends of the gate together."""
+    gate = str(ROOT / "configs" / "examples" / "escape-sinai.yaml")
+    base = {"base": gate, "measure": ["escape_rate"], "ensemble": {"trajectories": 10, "collisions": 100}}
+    with pytest.raises(ConfigError, match=r"got the list \[0, 0.8\]: a study varies one number per key; name one item "
+                                          r"of a list by its index in brackets \(table.boundary.3.to\[1\]\)"):
+        load_study({**base, "vary": {"table.boundary.3.to": [[0, 0.8], [0, 0.85]]}})
+    with pytest.raises(ConfigError, match=r"a list's items are named by their index in brackets: table.boundary\[3\]"):
+        load_study({**base, "vary": {"table.boundary.3.to.1": [0.8, 0.85]}})
+    st = load_study({**base, "zip": True, "vary": {"table.boundary[3].to[1]": [0.8, 0.85],
+                                                   "table.boundary[4].from[1]": [0.8, 0.85]}})
+    from rbx.analysis import wall_measure
+    gates = [wall_measure(st.experiment(p).geometry(), 4) for _, p in st.points()]
+    assert gates == pytest.approx([0.8 - 0.675, 0.85 - 0.675], rel=1e-12)          # the gate's length, point by point
