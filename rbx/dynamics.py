@@ -184,7 +184,8 @@ REGULAR_THRESHOLD = 0.02
 class Lyapunov:
     """The Lyapunov spectrum of the flow (per unit time, largest first) and its standard error.
 
-    ``exponents`` (d,): Σ log-stretches / Σ time over the measured segments of every trajectory, sorted
+    ``exponents`` (d,): Σ log-stretches / Σ time over the measured segments of every trajectory (copies of one orbit
+    counted once: :func:`rbx.ensembles.start_groups`), sorted
     decreasingly (the other arrays follow the same order);
     ``stderr`` (d,): the standard error from the spread of the segment estimates (batch means: ``segments``
     per trajectory × ``trajectories``, each weighted by its duration), or from the spread of the trajectories'
@@ -302,8 +303,8 @@ def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segme
             raise ValueError(f"exponents must be an integer from 1 to {d} (the dimension of the phase space), "
                              f"not {exponents!r}")
     tan = _Tangent(exp, vectors=exponents)
-    # copies of one orbit are one sample: the errors come from the distinct orbits alone (counted as samples, 8
-    # copies gave an error 2.96 times smaller than one orbit's)
+    # copies of one orbit are one sample: the exponents and their errors come from the distinct orbits alone
+    # (counted as samples, 8 copies gave an error 2.96 times smaller than one orbit's)
     group = start_groups(exp)
     rows = np.arange(tan.M) if group is None else np.sort(np.unique(group, return_index=True)[1])
     if segments * len(rows) < 2:
@@ -323,13 +324,15 @@ def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segme
     with np.errstate(invalid="ignore", divide="ignore"):
         per_traj = total_sums / total_time[:, None]
         seg_exp = m["seg_sums"] / seg_time[..., None]
-    T = float(np.sum(total_time))
+    # copies of one orbit count once (``rows``, above), in the value as in its error: a study runs each distinct
+    # orbit once, and the two gave different values for the starts [A, A, A, B]
+    T = float(np.sum(total_time[rows]))
     if not T > 0 or int(np.sum(m["collisions"]) - np.sum(m["exits"])) == 0:
         # with no collision measured, the exponents were reported as 0 ± 0 (free flight alone stretches nothing)
         raise ValueError("no trajectory moved after the warm-up: each ended during it (through an exit, or in a "
                          "flight with no wall ahead, such as along a free corridor)" if not T > 0 else
                          "no collision after the warm-up: every trajectory left the table at its first contact")
-    exponents = np.sum(total_sums, axis=0) / T
+    exponents = np.sum(total_sums[rows], axis=0) / T
     stderr = _batch_stderr(seg_time[rows].reshape(-1), seg_exp[rows].reshape(-1, d), exponents)
     if not np.all(np.isfinite(stderr)):
         raise ValueError("fewer than two segments were measured (the others' trajectories left the table): no "

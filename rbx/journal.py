@@ -40,7 +40,6 @@ the disk).
 """
 import contextlib
 import errno
-import fcntl
 import math
 import os
 import struct
@@ -372,6 +371,7 @@ def _lock(fd, shared=False):
     (``HDF5_USE_FILE_LOCKING=FALSE``), nor where the file system has no locks."""
     if os.environ.get("HDF5_USE_FILE_LOCKING", "").upper() in ("FALSE", "0"):
         return
+    import fcntl            # POSIX only: imported where the lock is taken
     try:
         fcntl.flock(fd, (fcntl.LOCK_SH if shared else fcntl.LOCK_EX) | fcntl.LOCK_NB)
     except OSError as exc:

@@ -874,7 +874,9 @@ def sweep_figure(panels, title, width=None):
             fig.colorbar(ScalarMappable(norm=norm, cmap="viridis"), ax=ax, label=panel.get("shade_label", ""),
                          shrink=0.85)
         for k, ref in enumerate(panel.get("references", ())):
-            style = dict(color=ref.get("color", "k"), ls=ref.get("ls", "--"), lw=1.0, label=ref.get("label"))
+            colour = colormaps["viridis"](norm(ref["shade"])) if "shade" in ref and norm is not None else \
+                ref.get("color", "k")
+            style = dict(color=colour, ls=ref.get("ls", "--"), lw=1.0, label=ref.get("label"))
             if ref.get("x") is None:
                 ax.axhline(float(ref["y"]), **style)
             else:

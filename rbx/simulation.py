@@ -5,7 +5,6 @@ Memory stays flat: a block holds at most a few million values whatever the run's
 """
 import copy
 import os
-import resource
 import time
 from concurrent.futures import ThreadPoolExecutor, wait
 
@@ -81,6 +80,7 @@ def memory_problem(trajectories, per_trajectory=STATE_BYTES, records=0):
     except (ValueError, OSError, AttributeError):   # not a POSIX system: let the allocation decide
         return None
     try:        # a limit on the process's memory (ulimit -v), less what it holds already (the interpreter, NumPy)
+        import resource         # POSIX only: where it is missing, no limit is read
         limit = resource.getrlimit(resource.RLIMIT_AS)[0]
         if limit != resource.RLIM_INFINITY:
             with open("/proc/self/statm") as f:

@@ -31,7 +31,7 @@ import yaml
 from . import observables as obs
 from .analysis import unbounded_axes
 from .api import _load as load
-from .ensembles import repeated_orbits
+from .ensembles import repeated_orbits, start_groups
 from .yamlfile import other_kind, parse_yaml, read_text
 from .model import ConfigError
 from .paths import config_file_problem, display_path
@@ -253,15 +253,18 @@ def load_study(study, base=None, progress=None, sets=None, ensemble=None):
         if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or v < lo:     # NumPy's too
             fail(f"ensemble.{k}", f"expected an integer ≥ {lo}, got {v!r}")
         ens[k] = int(v)
-    for name, options in measure:           # the tangent loop's warm-up and segments against the collisions
-        if name == "lyapunov":
-            N, segments = ens["collisions"], int(options.get("segments", 10))
-            warmup = N // 10 if options.get("warmup") is None else int(options["warmup"])
-            if warmup >= N:
-                fail("measure.lyapunov.warmup", f"{warmup} collisions leave none of the ensemble's {N} to measure")
-            if N - warmup < segments:
-                fail("measure.lyapunov.segments", f"{segments} segments in the {N - warmup} collisions measured "
-                                                  f"after the warm-up of {warmup}: fewer segments, or more collisions")
+    if any(obs.get(name).tangent for name, _ in measure):   # the tangent loop's warm-up and segments, checked now
+        options = dict(measure).get("lyapunov", {})
+        own = "lyapunov" in dict(measure)       # else regular_share alone runs it with lyapunov's defaults
+        N, segments = ens["collisions"], int(options.get("segments", 10))
+        warmup = N // 10 if options.get("warmup") is None else int(options["warmup"])
+        if warmup >= N:
+            fail("measure.lyapunov.warmup" if own else "ensemble.collisions",
+                 f"{warmup} collisions of warm-up leave none of the ensemble's {N} to measure")
+        if N - warmup < segments:
+            fail("measure.lyapunov.segments" if own else "ensemble.collisions",
+                 f"{segments} segments in the {N - warmup} collisions measured after the warm-up of {warmup}: "
+                 + ("fewer segments, or more collisions" if own else "more collisions"))
     first = {k: _plain(v[0]) for k, v in zip(keys, values)}
     canonical = {"base": _canonical_base(base_value, folder, fixed, first), "set": fixed,
                  "vary": {k: [_plain(x) for x in v] for k, v in zip(keys, values)}, "zip": zipped,
@@ -435,7 +438,8 @@ def _check_distinct(keys, values, zipped, fail):
         return
     for key, v in zip(keys, values):
         if len(np.unique(v)) != len(v):
-            twice = _plain(v[np.flatnonzero(np.diff(np.sort(v)) == 0)[0]])
+            ordered = np.sort(v)
+            twice = _plain(ordered[np.flatnonzero(np.diff(ordered) == 0)[0]])
             fail(f"vary.{key}", f"the value {twice} comes twice (listed twice, or a range whose from and to are "
                                 "equal or too close for its num)")
 
@@ -567,6 +571,14 @@ def _check_points(study, progress=None):
                 problem = rec.problem(exp, options)
             if problem:
                 raise ConfigError(study.file, f"measure.{name}", problem)
+        group = start_groups(exp)
+        orbits = exp.run.trajectories if group is None else len(np.unique(group))
+        if need["tangent"] and need["segments"] < 2 and orbits < 2:
+            # one orbit (copies of it count once) in one segment: no error estimate (the tangent loop refuses it)
+            fail_at = "measure.lyapunov.segments" if "lyapunov" in dict(study.measure) else "ensemble.trajectories"
+            raise ConfigError(study.file, fail_at, f"one segment of one orbit gives no error estimate (the "
+                                                   f"{exp.run.trajectories} trajectories are copies of one orbit "
+                                                   "or one trajectory): segments ≥ 2, or distinct orbits")
         repeated = repeated or repeated_orbits(exp)
     if repeated:
         # each point's error bar would be the spread of copies of one orbit (a regular share of 1.0 ± 0.1 from 4

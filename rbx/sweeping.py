@@ -60,7 +60,8 @@ def run_point(study, point, scheduler=None):
                 runs.lyapunov = lyapunov(exp, segments=need["segments"], warmup=need["warmup"],
                                          scheduler=scheduler)
             except ValueError as exc:       # every orbit left the table during its warm-up: nothing measured
-                raise ConfigError(study.file, "measure.lyapunov", str(exc)) from None
+                first = next(n for n, _ in study.measure if obs.get(n).tangent)     # lyapunov, or regular_share
+                raise ConfigError(study.file, f"measure.{first}", str(exc)) from None
             collisions += int(np.sum(runs.lyapunov.collisions))
         if need["returns"]:
             with cluster_for(scheduler, "scheduler") as on:
@@ -568,7 +569,8 @@ def _warn_missing_errors(study, ds):
         if lacking:
             warnings.warn(f"{display_path(study.file) if study.file else 'the study'}: measure.{name}: "
                           f"{lacking} of {int(done.sum())} finished points hold no standard error: one orbit per "
-                          "point in one segment gives none (more trajectories, of distinct orbits, or segments)",
+                          "point gives no spread to take it from (more trajectories, of distinct orbits, or more "
+                          "segments where the observable takes that option)",
                           NoErrorBars, stacklevel=3)
 
 
@@ -579,8 +581,11 @@ def _failed_point(exc, study, index, finished, total, output):
     problem = exc.problem
     if "(at the point " not in problem:
         problem += f" (at the point {_point_label(study, index)})"
-    if output is None or not finished:
+    if not finished:
         return ConfigError(exc.file, exc.key, f"{problem}; no point was finished")
+    if output is None:
+        return ConfigError(exc.file, exc.key, f"{problem}; the {finished} of {total} points finished before it are "
+                                              "lost with it (no output file keeps them: give one)")
     return ConfigError(exc.file, exc.key, f"{problem}; the {finished} of {total} points finished before it are kept "
                                           f"in {display_path(partial_path(output))} (--resume stops here again: "
                                           "change the study, which then starts afresh with --force)")

@@ -542,6 +542,14 @@ def test_copies_of_one_orbit_give_one_orbits_error_and_an_exit_is_no_regular_orb
         with pytest.raises(ValueError, match="copies of one orbit, and one orbit in one segment"):
             lyapunov(rbx.load(circle, {"run.trajectories": 8}), collisions=100, segments=1)
     assert np.array_equal(eight.exponents, one.exponents) and np.array_equal(eight.stderr, one.stderr)
+    # copies count once in the value too, as a study counts them: [A, A, A, B] is [A, B]
+    a = {"position": [0.1, -0.2], "velocity": [-0.3, 0.9], "angular_velocity": -2.0}
+    b = {"position": [0.3, 0.1], "velocity": [0.8, 0.6], "angular_velocity": 1.0}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)
+        four = lyapunov(rbx.load(circle, {"initial": [a, a, a, b], "run.trajectories": 4}), collisions=300)
+    two = lyapunov(rbx.load(circle, {"initial": [a, b], "run.trajectories": 2}), collisions=300)
+    assert np.array_equal(four.exponents, two.exponents) and np.array_equal(four.stderr, two.stderr)
     gate = rbx.load(os.path.join(EXAMPLES, "escape-sinai.yaml"), {"run.trajectories": 400, "run.collisions": 300})
     ly = lyapunov(gate, warmup=2)
     lam1 = ly.per_trajectory[:, 0]

@@ -1027,7 +1027,8 @@ def test_points_without_an_error_bar_are_said_once_per_observable(tmp_path):
     lines = res.stderr.splitlines()
     for name in ("mean_free_path", "wall_share", "energy_drift"):
         assert f"rbx: warning: s.yaml: measure.{name}: 1 of 1 finished points hold no standard error: one orbit " \
-               "per point in one segment gives none (more trajectories, of distinct orbits, or segments)" in lines
+               "per point gives no spread to take it from (more trajectories, of distinct orbits, or more segments " \
+               "where the observable takes that option)" in lines
     assert len(lines) == 3, res.stderr
     from rbx.sweeping import NoErrorBars
     with pytest.warns(NoErrorBars, match="measure.energy_drift"):
@@ -1039,7 +1040,7 @@ def test_two_points_of_a_study_are_never_the_same_point():
     three identical points with one seed); with zip: true a value repeated in one key is fine as long as the points
     differ (it was refused), and two equal points are refused."""
     base = {"base": SINAI, "measure": ["mean_free_path"], "ensemble": {"trajectories": 2, "collisions": 50}}
-    for vary, words in (({"ball.inertia": [0.2, 0.5, 0.2]}, "the value 0.2 comes twice"),
+    for vary, words in (({"ball.inertia": [0.3, 0.1, 0.3]}, "the value 0.3 comes twice"),
                         ({"ball.inertia": {"from": 0.2, "to": 0.2, "num": 3}}, "the value 0.2 comes twice"),
                         ({"ball.inertia": [1, 2, 1]}, "the value 1 comes twice")):
         with pytest.raises(ConfigError, match=words) as info:
@@ -1057,7 +1058,7 @@ def test_a_studys_own_mistakes_are_named_by_their_key(tmp_path):
     lyap = str(ROOT / "configs" / "examples" / "lyapunov-sinai.yaml")
     study = {"base": lyap, "vary": {"ball.inertia": [0.5]}, "measure": [{"lyapunov": {"segments": 5, "warmup": 300}}],
              "ensemble": {"trajectories": 2, "collisions": 200, "seed": 1}}
-    with pytest.raises(ConfigError, match="300 collisions leave none of the ensemble's 200 to measure") as info:
+    with pytest.raises(ConfigError, match="300 collisions of warm-up leave none of the ensemble's 200 to measure") as info:
         load_study(study)
     assert info.value.key == "measure.lyapunov.warmup"
     study["measure"] = [{"lyapunov": {"segments": 50, "warmup": 190}}]
@@ -1091,6 +1092,11 @@ def test_many_lines_are_coloured_along_a_colour_bar_not_each_in_the_legend():
     panel, _ = sweep_panel(ds, "energy_drift", x="ball.inertia")
     assert all(s["label"] is None and "shade" in s for s in panel["series"]) and len(panel["series"]) == 11
     assert panel["shade_label"] == "ball radius R [L]"
+    # each line's own reference (its largest drift) in that line's colour along the bar, one grey legend entry
+    shaded = [r for r in panel["references"] if "shade" in r]
+    assert len(shaded) == 11 and all(r["label"] is None for r in shaded)
+    assert [r["label"] for r in panel["references"] if "shade" not in r] == \
+        ["largest energy drift max |ΔE|/E (each in its line's colour)"]
     with warnings.catch_warnings():
         warnings.simplefilter("error")          # no layout warning
         fig = plotting.sweep_figure([panel], "t")
@@ -1116,3 +1122,19 @@ def test_a_hole_is_swept_by_naming_its_corners_list_items():
     from rbx.analysis import wall_measure
     gates = [wall_measure(st.experiment(p).geometry(), 4) for _, p in st.points()]
     assert gates == pytest.approx([0.8 - 0.675, 0.85 - 0.675], rel=1e-12)          # the gate's length, point by point
+
+
+def test_a_studys_tangent_loop_is_checked_where_it_is_read_whichever_observable_needs_it():
+    """regular_share alone runs the tangent loop with lyapunov's defaults: too few collisions were found only when a
+    point ran, blamed on measure.lyapunov, which the study did not measure; copies of one orbit in one segment were
+    told to use more trajectories (they had 8)."""
+    circle = str(ROOT / "configs" / "examples" / "circle.yaml")
+    base = {"base": circle, "vary": {"ball.inertia": [0.3, 0.6]}}
+    with pytest.raises(ConfigError, match="10 segments in the 5 collisions measured") as info:
+        load_study({**base, "measure": ["regular_share"], "ensemble": {"trajectories": 2, "collisions": 5}})
+    assert info.value.key == "ensemble.collisions"
+    with pytest.raises(ConfigError, match="one segment of one orbit gives no error estimate .the 8 trajectories") \
+            as info:
+        load_study({**base, "measure": [{"lyapunov": {"segments": 1}}],
+                    "ensemble": {"trajectories": 8, "collisions": 300}})
+    assert info.value.key == "measure.lyapunov.segments"

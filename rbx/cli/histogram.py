@@ -2,8 +2,8 @@
 
 It writes two files: the figure (``-o FIG.png``) and the return angles in HDF5 (``--data OUT.h5``; by default
 ``output.path``, as before, or FIG.h5 beside the figure when the config has none). ``output.path`` is also where
-``rbx simulate`` writes the same config's run: a file holding such a run is never replaced by the default path,
-not even with ``--force`` (``--data`` names another file, or that one on purpose)."""
+``rbx simulate`` writes the same config's run: a file holding such a run (or a study's results) is never replaced,
+not even with ``--force`` (:func:`rbx.paths.other_commands_file`): ``--data`` names another file."""
 import os
 import time
 
@@ -19,8 +19,8 @@ from .common import (Command, Progress, UserError, cannot_write, check_cluster_o
 @click.option("-o", "--output", "out", type=click.Path(dir_okay=False),
               help="Figure to write (default: the HDF5 file's name with .png).")
 @click.option("--data", "data", metavar="OUT.h5", type=click.Path(dir_okay=False),
-              help="HDF5 file of the return angles (default: output.path, else FIG.h5 beside -o FIG.png). The "
-                   "default never replaces a run of rbx simulate, even with --force.")
+              help="HDF5 file of the return angles (default: output.path, else FIG.h5 beside -o FIG.png). A run of "
+                   "rbx simulate is never replaced, even with --force.")
 @click.option("--trajectories", type=int, help="Override run.trajectories (the number of samples).")
 @click.option("--seed", type=int, help="Override run.seed.")
 @set_option

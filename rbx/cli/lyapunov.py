@@ -127,7 +127,8 @@ def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as
         lam1 = result.per_trajectory[:, 0]
         lam1 = lam1[np.isfinite(lam1)]
         if len(lam1):
-            kind = "regular" if lam1[0] < threshold else "not regular"
+            # as the share counts it: an orbit that left through an exit is not a regular one
+            kind = "regular" if result.regular(threshold)[0] else "not regular"
             click.echo(f"regular orbits (own λ1 < {threshold:g} per unit time): one orbit, run as {M} copies: {kind} (own "
                        f"λ1 = {lam1[0]:.6f}); copies give no share and no interval")
     elif len(result.time) > 1:

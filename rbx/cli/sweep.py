@@ -333,9 +333,15 @@ def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=Non
                 np.array_equal(pick(c, {other[0]: 0}), pick(c, {other[0]: i}), equal_nan=True)
                 for i in range(ds.sizes[other[0]]))
             if set(c.dims) <= set(var.dims) and (k == 0 or not shared):
-                references.append({"x": xs[keep], "y": pick(c, sel)[keep],
-                                   "label": variable_label(comp, units=False)[0] if k == 0 else None,
-                                   "color": "0.3" if shared else f"C{k}"})
+                words = variable_label(comp, units=False)[0]
+                ref = {"x": xs[keep], "y": pick(c, sel)[keep], "label": words if k == 0 else None,
+                       "color": "0.3" if shared else f"C{k}"}
+                if shaded and not shared:       # in its line's colour along the bar; the legend says so in grey
+                    ref.update(shade=line["shade"], label=None)
+                    if k == 0:
+                        references.append({"x": [], "y": [], "label": f"{words} (each in its line's colour)",
+                                           "color": "0.3"})
+                references.append(ref)
     if expected_line(y) is not None:         # a ratio to a closed form: 1 where the closed form holds
         value, words = expected_line(y)
         references.append({"x": None, "y": value, "label": words, "color": "0.3"})
