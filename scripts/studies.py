@@ -102,9 +102,10 @@ per unit time (a threshold in the table's units: a table 100 times larger has ex
 `{{regular_share: {{threshold: …}}}}` or `rbx lyapunov --threshold` for another scale). Specular (the `-specular`
 files, with the same billiard-measure starts): Sinai {pm(float(sinai0['lyapunov'][0]),
 float(sinai0['lyapunov_stderr'][0]))}, stadium {pm(float(stadium0['lyapunov'][0]),
-float(stadium0['lyapunov_stderr'][0]))}. These are not the classic billiards' λ₁ per unit time: a start from the
-billiard measure carries spin, which a specular wall never changes, so each orbit's centre keeps a speed below 1
-(the error bar is mostly the spread of those speeds). Per collision they agree: the specular Sinai's 0.726 per
+float(stadium0['lyapunov_stderr'][0]))}.
+These are not the classic billiards' λ₁ per unit time: a start from the billiard measure carries spin, which a
+specular wall never changes, so each orbit's centre keeps a speed below 1 (the error bar is mostly the spread of
+those speeds). Per collision they agree: the specular Sinai's 0.726 per
 collision against 0.732 from point-particle starts, whose λ₁ = 1.402 ± 0.013 per unit time is the classic value
 (`rbx lyapunov configs/examples/lyapunov-sinai.yaml --set boundary.default.rank=0 --trajectories 8 --collisions
 5000 --exponents 1`, with `--set initial={{sample: point_particle}}` for the latter). Run time {duration(total)}.
