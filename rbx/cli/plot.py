@@ -558,7 +558,8 @@ def _small_hole_rate(run, exp):
     d = orbit_velocity_dimension(exp)      # a point particle's starts under specular walls: d = n
     # flux through the holes over the phase volume: |∂Q_hole|/(C_d·|Q|) per unit path (small holes)
     rate = hole / (santalo_constant(d) * volume)
-    return rate, (f"small-hole rate |hole|/({santalo_constant(d):.3g}·|table|) = {rate:.4g} "
+    constant = {2: "π", 3: "4"}.get(d, f"{santalo_constant(d):.3g}")
+    return rate, (f"small-hole rate |hole|/({constant}·|table|) = {rate:.4g} "
                   f"(hole {100 * hole / boundary:.2g} % of the boundary)")
 
 
