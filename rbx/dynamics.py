@@ -413,7 +413,9 @@ class Escape:
 
     def rate(self, start=0.0, stop=np.inf, path=True):
         """The exponential escape rate fitted to the window start ≤ s < stop -> (rate, standard error, exits
-        used): :func:`exponential_rate`."""
+        used): :func:`exponential_rate`. The whole run by default; ``rbx plot --kind escape`` and the study's
+        ``escape_rate`` fit from a quantile of the exits on, and say where no exponential law follows
+        (:func:`rbx.escape.fit_escape`, which takes ``self.path`` and ``self.exited``)."""
         return exponential_rate(self.path if path else self.time, self.exited, start, stop)
 
 
