@@ -72,6 +72,8 @@ def fit_escape(path, exited, fit_from=0.1, trapped=False):
     quantiles ``fit_from`` and :data:`STARTS` above it of the exit paths. ``trapped``: survival levels off, and q
     is fitted with γ, the window running to the last exit; else q = 0 and the window ends at the 1 − ``fit_from``
     quantile (the few latest exits, of rare long stays, left out)."""
+    if not 0.0 <= fit_from < 0.5:       # NaN too: the window would be empty ('fewer than 20 exits' of 40 000)
+        raise ValueError(f"fit_from is a quantile of the exit paths in [0, 0.5), not {fit_from!r}")
     path = np.asarray(path, float)
     exited = np.asarray(exited, bool)
     leaving = np.sort(path[exited])

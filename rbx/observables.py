@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .analysis import (free_corridors, santalo_constant, table_measure, unbounded_axes, velocity_dimension, wall_measure,
-                       wilson)
+from .analysis import (free_corridors, santalo_constant, spin_free, table_measure, unbounded_axes, velocity_dimension,
+                       wall_measure, wilson)
 from .dynamics import REGULAR_THRESHOLD, escape_times
 from .escape import fit_escape, levels_off
 from .histogram import exit_problem
@@ -262,7 +262,8 @@ def exit_walls(experiment):
 
 def _flow_starts(experiment):
     """Starts drawn with the billiard flow's measure (uniform in the table and in direction): point-particle
-    starts."""
+    starts. Under specular walls (:func:`rbx.analysis.spin_free`) that measure is the flow's invariant one; under
+    rough walls the orbits gain spin, and it is not."""
     init = experiment.initial
     return isinstance(init, tuple) and bool(init) and init[0] == "point_particle"
 
@@ -462,7 +463,7 @@ def _mean_free_path(runs, options):
     d = np.linalg.norm(np.diff(pos, axis=1), axis=-1)
     ok = np.isfinite(d)
     s, c = _segment_sums(np.where(ok, d, 0.0), ok.astype(float), int(options["segments"]))
-    if _flow_starts(exp):
+    if _flow_starts(exp) and spin_free(exp):
         # starts drawn with the flow's measure weight each orbit by its mean free path (an orbit of long chords is
         # met more often in the area): every trajectory runs the same collisions, so in a table that is not
         # ergodic (a circle, a rectangle) the pooled mean was the flow's mean chord (16r/3π in a circle, 8 % above

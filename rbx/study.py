@@ -22,6 +22,7 @@ import itertools
 import json
 import math
 import os
+import re
 import warnings
 from collections.abc import Mapping
 
@@ -211,7 +212,7 @@ def load_study(study, base=None, progress=None, sets=None, ensemble=None):
                 what = reserved.split(".")[1]
                 fail(f"--set {key}", f"set at every point by the study from ensemble.{what}: give --{what}")
         _not_the_studys(key, value, f"--set {key}", fail)
-    fixed = {**{k: v for k, v in fixed.items() if k not in sets}, **sets}
+    fixed = _after(fixed, sets)
     changed = {k: v for k, v in (ensemble or {}).items() if v is not None}
     zipped = data.get("zip", False)
     if not isinstance(zipped, bool):
@@ -281,6 +282,31 @@ def load_study(study, base=None, progress=None, sets=None, ensemble=None):
                       source=source, given=tuple(sets))
     _check_points(study_obj, progress)
     return study_obj
+
+
+def _after(fixed, sets):
+    """The study's ``set`` with ``--set`` made after it -> dict: a key given again replaces it, a key inside one of
+    its mappings changes that mapping (``--set initial.sample=billiard`` beside ``set: {initial: {sample:
+    point_particle}}`` was refused as 'set twice, as initial and initial.sample'), and a key holding some of its
+    keys replaces them."""
+    out = {k: v for k, v in fixed.items() if not any(k == s or k.startswith(s + ".") for s in sets)}
+    for key, value in sets.items():
+        parent = next((p for p in out if key.startswith(p + ".") and isinstance(out[p], Mapping)), None)
+        if parent is None or "[" in key:
+            out[key] = value
+            continue
+        tree = out[parent] = _copied(out[parent])
+        *path, last = key[len(parent) + 1:].split(".")
+        for part in path:
+            if not isinstance(tree.get(part), Mapping):
+                tree[part] = {}
+            tree = tree[part]
+        tree[last] = value
+    return out
+
+
+def _copied(mapping):
+    return {k: _copied(v) if isinstance(v, Mapping) else v for k, v in mapping.items()}
 
 
 def _base_problem(path, given):
@@ -415,9 +441,9 @@ def _canonical_base(base, folder, fixed=None, first=None):
 
 def _number(x, key, fail):
     if isinstance(x, (list, tuple)):
+        named = re.sub(r"\.(\d+)(?=\.|$)", r"[\1]", key.removeprefix("vary."))    # table.boundary.3 -> [3]
         fail(key, f"expected a number, got the list {list(x)!r}: a study varies one number per key; name one item of "
-                  f"a list by its index in brackets ({key.removeprefix('vary.')}[1]), and vary several with zip: "
-                  "true")
+                  f"a list by its index in brackets ({named}[1]), and vary several with zip: true")
     if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
         fail(key, f"expected a finite number, got {x!r}")
     return x

@@ -263,10 +263,12 @@ spin (docs/reference.md §4). With a specular rule this is the classic billiard 
 free path is then Santaló's πA/P of the shrunk table, the `mean_free_path` observable's companion
 `mean_free_path_santalo` (checked in `tests/test_point_particle.py`, with the disc's mean first flight 8r/3π and
 mean chord 16r/3π). Such starts meet an orbit of long chords more often, and in a table that is not ergodic (a
-circle, a rectangle, a box) each orbit keeps its chords: `mean_free_path` therefore weights each point-particle
-orbit by its collisions per unit path, as if every orbit had run the same path, which is πA/P in any table
-(circle of radius 0.9: 1.430 ± 0.030 against 1.414; pooled with equal weights it was the flow's mean chord 16r/3π =
-1.528; `tests/test_observables.py`). `{{sample: billiard}}` starts on the walls instead, with spin, so the centre is slower:
+circle, a rectangle, a box) each orbit keeps its chords: under specular walls `mean_free_path` therefore weights
+each point-particle orbit by its collisions per unit path, as if every orbit had run the same path, which is πA/P
+in any table (circle of radius 0.9: 1.430 ± 0.030 against 1.414; pooled with equal weights it was the flow's mean
+chord 16r/3π = 1.528; `tests/test_observables.py`); the weights cost variance (that error is twice the billiard
+starts'). Under rough walls such orbits gain spin, these starts are no invariant measure, and πA/P is expected
+only in an ergodic table. `{{sample: billiard}}` starts on the walls instead, with spin, so the centre is slower:
 the specular Lorentz gas of study 2 diffuses at D = 0.069 ± 0.001 per unit time from a point particle's starts
 (Machta–Zwanzig's random walk between traps: 0.063; `tests/test_observables.py`) and at 0.058 from the
 billiard measure's.

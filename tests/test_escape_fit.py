@@ -167,3 +167,13 @@ def test_the_exits_counted_agree_with_the_summary(tmp_path):
     from rbx.observables import PointRuns, get
     value = get("escape_rate").compute(PointRuns(rbx.open(run).experiment, rbx.open(run)), {"fit_from": 0.1})
     assert f"escape rate γ = {value.value:.4g} ± {value.stderr:.2g} " in fig.rbx_result, (fig.rbx_result, value)
+
+
+def test_the_fit_window_is_checked_where_the_fit_is_asked_for():
+    """fit_escape(fit_from=0.5) said 'fewer than 20 exits in any window' of 40 000 exits; the CLI said the range."""
+    from rbx.escape import fit_escape
+    path = np.random.default_rng(1).exponential(10.0, 1000)
+    for wrong in (0.5, -0.1, float("nan")):
+        with pytest.raises(ValueError, match=r"fit_from is a quantile of the exit paths in \[0, 0.5\)"):
+            fit_escape(path, np.ones(1000, bool), fit_from=wrong)
+    assert fit_escape(path, np.ones(1000, bool), fit_from=0.1).rate == pytest.approx(0.1, rel=0.15)

@@ -574,3 +574,10 @@ def test_an_integrable_tables_exponent_is_said_to_be_finite_time():
     chaotic = CliRunner().invoke(cli, ["lyapunov", os.path.join(EXAMPLES, "lyapunov-sinai.yaml"), "--trajectories",
                                        "4", "--collisions", "600", "--exponents", "1"])
     assert chaotic.exit_code == 0 and "every orbit is regular" not in chaotic.output, chaotic.output
+    # the specular Sinai table 100 times larger: below the threshold per unit time, not regular (0.73 per collision)
+    large = CliRunner().invoke(cli, ["lyapunov", os.path.join(EXAMPLES, "lyapunov-sinai.yaml"), "--set",
+                                     "boundary.default.rank=0", "--set", "table={kind: sinai, size: [200, 150], "
+                                     "radius: 40}", "--set", "ball.radius=10", "--trajectories", "8", "--collisions",
+                                     "3000", "--exponents", "1"])
+    assert large.exit_code == 0 and "every orbit is regular" not in large.output, large.output
+    assert "every orbit is below the threshold, but λ1 per collision is 0.7" in large.output, large.output

@@ -137,3 +137,19 @@ def test_mean_free_path_of_point_particle_starts_is_santalos_in_an_integrable_ta
     assert abs(v.value - santalo) < 3 * v.stderr and v.stderr < 0.03 * santalo, (v.value, v.stderr, santalo)
     if chord is not None:       # the flow's mean chord is told apart at this size
         assert abs(v.value - chord) > 3 * v.stderr, (v.value, v.stderr, chord)
+
+
+def test_point_particle_orbits_under_rough_walls_are_not_weighted():
+    """The weighting by collisions per unit path holds where point-particle starts are the flow's invariant measure:
+    under specular walls. Under rough walls the orbits gain spin; the mean free path is then the pooled one."""
+    from rbx.observables import PointRuns, get
+    exp = rbx.load({"table": {"kind": "circle", "radius": 1.0}, "boundary": {"default": {"rule": "constant",
+                                                                                          "rank": 1}},
+                    "ball": {"radius": 0.1, "inertia": 0.5}, "initial": {"sample": "point_particle"},
+                    "run": {"collisions": 200, "trajectories": 40, "seed": 3},
+                    "output": {"record": ["position"], "every": 1}})
+    runs = PointRuns(exp)
+    runs.run = rbx.simulate(exp)
+    step = np.linalg.norm(np.diff(np.asarray(runs.run.position)[:, 1:], axis=1), axis=-1)
+    v = get("mean_free_path").compute(runs, {"segments": 10})
+    assert v.value == pytest.approx(float(np.sum(step) / step.size), rel=1e-12)

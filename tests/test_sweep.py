@@ -1113,7 +1113,7 @@ def test_a_hole_is_swept_by_naming_its_corners_list_items():
     gate = str(ROOT / "configs" / "examples" / "escape-sinai.yaml")
     base = {"base": gate, "measure": ["escape_rate"], "ensemble": {"trajectories": 10, "collisions": 100}}
     with pytest.raises(ConfigError, match=r"got the list \[0, 0.8\]: a study varies one number per key; name one item "
-                                          r"of a list by its index in brackets \(table.boundary.3.to\[1\]\)"):
+                                          r"of a list by its index in brackets \(table.boundary\[3\].to\[1\]\)"):
         load_study({**base, "vary": {"table.boundary.3.to": [[0, 0.8], [0, 0.85]]}})
     with pytest.raises(ConfigError, match=r"a list's items are named by their index in brackets: table.boundary\[3\]"):
         load_study({**base, "vary": {"table.boundary.3.to.1": [0.8, 0.85]}})
@@ -1138,3 +1138,18 @@ def test_a_studys_tangent_loop_is_checked_where_it_is_read_whichever_observable_
         load_study({**base, "measure": [{"lyapunov": {"segments": 1}}],
                     "ensemble": {"trajectories": 8, "collisions": 300}})
     assert info.value.key == "measure.lyapunov.segments"
+
+
+def test_a_command_line_set_changes_a_mapping_the_study_sets():
+    """`rbx sweep --set initial.sample=billiard` on a study whose set holds `initial: {sample: point_particle}` was
+    refused as 'set twice, as initial and initial.sample', though --set is made after the study's own set."""
+    circle = str(ROOT / "configs" / "examples" / "circle.yaml")
+    study = {"base": circle, "set": {"initial": {"sample": "point_particle"}, "boundary.default": {"rule": "constant",
+                                                                                                  "rank": 0}},
+             "vary": {"ball.inertia": [0.3, 0.6]}, "measure": ["mean_free_path"],
+             "ensemble": {"trajectories": 2, "collisions": 50}}
+    st = load_study(study, sets={"initial.sample": "billiard"})
+    assert st.fixed["initial"] == {"sample": "billiard"}
+    assert st.experiment(st.points()[0][1]).initial == ("sample", None)
+    st = load_study(study, sets={"boundary": {"default": {"rule": "constant", "rank": 1}}})   # replaces set's part
+    assert "boundary.default" not in st.fixed and st.fixed["boundary"]["default"]["rank"] == 1

@@ -141,9 +141,14 @@ def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as
             click.echo("the exponents above pool the regular and the chaotic orbits; each orbit's own exponents: "
                        "--json (per_trajectory)")
         elif regular == measured > 0:
-            # an integrable table's λ1 was read as a positive exponent, its bar 7 standard errors above 0
-            click.echo("every orbit is regular: their λ1 falls as log t / t, so the values above are finite-time "
-                       "ones (they shrink with longer runs) and the ± is their spread, not that bias")
+            per = float(result.per_collision()[0])
+            if per < REGULAR_THRESHOLD:
+                # an integrable table's λ1 was read as a positive exponent, its bar 7 standard errors above 0
+                click.echo("every orbit is regular: their λ1 falls as log t / t, so the values above are finite-time "
+                           "ones (they shrink with longer runs) and the ± is their spread, not that bias")
+            else:       # a chaotic table of another scale (100 times larger): the threshold is in the table's units
+                click.echo(f"every orbit is below the threshold, but λ1 per collision is {per:.3g}: the threshold is "
+                           "a rate per unit time in this table's units; give --threshold in them")
     if result.ended is not None and result.ended.any():
         click.echo(f"{plural(int(result.ended.sum()), 'trajectory')} left the table (an exit or an escape) before "
                    "the end")
