@@ -686,6 +686,19 @@ def describe_boundary(wall_rules, wall_names, n):
     return ", ".join(parts + [f"others: {common}"])
 
 
+def starts_phrase(experiment):
+    """How the trajectories start, in a few words: 'point-particle starts', 'billiard-measure starts' (on a wall:
+    'billiard-measure starts on gate') or 'fixed starts'. The small-hole escape rate and the mean free path of a
+    point particle's starts differ from a disc's with spin (4/π, 14 %): a figure of either says which it is."""
+    start = experiment.initial
+    if start and isinstance(start[0], str):
+        if start[0] == "point_particle":
+            return "point-particle starts"
+        wall = start[1]
+        return "billiard-measure starts" + ("" if wall is None else f" on {experiment.wall_names[wall]}")
+    return "fixed starts"
+
+
 def scene_title(experiment):
     """'disc (R = 0.1, κ = 0.5) in a 2 × 1 rectangle · rough' for an :class:`rbx.model.Experiment`."""
     n = experiment.dimension

@@ -21,7 +21,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from . import __version__, observables as obs
-from .analysis import scene_title
+from .analysis import scene_title, starts_phrase
 from .api import cluster_for, flag, simulate
 from .cluster import ClusterError, SchedulerUnreachable, connect
 from .ensembles import distinct_orbits, start_groups
@@ -147,7 +147,8 @@ def study_title(study, exp0=None):
     need = needs(study)
     # the words that change from point to point, read off the points that stand for the study (each value of each
     # key of a large grid once: building all 10⁵ configs of one took 67 s before its first point)
-    titles = [scene_title(study.experiment(p, need["fields"], need["every"])) for p in _representatives(study)[0]]
+    experiments = [study.experiment(p, need["fields"], need["every"]) for p in _representatives(study)[0]]
+    titles = [scene_title(e) for e in experiments]
     words = [t.split(" ") for t in titles]
     if len({len(w) for w in words}) == 1:
         merged = []
@@ -173,7 +174,9 @@ def study_title(study, exp0=None):
         span = f"{min(nums):g}–{max(nums):g}" if len(nums) == len(values) and len(values) > 1 else \
             ", ".join(str(v) for v in values)
         varied.append(f"{key}: {len(values)} value{'s' if len(values) != 1 else ''}, {span}")
-    return f"{scene}\nvaried{' together' if study.zip and len(study.keys) > 1 else ''}: " + "; ".join(varied)
+    starts = dict.fromkeys(starts_phrase(e) for e in experiments)
+    return (f"{scene} · {'/'.join(starts)}\nvaried{' together' if study.zip and len(study.keys) > 1 else ''}: "
+            + "; ".join(varied))
 
 
 def _attrs(study, exp0):

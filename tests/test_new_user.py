@@ -127,6 +127,11 @@ def test_the_small_hole_rate_follows_the_velocity_space_the_orbits_fill():
     spun = {"initial": [{"position": [0.3, 0.3], "velocity": [1.0, 0.2], "angular_velocity": 0.5}]}
     assert orbit_velocity_dimension(rbx.load(config, spun)) == 3
     assert santalo_constant(2) == pytest.approx(np.pi) and santalo_constant(3) == pytest.approx(4.0)
+    from rbx.analysis import starts_phrase        # said in the escape plot's and a study's title
+    assert [starts_phrase(rbx.load(config, c)) for c in ({}, point, still)] == \
+        ["billiard-measure starts", "point-particle starts", "fixed starts"]
+    assert starts_phrase(rbx.load(config, {"initial": {"sample": "billiard", "wall": "floor"}})) == \
+        "billiard-measure starts on floor"
 
 
 # ---- the one-time compile -------------------------------------------------------------------------------------
@@ -293,5 +298,6 @@ def test_a_complete_run_that_recorded_nothing_is_said_so_and_its_escape_drawn(tm
                           {"output.record": [], "run.trajectories": 200}), output=out)
     fig = make_figure(out, "escape")
     assert fig.texts[0].get_text().endswith("no records kept (output.record: [])"), fig.texts[0].get_text()
+    assert "(every one exited) · billiard-measure starts" in fig.texts[0].get_text()       # which starts: 4 or π
     with pytest.raises(UserError, match=r"recorded no fields \(output.record: \[\]\)"):
         make_figure(out, "orbit")

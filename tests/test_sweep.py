@@ -335,7 +335,8 @@ def test_the_title_says_what_the_whole_study_varies(specular):
     from rbx.sweeping import study_title
     text = study_title(two)
     assert "κ = 0.1–1" in text and "radius 0.2–0.4" in text
-    assert text.endswith("varied: ball.inertia: 2 values, 0.1–1; table.radius: 3 values, 0.2–0.4")
+    assert text.endswith("· billiard-measure starts\nvaried: ball.inertia: 2 values, 0.1–1; table.radius: 3 values, "
+                         "0.2–0.4")
 
 
 def test_a_study_file_is_checked_for_what_it_is_and_its_output_replaces_only_regular_files(tmp_path):

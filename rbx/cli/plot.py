@@ -474,6 +474,7 @@ def _escape(run, rec, traj, fit_from=0.1, **_):
         raise ValueError(f"{who} an exit wall in {plural(exp.run.collisions, 'collision')}")
     if not 0.0 <= fit_from < 0.5:
         raise UserError(None, "--fit-from", f"escape: a quantile in [0, 0.5), got {fit_from}")
+    from ..analysis import starts_phrase
     from ..dynamics import survival
     from ..escape import FOLLOWS, fit_escape
     s, S = survival(path, exited)
@@ -488,7 +489,8 @@ def _escape(run, rec, traj, fit_from=0.1, **_):
     expected = None if trapped is not None else _small_hole_rate(run, exp)
     censored = int(np.sum(~exited))
     inside = f"{censored} still inside: censored" if censored else "every one exited"
-    title = _title(run, f"escape through {', '.join(walls)} ({inside})", traj, rec)
+    title = _title(run, f"escape through {', '.join(walls)} ({inside}) · {starts_phrase(run.experiment)}", traj,
+                   rec)
     # a trajectory that exits at its last collision ended with the run: rbx simulate's summary does not count it
     # among those that "ended earlier"; the legend says both
     at_last = int(np.sum(exited & (np.asarray(run.final["collisions"])[sel] >= exp.run.collisions)))
