@@ -254,6 +254,11 @@ def load_study(study, base=None, progress=None, sets=None, ensemble=None):
         if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or v < lo:     # NumPy's too
             fail(f"ensemble.{k}", f"expected an integer ≥ {lo}, got {v!r}")
         ens[k] = int(v)
+    for name, options in measure:       # a mean over segments of the run: at least two collisions in each
+        if name != "lyapunov" and "segments" in options and ens["collisions"] < 2 * int(options["segments"]):
+            fail(f"measure.{name}.segments", f"{options['segments']} segments of the ensemble's {ens['collisions']} "
+                                             "collisions leave fewer than 2 in each (a study of 1 collision stored "
+                                             "NaN): fewer segments, or more collisions")
     if any(obs.get(name).tangent for name, _ in measure):   # the tangent loop's warm-up and segments, checked now
         options = dict(measure).get("lyapunov", {})
         own = "lyapunov" in dict(measure)       # else regular_share alone runs it with lyapunov's defaults
