@@ -203,6 +203,9 @@ class Lyapunov:
     coordinates: tuple
     title: str = ""
     ended: np.ndarray = field(default=None)
+    #: the first trajectory of each distinct orbit (copies of one orbit count once: :func:`rbx.ensembles.start_groups`);
+    #: None: every trajectory
+    orbits: np.ndarray = field(default=None)
 
     def per_collision(self):
         """The exponents per collision: per unit time × the measured time / the measured collisions."""
@@ -219,6 +222,8 @@ class Lyapunov:
         below ``threshold`` and that stayed in the table to the end -> (regular, measured)."""
         lam1 = self.per_trajectory[:, 0]
         measured = np.isfinite(lam1)
+        if self.orbits is not None:         # copies of one orbit are one orbit (a Wilson interval 4 times too narrow)
+            measured &= np.isin(np.arange(len(lam1)), self.orbits)
         # an orbit that left the table (an exit) is not a trapped one, however little it measured (those leaving
         # just after their warm-up have λ₁ = 0: a specular Sinai table with a hole was 2.2 % "regular")
         stayed = ~np.asarray(self.ended, bool) if self.ended is not None else np.ones(len(lam1), bool)
@@ -347,7 +352,8 @@ def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segme
     exponents, stderr, per_traj, seg_exp = exponents[order], stderr[order], per_traj[:, order], seg_exp[..., order]
     return Lyapunov(exponents=exponents, stderr=stderr, per_trajectory=per_traj, segment_exponents=seg_exp,
                     segment_times=seg_time, time=total_time, collisions=m["collisions"], warmup=warmup,
-                    coordinates=coordinate_names(tan.n), title=scene_title(exp), ended=m["ended"])
+                    coordinates=coordinate_names(tan.n), title=scene_title(exp), ended=m["ended"],
+                    orbits=None if group is None else rows)
 
 
 def _cluster(scheduler, slices):

@@ -13,7 +13,7 @@ import textwrap
 import matplotlib
 import numpy as np
 from matplotlib import colormaps
-from matplotlib.colors import Normalize
+from matplotlib.colors import LogNorm, Normalize
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator
 
@@ -860,7 +860,10 @@ def sweep_figure(panels, title, width=None):
     axes = fig.subplots(1, len(panels), squeeze=False)[0]
     for ax, panel in zip(axes, panels):
         shades = [s["shade"] for s in panel["series"] if "shade" in s]
-        norm = Normalize(min(shades), max(shades)) if shades else None
+        norm = None
+        if shades:      # values spread over decades (a log-scaled key): a log colour bar, not 9 of 12 lines alike
+            logged = min(shades) > 0 and max(shades) / min(shades) > 20
+            norm = (LogNorm if logged else Normalize)(min(shades), max(shades))
         for k, s in enumerate(panel["series"]):
             x, y = np.asarray(s["x"], float), np.asarray(s["y"], float)
             err = None if s.get("err") is None else np.asarray(s["err"], float)

@@ -101,7 +101,9 @@ class Study:
             return load(self.base, changes)
         except ConfigError as exc:
             blamed = self._blame(exc)
-            if len(self.keys) > 1:          # the other keys' values may be the cause (2R > h: radius and height)
+            if len(self.keys) > 1 or blamed.key != f"vary.{self.keys[0]}":
+                # the other keys' values may be the cause (2R > h: radius and height), or the varied key made an
+                # untouched one fail (a height of 0.15 named ball.radius of the base file)
                 where = ", ".join(f"{k} = {_plain(point[k])}" for k in self.keys)
                 blamed = ConfigError(blamed.file, blamed.key, f"{blamed.problem} (at the point {where})")
             raise blamed from None
@@ -449,6 +451,8 @@ def _number(x, key, fail):
         named = re.sub(r"\.(\d+)(?=\.|$)", r"[\1]", key.removeprefix("vary."))    # table.boundary.3 -> [3]
         fail(key, f"expected a number, got the list {list(x)!r}: a study varies one number per key; name one item of "
                   f"a list by its index in brackets ({named}[1]), and vary several with zip: true")
+    if isinstance(x, (np.integer, np.floating)) and not isinstance(x, np.bool_):
+        x = x.item()            # NumPy's numbers as ensemble, sets= and rbx.load take them
     if isinstance(x, bool) or not isinstance(x, (int, float)) or not math.isfinite(x):
         fail(key, f"expected a finite number, got {x!r}")
     return x

@@ -319,6 +319,10 @@ def sweep(study, output=None, *, scheduler=None, resume=False, force=False, prog
     sweep, or a run, writing the same file is refused, naming the one that holds it."""
     changes = {"sets": sets, "ensemble": {"trajectories": trajectories, "collisions": collisions}}
     force, resume = flag("force", force), flag("resume", resume)
+    if progress is not None and not callable(progress):
+        raise TypeError(f"rbx.sweep: progress is a callable progress(done, total) or None, not {progress!r}")
+    if base is not None and not isinstance(base, (str, os.PathLike)):
+        raise TypeError(f"rbx.sweep: base is the file or folder a mapping's paths start from, not {base!r}")
     if study is None or not isinstance(study, (str, bytes, os.PathLike, Mapping, Study)):
         raise TypeError(f"rbx.sweep: study is a study file's path, a mapping or a loaded Study, not "
                         f"{type(study).__name__}")

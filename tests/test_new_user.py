@@ -301,3 +301,17 @@ def test_a_complete_run_that_recorded_nothing_is_said_so_and_its_escape_drawn(tm
     assert "(every one exited) · billiard-measure starts" in fig.texts[0].get_text()       # which starts: 4 or π
     with pytest.raises(UserError, match=r"recorded no fields \(output.record: \[\]\)"):
         make_figure(out, "orbit")
+
+
+def test_copies_of_one_orbit_count_once_in_the_escape_plot(tmp_path):
+    """[A, A, B] fixed starts with no random numbers drawn: A's exit counted twice made survival fall by a half in one
+    step. The plot counts the distinct orbits."""
+    out = str(tmp_path / "copies.h5")
+    a = {"position": [0.5, 0.3], "velocity": [0.6, 0.8]}
+    b = {"position": [1.5, 1.2], "velocity": [-0.8, 0.6]}
+    with pytest.warns(RuntimeWarning, match="only 2 of the 3 trajectories"):
+        rbx.simulate(rbx.load(os.path.join(EXAMPLES, "escape-sinai.yaml"),
+                              {"initial": [a, a, b], "run.trajectories": 3, "run.collisions": 3000}), output=out)
+    fig = make_figure(out, "escape")
+    survival = [t for t in legend(fig) if t.startswith("Kaplan–Meier survival")]
+    assert survival and "of 2 exited" in survival[0], survival

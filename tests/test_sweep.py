@@ -1167,3 +1167,30 @@ def test_a_mean_over_segments_needs_two_collisions_in_each():
             load_study({"base": base, "vary": {"ball.inertia": [0.3, 0.6]}, "measure": [measure],
                         "ensemble": {"trajectories": 2, "collisions": collisions}})
         assert info.value.key == f"measure.{measure}.segments"
+
+
+def test_round_twelve_study_refusals_name_the_point_and_take_numpy_values():
+    """A height of 0.15 was refused as 'base: rectangle.yaml: ball.radius: … near wall right', naming neither the
+    varied key's point nor the height; NumPy numbers in vary were refused ('expected an integer ≥ 1, got
+    np.int64(2)') where ensemble, sets= and rbx.load take them; progress='x' and base=5 were bare TypeErrors."""
+    rect = str(ROOT / "configs" / "examples" / "rectangle.yaml")
+    base = {"base": rect, "measure": ["energy_drift"], "ensemble": {"trajectories": 2, "collisions": 5}}
+    with pytest.raises(ConfigError, match=r"\(at the point table.height = 0.15\)"):
+        load_study({**base, "vary": {"table.height": [1.0, 0.15]}})
+    st = load_study({**base, "vary": {"ball.inertia": [np.float64(0.3), np.float32(0.5)]}})
+    assert [type(v) for v in st.values[0].tolist()] == [float, float]
+    with pytest.raises(TypeError, match="progress is a callable"):
+        sweep({**base, "vary": {"ball.inertia": [0.3]}}, progress="x")
+    with pytest.raises(TypeError, match="base is the file or folder"):
+        sweep({**base, "vary": {"ball.inertia": [0.3]}}, base=5)
+
+
+def test_a_colour_bar_of_a_log_scaled_key_is_logarithmic():
+    """12 lines of a key from 0.001 to 1 on a linear bar: 9 of them the same colour."""
+    from matplotlib.colors import LogNorm
+
+    from rbx import plotting
+    series = [{"x": [0, 1], "y": [v, v], "err": None, "label": None, "shade": v} for v in np.geomspace(1e-3, 1, 12)]
+    fig = plotting.sweep_figure([{"series": series, "xlabel": "x", "ylabel": "y", "shade_label": "k"}], "t")
+    bar = [ax for ax in fig.axes if ax.get_ylabel() == "k"]
+    assert bar and any(isinstance(getattr(c, "norm", None), LogNorm) for c in bar[0].get_children())

@@ -132,9 +132,12 @@ def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as
             click.echo(f"regular orbits (own λ1 < {threshold:g} per unit time): one orbit, run as {M} copies: {kind} (own "
                        f"λ1 = {lam1[0]:.6f}); copies give no share and no interval")
     elif len(result.time) > 1:
-        regular = result.regular(threshold)[0]
+        regular, counted = result.regular(threshold)
         of = (f"{regular} of the {measured} measured (the other {M - measured} left the table during their "
               "warm-up)" if measured < M else f"{regular} of {measured}")
+        if counted < measured:      # copies of one orbit count once in the share
+            of = f"{regular} of the {counted} distinct orbits among the {measured} measured"
+            measured = counted
         click.echo(f"regular orbits (own λ1 < {threshold:g} per unit time): {of}, share {share:.3f} "
                    f"(Wilson interval, z = 1, {_get('regular_share').level}: {low:.3f} … {high:.3f})")
         if 0 < regular < measured:

@@ -395,6 +395,8 @@ def _diffusion(run, rec, traj, coordinate="x", fit_from=0.1, **_):
     x, _ = _coordinate(run, coordinate, traj, rec)
     _refuse_one_orbit(run, traj, x, "diffusion", "a diffusion coefficient", "its error would be 0 and the "
                                                                           "histogram of displacements one bar")
+    keep = _distinct(run, traj)         # copies of one orbit are one sample (D = −0.0065 ± 0.003 from copies)
+    traj, x = [t for t, k in zip(traj, keep) if k], x[keep]
     steps = run.step[rec].astype(float)
     if len(steps) < 3:
         raise ValueError("the diffusion plot needs at least 3 records")
@@ -438,6 +440,23 @@ def _diffusion(run, rec, traj, coordinate="x", fit_from=0.1, **_):
     return fig
 
 
+def _distinct(run, traj):
+    """Which of the selected trajectories ``traj`` to keep: the first of each orbit that several copy (fixed starts,
+    no random numbers drawn: :func:`rbx.ensembles.start_groups`) -> boolean array."""
+    from ..ensembles import start_groups
+    try:
+        group = start_groups(run.experiment)
+    except Exception:       # noqa: BLE001 - a run whose config cannot say: every trajectory counts
+        group = None
+    if group is None:
+        return np.ones(len(traj), bool)
+    seen, keep = set(), []
+    for t in traj:
+        keep.append(int(group[t]) not in seen)
+        seen.add(int(group[t]))
+    return np.array(keep, bool)
+
+
 def _refuse_one_orbit(run, traj, values, kind, what, why):
     """An ensemble statistic of trajectories that are all the same orbit means nothing: refused in one line
     (``values``: the selected trajectories' data, one row each, compared bit for bit)."""
@@ -469,6 +488,8 @@ def _escape(run, rec, traj, fit_from=0.1, **_):
     path, exited = out.path[sel], out.exited[sel]
     _refuse_one_orbit(run, traj, np.column_stack([path, exited, out.wall[sel]]), "escape", "an escape rate",
                       "every one leaves at the same moment")
+    keep = _distinct(run, traj)         # copies of one orbit are one sample (survival fell by half in one step)
+    traj, path, exited, sel = [t for t, k in zip(traj, keep) if k], path[keep], exited[keep], sel[keep]
     if not exited.any():
         who = f"none of the {plural(len(sel), 'trajectory')} reached" if len(sel) > 1 else "the trajectory did not reach"
         raise ValueError(f"{who} an exit wall in {plural(exp.run.collisions, 'collision')}")
