@@ -366,7 +366,10 @@ def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=Non
             if off:
                 notes.append(f"{off} of {int(finished.sum())} points: {text}")
     if notes:
-        panel["note"] = "\n".join(notes)
+        # wrapped to the width of a panel: one long line ran off both edges, and beside a colour bar it squeezed the
+        # axes to nothing (matplotlib: 'constrained_layout not applied')
+        import textwrap
+        panel["note"] = "\n".join(textwrap.fill(n, 70, subsequent_indent="  ") for n in notes)
     orbits = int(ds.attrs.get("ensemble_orbits", M))
     ensemble = plural(int(M), "trajectory")
     if orbits < M:      # fixed starts, no random numbers: the bars are the spread of copies (rbx sweep warned)
