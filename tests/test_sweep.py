@@ -122,12 +122,14 @@ def test_kac_return_path_and_return_angles():
     assert np.isnan(float(cut["return_path"][0])) and np.isnan(float(cut["return_path_ratio"][0]))
     assert float(cut["return_path_unreturned"][0]) > 0.01
     panel, _ = sweep_panel(cut, "return_path")
-    assert panel["note"].endswith("1 of 1 points: no value where some trajectory had not returned by the end of "
-                                  "the run (raise collisions)"), panel["note"]
+    note = " ".join(panel["note"].split())          # wrapped to the panel's width (it ran off both edges)
+    assert max(len(line) for line in panel["note"].splitlines()) <= 72, panel["note"]
+    assert note.endswith("1 of 1 points: no value where some trajectory had not returned by the end of the run "
+                         "(raise collisions)"), panel["note"]
     # the same short run's trapped share counts orbits not out yet: the figure says so at that point
     assert float(cut["trapped_share_levelled"][0]) == 0
     assert "1 of 1 points: survival still falling at the end of the run: a share of orbits not out yet, not a " \
-           "trapped share (run longer)" in sweep_panel(cut, "trapped_share")[0]["note"]
+           "trapped share (run longer)" in " ".join(sweep_panel(cut, "trapped_share")[0]["note"].split())
     rough = {"base": SINAI, "set": {"initial": {"sample": "billiard", "wall": "left"}},
              "vary": {"ball.inertia": [0.2, 1.0]}, "measure": ["return_angle_ks"],
              "ensemble": {"trajectories": 3000, "collisions": 3000, "seed": 6}}
