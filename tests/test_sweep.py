@@ -1171,7 +1171,7 @@ def test_a_mean_over_segments_needs_two_collisions_in_each():
         assert info.value.key == f"measure.{measure}.segments"
 
 
-def test_round_twelve_study_refusals_name_the_point_and_take_numpy_values():
+def test_a_refused_point_is_named_and_numpy_values_are_taken_in_vary():
     """A height of 0.15 was refused as 'base: rectangle.yaml: ball.radius: … near wall right', naming neither the
     varied key's point nor the height; NumPy numbers in vary were refused ('expected an integer ≥ 1, got
     np.int64(2)') where ensemble, sets= and rbx.load take them; progress='x' and base=5 were bare TypeErrors."""
