@@ -14,7 +14,7 @@ from . import engine
 from .analysis import scene_title, wilson
 from .api import cluster_for, load
 from .cluster import Cluster
-from .ensembles import start_groups
+from .ensembles import orbit_rows
 from .engine import State
 from .physics import spin_vector
 from .reader import Run
@@ -310,8 +310,8 @@ def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segme
     tan = _Tangent(exp, vectors=exponents)
     # copies of one orbit are one sample: the exponents and their errors come from the distinct orbits alone
     # (counted as samples, 8 copies gave an error 2.96 times smaller than one orbit's)
-    group = start_groups(exp)
-    rows = np.arange(tan.M) if group is None else np.sort(np.unique(group, return_index=True)[1])
+    rows = orbit_rows(exp)
+    copies = len(rows) < tan.M
     if segments * len(rows) < 2:
         # the error comes from the spread of the segments' estimates: one gives none (it was NaN, and --json wrote
         # NaN, which is not JSON)
@@ -353,7 +353,7 @@ def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segme
     return Lyapunov(exponents=exponents, stderr=stderr, per_trajectory=per_traj, segment_exponents=seg_exp,
                     segment_times=seg_time, time=total_time, collisions=m["collisions"], warmup=warmup,
                     coordinates=coordinate_names(tan.n), title=scene_title(exp), ended=m["ended"],
-                    orbits=None if group is None else rows)
+                    orbits=rows if copies else None)
 
 
 def _cluster(scheduler, slices):

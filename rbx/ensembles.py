@@ -36,14 +36,21 @@ def start_groups(experiment):
     return np.resize(group, M) if len(states) == 1 else group[:M]
 
 
+def orbit_rows(experiment, selected=None):
+    """The first trajectory of each distinct orbit among ``selected`` (all by default; copies of one orbit:
+    :func:`start_groups`) -> sorted index array; every selected one where the trajectories draw random numbers."""
+    rows = np.arange(experiment.run.trajectories) if selected is None else np.asarray(selected, np.int64)
+    group = start_groups(experiment)
+    if group is None:
+        return np.sort(rows)
+    return np.sort(rows[np.unique(group[rows], return_index=True)[1]])
+
+
 def distinct_orbits(experiment):
     """The experiment with one trajectory per distinct orbit (:func:`start_groups`), or the experiment itself when
     its trajectories are all different: copies of an orbit add no sample, and counted as samples they shrank a
     standard error by the square root of their number."""
-    group = start_groups(experiment)
-    if group is None:
-        return experiment
-    first = np.sort(np.unique(group, return_index=True)[1])
+    first = orbit_rows(experiment)
     if len(first) == experiment.run.trajectories:
         return experiment
     states = experiment.initial

@@ -104,8 +104,9 @@ def return_experiment(cfg, progress=None, _spin_scale=1.0, cluster=None, should_
     seconds, and a Ctrl-C in it used to wait for the first block); if it returns True, KeyboardInterrupt."""
     if cfg.initial[0] != "sample":
         raise ValueError("the return experiment needs initial: {sample: billiard, wall: NAME}")
-    if exit_problem(cfg):
-        raise ValueError(exit_problem(cfg))
+    problem = exit_problem(cfg)
+    if problem:
+        raise ValueError(problem)
     start = time.perf_counter()
     wall = cfg.initial[1]
     if wall is None:

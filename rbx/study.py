@@ -32,8 +32,8 @@ import yaml
 from . import observables as obs
 from .analysis import unbounded_axes
 from .api import _load as load
-from .ensembles import repeated_orbits, start_groups
-from .yamlfile import other_kind, parse_yaml, read_text
+from .ensembles import orbit_rows, repeated_orbits
+from .yamlfile import copied, other_kind, parse_yaml, read_text
 from .model import ConfigError
 from .paths import config_file_problem, display_path
 
@@ -302,7 +302,7 @@ def _after(fixed, sets):
         if parent is None or "[" in key:
             out[key] = value
             continue
-        tree = out[parent] = _copied(out[parent])
+        tree = out[parent] = copied(dict(out[parent]), {})
         *path, last = key[len(parent) + 1:].split(".")
         for part in path:
             if not isinstance(tree.get(part), Mapping):
@@ -310,10 +310,6 @@ def _after(fixed, sets):
             tree = tree[part]
         tree[last] = value
     return out
-
-
-def _copied(mapping):
-    return {k: _copied(v) if isinstance(v, Mapping) else v for k, v in mapping.items()}
 
 
 def _base_problem(path, given):
@@ -606,9 +602,7 @@ def _check_points(study, progress=None):
                 problem = rec.problem(exp, options)
             if problem:
                 raise ConfigError(study.file, f"measure.{name}", problem)
-        group = start_groups(exp)
-        orbits = exp.run.trajectories if group is None else len(np.unique(group))
-        if need["tangent"] and need["segments"] < 2 and orbits < 2:
+        if need["tangent"] and need["segments"] < 2 and len(orbit_rows(exp)) < 2:
             # one orbit (copies of it count once) in one segment: no error estimate (the tangent loop refuses it)
             fail_at = "measure.lyapunov.segments" if "lyapunov" in dict(study.measure) else "ensemble.trajectories"
             raise ConfigError(study.file, fail_at, f"one segment of one orbit gives no error estimate (the "

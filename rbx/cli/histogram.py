@@ -100,8 +100,9 @@ def _histogram(config, out, data, trajectories, seed, sets, force, quiet, cluste
     if cfg.initial[0] != "sample":
         raise UserError(config, "initial", "rbx histogram samples its states: use initial: {sample: billiard, "
                                            "wall: NAME}")
-    if exit_problem(cfg):
-        raise UserError(config, "initial.wall" if cfg.initial[1] is not None else "initial", exit_problem(cfg))
+    problem = exit_problem(cfg)
+    if problem:
+        raise UserError(config, "initial.wall" if cfg.initial[1] is not None else "initial", problem)
     h5_path, key = _data_path(data, out, cfg, config)
     fig_path = os.path.abspath(out) if out else os.path.splitext(h5_path)[0] + ".png"
     if fig_path == h5_path:

@@ -443,18 +443,12 @@ def _diffusion(run, rec, traj, coordinate="x", fit_from=0.1, **_):
 def _distinct(run, traj):
     """Which of the selected trajectories ``traj`` to keep: the first of each orbit that several copy (fixed starts,
     no random numbers drawn: :func:`rbx.ensembles.start_groups`) -> boolean array."""
-    from ..ensembles import start_groups
+    from ..ensembles import orbit_rows
     try:
-        group = start_groups(run.experiment)
+        rows = orbit_rows(run.experiment, traj)
     except Exception:       # noqa: BLE001 - a run whose config cannot say: every trajectory counts
-        group = None
-    if group is None:
         return np.ones(len(traj), bool)
-    seen, keep = set(), []
-    for t in traj:
-        keep.append(int(group[t]) not in seen)
-        seen.add(int(group[t]))
-    return np.array(keep, bool)
+    return np.isin(traj, rows)
 
 
 def _refuse_one_orbit(run, traj, values, kind, what, why):
