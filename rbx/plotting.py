@@ -862,7 +862,7 @@ def sweep_figure(panels, title, width=None):
         shades = [s["shade"] for s in panel["series"] if "shade" in s]
         norm = None
         if shades:      # values spread over decades (a log-scaled key): a log colour bar, not 9 of 12 lines alike
-            logged = min(shades) > 0 and max(shades) / min(shades) > 20
+            logged = min(shades) > 0 and max(shades) / min(shades) >= 10
             norm = (LogNorm if logged else Normalize)(min(shades), max(shades))
         for k, s in enumerate(panel["series"]):
             x, y = np.asarray(s["x"], float), np.asarray(s["y"], float)
