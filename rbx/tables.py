@@ -254,6 +254,16 @@ def _box_walls(p):
     return out
 
 
+def _rectangle_fits(p, R):
+    """A ball fits in a rectangle when its diameter is less than the width and the height: the one it is not less
+    than is named (the polygon's check named the wall left too short, 'right', for a height of 0.15)."""
+    for side in ("width", "height"):
+        if 2 * R >= p[side]:
+            return (f"does not fit in a {_g(p['width'])} × {_g(p['height'])} rectangle: its {side} {_g(p[side])} is "
+                    f"not more than the ball's diameter {_g(2 * R)}")
+    return None
+
+
 def _fits_width(name, what):
     """A ball fits between two parallel walls ``p[name]`` apart when 2R is less: ``what`` names them, with {}."""
     def fits(p, R, geom):
@@ -280,7 +290,7 @@ register(TableKind(
     "rectangle", 2, "width × height, corner at the origin", {"width": positive, "height": positive},
     walls=lambda p: ([Lattice((0.0, 0.0), (float(p["width"]), float(p["height"])))] if p.get("periodic") else
                      [Polygon(("bottom", "right", "top", "left"), tuple(map(tuple, _rectangle_vertices(p))))]),
-    build=geometry.rectangle, fits=lambda p, R, geom: None if p.get("periodic") else _edges_fit(p, R, geom),
+    build=geometry.rectangle, fits=lambda p, R, geom: None if p.get("periodic") else _rectangle_fits(p, R),
     scale=lambda p: max(p["width"], p["height"]),
     phrase=lambda p: f"in a {'periodic ' if p.get('periodic') else ''}{_g(p['width'])} × {_g(p['height'])} "
                      "rectangle", draw=_draw_outline,
