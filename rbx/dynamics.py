@@ -38,6 +38,11 @@ ORTHO_GROWTH = 4.0
 #: before its length could overflow (rough box, λ₁ alone: 120 → 110 ns per collision; λ₁ to 1e-12, tested)
 ORTHO_GROWTH_ONE = 1e100
 
+class NothingMeasured(ValueError):
+    """:func:`lyapunov` found nothing to measure: every trajectory left the table during its warm-up, or too few
+    segments were measured for an error. A study stores no value (NaN) at such a point and goes on."""
+
+
 class _Tangent:
     """M trajectories of an experiment as ``rbx simulate`` runs them (:class:`rbx.simulation.Simulation`: the same
     initial states, random streams, rules and numerical options) with tangent vectors beside them: the engine's
@@ -334,14 +339,15 @@ def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segme
     T = float(np.sum(total_time[rows]))
     if not T > 0 or int(np.sum(m["collisions"]) - np.sum(m["exits"])) == 0:
         # with no collision measured, the exponents were reported as 0 ± 0 (free flight alone stretches nothing)
-        raise ValueError("no trajectory moved after the warm-up: each ended during it (through an exit, or in a "
-                         "flight with no wall ahead, such as along a free corridor)" if not T > 0 else
-                         "no collision after the warm-up: every trajectory left the table at its first contact")
+        raise NothingMeasured("no trajectory moved after the warm-up: each ended during it (through an exit, or in "
+                              "a flight with no wall ahead, such as along a free corridor)" if not T > 0 else
+                              "no collision after the warm-up: every trajectory left the table at its first "
+                              "contact")
     exponents = np.sum(total_sums[rows], axis=0) / T
     stderr = _batch_stderr(seg_time[rows].reshape(-1), seg_exp[rows].reshape(-1, d), exponents)
     if not np.all(np.isfinite(stderr)):
-        raise ValueError("fewer than two segments were measured (the others' trajectories left the table): no "
-                         "error estimate; run more collisions or trajectories")
+        raise NothingMeasured("fewer than two segments were measured (the others' trajectories left the table): "
+                              "no error estimate; run more collisions or trajectories")
     if len(rows) > 1:
         # trajectories of a table that is not ergodic (rough tables trap: docs/dynamics.md) can have different
         # exponents; their spread is then larger than the segments' and is the honest error

@@ -275,6 +275,11 @@ def _sampled_wall(experiment):
 
 # ---- the observables -------------------------------------------------------------------------------------------
 
+#: why a tangent observable's point may hold no value (rbx.sweeping.run_point)
+NOTHING_MEASURED = ("no value where every orbit left the table during its warm-up, or too few segments were "
+                    "measured for an error (a shorter warm-up, more trajectories or collisions)")
+
+
 def _lyapunov(runs, options):
     ly = runs.lyapunov
     per_collision = float(np.sum(ly.time) / max(1, int(np.sum(ly.collisions))))
@@ -302,7 +307,7 @@ register(Observable(
                           label="Lyapunov exponents", symbol="λᵢ"),
                 Companion("spectrum_stderr", "1/T", "standard errors of the spectrum", dim="exponent",
                           label="standard error of", symbol="λᵢ")),
-    coords=lambda exp: {"exponent": _exponent_coords(exp)}))
+    coords=lambda exp: {"exponent": _exponent_coords(exp)}, missing=NOTHING_MEASURED))
 
 
 def _regular_share(runs, options):
@@ -315,7 +320,7 @@ register(Observable(
     label="share of regular orbits",
     companions=(Companion("low", "1", "Wilson interval, lower bound (z = 1)"),
                 Companion("high", "1", "Wilson interval, upper bound (z = 1)")),
-    error="half-width of the Wilson interval (z = 1)"))
+    error="half-width of the Wilson interval (z = 1)", missing=NOTHING_MEASURED))
 
 
 def _diffusion(runs, options):

@@ -872,6 +872,9 @@ def sweep_figure(panels, title, width=None):
             colour = colormaps["viridis"](norm(s["shade"])) if "shade" in s else s.get("color", _colour(k))
             ax.errorbar(x, y, yerr=err, marker=s.get("marker", "o"), ms=4 if norm is None else 2.5, lw=1.2,
                         capsize=3 if norm is None else 0, color=colour, label=s.get("label"))
+            # the x axis spans every point, those without a value (NaN) too: their gap is seen, not cropped away
+            shown = x[np.isfinite(x) & ((x > 0) if panel.get("logx") else True)]
+            ax.update_datalim(np.column_stack([shown, np.zeros_like(shown)]), updatey=False)
         if norm is not None:        # many lines: a colour bar of their key, not a legend entry each
             from matplotlib.cm import ScalarMappable
             fig.colorbar(ScalarMappable(norm=norm, cmap="viridis"), ax=ax, label=panel.get("shade_label", ""),
@@ -904,5 +907,22 @@ def sweep_figure(panels, title, width=None):
             handles, labels = ax.get_legend_handles_labels()
             order = sorted(range(len(labels)), key=lambda i: labels[i] == panel.get("note"))    # the note last
             ax.legend([handles[i] for i in order], [labels[i] for i in order], fontsize="small",
-                      loc="upper center", bbox_to_anchor=(0.5, -0.16), borderaxespad=0.0)
+                      loc="upper center", bbox_to_anchor=(0.5, 0.0), borderaxespad=0.0,
+                      bbox_transform=_below_the_xlabel(ax))
     return fig
+
+
+def _below_the_xlabel(ax, gap=4.0):
+    """A transform whose (0.5, 0) is under the middle of ``ax``'s x-axis label with ``gap`` points between them: a
+    legend anchored there never covers the label. The depth of the tick labels and the label below the axes is
+    measured in points, which the layout keeps when it changes the axes' height (a fixed axes fraction, -0.16, put
+    the legend over the label of short axes under a tall title)."""
+    from matplotlib.transforms import offset_copy
+    fig = ax.figure
+    fig.draw_without_rendering()
+    renderer = fig._get_renderer()
+    boxes = [ax.xaxis.label.get_window_extent(renderer)] + [
+        t.get_window_extent(renderer) for t in ax.get_xticklabels() if t.get_visible() and t.get_text()]
+    lowest = min(b.y0 for b in boxes if np.all(np.isfinite(b.extents)))
+    depth = max(0.0, ax.bbox.y0 - lowest) * 72.0 / fig.dpi
+    return offset_copy(ax.transAxes, fig=fig, y=-(depth + gap), units="points")

@@ -9,6 +9,7 @@ points it lacks, and refuses a study whose canonical text changed (``study_diges
 import contextlib
 import io
 import json
+import math
 import os
 import shlex
 import signal
@@ -26,7 +27,7 @@ from .api import cluster_for, flag, simulate
 from .cluster import ClusterError, SchedulerUnreachable, connect
 from .ensembles import distinct_orbits, start_groups
 from .driver import OWN_SUFFIXES
-from .dynamics import lyapunov
+from .dynamics import NothingMeasured, lyapunov
 from .histogram import return_experiment
 from .locks import LockNotWritable, acquire_lock, release_lock
 from .model import ConfigError
@@ -59,17 +60,21 @@ def run_point(study, point, scheduler=None):
             try:
                 runs.lyapunov = lyapunov(exp, segments=need["segments"], warmup=need["warmup"],
                                          scheduler=scheduler)
-            except ValueError as exc:       # every orbit left the table during its warm-up: nothing measured
-                first = next(n for n, _ in study.measure if obs.get(n).tangent)     # lyapunov, or regular_share
-                raise ConfigError(study.file, f"measure.{first}", str(exc)) from None
-            collisions += int(np.sum(runs.lyapunov.collisions))
+                collisions += int(np.sum(runs.lyapunov.collisions))
+            except NothingMeasured:
+                # every orbit left the table during its warm-up (an exit as large as a wall, a long warm-up), or
+                # too few segments were measured for an error: this point has no exponent (NaN, the figure and
+                # a warning after the run say why), and the study goes on to the others
+                pass
         if need["returns"]:
             with cluster_for(scheduler, "scheduler") as on:
                 runs.returns = return_experiment(exp, cluster=on)
             collisions += int(np.sum(runs.returns.collisions))
-    values = {name: obs.get(name).compute(runs, options) for name, options in study.measure}
+    values = {name: (obs.Value(math.nan, math.nan) if obs.get(name).tangent and runs.lyapunov is None
+                     else obs.get(name).compute(runs, options)) for name, options in study.measure}
     if need["tangent"]:
-        values["lyapunov_regular"], values["lyapunov_orbits"] = runs.lyapunov.regular(_threshold(study))
+        values["lyapunov_regular"], values["lyapunov_orbits"] = (
+            (0, 0) if runs.lyapunov is None else runs.lyapunov.regular(_threshold(study)))
     return values, collisions, time.perf_counter() - began
 
 
@@ -472,6 +477,7 @@ def _sweep(study, output, scheduler, resume, force, progress, base, changes):
         if client is not None and client is not scheduler:
             client.close()
     _warn_missing_errors(st, ds)
+    _warn_missing_values(st, ds)
     ds.attrs["complete"] = 1
     if output is not None:
         _write(ds, partial)
@@ -479,10 +485,10 @@ def _sweep(study, output, scheduler, resume, force, progress, base, changes):
     return ds
 
 
-#: the observables whose value is a number at every computed point (rbx.lyapunov raises rather than give none; the
-#: energy of a run that went non-finite stops it; a mean free path counts at least the flight to the first
-#: collision): a NaN there in a point marked done is not a result
-NEVER_NAN = frozenset({"lyapunov", "energy_drift", "mean_free_path"})
+#: the observables whose value is a number at every computed point (the energy of a run that went non-finite stops
+#: it; a mean free path counts at least the flight to the first collision): a NaN there in a point marked done is
+#: not a result
+NEVER_NAN = frozenset({"energy_drift", "mean_free_path"})
 
 
 def _check_resumable(ds, template, path, study=None, points=()):
@@ -557,7 +563,11 @@ def _shown(values, most=4):
     return f"[{shown}{', …' if values.size > most else ''}]"
 
 
-class NoErrorBars(RuntimeWarning):
+class StudyWarning(RuntimeWarning):
+    """What a finished study holds that its numbers alone would not say (``rbx sweep`` prints each in one line)."""
+
+
+class NoErrorBars(StudyWarning):
     """Numbers of a study stored without a standard error (one orbit in one segment): said once, after the run."""
 
 
@@ -579,6 +589,28 @@ def _warn_missing_errors(study, ds):
                           "point gives no spread to take it from (more trajectories, of distinct orbits, or more "
                           "segments where the observable takes that option)",
                           NoErrorBars, stacklevel=3)
+
+
+class NoValue(StudyWarning):
+    """Points of a study that ran and hold no value (NaN) for an observable that may give none (its ``missing``
+    says when): said once per observable, after the run, naming the first such point."""
+
+
+def _warn_missing_values(study, ds):
+    """Warn once for each measured observable with finished points that hold no value at all (every orbit left
+    during a Lyapunov warm-up, no exponential law in a survival, …): the study went on past them, and a NaN in a
+    file or a gap in a figure should not be the only trace."""
+    done = ds["done"].values.astype(bool)
+    for name, _ in study.measure:
+        why = obs.get(name).missing
+        if name not in ds or not why:
+            continue
+        value = np.asarray(ds[name].values, float)
+        empty = done & np.all(np.isnan(value.reshape(done.shape + (-1,))), axis=-1)
+        if empty.any():
+            warnings.warn(f"{display_path(study.file) if study.file else 'the study'}: measure.{name}: "
+                          f"{int(empty.sum())} of {int(done.sum())} finished points are NaN (the first: "
+                          f"{_point_label(study, np.argwhere(empty)[0])}): {why}", NoValue, stacklevel=3)
 
 
 def _failed_point(exc, study, index, finished, total, output):

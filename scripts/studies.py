@@ -251,10 +251,13 @@ has levelled off by the end of the run (the share is then a trapped share) and 0
 counts the orbits not out yet and shrinks with longer runs); `return_path` and `return_angle_ks` are NaN where
 some sample did not return within the run (the slow returns are missing: the mean of the others is biased low, and
 a p-value would test the truncation, not the law), and the study's figure says so; raise `collisions`.
+`lyapunov` and `regular_share` are NaN at a point where every orbit left the table (an exit) during its warm-up, or
+too few segments were measured for an error; the study goes on to the other points, and `rbx sweep` warns once
+per observable naming the first such point.
 
 `--resume` continues `RESULTS.nc.partial` (or `RESULTS.nc`) only if it is this study's: the same digest, the
 study's variables in their shapes, coordinates equal to the values the study defines, and points marked done that
-hold a seed equal to the study's and a number where their observable always gives one (`lyapunov`, `energy_drift`,
+hold a seed equal to the study's and a number where their observable always gives one (`energy_drift`,
 `mean_free_path`, and `wall_time`); otherwise it refuses in one line naming the variable, exit 2.
 
 Starts for comparisons with classic billiards: `set: {{initial: {{sample: point_particle}}}}` starts every trajectory

@@ -986,7 +986,8 @@ def test_a_point_with_too_few_exits_is_nan_and_a_refused_point_is_named_with_wha
     (tmp_path / "grid.yaml").write_text(yaml.safe_dump(grid))
     res = rbx_cli("sweep", "grid.yaml", "-o", "g.nc", cwd=tmp_path)     # checked before any point runs
     assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
-    assert "does not fit in the rectangle" in res.stderr and res.stderr.endswith(
+    assert "does not fit in a 2 × 0.3 rectangle: its height 0.3 is not more than the ball's diameter 0.4" in \
+        res.stderr and res.stderr.endswith(
         "(at the point ball.radius = 0.2, table.height = 0.3)\n"), res.stderr
     import rbx.study
     with pytest.MonkeyPatch.context() as mp:        # a grid too large to check every point: met when it runs
@@ -1177,8 +1178,11 @@ def test_a_refused_point_is_named_and_numpy_values_are_taken_in_vary():
     np.int64(2)') where ensemble, sets= and rbx.load take them; progress='x' and base=5 were bare TypeErrors."""
     rect = str(ROOT / "configs" / "examples" / "rectangle.yaml")
     base = {"base": rect, "measure": ["energy_drift"], "ensemble": {"trajectories": 2, "collisions": 5}}
-    with pytest.raises(ConfigError, match=r"\(at the point table.height = 0.15\)"):
+    with pytest.raises(ConfigError, match=r"its height 0.15 is not more than the ball's diameter 0.2 "
+                                          r"\(at the point table.height = 0.15\)"):
         load_study({**base, "vary": {"table.height": [1.0, 0.15]}})
+    with pytest.raises(ConfigError, match=r"a 0.15 × 1 rectangle: its width 0.15 is not more"):
+        load_study({**base, "vary": {"table.width": [0.15]}})
     st = load_study({**base, "vary": {"ball.inertia": [np.float64(0.3), np.float32(0.5)]}})
     assert [type(v) for v in st.values[0].tolist()] == [float, float]
     with pytest.raises(TypeError, match="progress is a callable"):
@@ -1196,3 +1200,31 @@ def test_a_colour_bar_of_a_log_scaled_key_is_logarithmic():
     fig = plotting.sweep_figure([{"series": series, "xlabel": "x", "ylabel": "y", "shade_label": "k"}], "t")
     bar = [ax for ax in fig.axes if ax.get_ylabel() == "k"]
     assert bar and any(isinstance(getattr(c, "norm", None), LogNorm) for c in bar[0].get_children())
+
+
+def test_a_point_whose_orbits_all_leave_during_the_warm_up_is_nan_and_said(tmp_path):
+    """A λ₁ point where every orbit left through the exit during the warm-up stopped the whole study; it holds no
+    value now (NaN, no orbit measured), the others are computed, a warning names the first such point, and the
+    file resumes (a NaN λ₁ at a finished point is a result, not damage)."""
+    study = {"base": str(ROOT / "configs" / "examples" / "escape-sinai.yaml"), "zip": True,
+             # the gate from 0.825 down to 0.82 (narrow), then down to 0.001 (most of the left wall)
+             "vary": {"table.boundary[4].to[1]": [0.82, 0.001], "table.boundary[5].from[1]": [0.82, 0.001]},
+             "measure": [{"lyapunov": {"segments": 5, "warmup": 100}}, "regular_share"],
+             "ensemble": {"trajectories": 6, "collisions": 400, "seed": 3}}
+    from rbx.sweeping import NoValue
+    out = tmp_path / "s.nc"
+    with pytest.warns(NoValue, match=r"measure.lyapunov: 1 of 2 finished points are NaN \(the first: "
+                                     r"table.boundary\[4\].to\[1\] = 0.001, table.boundary\[5\].from\[1\] = 0.001\): "
+                                     "no value where every orbit left the table during its warm-up"):
+        ds = sweep(study, str(out))
+    lam = ds["lyapunov"].values
+    assert np.isfinite(lam[0]) and lam[0] > 0.5 and np.isnan(lam[1]), lam
+    assert ds["lyapunov_orbits"].values[0] >= 1 and ds["lyapunov_orbits"].values[1] == 0
+    assert list(ds["done"].values) == [1, 1]
+    assert np.isnan(ds["regular_share"].values[1]) and ds["regular_share"].values[0] == 0.0
+    # resumed from its partial file: both points are kept as they are, nothing is run again
+    os.replace(out, str(out) + ".partial")
+    with pytest.warns(NoValue):
+        again = sweep(study, str(out), resume=True)
+    np.testing.assert_array_equal(again["lyapunov"].values, lam)
+    assert list(again["collisions"].values) == list(ds["collisions"].values)

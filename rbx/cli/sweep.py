@@ -133,7 +133,7 @@ def _sweep(study, output, scheduler, resume, force, progress, checking=None, cha
     from ..cluster import ClusterError, SchedulerUnreachable
     from ..paths import DiskFull
     from ..study import load_study
-    from ..sweeping import NoErrorBars
+    from ..sweeping import StudyWarning
     from ..sweeping import sweep as run
     from .common import _quiet_dask
     if scheduler is not None:
@@ -146,17 +146,17 @@ def _sweep(study, output, scheduler, resume, force, progress, checking=None, cha
             for w in said:
                 click.echo(f"rbx: warning: {w.message}", err=True)
             with warnings.catch_warnings(record=True) as said:
-                warnings.simplefilter("always", NoErrorBars)
+                warnings.simplefilter("always", StudyWarning)
                 ds = run(st, output, scheduler=scheduler, resume=resume, force=force, progress=progress)
             for w in said:
-                if issubclass(w.category, NoErrorBars):
+                if issubclass(w.category, StudyWarning):
                     click.echo(f"rbx: warning: {w.message}", err=True)
                 else:       # anything else as Python would have shown it
                     warnings.showwarning(w.message, w.category, w.filename, w.lineno)
             return ds
         except SchedulerUnreachable as exc:
             raise UserError(None, "--scheduler", exc.problem) from None
-        except ValueError as exc:        # a point whose trajectories all left the table before measuring
+        except ValueError as exc:        # an argument the library refuses, said as the user's error
             raise UserError(study, None, str(exc)) from None
         except ClusterError as exc:         # as rbx simulate says a lost cluster: one line, exit 1
             click.echo(_cluster_lost(exc, study, output, again), err=True)
