@@ -212,10 +212,12 @@ class Lyapunov:
     #: None: every trajectory
     orbits: np.ndarray = field(default=None)
 
-    def per_collision(self):
-        """The exponents per collision: per unit time × the measured time / the measured collisions."""
+    def per_collision(self, values=None):
+        """The exponents per collision: per unit time × the measured time / the measured collisions (``values``:
+        other numbers per unit time to convert, such as :attr:`stderr`)."""
+        values = self.exponents if values is None else np.asarray(values, float)
         collisions = float(np.sum(self.collisions))
-        return self.exponents * (float(np.sum(self.time)) / collisions) if collisions > 0 else self.exponents * np.nan
+        return values * (float(np.sum(self.time)) / collisions) if collisions > 0 else values * np.nan
 
     def measured(self):
         """The trajectories that have their own exponents: a trajectory that left the table (an exit, an escape)
@@ -248,6 +250,7 @@ class Lyapunov:
         share, low, high = self.regular_share(threshold)
         return {"exponents": [float(x) for x in self.exponents], "stderr": [float(x) for x in self.stderr],
                 "per_collision": [finite(x) for x in self.per_collision()],
+                "per_collision_stderr": [finite(x) for x in self.per_collision(self.stderr)],
                 "sum": float(np.sum(self.exponents)), "time": float(np.sum(self.time)),
                 "collisions": int(np.sum(self.collisions)), "trajectories": int(len(self.time)),
                 "measured": self.measured(),

@@ -378,6 +378,11 @@ def test_lyapunov_command_prints_json(tmp_path):
     assert np.array(data["per_trajectory"]) == pytest.approx(api.per_trajectory, rel=1e-12)
     rate = float(np.sum(api.collisions)) / float(np.sum(api.time))          # collisions per unit time
     assert data["per_collision"] == pytest.approx(list(api.exponents / rate), rel=1e-12)
+    assert data["per_collision_stderr"] == pytest.approx(list(api.stderr / rate), rel=1e-12)
+    text = CliRunner().invoke(cli, ["lyapunov", str(path), "--collisions", "600"])
+    lines = text.output.splitlines()
+    at = lines.index(f"per collision (× the mean time between collisions, {1 / rate:.6g}):")
+    assert lines[at + 1] == f"  λ1  = {api.exponents[0] / rate: .6f} ± {api.stderr[0] / rate:.6f}", text.output
     share = data["regular_share"]
     assert share["threshold"] == 0.02 and share["share"] == float(np.mean(api.per_trajectory[:, 0] < 0.02))
     assert share["low"] <= share["share"] <= share["high"]

@@ -119,8 +119,10 @@ def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as
         click.echo(f"  sum = {result.exponents.sum(): .3e}")
     else:
         click.echo(f"  (the {len(result.exponents)} leading of {d})")
-    per = ", ".join(f"λ{k} = {x:.6f}" for k, x in enumerate(result.per_collision(), 1))
-    click.echo(f"per collision: {per}")
+    tau = float(np.sum(result.time)) / max(1, int(np.sum(result.collisions)))
+    click.echo(f"per collision (× the mean time between collisions, {tau:.6g}):")
+    for k, (lam, err) in enumerate(zip(result.per_collision(), result.per_collision(result.stderr)), 1):
+        click.echo(f"  λ{k:<2} = {lam: .6f} ± {err:.6f}")
     share, low, high = result.regular_share(threshold)
     if copies:
         # copies of one orbit (warned about above): one orbit, regular or not; no share, no interval
