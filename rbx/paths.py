@@ -9,6 +9,7 @@ imports none of them.
 """
 import contextlib
 import errno
+import hashlib
 import os
 import secrets
 import stat
@@ -205,22 +206,63 @@ def written_whole(path):
     rename. A failure (a full disk, Ctrl-C) removes it and leaves ``path`` as it was: a figure written in place was
     left truncated, where a good one had been."""
     folder, name = os.path.split(os.path.abspath(path))
-    ext = os.path.splitext(name)[1] or (name if name.count(".") == 1 and name.startswith(".") else "")  # '.png' 
+    ext = os.path.splitext(name)[1] or (name if name.count(".") == 1 and name.startswith(".") else "")  # '.png'
+    # short (a name of 250 characters must still have room) and hidden; the extension last. The part after
+    # '.rbx-' names the file it will replace (a hash of its name), so that a later write of the same file finds
+    # the new names that a killed writer left behind (SIGKILL runs no clean-up) and removes them
+    prefix = f".rbx-{hashlib.sha1(name.encode('utf-8', 'surrogateescape')).hexdigest()[:8]}-"
+    _remove_abandoned(folder, prefix, ext)
     while True:
-        # short (a name of 250 characters must still have room) and hidden; the extension last
-        tmp = os.path.join(folder, f".rbx-{secrets.token_hex(4)}{ext}")
+        tmp = os.path.join(folder, f"{prefix}{secrets.token_hex(4)}{ext}")
         try:        # created as any new file is (the umask's permissions), and never one already there
-            os.close(os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666))
+            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
             break
         except FileExistsError:
             continue
     try:
+        # held while the file is written: a name whose lock can be taken belongs to no live writer
+        _try_lock(fd)
         yield tmp
         os.replace(tmp, path)
     except BaseException:
         with contextlib.suppress(OSError):
             os.remove(tmp)
         raise
+    finally:
+        os.close(fd)        # releases the lock
+
+
+def _try_lock(fd):
+    """Take an exclusive ``flock`` on ``fd`` without waiting -> True, or False where it is held elsewhere (or no
+    lock can be taken here: no ``fcntl``, a file system without locks)."""
+    try:
+        import fcntl        # POSIX only
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        return True
+    except (ImportError, OSError):
+        return False
+
+
+def _remove_abandoned(folder, prefix, ext):
+    """Remove the regular files ``prefix*ext`` in ``folder`` that no writer holds (:func:`written_whole`): the
+    remains of a writer killed mid-write. One whose lock cannot be taken is left (a live writer, or a file system
+    without locks, where nothing tells the two apart)."""
+    try:
+        names = [n for n in os.listdir(folder) if n.startswith(prefix) and n.endswith(ext)]
+    except OSError:
+        return
+    for n in names:
+        own = os.path.join(folder, n)
+        try:
+            fd = os.open(own, os.O_RDONLY | getattr(os, "O_NOFOLLOW", 0) | getattr(os, "O_NONBLOCK", 0))
+        except OSError:
+            continue
+        try:
+            if stat.S_ISREG(os.fstat(fd).st_mode) and _try_lock(fd):
+                with contextlib.suppress(OSError):
+                    os.remove(own)
+        finally:
+            os.close(fd)
 
 
 def open_regular(path):

@@ -314,3 +314,34 @@ def test_a_resume_into_itself_in_a_read_only_folder_says_the_folder_cannot_be_wr
         assert res.exit_code == 0, res.stderr
         assert sorted(p.name for p in disk.iterdir()) == ["i.h5"]
     assert bool(read_run(tmp_path / "out.h5")["attrs"]["complete"])
+
+
+def test_a_figure_writers_remains_after_sigkill_are_removed_by_the_next_write_of_that_figure(tmp_path):
+    """A writer killed mid-write (SIGKILL runs no clean-up) left its hidden new name (.rbx-XXXX.png) beside the
+    figure for ever. The next write of the same figure removes such remains that no live writer holds; those of
+    another figure, of a writer still holding its lock, and anything else stay."""
+    import hashlib
+    exp = rbx.load(os.path.join(os.path.dirname(os.path.dirname(os.path.abspath(__file__))), "configs", "examples",
+                                "strip.yaml"), {"run.collisions": 50})
+    rbx.simulate(exp, output=str(tmp_path / "s.h5"))
+    h = hashlib.sha1(b"orbit.png").hexdigest()[:8]
+    dead = tmp_path / f".rbx-{h}-0badf00d.png"          # as a killed writer leaves it: no process holds it
+    dead.write_bytes(b"\x89PNG half")
+    held = tmp_path / f".rbx-{h}-1234abcd.png"          # a writer still at work holds its lock
+    held.write_bytes(b"")
+    other = tmp_path / f".rbx-{hashlib.sha1(b'phase.png').hexdigest()[:8]}-0badf00d.png"     # another figure's
+    other.write_bytes(b"")
+    holder = subprocess.Popen([sys.executable, "-c", "import fcntl, os, sys, time\n"
+                               f"fd = os.open({str(held)!r}, os.O_RDONLY); fcntl.flock(fd, fcntl.LOCK_EX)\n"
+                               "print('held', flush=True); time.sleep(60)"], stdout=subprocess.PIPE, text=True)
+    try:
+        assert holder.stdout.readline().strip() == "held"
+        res = subprocess.run([os.path.join(os.path.dirname(sys.executable), "rbx"), "plot", "s.h5", "--kind",
+                              "orbit", "-o", "orbit.png"], cwd=tmp_path, capture_output=True, text=True, timeout=HANG)
+        assert res.returncode == 0, res.stderr
+    finally:
+        holder.kill()
+        holder.wait()
+    assert not dead.exists() and held.exists() and other.exists()
+    assert (tmp_path / "orbit.png").read_bytes()[:4] == b"\x89PNG"
+    assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".rbx-")) == sorted([held.name, other.name])
