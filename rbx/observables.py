@@ -449,10 +449,10 @@ register(Observable(
     "return_path", "L", "mean path in (x, R√κ·θ) of the trajectories started with the billiard measure on the exit "
     "wall until they return to it; NaN when some did not return within the run (the longest returns missing, the "
     "mean of the others is biased low)", _return_path, final=True, exit=True,
-    problem=_on_exit_wall, label="mean return path", symbol="⟨ℓ⟩",
+    problem=_on_exit_wall, label="mean return path in (x, R√κθ)", symbol="⟨ℓ⟩",
     missing="no value where some trajectory had not returned by the end of the run (raise collisions)",
     companions=(Companion("kac", "L", "Kac/Santaló: C_d·|table|/|hole| (4A/ℓ for a disc)", reference=True,
-                          label="Kac's mean return path"),
+                          label="Kac's lemma: C·|table| / |hole| (every state returns)"),
                 Companion("ratio", "1", "mean return path / Kac's value",
                           label="mean return path / Kac's", expected=1.0,
                           expected_label="1: Kac's lemma (every state returns)"),

@@ -113,7 +113,8 @@ def test_kac_return_path_and_return_angles():
     assert float(ds["trapped_share_levelled"][0]) == 1      # every orbit returned: levelled at 0, a share of 0
     from rbx.cli.sweep import sweep_panel
     # dashed beside the points: Kac's value, not a share or a flag of the same unit
-    assert [r["label"] for r in sweep_panel(ds, "return_path")[0]["references"]] == ["Kac's mean return path"]
+    assert [r["label"] for r in sweep_panel(ds, "return_path")[0]["references"]] == [
+        "Kac's lemma: C·|table| / |hole| (every state returns)"]
     panel = sweep_panel(ds, "trapped_share")[0]
     assert panel["references"] == [] and "survival still falling" not in panel.get("note", "")
     # too short for every orbit to return: the mean of the quick returns would be biased low (Kac's ratio far
