@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .analysis import (free_corridors, santalo_constant, spin_free, table_measure, unbounded_axes, velocity_dimension,
-                       wall_measure, wilson)
+from .analysis import (free_corridors, orbit_velocity_dimension, santalo_constant, spin_free, table_measure,
+                       unbounded_axes, velocity_dimension, wall_measure, wilson)
 from .dynamics import REGULAR_THRESHOLD, escape_times
 from .escape import fit_escape, levels_off
 from .histogram import exit_problem
@@ -364,28 +364,61 @@ register(Observable(
     label="diffusion coefficient", symbol="D"))
 
 
+#: the small-hole escape rate |hole|/(C_d·|table|) applies to holes at most this share of the boundary: for a
+#: larger one (a whole wall of a rectangle) an orbit's next exit is not a rare event and the formula means nothing
+SMALL_HOLE = 0.1
+
+
+def small_hole_rate(experiment):
+    """The small-hole escape rate per unit path, |hole|/(C_d·|table|): the flux through the exit walls over the
+    phase volume, C_d Santaló's constant of the velocity space the orbits fill (π for a point particle in 2D, 4 for
+    a disc with spin) -> (rate, hole's share of the boundary, C_d as written), or None where it does not apply (a
+    hole larger than :data:`SMALL_HOLE` of the boundary, no wall whose rule is an exit, a table whose measure is
+    not computed)."""
+    geom = experiment.geometry()
+    try:
+        volume, _ = table_measure(geom)
+        # walls whose rule is an exit (one that is an exit at random is a hole only part of the time)
+        hole = sum(wall_measure(geom, w) for w, r in enumerate(experiment.wall_rules) if isinstance(r, Exit))
+        boundary = sum(wall_measure(geom, w) for w in range(len(geom.wall_list)))
+    except (ValueError, ZeroDivisionError):
+        return None
+    if not (np.isfinite(boundary) and 0 < hole <= SMALL_HOLE * boundary):
+        return None
+    d = orbit_velocity_dimension(experiment)      # a point particle's starts under specular walls: d = n
+    written = {2: "π", 3: "4"}.get(d, f"{santalo_constant(d):.3g}")
+    return hole / (santalo_constant(d) * volume), hole / boundary, written
+
+
 def _escape_rate(runs, options):
     """The rate of rbx plot --kind escape's fit (:func:`rbx.escape.fit_escape`, with the level where survival levels
     off): the same number as the figure, and none where no exponential law follows the survival (a rate fitted
     anyway was 0.260 ± 0.006 for a specular rectangle, whose decay is not exponential)."""
     esc = escape_times(runs.run)
+    small = small_hole_rate(runs.experiment)
+    trapped = levels_off(esc.path, esc.exited)
+    # the small-hole law is for orbits that all leave in the end: none where survival levels off (a trap)
+    expected = {"small_hole": small[0] if small is not None and not trapped else math.nan}
     if not esc.exited.any():
-        return Value(math.nan, math.nan)
+        return Value(math.nan, math.nan, expected)
     try:
-        fit = fit_escape(esc.path, esc.exited, fit_from=float(options["fit_from"]),
-                         trapped=levels_off(esc.path, esc.exited))
+        fit = fit_escape(esc.path, esc.exited, fit_from=float(options["fit_from"]), trapped=trapped)
     except ValueError:          # too few exits in any window to fit a rate (the figure says so too)
-        return Value(math.nan, math.nan)
+        return Value(math.nan, math.nan, expected)
     if not (fit.follows and fit.rate > 0 and np.isfinite(fit.rate_err)):
-        return Value(math.nan, math.nan)
-    return Value(fit.rate, fit.rate_err)
+        return Value(math.nan, math.nan, expected)
+    return Value(fit.rate, fit.rate_err, expected)
 
 
 register(Observable(
     "escape_rate", "1/L", "exponential escape rate through the exit walls per unit path in (x, R√κ·θ): the fit of "
     "rbx plot --kind escape (from the fit_from quantile of the exits on, with the level survival tends to where it "
     "levels off); NaN where no exponential law follows the survival", _escape_rate,
-    final=True, exit=True, options={"fit_from": 0.1}, label="escape rate", symbol="γ",
+    final=True, exit=True, options={"fit_from": 0.1}, label="escape rate per unit path in (x, R√κθ)", symbol="γ",
+    companions=(Companion("small_hole", "1/L", "the small-hole rate |hole|/(C_d·|table|) (C_d = π for a point "
+                          "particle in 2D, 4 for a disc with spin); NaN for a hole larger than a tenth of the "
+                          "boundary, or where survival levels off", reference=True,
+                          label="small-hole rate |hole| / (C·|table|)"),),
     missing="no value where no exponential law follows the survival, or too few orbits exited to fit one (rbx "
             "plot --kind escape of a point's run shows it)"))
 

@@ -241,7 +241,8 @@ sets={{"ball.radius": 0.05}})` is `rbx sweep STUDY.yaml -o RESULTS.nc --trajecto
 ball.radius=0.05` (the same checks, and the same numbers); it returns the results as an `xarray.Dataset`.
 
 The results file opens with `xarray.open_dataset`: one dimension per varied key, `<observable>` and
-`<observable>_stderr` (and companions such as `mean_free_path_santalo`, `return_path_kac`, `regular_share_low/high`),
+`<observable>_stderr` (and companions such as `mean_free_path_santalo`, `return_path_kac`, `escape_rate_small_hole`,
+`regular_share_low/high`),
 per point `collisions`, `wall_time`, `seed`, `done`, the study's text, digest and provenance as attributes, and
 `ensemble_orbits`: how many distinct orbits each point's ensemble holds (fewer than its trajectories where fixed
 starts and no random numbers repeat each other; `rbx sweep` warns, and the study's figure says "copies"). Each

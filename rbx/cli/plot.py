@@ -501,7 +501,7 @@ def _escape(run, rec, traj, fit_from=0.1, **_):
         fit = fit_escape(path, exited, fit_from=fit_from, trapped=trapped is not None)
     except ValueError:
         fit = None
-    expected = None if trapped is not None else _small_hole_rate(run, exp)
+    expected = None if trapped is not None else _small_hole_rate(exp)
     censored = int(np.sum(~exited))
     inside = f"{censored} still inside: censored" if censored else "every one exited"
     title = _title(run, f"escape through {', '.join(walls)} ({inside}) · {starts_phrase(run.experiment)}", traj,
@@ -552,32 +552,15 @@ def _trapped(run, path, exited):
     return share, low, high
 
 
-#: the small-hole rate |hole|/(C_d·|table|) is drawn only for holes at most this share of the boundary: for a
-#: larger one (a whole wall of a rectangle) an orbit's next exit is not a rare event and the formula means nothing
-SMALL_HOLE = 0.1
-
-
-def _small_hole_rate(run, exp):
-    """(rate, label) of the small-hole escape rate, or None where it does not apply (a large hole, a table whose
-    measure is not computed)."""
-    from ..analysis import orbit_velocity_dimension, santalo_constant, table_measure, wall_measure
-    from ..model import Exit
-    geom = run.geometry()
-    try:
-        volume, _ = table_measure(geom)
-        holes = [w for w, r in enumerate(exp.wall_rules) if isinstance(r, Exit)]
-        hole = sum(wall_measure(geom, w) for w in holes)
-        boundary = sum(wall_measure(geom, w) for w in range(len(geom.wall_list)))
-    except (ValueError, ZeroDivisionError):
+def _small_hole_rate(exp):
+    """(rate, label) of the small-hole escape rate (:func:`rbx.observables.small_hole_rate`), or None where it does
+    not apply."""
+    from ..observables import small_hole_rate
+    small = small_hole_rate(exp)
+    if small is None:
         return None
-    if not (np.isfinite(boundary) and 0 < hole <= SMALL_HOLE * boundary):
-        return None
-    d = orbit_velocity_dimension(exp)      # a point particle's starts under specular walls: d = n
-    # flux through the holes over the phase volume: |∂Q_hole|/(C_d·|Q|) per unit path (small holes)
-    rate = hole / (santalo_constant(d) * volume)
-    constant = {2: "π", 3: "4"}.get(d, f"{santalo_constant(d):.3g}")
-    return rate, (f"small-hole rate |hole|/({constant}·|table|) = {rate:.4g} "
-                  f"(hole {100 * hole / boundary:.2g} % of the boundary)")
+    rate, share, constant = small
+    return rate, f"small-hole rate |hole|/({constant}·|table|) = {rate:.4g} (hole {100 * share:.2g} % of the boundary)"
 
 
 def _leaves(rule):
