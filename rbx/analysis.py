@@ -43,6 +43,17 @@ def spin_free(experiment):
     return all(leaf.rank in (0, -1) for rule in experiment.wall_rules for leaf in rule_leaves(rule))
 
 
+def spin_mixture(experiment):
+    """True when every wall's rule is specular (rank 0) or an exit but the starts carry spin (a disc or ball started
+    with the billiard measure): a specular wall keeps each orbit's spin, so each orbit moves in the plane at its own
+    share c of its speed in (v, R√κ·ω), and leaves a hole at its own rate per unit path, c·|hole|/(C_n·|table|).
+    Survival is then a mixture of exponentials whose slow part (orbits spinning fast, c near 0) has no rate: a
+    power-law tail, not one escape rate. The mean rate at the start, over the billiard measure, is the small-hole
+    rate of the whole velocity space, |hole|/(C_d·|table|)."""
+    return (not spin_free(experiment)
+            and all(leaf.rank in (0, -1) for rule in experiment.wall_rules for leaf in rule_leaves(rule)))
+
+
 def orbit_velocity_dimension(experiment):
     """The dimension of the velocity space the experiment's orbits fill: n for a spin-free experiment
     (:func:`spin_free`), else :func:`velocity_dimension` (v and R√κ·ω). Santaló's constant and the small-hole escape

@@ -16,8 +16,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from .analysis import (free_corridors, orbit_velocity_dimension, santalo_constant, spin_free, table_measure,
-                       unbounded_axes, velocity_dimension, wall_measure, wilson)
+from .analysis import (free_corridors, orbit_velocity_dimension, santalo_constant, spin_free, spin_mixture,
+                       table_measure, unbounded_axes, velocity_dimension, wall_measure, wilson)
 from .dynamics import REGULAR_THRESHOLD, escape_times
 from .escape import fit_escape, levels_off
 from .histogram import exit_problem
@@ -369,12 +369,11 @@ register(Observable(
 SMALL_HOLE = 0.1
 
 
-def small_hole_rate(experiment):
-    """The small-hole escape rate per unit path, |hole|/(C_d·|table|): the flux through the exit walls over the
-    phase volume, C_d Santaló's constant of the velocity space the orbits fill (π for a point particle in 2D, 4 for
-    a disc with spin) -> (rate, hole's share of the boundary, C_d as written), or None where it does not apply (a
-    hole larger than :data:`SMALL_HOLE` of the boundary, no wall whose rule is an exit, a table whose measure is
-    not computed)."""
+def hole_rate(experiment, d=None):
+    """|hole|/(C_d·|table|): the flux through the walls whose rule is an exit over the phase volume, per unit path,
+    C_d Santaló's constant of a velocity space of dimension ``d`` (default: the one the orbits fill, π for a point
+    particle in 2D, 4 for a disc with spin) -> (rate, the hole's share of the boundary, C_d as written), or None
+    (no such wall, or a table whose measure is not computed)."""
     geom = experiment.geometry()
     try:
         volume, _ = table_measure(geom)
@@ -383,11 +382,22 @@ def small_hole_rate(experiment):
         boundary = sum(wall_measure(geom, w) for w in range(len(geom.wall_list)))
     except (ValueError, ZeroDivisionError):
         return None
-    if not (np.isfinite(boundary) and 0 < hole <= SMALL_HOLE * boundary):
+    if not (np.isfinite(boundary) and hole > 0):
         return None
-    d = orbit_velocity_dimension(experiment)      # a point particle's starts under specular walls: d = n
+    d = orbit_velocity_dimension(experiment) if d is None else d
     written = {2: "π", 3: "4"}.get(d, f"{santalo_constant(d):.3g}")
     return hole / (santalo_constant(d) * volume), hole / boundary, written
+
+
+def small_hole_rate(experiment):
+    """The small-hole escape rate per unit path, |hole|/(C_d·|table|) (:func:`hole_rate`) -> (rate, hole's share of
+    the boundary, C_d as written), or None where it does not apply: a hole larger than :data:`SMALL_HOLE` of the
+    boundary, no wall whose rule is an exit, a table whose measure is not computed, spinning starts under specular
+    walls (each orbit then has a rate of its own, :func:`rbx.analysis.spin_mixture`)."""
+    if spin_mixture(experiment):
+        return None
+    found = hole_rate(experiment)
+    return found if found is not None and found[1] <= SMALL_HOLE else None
 
 
 def _escape_rate(runs, options):
@@ -395,6 +405,8 @@ def _escape_rate(runs, options):
     off): the same number as the figure, and none where no exponential law follows the survival (a rate fitted
     anyway was 0.260 ± 0.006 for a specular rectangle, whose decay is not exponential)."""
     esc = escape_times(runs.run)
+    if spin_mixture(runs.experiment):         # each orbit its own rate: no one rate to give
+        return Value(math.nan, math.nan, {"small_hole": math.nan})
     small = small_hole_rate(runs.experiment)
     trapped = levels_off(esc.path, esc.exited)
     # the small-hole law is for orbits that all leave in the end: none where survival levels off (a trap)
@@ -420,7 +432,8 @@ register(Observable(
                           "boundary, or where survival levels off", reference=True,
                           label="small-hole rate |hole| / (C·|table|)"),),
     missing="no value where no exponential law follows the survival, or too few orbits exited to fit one (rbx "
-            "plot --kind escape of a point's run shows it)"))
+            "plot --kind escape of a point's run shows it), or where spinning starts meet only specular walls "
+            "(each orbit keeps its spin and leaves at its own rate: point-particle starts give the classic one)"))
 
 
 def _trapped_share(runs, options):

@@ -716,14 +716,14 @@ def histogram_figure(angle, d, ks_statistic, ks_pvalue, title, bins=50, not_retu
 
 @styled
 def escape_figure(s, S, fit, exits, total, title, unit="path length [L]", expected=None, trapped=None, at_last=0,
-                  falling=0):
+                  falling=0, no_rate=None):
     """The survival function S(s) (Kaplan–Meier: the fraction of trajectories still in the table after path s) on
     a log scale, with the fitted law of :mod:`rbx.escape` (``fit``: an :class:`rbx.escape.EscapeFit`, or None)
     drawn over its window only, and only if it follows the data there; else the legend says that no exponential
     does. ``expected``: (γ, label) of a predicted rate, drawn dashed. ``trapped``: (share, low, high) where survival
     levels off: the share drawn as a level with its interval. ``at_last``: how many of the ``exits`` were at the
     run's last collision (said beside them). ``falling``: how many are still inside where survival has not levelled
-    off (said: no trapped share can be read)."""
+    off (said: no trapped share can be read). ``no_rate``: why no rate is fitted, where one is not tried."""
     fig = _figure(8.4, 5.0, title)
     ax = fig.add_subplot()
     # the axis runs to the last exit, and the last level S > 0 is drawn up to it (S = 0 has no place on a log axis:
@@ -758,7 +758,7 @@ def escape_figure(s, S, fit, exits, total, title, unit="path length [L]", expect
             label = f"fit over {what} of S(s₀)·e^(−γ(s − s₀)), s₀ = {fit.start:.3g}: {rate}"
         ax.plot(x, fit.survival(x), "k-", lw=1.0, label=label)
     else:
-        ax.plot([], [], " ", label="no exponential law follows the survival over any window tried: no rate")
+        ax.plot([], [], " ", label=no_rate or "no exponential law follows the survival over any window tried: no rate")
     if expected is not None:
         s0, S0 = (fit.start, fit.survival0) if drawn else (0.0, 1.0)
         x = np.linspace(s0, fit.stop if drawn else end, 200)

@@ -1233,17 +1233,22 @@ def test_a_point_whose_orbits_all_leave_during_the_warm_up_is_nan_and_said(tmp_p
 
 def test_an_escape_rate_study_draws_the_small_hole_rate_where_the_hole_is_small():
     """A hole-size sweep had no small-hole line to compare with (the single-run escape plot has one): the
-    companion small_hole is |hole|/(4·|table|) for a disc with spin, worked out here by hand for the escape
+    companion small_hole is |hole|/(π·|table|) for a point particle, worked out here by hand for the escape
     example (the centre's table: the 1.8 × 1.3 box less the disc of radius 0.4 + R), and NaN for a hole that is
     most of a wall."""
     study = {"base": str(ROOT / "configs" / "examples" / "escape-sinai.yaml"), "vary": {"ball.inertia": [0.5]},
+             "set": {"initial": {"sample": "point_particle"}},
              "measure": ["escape_rate"], "ensemble": {"trajectories": 20, "collisions": 200, "seed": 1}}
     ds = sweep(study)
     area = 1.8 * 1.3 - math.pi * 0.5 ** 2
-    assert float(ds["escape_rate_small_hole"][0]) == pytest.approx(0.15 / (4 * area), rel=1e-9)
+    # a point particle under specular walls: the classic billiard's |hole|/(π·|table|)
+    assert float(ds["escape_rate_small_hole"][0]) == pytest.approx(0.15 / (math.pi * area), rel=1e-9)
     # the floor an exit too: 1.95 of the boundary's 9.3, no small hole
-    large = sweep({**study, "set": {"boundary.walls.floor": {"rule": "exit"}}})
+    large = sweep({**study, "set": {**study["set"], "boundary.walls.floor": {"rule": "exit"}}})
     assert np.isnan(float(large["escape_rate_small_hole"][0]))
+    # a disc started with spin under these specular walls: each orbit its own rate, no value and no line
+    spun = sweep({**study, "set": {"initial": {"sample": "billiard"}}})
+    assert np.isnan(float(spun["escape_rate"][0])) and np.isnan(float(spun["escape_rate_small_hole"][0]))
     from rbx.cli.sweep import sweep_panel
     panel = sweep_panel(ds, "escape_rate")[0]
     assert [r["label"] for r in panel["references"]] == ["small-hole rate |hole| / (C·|table|)"]

@@ -497,11 +497,19 @@ def _escape(run, rec, traj, fit_from=0.1, **_):
     trapped = _trapped(run, path, exited)
     # the model and its window (rbx.escape): where survival levels off, the trapped share q and the rate γ of the
     # others fitted together; the window starts after the transient, where the fitted curve follows the data
+    from ..analysis import spin_mixture
+    mixture = spin_mixture(exp)     # each orbit keeps its spin and leaves at its own rate: no one rate to fit
     try:
-        fit = fit_escape(path, exited, fit_from=fit_from, trapped=trapped is not None)
+        fit = None if mixture else fit_escape(path, exited, fit_from=fit_from, trapped=trapped is not None)
     except ValueError:
         fit = None
     expected = None if trapped is not None else _small_hole_rate(exp)
+    if mixture:     # the mean rate at the start, drawn from s = 0: the survival leaves it as the slow orbits remain
+        from ..observables import hole_rate
+        start, classic = hole_rate(exp), hole_rate(exp, d=exp.dimension)
+        if start is not None and trapped is None:
+            expected = (start[0], f"mean rate at the start |hole|/({start[2]}·|table|) = {start[0]:.4g} (each orbit's "
+                                  f"own: c·|hole|/({classic[2]}·|table|), c its share of speed in the plane)")
     censored = int(np.sum(~exited))
     inside = f"{censored} still inside: censored" if censored else "every one exited"
     title = _title(run, f"escape through {', '.join(walls)} ({inside}) · {starts_phrase(run.experiment)}", traj,
@@ -512,8 +520,18 @@ def _escape(run, rec, traj, fit_from=0.1, **_):
     falling = censored if trapped is None else 0
     fig = plotting.escape_figure(s, S, fit, int(exited.sum()), len(sel), title,
                                  unit="path length in (x, R√κ·θ) [L]", expected=expected, trapped=trapped,
-                                 at_last=at_last, falling=falling)
-    if fit is not None and fit.follows:
+                                 at_last=at_last, falling=falling,
+                                 no_rate=mixture and "specular walls keep each orbit's spin: each leaves at its own "
+                                                     "rate, a mixture with no single rate (the text output says more)")
+    if mixture:
+        c_n, c_d = (classic[2], start[2]) if start is not None else ("C_n", "C_d")
+        said = ("no escape rate: every wall is specular, so each orbit keeps its spin and moves at its own share c "
+                f"of its speed in (v, R√κ·ω); it leaves at its own rate c·|hole|/({c_n}·|table|) per unit path, and "
+                "the survival is a mixture of exponentials whose fast-spinning orbits (c near 0) hardly leave: no "
+                f"single rate (the mean at the start, over these starts, is |hole|/({c_d}·|table|)"
+                + (f" = {start[0]:.4g}" if start is not None else "")
+                + "); point-particle starts (initial: {sample: point_particle}) give the classic billiard's rate")
+    elif fit is not None and fit.follows:
         said = (f"escape rate γ = {fit.rate:.4g} ± {fit.rate_err:.2g} per unit path (fitted over {fit.start:.3g} ≤ s "
                 f"≤ {fit.stop:.3g}")
         said += (f", with the level it tends to, S(s₀)·q = {100 * fit.survival0 * fit.level:.3g} %: "
