@@ -36,7 +36,8 @@ SHOWS = {
                  "in red), and the final displacements (against the Gaussian of the fitted MSD, not drawn where the "
                  "horizon is infinite)",
     "escape": "survival of the exit path length with the exponential rate fitted where it describes the data (and "
-              "the trapped share, where survival levels off)",
+              "the trapped share, where survival levels off); where specular walls keep each disc's spin, every "
+              "orbit leaves at its own rate: no single rate is fitted, the mean one at the start is drawn dashed",
     "birkhoff": "Birkhoff section (arc length, sin ψ) coloured by the spin share",
     "poincare": "Poincaré section by the plane z = 0.5 (upward crossings) coloured by the spin share",
 }
