@@ -212,6 +212,18 @@ class Lyapunov:
     #: None: every trajectory
     orbits: np.ndarray = field(default=None)
 
+    def __repr__(self):
+        """A summary (the arrays of every segment made the repr of a short run 7.7 kB long): the exponents per unit
+        time with their errors, per collision, what was measured, the regular share."""
+        def numbers(x):
+            return "[" + ", ".join(f"{v:.4g}" for v in np.asarray(x, float)) + "]"
+        regular, measured = self.regular()
+        return (f"Lyapunov({self.title + ': ' if self.title else ''}exponents per unit time {numbers(self.exponents)} "
+                f"± {numbers(self.stderr)}, per collision {numbers(self.per_collision())}; "
+                f"{len(self.time)} trajectories, {int(np.sum(self.collisions))} collisions over time "
+                f"{float(np.sum(self.time)):.6g} after a warm-up of {self.warmup} each; regular {regular} of "
+                f"{measured} (own λ1 < {REGULAR_THRESHOLD:g} per unit time))")
+
     def per_collision(self, values=None):
         """The exponents per collision: per unit time × the measured time / the measured collisions (``values``:
         other numbers per unit time to convert, such as :attr:`stderr`)."""

@@ -882,7 +882,8 @@ def sweep_figure(panels, title, width=None):
         for k, ref in enumerate(panel.get("references", ())):
             colour = colormaps["viridis"](norm(ref["shade"])) if "shade" in ref and norm is not None else \
                 ref.get("color", "k")
-            style = dict(color=colour, ls=ref.get("ls", "--"), lw=1.0, label=ref.get("label"))
+            # above the points' line: a closed form the data follow was hidden under it
+            style = dict(color=colour, ls=ref.get("ls", "--"), lw=1.0, label=ref.get("label"), zorder=3)
             if ref.get("x") is None:
                 ax.axhline(float(ref["y"]), **style)
             else:

@@ -589,3 +589,12 @@ def test_an_integrable_tables_exponent_is_said_to_be_finite_time():
                                      "3000", "--exponents", "1"])
     assert large.exit_code == 0 and "every orbit is regular" not in large.output, large.output
     assert "every orbit is below the threshold, but λ1 per collision is 0.7" in large.output, large.output
+
+
+def test_a_result_prints_as_a_summary():
+    """print(rbx.lyapunov(...)) gave the dataclass's repr with every segment's array, 7.7 kB for a short run."""
+    ly = lyapunov(_scene(SINAI, SMOOTH, 300, trajectories=2))
+    text = repr(ly)
+    assert len(text) < 800 and text.startswith("Lyapunov(") and "segment" not in text, text
+    assert f"exponents per unit time [{ly.exponents[0]:.4g}, " in text and f"± [{ly.stderr[0]:.4g}, " in text
+    assert f"per collision [{ly.per_collision()[0]:.4g}, " in text and "2 trajectories" in text
