@@ -26,8 +26,9 @@ RUNS = {
             "ball": {"radius": 0.1}, "initial": {"sample": "billiard"},
             "run": {"collisions": 400, "trajectories": 3, "seed": 4}, "output": {"record": ALL}},
     "open": {"table": {"kind": "sinai", "size": [2.0, 1.5], "radius": 0.4},
+             # point particles: one escape rate (a spinning disc keeps its spin at specular walls, each its own rate)
              "boundary": {"default": {"rule": "constant", "rank": 0}, "walls": {"left": {"rule": "exit"}}},
-             "ball": {"radius": 0.1}, "initial": {"sample": "billiard"},
+             "ball": {"radius": 0.1}, "initial": {"sample": "point_particle"},
              "run": {"collisions": 400, "trajectories": 300, "seed": 4}, "output": {"record": ["time", "wall"]}},
 }
 
