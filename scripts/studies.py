@@ -234,7 +234,9 @@ ensemble: {{trajectories: 32, collisions: 80000, seed: 11}}
 
 A varied key names one number. An item of a list is named by its index in brackets, and `zip: true` (beside
 `vary`) moves several together: the escape example's gate, `table.boundary[3].to[1]` and
-`table.boundary[4].from[1]` zipped over the same values, sweeps the hole's size.
+`table.boundary[4].from[1]` zipped over the same values, sweeps the hole's size (its walls are specular: with
+`set: {initial: {sample: point_particle}}` each point has one escape rate; a disc started with spin keeps it there,
+each orbit leaves at its own rate, and `escape_rate` is NaN).
 
 From Python the same: `rbx.sweep("STUDY.yaml", "RESULTS.nc", trajectories=4, collisions=5000,
 sets={{"ball.radius": 0.05}})` is `rbx sweep STUDY.yaml -o RESULTS.nc --trajectories 4 --collisions 5000 --set
