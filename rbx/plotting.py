@@ -615,13 +615,14 @@ def diffusion_figure(steps, msd, fit, displacement, title, coordinate="x", time_
     pct = round(100 * fit.confidence)
     if horizon:
         # no coefficient: b, half the MSD's slope over the window, a number of the window alone
-        label = (f"fit 2bt + c, over the fit window only: b = {fit.coefficient:.4g} ± {fit.half_width:.2g} "
+        label = (f"fit 2bt + c, over the fit window only: b = {analysis.plus_minus(fit.coefficient, fit.half_width)} "
                  f"{unit}²/collision ({pct}% CI)")
     else:
-        label = f"fit 2Dt + c: D = {fit.coefficient:.4g} ± {fit.half_width:.2g} {unit}²/collision ({pct}% CI)"
+        label = (f"fit 2Dt + c: D = {analysis.plus_minus(fit.coefficient, fit.half_width)} {unit}²/collision "
+                 f"({pct}% CI)")
     if time_per_step:
-        label += (f"\n  = {fit.coefficient / time_per_step:.4g} ± {fit.half_width / time_per_step:.2g} {unit}²/T per unit "
-                  f"time (mean time per collision {time_per_step:.4g} T)")
+        label += (f"\n  = {analysis.plus_minus(fit.coefficient / time_per_step, fit.half_width / time_per_step)} "
+                  f"{unit}²/T per unit time (mean time per collision {time_per_step:.4g} T)")
     if horizon:
         label += "\n  b: half the MSD's slope over the window, not D"
     ax.loglog(t[model > 0], model[model > 0], "-", color="k", lw=1, label=label)

@@ -153,3 +153,14 @@ def test_point_particle_orbits_under_rough_walls_are_not_weighted():
     step = np.linalg.norm(np.diff(np.asarray(runs.run.position)[:, 1:], axis=1), axis=-1)
     v = get("mean_free_path").compute(runs, {"segments": 10})
     assert v.value == pytest.approx(float(np.sum(step) / step.size), rel=1e-12)
+
+
+def test_a_value_is_printed_to_the_precision_of_its_error():
+    """'D = 0.008357 ± 0.01': the value carried digits its error does not support."""
+    from rbx.analysis import plus_minus
+    assert plus_minus(0.008357, 0.0098) == "0.0084 ± 0.0098"
+    assert plus_minus(0.1147, 0.052) == "0.115 ± 0.052"
+    assert plus_minus(-0.0065, 0.003) == "-0.0065 ± 0.0030"
+    assert plus_minus(1234.5, 156) == "1230 ± 160"
+    assert plus_minus(3.2e-12, 5.6e-14) == "3.200e-12 ± 0.056e-12"
+    assert plus_minus(0.5, float("nan")) == "0.5 ± nan"

@@ -245,7 +245,7 @@ def test_diffusion_figure_reports_the_fit(runs):
         x = run.read("position", list(range(run.trajectories)))[..., 0]
         fit = analysis.fit_diffusion(run.step.astype(float), x)
     assert fit.low < fit.coefficient < fit.high and fit.coefficient > 0
-    assert f"{fit.coefficient:.4g}" in legend
+    assert f"D = {analysis.plus_minus(fit.coefficient, fit.half_width)} L²/collision" in legend, legend
     # the Gaussian panel tests the displacements against the fitted variance only where there are enough of them
     from rbx.plotting import MIN_KS_SAMPLES
     assert ("KS p = " in legend) == (x.shape[0] >= MIN_KS_SAMPLES), legend

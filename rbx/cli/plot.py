@@ -419,17 +419,18 @@ def _diffusion(run, rec, traj, coordinate="x", fit_from=0.1, **_):
     fig = plotting.diffusion_figure(t, msd, fit, (x[full, -1] - x[full, 0]),
                                     _title(run, f"diffusion along {coordinate}", traj, rec), coordinate=coordinate,
                                     time_per_step=per_time, horizon=horizon and horizon[0])
+    from ..analysis import plus_minus
     ci = (f"({round(100 * fit.confidence)}% CI, {fit.trajectories} trajectories, fitted over steps "
           f"{fit.start:.0f}–{fit.stop:.0f})")
     unit = "rad" if coordinate == "theta" else "L"
     if horizon:
-        said = (f"slope of the MSD along {coordinate}, fitted as 2bt + c: b = {fit.coefficient:.4g} ± "
-                f"{fit.half_width:.2g} {unit}²/collision {ci}")
+        said = (f"slope of the MSD along {coordinate}, fitted as 2bt + c: b = "
+                f"{plus_minus(fit.coefficient, fit.half_width)} {unit}²/collision {ci}")
     else:
-        said = (f"diffusion coefficient along {coordinate}: D = {fit.coefficient:.4g} ± {fit.half_width:.2g} "
+        said = (f"diffusion coefficient along {coordinate}: D = {plus_minus(fit.coefficient, fit.half_width)} "
                 f"{unit}²/collision {ci}")
     if per_time:
-        said += f" = {fit.coefficient / per_time:.4g} ± {fit.half_width / per_time:.2g} {unit}²/T"
+        said += f" = {plus_minus(fit.coefficient / per_time, fit.half_width / per_time)} {unit}²/T"
     if horizon:
         said += f"; not a diffusion coefficient: {horizon[1]}"
     elif not fit.low > 0:
