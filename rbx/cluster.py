@@ -29,6 +29,7 @@ every checkpointed round).
 """
 import asyncio
 import json
+import logging
 import os
 import platform
 import queue
@@ -61,6 +62,24 @@ SLICE_BYTES = 4_000_000
 SLICES_PER_THREAD = 4
 #: seconds between two looks at ``should_stop`` while waiting for a task (one that finishes is seen at once)
 POLL = 0.1
+class _AbandonedGather(logging.Filter):
+    """Drops asyncio's report of the gather task that a fetch cut short by its timeout leaves behind in Dask's
+    client ('Task exception was never retrieved … AllExit'): a result given up on, not an error of the run."""
+
+    def filter(self, record):
+        return "AllExit" not in record.getMessage() and "AllExit" not in str(record.exc_info or "")
+
+
+def _hide_abandoned_gathers():
+    log = logging.getLogger("asyncio")
+    if not any(isinstance(f, _AbandonedGather) for f in log.filters):
+        log.addFilter(_AbandonedGather())
+
+
+#: what :meth:`Cluster._outcome` gives when the run was told to stop while a result was being fetched
+STOPPED = object()
+#: seconds a finished task's result may take to arrive before the future is looked at again (its worker lost)
+FETCH_TIMEOUT = 5.0
 
 
 #: times the workers are asked for their rbx before the run (a worker lost meanwhile is left out)
@@ -347,13 +366,31 @@ class Cluster:
         S = max(1, min(S, M))
         return np.linspace(0, M, S + 1).astype(np.int64)
 
-    def _outcome(self, future, what):
-        """The result of a finished task; a cancelled one (the scheduler gone) or a failed one raises
-        :class:`ClusterError` (``what``: which task, for the message)."""
+    def _outcome(self, future, what, should_stop=None):
+        """The result of a finished task, or :data:`STOPPED` if ``should_stop()`` became true while it was fetched;
+        a cancelled one (the scheduler gone) or a failed one raises :class:`ClusterError` (``what``: which task, for
+        the message). A finished task whose worker was lost before its result was fetched is run again by Dask, and
+        fetching it waits for a worker: asked in turns of :data:`POLL` seconds, so that Ctrl-C still stops the run
+        when the cluster has lost its workers (one blocking wait never returned)."""
         from distributed import CancelledError
         from distributed.comm.core import CommClosedError
         try:
-            return future.result()
+            while True:
+                # a result lost with its worker makes the future pending again ("lost"): wait for it by looking,
+                # not in a blocking fetch (a fetch cut short by a timeout leaves Dask's gather task behind, which
+                # asyncio then reports on stderr)
+                if not future.done():
+                    if should_stop is not None and should_stop():
+                        return STOPPED
+                    time.sleep(POLL)
+                    continue
+                try:
+                    return future.result(timeout=FETCH_TIMEOUT)
+                except TimeoutError:        # its worker lost, the future not told yet: look again
+                    _hide_abandoned_gathers()
+                    if should_stop is not None and should_stop():
+                        return STOPPED
+                    continue
         except (CancelledError, CommClosedError):
             # the scheduler killed: the futures are cancelled, or (1 in ~10 runs of the test) the client's gather
             # from it finds its connection closed first
@@ -385,8 +422,11 @@ class Cluster:
                     future = finished.get(timeout=POLL)
                 except queue.Empty:
                     continue
+                result = self._outcome(future, f"{what} slice {running[future]}", should_stop)
+                if result is STOPPED:
+                    return None
                 i = running.pop(future)
-                results[i] = self._outcome(future, f"{what} slice {i}")
+                results[i] = result
                 future.release()
                 self.tasks_run += 1
             return results
@@ -480,8 +520,12 @@ class Cluster:
                 except queue.Empty:
                     continue
                 for future in ready:
-                    s, r = running.pop(future)
-                    block, nrec, state = self._outcome(future, f"slice {s}, round {r}")
+                    s, r = running[future]
+                    result = self._outcome(future, f"slice {s}, round {r}", should_stop)
+                    if result is STOPPED:
+                        return
+                    running.pop(future)
+                    block, nrec, state = result
                     future.release()
                     self.tasks_run += 1
                     finish(s, r, block, nrec, state)

@@ -356,6 +356,37 @@ def test_a_worker_killed_mid_run_costs_only_its_task(two, long_local, tmp_path):
     two.wait_for_workers(2)                                 # its nanny starts it again, for the next tests
 
 
+def test_ctrl_c_stops_a_run_whose_cluster_lost_every_worker(tmp_path):
+    """With its only worker killed mid-run, a result the run was fetching waited for a worker to come back and
+    SIGINT or SIGTERM went unheard (45 s and more); the fetch is asked in turns now, and Ctrl-C stops the run with
+    its one line, the records so far kept."""
+    dask = LocalDask(tmp_path / "dask", 1)
+    try:
+        # rounds of records large enough that the worker is often killed while a finished result is fetched
+        cfg = scene("strip-random", 2 * 10**8, 4, every=3, record=["time", "position", "velocity", "wall"])
+        (tmp_path / "exp.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
+        proc = start(["simulate", "exp.yaml", "-o", "run.h5", "--quiet", "--max-size", "20GB", "--scheduler",
+                      dask.address], tmp_path, tmp_path / "run.h5.partial")
+        time.sleep(4.0)
+        assert proc.poll() is None, "the run ended before its worker was killed"
+        os.killpg(dask.procs[1].pid, signal.SIGKILL)          # the worker and its nanny: no worker is left
+        deadline = time.monotonic() + 60
+        while "Lost all workers" not in dask.log("scheduler") and time.monotonic() < deadline:
+            time.sleep(0.1)
+        time.sleep(1.0)
+        proc.send_signal(signal.SIGINT)
+        out, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        dask.stop()
+    assert proc.returncode == 130, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1, err
+    assert lines[0].startswith("rbx: run.h5: interrupted by SIGINT after ") and "rbx simulate --resume run.h5" in err
+    assert not read_run(tmp_path / "run.h5")["attrs"]["complete"]
+
+
 def test_a_scheduler_lost_mid_run_is_one_line_exit_1_and_a_resumable_file(tmp_path):
     dask = LocalDask(tmp_path / "dask", 1)
     try:
