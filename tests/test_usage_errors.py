@@ -5,6 +5,7 @@ command says when it works: a progress bar on a terminal only, then one summary 
 import os
 import pty
 import re
+import shlex
 import subprocess
 import sys
 
@@ -278,3 +279,20 @@ def test_a_noted_interrupt_lost_in_a_callback_is_not_reported_as_a_traceback():
     assert res.returncode == 0, res.stderr
     assert res.stderr.count("Exception ignored") == 2 and res.stderr.count("KeyboardInterrupt") == 1 \
         and "ValueError: kept" in res.stderr, res.stderr
+
+
+def test_a_stdout_that_cannot_be_written_is_one_line_and_exit_1(tmp_path):
+    """`rbx --help >/dev/full` gave a 40-line traceback through click, and a command run with stdout closed lost
+    what it printed with exit 0."""
+    rbx = os.path.join(os.path.dirname(sys.executable), "rbx")
+    if os.path.exists("/dev/full"):
+        with open("/dev/full", "w") as full:
+            res = subprocess.run([rbx, "--help"], stdout=full, stderr=subprocess.PIPE, text=True, timeout=120)
+        assert res.returncode == 1 and res.stderr == "rbx: stdout: cannot write: No space left on device\n", \
+            res.stderr
+    res = subprocess.run(["bash", "-c", f"exec {shlex.quote(rbx)} --version >&-"], stderr=subprocess.PIPE,
+                         text=True, timeout=120)
+    assert res.returncode == 1 and res.stderr == "rbx: stdout: cannot write: it was closed before rbx started\n", \
+        res.stderr
+    res = subprocess.run([rbx, "--version"], capture_output=True, text=True, timeout=120)     # and as before
+    assert res.returncode == 0 and res.stdout.startswith("rbx, version ") and res.stderr == ""

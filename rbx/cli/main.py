@@ -1,4 +1,6 @@
 """``rbx``: the command-line entry point (docs/reference.md §4)."""
+import errno
+import io
 import os
 import signal
 import sys
@@ -47,10 +49,65 @@ def main():
     # slices on its own threads (rbx.engine.run_slices) and never starts Numba's pool in two processes at once
     # that share anything; what fails next on such a disk is said in rbx's own one line
     warnings.filterwarnings("ignore", message="Could not obtain multiprocessing lock")
+    sys.stdout = _checked_stdout(sys.stdout)
     try:
         cli(prog_name="rbx")
+    except StdoutError as exc:
+        # a full disk behind stdout (>/dev/full), a closed stdout: one line, not a traceback (a pipe whose reader
+        # left, EPIPE, click ends with exit 1 itself)
+        sys.stderr.write(f"rbx: stdout: cannot write: {exc.strerror or exc}\n")
+        _silence_stdout()
+        sys.exit(1)
     except (KeyboardInterrupt, Interrupted):   # Ctrl-C before a command installed its own handler (importing)
         # nothing is written before a command's own handlers are in: the same line as a command's set-up phase
         sys.stderr.write(f"rbx: interrupted by {signal.Signals(pending_signal() or signal.SIGINT).name}; "
                          "nothing written\n")
         sys.exit(128 + int(pending_signal() or signal.SIGINT))
+
+
+class StdoutError(OSError):
+    """Writing to stdout failed (the OSError of the write, tagged as stdout's)."""
+
+
+class _StdoutFile(io.FileIO):
+    def write(self, data):
+        try:
+            return super().write(data)
+        except OSError as exc:
+            raise StdoutError(exc.errno, exc.strerror) from None
+
+
+class _ClosedStdout(io.TextIOBase):
+    """Stands for a stdout that was closed before rbx started: writing to it is an error said in one line."""
+    encoding = "utf-8"
+
+    def writable(self):
+        return True
+
+    def write(self, text):
+        raise StdoutError(errno.EBADF, "it was closed before rbx started")
+
+
+def _checked_stdout(stdout):
+    """``stdout`` with its writes' errors tagged (:class:`StdoutError`), over the same file descriptor and with
+    the same encoding and buffering; a stdout closed from the start (None) is one that refuses writes."""
+    if stdout is None:
+        return _ClosedStdout()
+    try:
+        fd = stdout.fileno()
+    except (AttributeError, OSError, ValueError):       # not a file (a test's capture): as it is
+        return stdout
+    stdout.flush()
+    return io.TextIOWrapper(io.BufferedWriter(_StdoutFile(fd, "w", closefd=False)),
+                            encoding=stdout.encoding, errors=stdout.errors, line_buffering=stdout.line_buffering)
+
+
+def _silence_stdout():
+    """Point file descriptor 1 at the null device: Python's own flush of stdout at exit would fail again and print
+    'Exception ignored …'."""
+    try:
+        fd = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(fd, 1)
+        os.close(fd)
+    except OSError:
+        pass
