@@ -416,7 +416,9 @@ def _sweep(study, output, scheduler, resume, force, progress, base, changes):
                                                         "run it afresh with --force, which discards its "
                                                         f"{int(np.sum(ds['done'].values)) if 'done' in ds else 0} "
                                                         "finished points")
-                _check_resumable(ds, _empty(st, exp0), source, st, points)
+                template = _empty(st, exp0)
+                _check_resumable(ds, template, source, st, points)
+                ds.attrs["study"] = template.attrs["study"]     # the study's own text as it is now (its comments)
                 if source == output and int(ds["done"].values.min()) == 1:
                     return ds
         elif not force:
@@ -508,13 +510,15 @@ def _check_resumable(ds, template, path, study=None, points=()):
                                         f"are {dict(zip(var.dims, var.shape))}; {fix}")
         if var.dtype.kind in "iufb" and got.dtype.kind not in "iufb":
             raise FileError(path, name, f"holds {got.dtype} values, not numbers; {fix}")
+        if var.dtype.kind == "f" and got.dtype.kind != "f":     # an observable stored as whole numbers
+            raise FileError(path, name, f"holds {got.dtype} values where this study writes {var.dtype}; {fix}")
     done = ds["done"].values
     if not np.all((done == 0) | (done == 1)):
         raise FileError(path, "done", f"holds values other than 0 and 1; {fix}")
     for key in ("measure", "varied", "ensemble_trajectories", "ensemble_collisions", "ensemble_seed",
-                "ensemble_orbits"):
-        # the attributes a figure of the finished file reads: carried into it by the resume (a file edited by
-        # hand then gave tracebacks when plotted)
+                "ensemble_orbits", "study_canonical"):
+        # the attributes a figure of the finished file reads, and the study's own text: carried into it by the
+        # resume (a file edited by hand then gave tracebacks when plotted, or named another study)
         if key in template.attrs and str(ds.attrs.get(key)) != str(template.attrs[key]):
             raise FileError(path, key, f"is {str(ds.attrs.get(key))[:40]!r} where this study's is "
                                        f"{str(template.attrs[key])[:40]!r}; {fix}")
@@ -538,24 +542,70 @@ def _check_resumable(ds, template, path, study=None, points=()):
         if bad.any():
             raise FileError(path, name, f"is not a number at {int(bad.sum())} of the points marked done (the "
                                         f"first: {_point_label(study, np.argwhere(bad)[0])}); {fix}")
-    # an error bar is a non-negative number or none (NaN), and a count of collisions a whole number ≥ 0: an inf
-    # error or −5 collisions of a point marked done were kept as results
-    checks = [(f"{name}_stderr", lambda v: np.isnan(v) | (np.isfinite(v) & (v >= 0)),
-               "is not an error (a number ≥ 0, or none)") for name, _ in study.measure if f"{name}_stderr" in ds]
-    checks.append(("collisions", lambda v: np.isfinite(v) & (v >= 0) & (v == np.floor(v)),
-                   "is not a count of collisions"))
-    for name, ok, what in checks:
-        values = np.asarray(ds[name].values, float).reshape(done.shape + (-1,))
-        bad = finished & ~np.all(ok(values), axis=-1)
-        if bad.any():
-            raise FileError(path, name, f"{what} at {int(bad.sum())} of the points marked done (the first: "
-                                        f"{_point_label(study, np.argwhere(bad)[0])}); {fix}")
+    problem = value_problem(ds, [n for n, _ in study.measure], lambda i: _point_label(study, i))
+    if problem is not None:
+        raise FileError(path, problem[0], f"{problem[1]}; {fix}")
     seeds = np.asarray(ds["seed"].values)
     for index, point in points:
         if finished[index] and int(seeds[index]) != study.seed(point):
             raise FileError(path, "seed", f"holds {int(seeds[index])} at the point "
                                           f"{_point_label(study, index)}, where this study's seed is "
                                           f"{study.seed(point)}; {fix}")
+
+
+#: variables that are shares (a value in [0, 1]); each observable's companions named ``low`` and ``high`` too
+SHARES = ("regular_share", "trapped_share", "wall_share", "return_angle_ks", "trapped_share_levelled",
+          "return_path_unreturned")
+
+
+def value_problem(ds, measured, label=lambda index: str(tuple(int(i) for i in index))):
+    """The first impossible number at a point marked done of the results ``ds`` -> (variable, what is wrong at how
+    many points, naming the first with ``label(index)``), or None. Read before a resume keeps the points and before
+    a figure draws them (a share of 5, a negative error bar, λ₁ = inf, −2 orbits were kept, or drawn, or ended the
+    figure in a traceback): every observable's value, error and companions are NaN (no value) or finite; errors are
+    ≥ 0; shares and interval bounds lie in [0, 1] with low ≤ value ≤ high; collisions and orbit counts are whole
+    numbers ≥ 0, with no more regular orbits than orbits; a wall time is finite and ≥ 0; ``done`` is 0 or 1."""
+    done = np.asarray(ds["done"].values, float)
+    if not np.all((done == 0) | (done == 1)):
+        bad = ~((done == 0) | (done == 1))
+        return "done", f"is neither 0 nor 1 at {int(bad.sum())} points (the first: {label(np.argwhere(bad)[0])})"
+    finished = done.astype(bool)
+
+    def values(name):
+        return np.asarray(ds[name].values, float).reshape(done.shape + (-1,))
+
+    checks = []
+    for name in measured:
+        own = [v for v in ds.data_vars if v == name or v.startswith(f"{name}_")]
+        checks += [(v, lambda x: np.isnan(x) | np.isfinite(x), "is infinite") for v in own]
+        if f"{name}_stderr" in ds:
+            checks.append((f"{name}_stderr", lambda x: np.isnan(x) | (np.isfinite(x) & (x >= 0)),
+                           "is not an error (a number ≥ 0, or none)"))
+        shares = [v for v in own if v in SHARES or (name in SHARES and v in (f"{name}_low", f"{name}_high"))]
+        checks += [(v, lambda x: np.isnan(x) | ((x >= 0) & (x <= 1)), "is not a share (a number in [0, 1])")
+                   for v in shares]
+    whole = lambda x: np.isfinite(x) & (x >= 0) & (x == np.floor(x))     # noqa: E731
+    checks += [(v, whole, f"is not a count of {what}") for v, what in
+               (("collisions", "collisions"), ("lyapunov_orbits", "orbits"), ("lyapunov_regular", "orbits"))
+               if v in ds]
+    if "wall_time" in ds:
+        checks.append(("wall_time", lambda x: np.isfinite(x) & (x >= 0), "is not a time (a number ≥ 0)"))
+    for name, ok, what in checks:
+        bad = finished & ~np.all(ok(values(name)), axis=-1)
+        if bad.any():
+            return name, f"{what} at {int(bad.sum())} of the points marked done (the first: " \
+                         f"{label(np.argwhere(bad)[0])})"
+    orders = [(f"{n}_low", n) for n in measured if f"{n}_low" in ds] + \
+             [(n, f"{n}_high") for n in measured if f"{n}_high" in ds]
+    if "lyapunov_regular" in ds and "lyapunov_orbits" in ds:
+        orders.append(("lyapunov_regular", "lyapunov_orbits"))
+    for low, high in orders:
+        a, b = values(low), values(high)
+        bad = finished & np.any(a > b, axis=-1)         # a NaN compares False: no value is no disorder
+        if bad.any():
+            return low, f"is above {high} at {int(bad.sum())} of the points marked done (the first: " \
+                        f"{label(np.argwhere(bad)[0])})"
+    return None
 
 
 def _shown(values, most=4):

@@ -1253,3 +1253,46 @@ def test_an_escape_rate_study_draws_the_small_hole_rate_where_the_hole_is_small(
     panel = sweep_panel(ds, "escape_rate")[0]
     assert [r["label"] for r in panel["references"]] == ["small-hole rate |hole| / (C·|table|)"]
     assert panel["ylabel"].startswith("escape rate per unit path in (x, R√κθ)")
+
+
+@pytest.mark.parametrize("variable,value,words", [
+    ("regular_share", 5.0, "regular_share: is not a share (a number in [0, 1])"),
+    ("regular_share_low", 0.99, "regular_share_low: is above regular_share"),
+    ("lyapunov_stderr", -3.0, "lyapunov_stderr: is not an error (a number ≥ 0, or none)"),
+    ("lyapunov", np.inf, "lyapunov: is infinite"),
+    ("lyapunov_regular", 99, "lyapunov_regular: is above lyapunov_orbits"),
+    ("lyapunov_orbits", -2, "lyapunov_orbits: is not a count of orbits"),
+    ("wall_time", -5.0, "wall_time: is not a time (a number ≥ 0)")])
+def test_impossible_numbers_in_a_results_file_are_refused_by_resume_and_plot(tmp_path, variable, value, words):
+    """A share of 5, a negative error bar, λ₁ = inf, more regular orbits than orbits at a finished point: a resume
+    kept them in the finished file with exit 0, and the plot drew them or ended in a traceback ('yerr must not
+    contain negative values'). Both refuse in one line naming the variable now."""
+    import shutil
+
+    import h5py
+    study = {"base": str(ROOT / "configs" / "examples" / "lyapunov-sinai.yaml"), "vary": {"ball.inertia": [0.3, 0.5]},
+             "measure": [{"lyapunov": {"segments": 4}}, "regular_share"],
+             "ensemble": {"trajectories": 2, "collisions": 200, "seed": 1}}
+    (tmp_path / "s.yaml").write_text(yaml.safe_dump(study))
+    out = tmp_path / "r.nc"
+    sweep(str(tmp_path / "s.yaml"), str(out))
+    bad = tmp_path / "bad.nc"
+    shutil.copy(out, bad)
+    with h5py.File(bad, "r+") as f:
+        a = f[variable][()]
+        a[1] = value
+        f[variable][...] = a
+    res = rbx_cli("plot", "bad.nc", "--kind", "sweep", "-o", "f.png", cwd=tmp_path)
+    assert res.returncode == 2 and res.stderr.count("\n") == 1 and res.stderr.startswith(f"rbx: bad.nc: {words} at 1 "
+                                                                                          "of the points marked done"), \
+        res.stderr
+    assert "(the first: ball.inertia = 0.5)" in res.stderr and not (tmp_path / "f.png").exists()
+    with h5py.File(bad, "r+") as f:                 # a point still to run: the study resumes the file
+        f.attrs["complete"] = 0
+        d = f["done"][()]
+        d[0] = 0
+        f["done"][...] = d
+    os.replace(bad, tmp_path / "r2.nc.partial")
+    with pytest.raises(rbx.FileError, match=words.replace("[", r"\[").replace("]", r"\]").replace("(", r"\(")
+                       .replace(")", r"\)")):
+        sweep(str(tmp_path / "s.yaml"), str(tmp_path / "r2.nc"), resume=True)

@@ -215,6 +215,18 @@ def open_results(path):
     if "rbx_study" not in ds.attrs:
         raise UserError(path, None, "not a results file of rbx sweep")
     _check_results_attrs(ds, path)
+    import json
+
+    from ..sweeping import value_problem
+    dims = list(ds["done"].dims)
+
+    def label(index):           # the point by its varied values, as a study names its points
+        return ", ".join(f"{k} = {ds[k].values[int(index[dims.index(ds[k].dims[0])])]}"
+                         for k in json.loads(ds.attrs["varied"]) if ds[k].dims[0] in dims)
+    problem = value_problem(ds, json.loads(ds.attrs["measure"]), label)
+    if problem is not None:         # drawn, it was a traceback (a negative error bar) or a figure of impossible numbers
+        raise UserError(path, problem[0], f"{problem[1]}: the file was not written as rbx sweep writes it; run the "
+                                          "study again")
     return ds
 
 
