@@ -190,6 +190,12 @@ def check_layout(f, path):
     n = int(f.attrs["dimension"]) if np.ndim(f.attrs["dimension"]) == 0 else 0
     if n not in (2, 3):
         raise FileError(path, "dimension", f"is {f.attrs['dimension']!r}; the layout has 2 or 3")
+    for key in ("kappa", "radius"):        # the ball's, read by the plots (κ = NaN drew an empty Birkhoff map)
+        value = f.attrs.get(key)
+        if value is not None and not (np.ndim(value) == 0 and np.asarray(value).dtype.kind in "iuf"
+                                      and np.isfinite(value) and value > 0):
+            raise FileError(path, key, f"is {value}; the layout says a positive number (a damaged or crafted "
+                                       "file)")
 
     def fail(name, problem):
         raise FileError(path, f"collisions/{name}", f"{problem} (a damaged or crafted file)")
@@ -244,6 +250,11 @@ def _check_step(step, every, path):
                                                      f"output.every ({r * every}) (a damaged or crafted file)")
 
 
+#: the kinds of numbers the saved state's arrays hold (the others are floating point)
+FINAL_KINDS = {"alive": "b", "collisions": "iu", "draws": "iu", "last_wall": "iu", "last_rank": "iu"}
+FINAL_WORDS = {"b": "booleans", "iu": "integers", "f": "floating-point numbers"}
+
+
 def _check_final(final, T, path, walls=None):
     """The saved state read from ``final/``: one row per trajectory in every array; the state of every running
     trajectory finite, its counters not negative, its last wall one of the table's ``walls`` (or −1)."""
@@ -251,6 +262,12 @@ def _check_final(final, T, path, walls=None):
         if np.ndim(v) == 0 or np.shape(v)[0] != T:
             raise FileError(path, f"final/{k}", f"has shape {np.shape(v)}; the layout says {T} trajectories first "
                                                 "(a damaged or crafted file)")
+        # 'alive' as bytes read as all False: 0 exits of 2000 were reported
+        kind = np.asarray(v).dtype.kind
+        want = FINAL_KINDS.get(k, "f")
+        if kind not in want:
+            raise FileError(path, f"final/{k}", f"has dtype {np.asarray(v).dtype}; the layout says "
+                                                f"{FINAL_WORDS[want]} (a damaged or crafted file)")
     alive = np.asarray(final.get("alive", np.ones(T, bool))).astype(bool)
     for k, v in final.items():
         v = np.asarray(v)

@@ -345,3 +345,33 @@ def test_a_figure_writers_remains_after_sigkill_are_removed_by_the_next_write_of
     assert not dead.exists() and held.exists() and other.exists()
     assert (tmp_path / "orbit.png").read_bytes()[:4] == b"\x89PNG"
     assert sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".rbx-")) == sorted([held.name, other.name])
+
+
+def test_a_saved_state_of_the_wrong_kind_and_an_impossible_ball_are_a_damaged_file(tmp_path):
+    """final/alive stored as bytes read as all False (0 exits of 2000 reported, the plot saying none reached the
+    exit); a root attribute kappa of NaN drew an empty Birkhoff map with exit 0."""
+    import shutil
+
+    import h5py
+    import numpy as np
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    good = tmp_path / "good.h5"
+    rbx.simulate(rbx.load(os.path.join(root, "configs", "examples", "escape-sinai.yaml"),
+                          {"run.trajectories": 50, "run.collisions": 200}), output=str(good))
+    cases = {"alive.h5": (lambda f: (f.__delitem__("final/alive"), f.create_dataset("final/alive", data=np.array([b"x"] * 50))),
+                          "final/alive: has dtype |S1; the layout says booleans"),
+             "count.h5": (lambda f: (f.__delitem__("final/collisions"),
+                                     f.create_dataset("final/collisions", data=np.zeros(50))),
+                          "final/collisions: has dtype float64; the layout says integers"),
+             "kappa.h5": (lambda f: f.attrs.__setitem__("kappa", np.nan), "kappa: is nan; the layout says a positive"),
+             "radius.h5": (lambda f: f.attrs.__setitem__("radius", -1.0), "radius: is -1.0; the layout says a positive")}
+    for name, (change, words) in cases.items():
+        shutil.copy(good, tmp_path / name)
+        with h5py.File(tmp_path / name, "r+") as f:
+            change(f)
+        with pytest.raises(rbx.FileError, match=words.replace("|", r"\|")):
+            rbx.open(str(tmp_path / name))
+    res = subprocess.run([os.path.join(os.path.dirname(sys.executable), "rbx"), "plot", "alive.h5", "--kind",
+                          "escape", "-o", "e.png"], cwd=tmp_path, capture_output=True, text=True, timeout=HANG)
+    assert res.returncode == 2 and res.stderr == ("rbx: alive.h5: final/alive: has dtype |S1; the layout says "
+                                                  "booleans (a damaged or crafted file)\n"), res.stderr
