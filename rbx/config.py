@@ -686,7 +686,11 @@ def _one_state(s, init, key, n, c, geom, R, kappa):
     with np.errstate(over="ignore", invalid="ignore"):
         energy = 0.5 * (np.sum(vel * vel) + kappa * R * R * np.sum(np.square(spin)))
     if not np.isfinite(energy):
-        c.fail(_join(key, "velocity"), "too large: the kinetic energy ½(|v|² + 2λ|ω|²) overflows")
+        # named by the part that overflows: a spin of 1e200 was refused as initial.velocity
+        with np.errstate(over="ignore", invalid="ignore"):
+            spins = not np.isfinite(kappa * R * R * np.sum(np.square(spin)))
+        c.fail(_join(key, "angular_velocity" if spins else "velocity"),
+               "too large: the kinetic energy ½(|v|² + 2λ|ω|²) overflows")
     if not energy >= MIN_ENERGY:
         c.fail(_join(key, "velocity"), f"too small: the kinetic energy ½(|v|² + 2λ|ω|²) is {energy:.3g}, below "
                                        f"{MIN_ENERGY:g}; flight times and energies would underflow (scale the "

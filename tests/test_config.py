@@ -521,6 +521,12 @@ def test_a_speed_whose_square_underflows_is_refused_and_a_corridor_flight_is_nam
         rbx.load(circle, {"initial.velocity": [1e-170, 1e-170]})
     assert info.value.key == "initial.velocity"
     assert rbx.load(circle, {"initial.velocity": [1e-140, 1e-140]}).initial[0]["velocity"][0] == 1e-140
+    # an overflow is named by its part: a spin of 1e200 was refused as initial.velocity
+    with pytest.raises(ConfigError, match="initial.angular_velocity: too large: the kinetic energy") as info:
+        rbx.load(circle, {"initial.angular_velocity": 1e200})
+    assert info.value.key == "initial.angular_velocity"
+    with pytest.raises(ConfigError, match="initial.velocity: too large: the kinetic energy"):
+        rbx.load(circle, {"initial.velocity": [1e200, 0]})
     with pytest.raises(ConfigError, match=r"initial\[1\].velocity: too small"):
         rbx.load(circle, {"initial": [{"position": [0, 0], "velocity": [1, 0]},
                                       {"position": [0, 0], "velocity": [1e-170, 0]}], "run.trajectories": 2})
