@@ -1255,6 +1255,18 @@ def test_an_escape_rate_study_draws_the_small_hole_rate_where_the_hole_is_small(
     assert panel["ylabel"].startswith("escape rate per unit path in (x, R√κθ)")
 
 
+@pytest.fixture(scope="module")
+def lyapunov_results(tmp_path_factory):
+    """A small λ₁ study and its results file -> (folder, study file, results file)."""
+    folder = tmp_path_factory.mktemp("lyapunov-results")
+    study = {"base": str(ROOT / "configs" / "examples" / "lyapunov-sinai.yaml"), "vary": {"ball.inertia": [0.3, 0.5]},
+             "measure": [{"lyapunov": {"segments": 4}}, "regular_share"],
+             "ensemble": {"trajectories": 2, "collisions": 200, "seed": 1}}
+    (folder / "s.yaml").write_text(yaml.safe_dump(study))
+    sweep(str(folder / "s.yaml"), str(folder / "r.nc"))
+    return folder, folder / "s.yaml", folder / "r.nc"
+
+
 @pytest.mark.parametrize("variable,value,words", [
     ("regular_share", 5.0, "regular_share: is not a share (a number in [0, 1])"),
     ("regular_share_low", 0.99, "regular_share_low: is above regular_share"),
@@ -1263,30 +1275,33 @@ def test_an_escape_rate_study_draws_the_small_hole_rate_where_the_hole_is_small(
     ("lyapunov_regular", 99, "lyapunov_regular: is above lyapunov_orbits"),
     ("lyapunov_orbits", -2, "lyapunov_orbits: is not a count of orbits"),
     ("wall_time", -5.0, "wall_time: is not a time (a number ≥ 0)")])
-def test_impossible_numbers_in_a_results_file_are_refused_by_resume_and_plot(tmp_path, variable, value, words):
+def test_impossible_numbers_in_a_results_file_are_refused_by_resume_and_plot(lyapunov_results, tmp_path, variable,
+                                                                            value, words):
     """A share of 5, a negative error bar, λ₁ = inf, more regular orbits than orbits at a finished point: a resume
     kept them in the finished file with exit 0, and the plot drew them or ended in a traceback ('yerr must not
-    contain negative values'). Both refuse in one line naming the variable now."""
+    contain negative values'). Both refuse in one line naming the variable now (the plot in a real process for
+    the first case; the others through the function it reads the file with)."""
     import shutil
 
     import h5py
-    study = {"base": str(ROOT / "configs" / "examples" / "lyapunov-sinai.yaml"), "vary": {"ball.inertia": [0.3, 0.5]},
-             "measure": [{"lyapunov": {"segments": 4}}, "regular_share"],
-             "ensemble": {"trajectories": 2, "collisions": 200, "seed": 1}}
-    (tmp_path / "s.yaml").write_text(yaml.safe_dump(study))
-    out = tmp_path / "r.nc"
-    sweep(str(tmp_path / "s.yaml"), str(out))
+
+    from rbx.cli.common import UserError
+    from rbx.cli.sweep import open_results
+    _, study, good = lyapunov_results
     bad = tmp_path / "bad.nc"
-    shutil.copy(out, bad)
+    shutil.copy(good, bad)
     with h5py.File(bad, "r+") as f:
         a = f[variable][()]
         a[1] = value
         f[variable][...] = a
-    res = rbx_cli("plot", "bad.nc", "--kind", "sweep", "-o", "f.png", cwd=tmp_path)
-    assert res.returncode == 2 and res.stderr.count("\n") == 1 and res.stderr.startswith(f"rbx: bad.nc: {words} at 1 "
-                                                                                          "of the points marked done"), \
-        res.stderr
-    assert "(the first: ball.inertia = 0.5)" in res.stderr and not (tmp_path / "f.png").exists()
+    if variable == "regular_share":
+        res = rbx_cli("plot", "bad.nc", "--kind", "sweep", "-o", "f.png", cwd=tmp_path)
+        assert res.returncode == 2 and res.stderr.count("\n") == 1 and res.stderr.startswith(
+            f"rbx: bad.nc: {words} at 1 of the points marked done"), res.stderr
+        assert "(the first: ball.inertia = 0.5)" in res.stderr and not (tmp_path / "f.png").exists()
+    with pytest.raises(UserError) as info:
+        open_results(str(bad))
+    assert f"{words} at 1 of the points marked done (the first: ball.inertia = 0.5)" in str(info.value)
     with h5py.File(bad, "r+") as f:                 # a point still to run: the study resumes the file
         f.attrs["complete"] = 0
         d = f["done"][()]
@@ -1295,4 +1310,4 @@ def test_impossible_numbers_in_a_results_file_are_refused_by_resume_and_plot(tmp
     os.replace(bad, tmp_path / "r2.nc.partial")
     with pytest.raises(rbx.FileError, match=words.replace("[", r"\[").replace("]", r"\]").replace("(", r"\(")
                        .replace(")", r"\)")):
-        sweep(str(tmp_path / "s.yaml"), str(tmp_path / "r2.nc"), resume=True)
+        sweep(str(study), str(tmp_path / "r2.nc"), resume=True)
