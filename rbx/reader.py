@@ -37,6 +37,9 @@ def _open_h5(path, mode="r"):
     if not os.path.exists(path):
         partial = f"{path}.partial"
         if not path.endswith(".partial") and os.path.isfile(partial):
+            holder = lock_holder(path)
+            if holder is not None:      # still being written: not a run stopped or killed, and not yet readable
+                raise _busy(path, holder)
             # a run stopped or killed before it was renamed to its output (a resume in place renames OUT.h5 to its
             # .partial while it runs): the records are there
             show = display_path(partial)

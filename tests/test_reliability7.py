@@ -375,3 +375,26 @@ def test_a_saved_state_of_the_wrong_kind_and_an_impossible_ball_are_a_damaged_fi
                           "escape", "-o", "e.png"], cwd=tmp_path, capture_output=True, text=True, timeout=HANG)
     assert res.returncode == 2 and res.stderr == ("rbx: alive.h5: final/alive: has dtype |S1; the layout says "
                                                   "booleans (a damaged or crafted file)\n"), res.stderr
+
+
+def test_reading_a_run_still_being_written_says_so(tmp_path):
+    """Opening OUT.h5 while its run was still writing OUT.h5.partial said the run was 'stopped or killed before it
+    was renamed: read OUT.h5.partial', advice that reading the .partial then refused (a run is writing it)."""
+    import time
+    root = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    proc = subprocess.Popen([os.path.join(os.path.dirname(sys.executable), "rbx"), "simulate",
+                             os.path.join(root, "configs", "examples", "strip.yaml"), "-o", "k.h5", "--collisions",
+                             "10000000000", "--quiet", "--set", "output.record=[]"], cwd=tmp_path,
+                            stderr=subprocess.PIPE, text=True)
+    try:
+        deadline = time.monotonic() + HANG
+        while not (tmp_path / "k.h5.partial").exists() or not (tmp_path / "k.h5.lock").exists():
+            assert proc.poll() is None and time.monotonic() < deadline, proc.stderr.read()
+            time.sleep(0.05)
+        with pytest.raises(rbx.FileError, match=r"k.h5: another rbx run is writing it \(pid "):
+            rbx.open(str(tmp_path / "k.h5"))
+    finally:
+        proc.kill()
+        proc.wait()
+    with pytest.raises(rbx.FileError, match="stopped or killed before it was renamed"):      # once it is dead
+        rbx.open(str(tmp_path / "k.h5"))
