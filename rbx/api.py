@@ -161,8 +161,10 @@ def simulate(experiment, *, collisions=None, trajectories=None, seed=None, outpu
     (a file then holds every round finished before, ``complete = False``)."""
     overrides = {k: v for k, v in (("collisions", collisions), ("trajectories", trajectories), ("seed", seed),
                                    ("max_size", max_size)) if v is not None}
+    if isinstance(output, bytes):       # a path in bytes, as rbx.open takes one
+        output = os.fsdecode(output)
     if output is not None and not isinstance(output, (str, os.PathLike)):
-        raise TypeError(f"output: a file path (str or os.PathLike), got {type(output).__name__}")
+        raise TypeError(f"output: a file path (str, bytes or os.PathLike), got {type(output).__name__}")
     force = flag("force", force)
     exp = _load(experiment, overrides or None)
     kept = records_bytes(exp) if output is None else 0          # a run in memory keeps its records there

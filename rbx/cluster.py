@@ -175,6 +175,9 @@ def connect(scheduler, key="--scheduler", slices=None, task_collisions=None):
     if isinstance(scheduler, distributed.Client):
         client, own = scheduler, False
     else:
+        if not isinstance(scheduler, (str, os.PathLike)):     # scheduler=42 was tried as the address tcp://42
+            raise TypeError(f"{key}: a scheduler's address, its scheduler file or a distributed.Client, got "
+                            f"{type(scheduler).__name__}")
         text = os.fspath(scheduler) if isinstance(scheduler, os.PathLike) else str(scheduler)
         if not text.strip():
             raise SchedulerUnreachable(key, "an empty address (give tcp://HOST:PORT, or a scheduler file)")

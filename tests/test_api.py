@@ -425,3 +425,14 @@ def test_hurried_arguments_get_one_clear_refusal(tmp_path):
     assert by_replace == rbx.load(circle, {"ball.radius": np.float32(0.1)}).ball
     with pytest.raises(rbx.ConfigError, match="expected a number, got bool"):
         dataclasses.replace(exp.ball, radius=np.True_)
+
+
+def test_a_path_in_bytes_is_taken_and_a_number_is_no_scheduler(tmp_path):
+    """rbx.open took a path in bytes while rbx.simulate refused one; scheduler=42 was tried as the address
+    tcp://42 and reported unreachable."""
+    out = os.fsencode(str(tmp_path / "b.h5"))
+    run = rbx.simulate(scene("strip-rough", collisions=50), output=out)
+    assert run.complete and (tmp_path / "b.h5").exists() and rbx.open(out).complete
+    with pytest.raises(TypeError, match="scheduler: a scheduler's address, its scheduler file or a "
+                                        "distributed.Client, got int"):
+        rbx.simulate(scene("strip-rough", collisions=50), scheduler=42)
