@@ -859,6 +859,7 @@ def sweep_figure(panels, title, width=None):
     width = width or (4.6 * len(panels) + 2.8)
     fig = _figure(width, 4.8, title)
     axes = fig.subplots(1, len(panels), squeeze=False)[0]
+    legends = []
     for ax, panel in zip(axes, panels):
         shades = [s["shade"] for s in panel["series"] if "shade" in s]
         norm = None
@@ -908,20 +909,23 @@ def sweep_figure(panels, title, width=None):
         if any(h.get_label() and not h.get_label().startswith("_") for h in ax.get_lines() + ax.containers):
             handles, labels = ax.get_legend_handles_labels()
             order = sorted(range(len(labels)), key=lambda i: labels[i] == panel.get("note"))    # the note last
-            ax.legend([handles[i] for i in order], [labels[i] for i in order], fontsize="small",
-                      loc="upper center", bbox_to_anchor=(0.5, 0.0), borderaxespad=0.0,
-                      bbox_transform=_below_the_xlabel(ax))
+            legends.append((ax, ax.legend([handles[i] for i in order], [labels[i] for i in order],
+                                          fontsize="small", loc="upper center", bbox_to_anchor=(0.5, 0.0),
+                                          borderaxespad=0.0)))
+    if legends:         # one draw measures every panel's axis labels; each legend then goes under its own
+        fig.draw_without_rendering()
+        for ax, legend in legends:
+            legend.set_bbox_to_anchor((0.5, 0.0), transform=_below_the_xlabel(ax))
     return fig
 
 
 def _below_the_xlabel(ax, gap=4.0):
-    """A transform whose (0.5, 0) is under the middle of ``ax``'s x-axis label with ``gap`` points between them: a
-    legend anchored there never covers the label. The depth of the tick labels and the label below the axes is
-    measured in points, which the layout keeps when it changes the axes' height (a fixed axes fraction, -0.16, put
-    the legend over the label of short axes under a tall title)."""
+    """A transform whose (0.5, 0) is under the middle of ``ax``'s x-axis label with ``gap`` points between them
+    (``ax``'s figure drawn once before): a legend anchored there never covers the label. The depth of the tick
+    labels and the label below the axes is measured in points, which the layout keeps when it changes the axes'
+    height (a fixed axes fraction, -0.16, put the legend over the label of short axes under a tall title)."""
     from matplotlib.transforms import offset_copy
     fig = ax.figure
-    fig.draw_without_rendering()
     renderer = fig._get_renderer()
     boxes = [ax.xaxis.label.get_window_extent(renderer)] + [
         t.get_window_extent(renderer) for t in ax.get_xticklabels() if t.get_visible() and t.get_text()]
