@@ -584,6 +584,8 @@ def series_figure(steps, values, title, ylabel, labels=None, scales=(0.01, 0.1, 
         ax.set_title(f"{frac} of the run (steps {first:.0f} – {upto:.0f})")
         ax.set_xlabel("collision step [–]")
         ax.xaxis.set_major_locator(MaxNLocator(integer=True))     # steps are whole collisions
+        if upto > first:
+            ax.set_xlim(first, upto)        # the panel's stretch of the run, no ticks past its data
         ax.set_ylabel(ylabel)
         if k == 0 and labels and 1 < len(values) <= MAX_LEGEND:
             legend_outside(ax)
@@ -751,7 +753,7 @@ def escape_figure(s, S, fit, exits, total, title, unit="path length [L]", expect
         # drawn as far as the survival is drawn: the last exit, where S = 0, may end the window off the log axis
         x = np.linspace(fit.start, min(fit.stop, max(end, fit.start)), 400)
         what = f"{fit.start:.3g} ≤ s ≤ {fit.stop:.3g}"
-        rate = f"γ = {fit.rate:.4g} ± {fit.rate_err:.2g} per unit path"
+        rate = f"γ = {analysis.plus_minus(fit.rate, fit.rate_err)} per unit path"
         if fit.trapped:
             label = (f"fit over {what} of S(s₀)·[q + (1 − q)·e^(−γ(s − s₀))], s₀ = {fit.start:.3g}: {rate}, "
                      f"level S(s₀)·q = {100 * fit.survival0 * fit.level:.3g} %")

@@ -166,7 +166,8 @@ def test_the_exits_counted_agree_with_the_summary(tmp_path):
         fig.rbx_result
     from rbx.observables import PointRuns, get
     value = get("escape_rate").compute(PointRuns(rbx.open(run).experiment, rbx.open(run)), {"fit_from": 0.1})
-    assert f"escape rate γ = {value.value:.4g} ± {value.stderr:.2g} " in fig.rbx_result, (fig.rbx_result, value)
+    from rbx.analysis import plus_minus
+    assert f"escape rate γ = {plus_minus(value.value, value.stderr)} " in fig.rbx_result, (fig.rbx_result, value)
 
 
 def test_the_fit_window_is_checked_where_the_fit_is_asked_for():

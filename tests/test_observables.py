@@ -102,7 +102,7 @@ def test_diffusion_says_where_the_horizon_is_infinite():
 
 def test_the_study_plot_of_diffusion_says_where_it_is_no_coefficient():
     """``rbx plot RESULTS.nc --kind sweep`` of a diffusion study on the square gas drew 'diffusion coefficient D'
-    with error bars and no word of its corridors; its title says now that the value is a slope there, and says
+    with error bars and no word of its corridors; its legend says now that the value is a slope there, and says
     nothing of the kind on the triangular gas of finite horizon."""
     from rbx.cli.sweep import sweep_panel
     titles = []
@@ -110,7 +110,7 @@ def test_the_study_plot_of_diffusion_says_where_it_is_no_coefficient():
         base = str(rbx.__path__[0] + f"/../configs/examples/{name}.yaml")
         ds = sweep(point_study(base, [{"diffusion": {"segments": 4}}], 4, 200, 1))
         panel, title = sweep_panel(ds, "diffusion")
-        titles.append((title, panel["ylabel"]))
+        titles.append((" ".join(panel.get("note", "").split()), panel["ylabel"], title))
     assert "not a diffusion coefficient at 1 of 1 points" in titles[0][0] and "0.2 wide" in titles[0][0], titles[0]
     assert titles[0][1].startswith("slope of the MSD (no coefficient)"), titles[0]
     assert "not a diffusion coefficient" not in titles[1][0] and "coefficient D" in titles[1][1], titles[1]

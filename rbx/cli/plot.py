@@ -498,7 +498,7 @@ def _escape(run, rec, traj, fit_from=0.1, **_):
     trapped = _trapped(run, path, exited)
     # the model and its window (rbx.escape): where survival levels off, the trapped share q and the rate γ of the
     # others fitted together; the window starts after the transient, where the fitted curve follows the data
-    from ..analysis import spin_mixture
+    from ..analysis import plus_minus, spin_mixture
     mixture = spin_mixture(exp)     # each orbit keeps its spin and leaves at its own rate: no one rate to fit
     try:
         fit = None if mixture else fit_escape(path, exited, fit_from=fit_from, trapped=trapped is not None)
@@ -533,7 +533,7 @@ def _escape(run, rec, traj, fit_from=0.1, **_):
                 + (f" = {start[0]:.4g}" if start is not None else "")
                 + "); point-particle starts (initial: {sample: point_particle}) give the classic billiard's rate")
     elif fit is not None and fit.follows:
-        said = (f"escape rate γ = {fit.rate:.4g} ± {fit.rate_err:.2g} per unit path (fitted over {fit.start:.3g} ≤ s "
+        said = (f"escape rate γ = {plus_minus(fit.rate, fit.rate_err)} per unit path (fitted over {fit.start:.3g} ≤ s "
                 f"≤ {fit.stop:.3g}")
         said += (f", with the level it tends to, S(s₀)·q = {100 * fit.survival0 * fit.level:.3g} %: "
                  f"S(s) = S(s₀)·[q + (1 − q)·exp(−γ(s − s₀))])" if fit.trapped else ")")
@@ -579,7 +579,11 @@ def _small_hole_rate(exp):
     if small is None:
         return None
     rate, share, constant = small
-    return rate, f"small-hole rate |hole|/({constant}·|table|) = {rate:.4g} (hole {100 * share:.2g} % of the boundary)"
+    # the limit of a vanishing hole: a hole of finite size differs from it, and leaves more slowly where a short
+    # periodic orbit runs through it (the example's gate, docs/dynamics.md)
+    return rate, (f"small-hole rate |hole|/({constant}·|table|) = {rate:.4g} (hole {100 * share:.2g} % of the boundary; "
+                  "the limit of a vanishing hole: a finite hole differs, slower where a short periodic orbit runs "
+                  "through it)")
 
 
 def _leaves(rule):

@@ -302,7 +302,7 @@ def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=Non
     unit = var.attrs.get("units", "")
     xunit = ds[x].attrs.get("units", "")
     ylabel, ysym = variable_label(y, unit)             # symbols and units from the registry: 'λ₁ [1/T]'
-    xlabel, xsym = parameter_label(x, xunit)            # a known config key as a symbol: 'κ'
+    xlabel, _ = parameter_label(x, xunit)            # a known config key as a symbol: 'κ'
     if other and other[0] in varied:
         osym = parameter_label(other[0])[1]
     else:
@@ -377,6 +377,14 @@ def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=Non
             off = int(np.sum(finished & (np.asarray(ds[flag].values, float).reshape(finished.shape) == 0)))
             if off:
                 notes.append(f"{off} of {int(finished.sum())} points: {text}")
+    # what a point's value pools and where the coefficient is no coefficient: legend lines beside the bars they
+    # explain (in the title they made it five or six lines above a panel)
+    if y == "lyapunov" or y.startswith("lyapunov_per_collision") or y.startswith("lyapunov_spectrum"):
+        notes.append(pooled_note(ds, ysym, int(M)))
+    note = horizon_note(ds, y)
+    if note:
+        notes.append(note)
+        panel["ylabel"] = ylabel.replace("diffusion coefficient", "slope of the MSD (no coefficient)")
     if notes:
         # wrapped to the width of a panel: one long line ran off both edges, and beside a colour bar it squeezed the
         # axes to nothing (matplotlib: 'constrained_layout not applied')
@@ -386,15 +394,9 @@ def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=Non
     ensemble = plural(int(M), "trajectory")
     if orbits < M:      # fixed starts, no random numbers: the bars are the spread of copies (rbx sweep warned)
         ensemble += f" (copies of {plural(orbits, 'orbit')})"
-    title = (f"{ds.attrs.get('title', '')}\n{ysym} against {xsym} · {ensemble} × "
-             f"{plural(int(N), 'collision')} per point · "
+    # the axes name what is drawn against what; the title says what was run
+    title = (f"{ds.attrs.get('title', '')}\n{ensemble} × {plural(int(N), 'collision')} per point · "
              f"{int(done.values.sum())} of {done.size} points · {duration(seconds)} computing them")
-    if y == "lyapunov" or y.startswith("lyapunov_per_collision") or y.startswith("lyapunov_spectrum"):
-        title += "\n" + pooled_note(ds, ysym, int(M))
-    note = horizon_note(ds, y)
-    if note:
-        title += "\n" + note
-        panel["ylabel"] = ylabel.replace("diffusion coefficient", "slope of the MSD (no coefficient)")
     return panel, title
 
 
