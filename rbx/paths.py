@@ -40,18 +40,28 @@ class DiskFull(OSError):
         return self.strerror
 
 
+def one_line(text):
+    """``text`` with its control characters written as escapes ('a\\nb'): a file name holding a newline split a
+    one-line message in two."""
+    text = str(text)
+    if not any(c < " " or c == "\x7f" for c in text):
+        return text
+    return "".join(repr(c)[1:-1] if c < " " or c == "\x7f" else c for c in text)
+
+
 def display_path(path):
-    """A path as the user would write it: relative to the working directory when it lies below it."""
+    """A path as the user would write it: relative to the working directory when it lies below it, and on one line
+    (:func:`one_line`). For messages only: never opened."""
     if path is None:
         return None
     path = str(path)
     if not os.path.isabs(path):
-        return path
+        return one_line(path)
     try:
         rel = os.path.relpath(path)
     except (ValueError, OSError):   # another drive (Windows); a working directory that was deleted
-        return path
-    return path if rel.startswith("..") else rel
+        return one_line(path)
+    return one_line(path if rel.startswith("..") else rel)
 
 
 def format_size(nbytes):

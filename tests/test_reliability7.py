@@ -398,3 +398,21 @@ def test_reading_a_run_still_being_written_says_so(tmp_path):
         proc.wait()
     with pytest.raises(rbx.FileError, match="stopped or killed before it was renamed"):      # once it is dead
         rbx.open(str(tmp_path / "k.h5"))
+
+
+def test_a_file_name_holding_a_newline_is_said_on_one_line(tmp_path):
+    """A file name holding a newline (or a tab, a carriage return) split the one line of an error or of the
+    summary in two: each is now written with its control characters as escapes."""
+    rbx_exe = os.path.join(os.path.dirname(sys.executable), "rbx")
+    write_config(tmp_path, strip_random(10, trajectories=1, record=("time",)))
+    missing = subprocess.run([rbx_exe, "simulate", "no\nsuch.yaml"], cwd=tmp_path, capture_output=True, text=True,
+                             timeout=HANG)
+    assert missing.returncode == 2 and missing.stderr == "rbx: no\\nsuch.yaml: file not found\n", missing.stderr
+    wrote = subprocess.run([rbx_exe, "simulate", "exp.yaml", "-o", "a\nb\r.h5"], cwd=tmp_path, capture_output=True,
+                           text=True, timeout=HANG)
+    assert wrote.returncode == 0 and (tmp_path / "a\nb\r.h5").is_file(), wrote.stderr
+    assert len(wrote.stderr.splitlines()) == 1 and wrote.stderr.startswith("rbx: wrote a\\nb\\r.h5"), wrote.stderr
+    again = subprocess.run([rbx_exe, "simulate", "exp.yaml", "-o", "a\nb\r.h5"], cwd=tmp_path, capture_output=True,
+                           text=True, timeout=HANG)
+    assert again.returncode == 2 and len(again.stderr.splitlines()) == 1, again.stderr
+    assert again.stderr.startswith("rbx: a\\nb\\r.h5: exists"), again.stderr

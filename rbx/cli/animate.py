@@ -89,8 +89,7 @@ def write_animation(run_file, out, trajectory=0, records=None, fps=20, frames=20
     t, pos, theta = ball_frames(data["time"], data["position"], data["velocity"], data["orientation"], frames)
     title = f"{scene}\ntrajectory {trajectory} · collisions {steps[0]}–{steps[0] + len(data['time']) - 1}"
     try:
-        os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
-        with written_whole(out) as tmp:
+        with written_whole(out) as tmp:         # its folder exists: check_figure_target
             _render(tmp, ext, geom, R, data["position"], data["time"], t, pos, theta, title, fps, dpi)
     except OSError as exc:
         cannot_write(out, exc, "the animation")

@@ -39,7 +39,8 @@ class UserError(Exception):
         super().__init__(problem)
 
     def __str__(self):
-        return ": ".join(str(x) for x in (display_path(self.file), self.key, self.problem) if x)
+        from ..paths import one_line
+        return one_line(": ".join(str(x) for x in (display_path(self.file), self.key, self.problem) if x))
 
 
 def fail(file, key, problem):
@@ -200,7 +201,8 @@ def report_and_exit(exc, debug):
     if debug:
         import traceback
         traceback.print_exc()
-    click.echo(f"rbx: {exc}", err=True)
+    from ..paths import one_line
+    click.echo(f"rbx: {one_line(exc)}", err=True)
     sys.exit(EXIT_USER_ERROR)
 
 
@@ -388,7 +390,8 @@ def _quiet_dask():
 def summary(quiet, message):
     """The one line a command ends with on stderr (``rbx: wrote run.h5: …``), unless ``--quiet``."""
     if not quiet:
-        click.echo(f"rbx: {message}", err=True)
+        from ..paths import one_line
+        click.echo(f"rbx: {one_line(message)}", err=True)
 
 
 #: ``--quiet``, the same for every command
