@@ -475,6 +475,20 @@ class Run:
         whole for it. Raises :class:`FileError` naming the dataset, the trajectory and the record."""
         if data.size == 0:
             return
+        if self.complete:
+            # a finished run leaves the slots past a trajectory's last record at their fill (NaN, −1); an unfinished
+            # one may hold there a block a kill cut short, which a resume writes again
+            past = records[None, :] >= self.count[rows][:, None]
+            if past.any():
+                flat = data.reshape(data.shape[0], data.shape[1], -1)
+                filled = np.isnan(flat).all(axis=2) if data.dtype.kind == "f" else (flat == -1).all(axis=2)
+                wrong = past & ~filled
+                if wrong.any():
+                    j, r = (int(x) for x in np.argwhere(wrong)[0])
+                    raise FileError(self.path, f"collisions/{name}",
+                                    f"holds a value at trajectory {int(rows[j])}, record {int(records[r])}, past the "
+                                    f"{int(self.count[rows[j]])} records collisions/count says it wrote; no run writes "
+                                    "that (a damaged or crafted file)")
         walls = len(self.wall_names)
         if data.dtype.kind == "f":
             with np.errstate(all="ignore"):

@@ -6,6 +6,7 @@ import subprocess
 import sys
 import threading
 
+import numpy as np
 import pytest
 
 import rbx
@@ -416,3 +417,31 @@ def test_a_file_name_holding_a_newline_is_said_on_one_line(tmp_path):
                            text=True, timeout=HANG)
     assert again.returncode == 2 and len(again.stderr.splitlines()) == 1, again.stderr
     assert again.stderr.startswith("rbx: a\\nb\\r.h5: exists"), again.stderr
+
+
+def test_records_past_a_trajectorys_count_in_a_finished_run_are_a_damaged_file(tmp_path):
+    """``collisions/count`` set to 0 in a finished run: every plot kind drew all its rows as records. The slots
+    past a trajectory's count hold the fill (NaN, −1) in every file rbx finishes: a value there is refused as
+    read, naming the dataset, the trajectory and the record."""
+    import h5py
+
+    from rbx.paths import FileError
+    write_config(tmp_path, strip_random(60, trajectories=2, every=1, record=("time", "position", "wall")))
+    good = tmp_path / "good.h5"
+    rbx.simulate(str(tmp_path / "exp.yaml"), output=str(good)).close()
+    run = rbx.open(good)
+    assert run.complete and (run.count == 61).all() and np.isfinite(run.position).all()
+    for count, first in ((0, 0), (60, 60)):
+        bad = tmp_path / f"count{count}.h5"
+        bad.write_bytes(good.read_bytes())
+        with h5py.File(bad, "r+") as f:
+            f["collisions/count"][1] = count
+        run = rbx.open(bad)
+        assert np.isfinite(run.read("time", [0])).all()            # the trajectory that is whole reads
+        with pytest.raises(FileError, match=rf"collisions/time: holds a value at trajectory 1, record {first}, past "
+                                            rf"the {count} records collisions/count says it wrote"):
+            run.time
+        res = subprocess.run([os.path.join(os.path.dirname(sys.executable), "rbx"), "plot", str(bad), "--kind",
+                              "orbit", "-o", str(tmp_path / "o.png")], capture_output=True, text=True, timeout=HANG)
+        assert res.returncode == 2 and "past the" in res.stderr and len(res.stderr.splitlines()) == 1, res.stderr
+        assert not (tmp_path / "o.png").exists()
