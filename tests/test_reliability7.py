@@ -445,3 +445,21 @@ def test_records_past_a_trajectorys_count_in_a_finished_run_are_a_damaged_file(t
                               "orbit", "-o", str(tmp_path / "o.png")], capture_output=True, text=True, timeout=HANG)
         assert res.returncode == 2 and "past the" in res.stderr and len(res.stderr.splitlines()) == 1, res.stderr
         assert not (tmp_path / "o.png").exists()
+
+
+def test_numpys_floating_point_warnings_on_crafted_values_do_not_reach_stderr(tmp_path):
+    """Positions multiplied by 1e300 in a finished run: ``rbx plot`` printed NumPy's overflow warnings, seven lines
+    with the source lines that raised them, before its own. Its stderr is its one line now."""
+    import h5py
+    huge = tmp_path / "huge.h5"
+    example = os.path.join(os.path.dirname(rbx.__file__), "..", "configs", "examples", "rectangle.yaml")
+    rbx.simulate(rbx.load(example, {"run.collisions": 2000}), output=str(huge)).close()     # drawn as a density
+    with h5py.File(huge, "r+") as f:
+        f["collisions/position"][...] = f["collisions/position"][...] * 1e300
+    lines = []
+    for kind in ("orbit", "phase", "series"):
+        res = subprocess.run([os.path.join(os.path.dirname(sys.executable), "rbx"), "plot", str(huge), "--kind",
+                              kind, "-o", str(tmp_path / f"{kind}.png")], capture_output=True, text=True, timeout=HANG)
+        lines.append(res.stderr.splitlines())
+        assert len(lines[-1]) == 1 and lines[-1][0].startswith("rbx: "), res.stderr
+    assert any("wrote" in line[0] for line in lines)

@@ -49,6 +49,11 @@ def main():
     # slices on its own threads (rbx.engine.run_slices) and never starts Numba's pool in two processes at once
     # that share anything; what fails next on such a disk is said in rbx's own one line
     warnings.filterwarnings("ignore", message="Could not obtain multiprocessing lock")
+    # NumPy's floating-point warnings on values no run writes (positions near 1e300 in a crafted file) came out as
+    # several lines each, with the source line that raised them; the command's own line says what it could not do
+    for numeric in ("overflow encountered", "invalid value encountered", "divide by zero encountered",
+                    "underflow encountered", "Mean of empty slice", "Degrees of freedom <= 0"):
+        warnings.filterwarnings("ignore", message=numeric, category=RuntimeWarning)
     sys.stdout = _checked_stdout(sys.stdout)
     try:
         cli(prog_name="rbx")
