@@ -123,6 +123,8 @@ def check_memory(cfg, overrides, command="simulate"):
 
 
 _PENDING = []
+#: set once a command has said its work is written (:func:`summary`): a signal after that is too late to stop it
+_DONE = []
 
 
 def note_interrupt(signum, frame):
@@ -130,7 +132,10 @@ def note_interrupt(signum, frame):
     KeyboardInterrupt, and a note of the signal (:func:`pending_signal`, which each command's
     :class:`rbx.api.StopFlag` reads). The KeyboardInterrupt alone can be lost: raised inside a callback (a ctypes
     callback of LLVM's, a finaliser) it is printed as "Exception ignored" and dropped, and the command then ran as
-    if nothing had come."""
+    if nothing had come. Once the command said its work is written, the signal is ignored: it ended in 'interrupted
+    …; nothing written' and exit 130 just after 'rbx: wrote fig.png', the figure replaced."""
+    if _DONE:
+        return
     _PENDING.append(signum)
     raise KeyboardInterrupt
 
@@ -388,7 +393,9 @@ def _quiet_dask():
 # ---- progress (the bar itself is in rbx.progress, which the library uses too) -------------------------------
 
 def summary(quiet, message):
-    """The one line a command ends with on stderr (``rbx: wrote run.h5: …``), unless ``--quiet``."""
+    """The one line a command ends with on stderr (``rbx: wrote run.h5: …``), unless ``--quiet``. Its work is
+    written: from here a signal changes nothing (:func:`note_interrupt`)."""
+    _DONE.append(True)
     if not quiet:
         from ..paths import one_line
         click.echo(f"rbx: {one_line(message)}", err=True)
