@@ -131,6 +131,17 @@ def kappa_of(inertia, n):
     return float(inertia)
 
 
+def unknown_inertia(inertia, n):
+    """Why the text ``inertia`` names no mass distribution of an ``n``D ball -> the problem's words."""
+    names = INERTIA_NAMES[n]
+    try:
+        float(inertia)
+    except ValueError:
+        return f"unknown mass distribution '{inertia}' for a {n}D ball (use {', '.join(names)} or a number κ in (0, 1])"
+    return (f"is the text '{inertia}', not a number: give κ as a number (inertia: {inertia.strip()}, no quotes) or "
+            f"a mass distribution ({', '.join(names)})")
+
+
 def check_ball(ball):
     """A :class:`Ball` as made (by the config or by hand): dimension 2 or 3, a finite positive radius, a mass
     distribution that exists in its dimension (a name of :data:`INERTIA_NAMES` or κ in (0, 1]). Raises
@@ -143,10 +154,8 @@ def check_ball(ball):
         raise ConfigError(None, "ball.radius", f"must be positive, got {radius:g}")
     inertia = ball.inertia
     if isinstance(inertia, str):
-        names = INERTIA_NAMES[n]
-        if inertia not in names:
-            raise ConfigError(None, "ball.inertia", f"unknown mass distribution '{inertia}' for a {n}D ball (use "
-                                                    f"{', '.join(names)} or a number κ in (0, 1])")
+        if inertia not in INERTIA_NAMES[n]:
+            raise ConfigError(None, "ball.inertia", unknown_inertia(inertia, n))
     else:
         kappa = _number(inertia, "ball.inertia")
         if not 0.0 < kappa <= 1.0:
@@ -221,14 +230,14 @@ class Output:
         return out
 
 
-#: default period (in collisions) of the projection onto the initial energy in rough scenes (docs/accuracy.md)
+#: default period (in collisions) of the projection onto the initial energy (docs/accuracy.md)
 RENORMALIZE_EVERY = 16
 
 
 @dataclass(frozen=True)
 class Numerics:
     """Numerical options (docs/accuracy.md measures each): project back onto the initial energy every
-    ``renormalize`` collisions of a rough scene (0: never; ``engine.energy_factor``), compensated summation of
+    ``renormalize`` collisions (0: never; ``engine.energy_factor``, ``engine.speed_factor``), compensated summation of
     the time and the position, snapping the centre onto the wall at contact. Config section ``numerics``."""
     renormalize: int = RENORMALIZE_EVERY
     compensated: bool = False
