@@ -30,7 +30,7 @@ import numpy as np
 
 from . import rules, tables
 from .model import (COMPRESSIONS, DEFAULT_MAX_SIZE, RECORD_FIELDS, SERVICES, VALIDATED, Ball, ConfigError, Experiment,
-                    Numerics, Output, RunSettings, kappa_of)
+                    INERTIA_NAMES, Numerics, Output, RunSettings, kappa_of, unknown_inertia)
 from .yamlfile import check_size, copied, gc_paused, parse_yaml, read_yaml
 from .rules import PROBABILITY_SUM_TOLERANCE, parse_rule  # noqa: F401 - the tolerance: read by the rules' checks
 
@@ -403,10 +403,8 @@ def _ball(ball, n, c):
     radius = c.number(ball["radius"], "ball.radius", positive=True)
     inertia = ball.get("inertia", "uniform")
     if isinstance(inertia, str):
-        names = ("uniform", "shell", "ring") if n == 2 else ("uniform", "shell")
-        if inertia not in names:
-            c.fail("ball.inertia", f"unknown mass distribution '{inertia}' for a {n}D ball (use {', '.join(names)} "
-                                   f"or a number κ in (0, 1])")
+        if inertia not in INERTIA_NAMES[n]:
+            c.fail("ball.inertia", unknown_inertia(inertia, n))
     else:
         inertia = c.number(inertia, "ball.inertia", lo=0.0, hi=1.0, lo_open=True)
     return radius, inertia, kappa_of(inertia, n)

@@ -595,6 +595,13 @@ def series_figure(steps, values, title, ylabel, labels=None, scales=(0.01, 0.1, 
 # ---- diffusion -------------------------------------------------------------------------------------------------
 
 
+def displacement_histogram(ax, dx, coordinate, T):
+    """The final displacements ``dx`` (after ``T`` collisions) as a density histogram of equal bins on ``ax``, each
+    bar outlined: two neighbours of one height read as one bar twice as wide."""
+    ax.hist(dx, bins=max(10, min(60, int(np.sqrt(len(dx))) + 1)), density=True, color=_colour(0), alpha=0.6,
+            edgecolor="white", linewidth=0.6, label=f"Δ{coordinate} after {T:.0f} collisions")
+
+
 @styled
 def diffusion_figure(steps, msd, fit, displacement, title, coordinate="x", time_per_step=None, horizon=None):
     """Left: mean-square displacement against steps (log–log) with the fit 2·D·t + c and its confidence
@@ -647,8 +654,7 @@ def diffusion_figure(steps, msd, fit, displacement, title, coordinate="x", time_
     dx = dx[np.isfinite(dx)]
     T = float(steps.max()) if len(steps) else 0.0
     var = float(fit.msd(T))
-    ax2.hist(dx, bins=max(10, min(60, int(np.sqrt(len(dx))) + 1)), density=True, color=_colour(0), alpha=0.6,
-             label=f"Δ{coordinate} after {T:.0f} collisions")
+    displacement_histogram(ax2, dx, coordinate, T)
     if horizon:
         # the displacements spread as √(t·log t): no Gaussian of the fitted MSD's variance is expected
         ax2.plot([], [], " ", label="no Gaussian of variance 2bT + c drawn:\nwith an infinite horizon the MSD "
@@ -773,6 +779,13 @@ def escape_figure(s, S, fit, exits, total, title, unit="path length [L]", expect
         bottom = min(bottom, 0.5 * trapped[1])
     ax.set_ylim(bottom, 1.5)
     ax.set_xlim(0.0, end)
+    if total and exits == total and len(S):
+        # every orbit left: S falls to 0 at the last exit, which a log axis cannot show; drawn as a drop to the
+        # axis (the last level alone read as an orbit that stays, the shape of a trapped share)
+        ax.plot([end, end], [S[-1], bottom], color=_colour(0), lw=1.2, clip_on=False)
+        ax.plot([end], [bottom], "v", color=_colour(0), ms=6, clip_on=False,
+                label=f"the last orbit leaves at s = {end:.4g}: S = 0 from there (off the log axis)")
+        ax.set_xlim(0.0, 1.02 * end)
     ax.set_xlabel(unit)
     ax.set_ylabel("fraction still in the table S(s) [–]")
     legend_outside(ax, "below", ncols=1)
@@ -826,6 +839,21 @@ def _dress(ax, spec):
         ax.set_title(spec["title"])
 
 
+def repeated_points(x, y, few=20):
+    """Where a section's points fall on at most ``few`` places (to 1e-9 of the data's span), each hit several
+    times (a periodic orbit) -> a note saying so, else None."""
+    xy = np.column_stack([np.asarray(x, float), np.asarray(y, float)])
+    xy = xy[np.all(np.isfinite(xy), axis=1)]
+    if len(xy) < 2:
+        return None
+    span = float(np.max(np.ptp(xy, axis=0))) or 1.0
+    places = len(np.unique(np.round(xy / (1e-9 * span)), axis=0))
+    if places > few or len(xy) < 3 * places:
+        return None
+    return (f"{len(xy)} points on {places} place{'s' if places != 1 else ''}: a periodic orbit, each hit about "
+            f"{len(xy) / places:.0f} times")
+
+
 @styled
 def section_figure(panels, spin, title, spin_label):
     """Sections of phase space coloured by the (scaled) spin: ``panels`` as for :func:`phase_figure` (``x``,
@@ -838,10 +866,15 @@ def section_figure(panels, spin, title, spin_label):
     axes = []
     for spec in panels:
         ax = fig.add_subplot(1, len(panels), len(axes) + 1)
-        ax.scatter(spec["x"], spec["y"], c=spin, cmap="coolwarm", norm=norm, s=ms, lw=0, rasterized=True)
+        note = repeated_points(spec["x"], spec["y"])
+        ax.scatter(spec["x"], spec["y"], c=spin, cmap="coolwarm", norm=norm, s=60.0 if note else ms, lw=0,
+                   rasterized=True)
         for v in spec.get("vlines", ()):
             ax.axvline(v, color="0.6", lw=0.6, ls=":")
         _dress(ax, spec)
+        if note:        # a periodic orbit: a few dots, each hit hundreds of times, looked like a plot that failed
+            ax.text(0.02, 0.98, note, transform=ax.transAxes, va="top", ha="left", fontsize="small",
+                    bbox=dict(facecolor="white", edgecolor="0.7", alpha=0.9))
         axes.append(ax)
     from matplotlib.cm import ScalarMappable
     fig.colorbar(ScalarMappable(norm=norm, cmap="coolwarm"), ax=axes, label=spin_label, shrink=0.85)
@@ -849,6 +882,11 @@ def section_figure(panels, spin, title, spin_label):
 
 
 # ---- studies (rbx sweep; docs/studies.md) ----------------------------------------------------------------------
+
+
+#: a study figure's lines, one each (then again): markers and dashes that stay apart where lines coincide
+SERIES_MARKERS = ("o", "s", "^", "D", "v", "P")
+SERIES_DASHES = ("-", "--", "-.", ":")
 
 
 @styled
@@ -874,8 +912,14 @@ def sweep_figure(panels, title, width=None):
             if err is not None:
                 err = np.where(np.isfinite(err), err, 0.0)
             colour = colormaps["viridis"](norm(s["shade"])) if "shade" in s else s.get("color", _colour(k))
-            ax.errorbar(x, y, yerr=err, marker=s.get("marker", "o"), ms=4 if norm is None else 2.5, lw=1.2,
-                        capsize=3 if norm is None else 0, color=colour, label=s.get("label"))
+            if norm is None:
+                # a few lines, each its own marker and dashes, each drawn over the last with smaller markers: where
+                # two lines take the same values (shares of few orbits are k/n), both stay visible
+                style = dict(marker=s.get("marker", SERIES_MARKERS[k % len(SERIES_MARKERS)]),
+                             ms=max(3.0, 6.5 - 1.2 * k), ls=SERIES_DASHES[k % len(SERIES_DASHES)], capsize=3)
+            else:
+                style = dict(marker=s.get("marker", "o"), ms=2.5, capsize=0)
+            ax.errorbar(x, y, yerr=err, lw=1.2, color=colour, label=s.get("label"), **style)
             # the x axis spans every point, those without a value (NaN) too: their gap is seen, not cropped away
             shown = x[np.isfinite(x) & ((x > 0) if panel.get("logx") else True)]
             ax.update_datalim(np.column_stack([shown, np.zeros_like(shown)]), updatey=False)

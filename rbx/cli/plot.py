@@ -581,9 +581,9 @@ def _small_hole_rate(exp):
     rate, share, constant = small
     # the limit of a vanishing hole: a hole of finite size differs from it, and leaves more slowly where a short
     # periodic orbit runs through it (the example's gate, docs/dynamics.md)
-    return rate, (f"small-hole rate |hole|/({constant}·|table|) = {rate:.4g} (hole {100 * share:.2g} % of the boundary; "
-                  "the limit of a vanishing hole: a finite hole differs, slower where a short periodic orbit runs "
-                  "through it)")
+    return rate, (f"small-hole rate |hole|/({constant}·|table|) = {rate:.4g} (hole {100 * share:.2g} % of the boundary),\n"
+                  "the limit of a vanishing hole: a finite one differs, slower where a short periodic orbit runs "
+                  "through it")
 
 
 def _leaves(rule):
