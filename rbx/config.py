@@ -532,6 +532,11 @@ STATE_KEYS = ("position", "velocity", "angular_velocity", "orientation")
 MIN_ENERGY = 1e-304
 #: the largest square of a spin the kernels may meet (ω² in the energy; well below overflow)
 MAX_SPIN_SQUARE = 1e306
+#: the largest initial orientation [rad]: the 2D angle θ, or the length of the 3D rotation vector. At 1e17 the
+#: angle's last digit is 16 rad, so θ + ωt never moved and a hemisphere rule read the same side at every
+#: collision; a rotation vector of 1e155 squared to infinity and every orientation was NaN. At 1e8 the last digit
+#: is 1.5e-8 rad.
+MAX_ORIENTATION = 1e8
 
 
 def _check_spin_range(speed, spin, R, c, key):
@@ -639,7 +644,8 @@ def _plain_states(states, n, geom, R, kappa):
         reach = np.sqrt(np.sum(vel * vel, 1)) / R
         spin_norm = np.sqrt(np.sum(spin * spin, 1))
         ok = finite & (np.sum(vel * vel, 1) >= MIN_ENERGY) & np.isfinite(energy) & (energy >= MIN_ENERGY) & \
-            (reach * reach < MAX_SPIN_SQUARE) & (spin_norm * spin_norm < MAX_SPIN_SQUARE)
+            (reach * reach < MAX_SPIN_SQUARE) & (spin_norm * spin_norm < MAX_SPIN_SQUARE) & \
+            (_angle_size(orient) <= MAX_ORIENTATION)
         ok &= geom.clearance(pos) >= -1e-12 * geom.size
     good = m if ok.all() else int(np.argmin(ok))
     for a in (pos, vel, spin, orient):
@@ -652,6 +658,15 @@ def _plain_states(states, n, geom, R, kappa):
 
 
 _STATE_SET = frozenset(STATE_KEYS)
+
+
+def _angle_size(orient):
+    """(m, k) orientations -> (m,) their sizes in rad: |θ| in 2D (k = 1), the rotation vector's length in 3D,
+    computed without overflow (NaN stays NaN)."""
+    with np.errstate(all="ignore"):
+        top = np.max(np.abs(orient), 1)
+        scale = np.where(top > 0, top, 1.0)
+        return top * np.sqrt(np.sum((orient / scale[:, None]) ** 2, 1))
 
 
 def _plain_vector(v, n):
@@ -681,6 +696,11 @@ def _one_state(s, init, key, n, c, geom, R, kappa):
     orient = s.get("orientation", 0.0 if n == 2 else [0.0, 0.0, 0.0])
     orient = c.number(orient, _join(key, "orientation")) if n == 2 else \
         np.array(c.vector(orient, _join(key, "orientation"), 3))
+    size = float(_angle_size(np.reshape(orient, (1, -1)))[0])
+    if not size <= MAX_ORIENTATION:
+        c.fail(_join(key, "orientation"),
+               f"too large: {size:.3g} rad (at most {MAX_ORIENTATION:g}{'' if n == 2 else ' in length'}); so large an "
+               "angle keeps no fraction of a turn in double precision: give it reduced to one turn, within ±π")
     with np.errstate(over="ignore", invalid="ignore"):
         energy = 0.5 * (np.sum(vel * vel) + kappa * R * R * np.sum(np.square(spin)))
     if not np.isfinite(energy):

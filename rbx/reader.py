@@ -22,7 +22,7 @@ from .config import loads
 from .locks import acquire_lock, lock_holder, release_lock
 from .locks import busy as _busy
 from .model import FIELD, RECORD_FIELDS, ConfigError
-from .paths import FileError, display_path, what_it_is
+from .paths import MAX_CONFIG_BYTES, FileError, display_path, what_it_is
 from .progress import plural
 from .runfile import (INDEX_DATASETS, REQUIRED_ATTRS, ROOT_ATTRS, SCHEMA_VERSION, STATE_GROUPS, _plain, _text,
                       is_true, latest_state, root_attrs)
@@ -219,6 +219,12 @@ def check_layout(f, path):
     if step.ndim != 1 or step.dtype.kind not in "iu":
         fail("step", f"has shape {step.shape} and dtype {step.dtype}; the layout says (N,) integers")
     T, N = count.shape[0], step.shape[0]
+    config = f.attrs.get("config")
+    if config is not None and len(config) > MAX_CONFIG_BYTES:
+        # as a config file is bounded: 80 MB of text took 44 s to parse before a plot
+        raise FileError(path, "config", f"the root attribute holds {len(config) / 2**20:.3g} MiB of text, more than "
+                                        f"the {MAX_CONFIG_BYTES >> 20} MiB a config may have (a damaged or crafted "
+                                        "file)")
     try:
         wanted = int((yaml.safe_load(_text(f.attrs["config"])) or {}).get("run", {}).get("trajectories", T))
     except Exception:   # noqa: BLE001 - an unreadable config is said by the reader, with its own key

@@ -299,13 +299,19 @@ class Simulation:
     def check_finite(self):
         """Raise :class:`NonFiniteState` if a trajectory's state is no longer finite (in the kernel, a NaN
         position finds no wall ahead and would end like an escape: a shortened trajectory, silently)."""
+        # the orientation too: a NaN there (a 3D start whose rotation vector overflowed) was recorded at every
+        # collision of a run that ended complete, exit 0
         bad = ~(np.isfinite(self.pos).all(axis=1) & np.isfinite(self.vel).all(axis=1)
-                & np.isfinite(self.W).all(axis=(1, 2)) & np.isfinite(self.time))
+                & np.isfinite(self.W).all(axis=(1, 2)) & np.isfinite(self.time) & np.isfinite(self.theta)
+                & np.isfinite(self.A).all(axis=(1, 2)))
         if bad.any():
             j = int(np.argmax(bad))
+            orientation = (f", orientation {self.theta[j]}" if self.n == 2 else
+                           f", orientation {self.A[j].tolist()}") if not (np.isfinite(self.theta[j])
+                                                                       and np.isfinite(self.A[j]).all()) else ""
             raise NonFiniteState(f"trajectory {j} (and {int(bad.sum()) - 1} more) reached a non-finite state by "
                                  f"collision {int(self.ncoll[j])}: position {self.pos[j].tolist()}, velocity "
-                                 f"{self.vel[j].tolist()}")
+                                 f"{self.vel[j].tolist()}{orientation}")
 
     def _blocks(self, should_stop=None, progress=None):
         """The local blocks of a run: advance on this machine's threads -> yields (block or None, nrec, at_end) per

@@ -2,6 +2,7 @@
 ``rbx histogram`` keeps the size limits, and a run moved to its ``.partial`` is named where it is. Each test was
 seen to fail on the code before its change."""
 import os
+import re
 import subprocess
 import sys
 import threading
@@ -486,3 +487,68 @@ def test_a_signal_after_the_figure_is_written_leaves_exit_0(tmp_path):
                              capture_output=True, text=True, timeout=HANG)
         assert res.returncode == 0, (sig, res.returncode, res.stderr)
         assert res.stderr.startswith("rbx: wrote o.png") and len(res.stderr.splitlines()) == 1, res.stderr
+
+
+@pytest.mark.parametrize("example, orientation, size", [("circle.yaml", 1e17, "1e+17"),
+                                                        ("box.yaml", [1e155, 0.0, 0.0], "1e+155"),
+                                                        ("box.yaml", [1e300, 1e300, 0.0], "1.41e+300")])
+def test_an_orientation_too_large_to_hold_a_turn_is_refused(example, orientation, size, tmp_path):
+    """A 3D ``initial.orientation`` of [1e155, 0, 0] squared to infinity: every recorded orientation was NaN in a
+    run that ended complete, exit 0. A 2D one of 1e17 never moved (its last digit is 16 rad), so a hemisphere rule
+    read the same side at every collision (1000 of 1000 smooth where the angle reduced gives 487 rough). Both are
+    refused in one line, at load and from the command line; a large angle within the bound runs."""
+    path = os.path.join(os.path.dirname(rbx.__file__), "..", "configs", "examples", example)
+    n = 2 if example == "circle.yaml" else 3
+    state = {"position": [0.0] * n if n == 2 else [0.5] * n, "velocity": [1.0, 0.3, 0.2][:n], "orientation": orientation}
+    with pytest.raises(rbx.ConfigError, match=rf"initial.orientation: too large: {re.escape(size)} rad \(at most 1e\+08"):
+        rbx.load(path, {"initial": state, "run.trajectories": 1})
+    with pytest.raises(rbx.ConfigError, match=r"initial\[1\].orientation: too large"):
+        rbx.load(path, {"initial": [{**state, "orientation": 0.5 if n == 2 else [0.5] * 3}, state],
+                        "run.trajectories": 2})
+    res = subprocess.run([os.path.join(os.path.dirname(sys.executable), "rbx"), "simulate", path, "-o", "o.h5",
+                          "--trajectories", "1", "--set", f"initial={state}".replace("'", "")],
+                         cwd=tmp_path, capture_output=True, text=True, timeout=HANG)
+    assert res.returncode == 2 and len(res.stderr.splitlines()) == 1 and "too large" in res.stderr, res.stderr
+    within = {**state, "orientation": 9e7 if n == 2 else [5e7, 5e7, 0.0]}
+    run = rbx.simulate(rbx.load(path, {"initial": within, "run.trajectories": 1, "run.collisions": 50,
+                                       "output.record": ["orientation"]}))
+    assert np.isfinite(run.orientation).all() and run.complete
+
+
+def test_an_animation_whose_frames_do_not_fit_in_memory_is_refused_before_it_is_drawn(tmp_path):
+    """``rbx animate --frames 400 --dpi 600`` (both within their ranges) under ``ulimit -v`` 3 GB ended in a
+    MemoryError traceback after drawing for a while: a GIF keeps every frame, about 24 MB each at dpi 600. The
+    frames' memory is estimated first and refused in one line naming --frames; a GIF that fits is written."""
+    import resource
+    write_config(tmp_path, strip_random(40, trajectories=1, every=1,
+                                        record=("time", "position", "velocity", "orientation")))
+    rbx.simulate(str(tmp_path / "exp.yaml"), output=str(tmp_path / "o.h5")).close()
+
+    def limited():
+        resource.setrlimit(resource.RLIMIT_AS, (3 * 10 ** 9, resource.RLIM_INFINITY))
+    exe = os.path.join(os.path.dirname(sys.executable), "rbx")
+    res = subprocess.run([exe, "animate", "o.h5", "-o", "big.gif", "--frames", "400", "--dpi", "600"], cwd=tmp_path,
+                         capture_output=True, text=True, timeout=HANG, preexec_fn=limited)
+    assert res.returncode == 2 and res.stderr.startswith("rbx: --frames: 400 frames of 3600 × 3240 pixels (--dpi "
+                                                         "600) need about ") and len(res.stderr.splitlines()) == 1, \
+        res.stderr
+    assert not list(tmp_path.glob("*.gif")) and not list(tmp_path.glob(".rbx-*"))
+    res = subprocess.run([exe, "animate", "o.h5", "-o", "small.gif", "--frames", "10"], cwd=tmp_path,
+                         capture_output=True, text=True, timeout=HANG, preexec_fn=limited)
+    assert res.returncode == 0 and (tmp_path / "small.gif").is_file(), res.stderr
+
+
+def test_a_stored_config_larger_than_a_config_may_be_is_refused_before_it_is_parsed(tmp_path):
+    """A run file whose root ``config`` attribute held 80 MB of text (a comment) took 44 s to open or plot, exit 0:
+    a config file is bounded (64 MiB), the stored one was not."""
+    import h5py
+
+    from rbx.paths import MAX_CONFIG_BYTES, FileError
+    write_config(tmp_path, strip_random(20, trajectories=1, record=("time",)))
+    big = tmp_path / "big.h5"
+    rbx.simulate(str(tmp_path / "exp.yaml"), output=str(big)).close()
+    with h5py.File(big, "r+") as f:
+        f.attrs["config"] = f.attrs["config"] + "\n#" + "x" * MAX_CONFIG_BYTES
+    with pytest.raises(FileError, match=r"config: the root attribute holds 64 MiB of text, more than the 64 MiB a "
+                                        r"config may have"):
+        rbx.open(big)

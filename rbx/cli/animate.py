@@ -86,6 +86,8 @@ def write_animation(run_file, out, trajectory=0, records=None, fps=20, frames=20
     data = {f: v[ok] for f, v in data.items()}
     if len(data["time"]) < 2:
         raise UserError(run_file, "--records", "animate needs at least 2 records of the trajectory")
+    if ext == ".gif":
+        _check_gif_memory(frames, dpi)
     t, pos, theta = ball_frames(data["time"], data["position"], data["velocity"], data["orientation"], frames)
     title = f"{scene}\ntrajectory {trajectory} · collisions {steps[0]}–{steps[0] + len(data['time']) - 1}"
     try:
@@ -93,7 +95,30 @@ def write_animation(run_file, out, trajectory=0, records=None, fps=20, frames=20
             _render(tmp, ext, geom, R, data["position"], data["time"], t, pos, theta, title, fps, dpi)
     except OSError as exc:
         cannot_write(out, exc, "the animation")
+    except MemoryError:      # the estimate is of the frames alone: Pillow's GIF encoder may still find too little
+        raise UserError(out, "--frames", f"{frames} frames at --dpi {dpi} do not fit in this process's memory: "
+                                         "fewer frames or a lower --dpi") from None
     return out
+
+
+#: the animation's size in inches (its title may grow it a little); a GIF keeps every frame until it is written:
+#: one byte per pixel after the palette, and Pillow's encoder about as much again (measured: 24 MB per frame at
+#: dpi 600, 3600 × 3240 pixels)
+GIF_INCHES = (6.0, 5.4)
+GIF_BYTES_PER_PIXEL = 2.2
+
+
+def _check_gif_memory(frames, dpi):
+    """Refuse, as a :class:`UserError` naming ``--frames``, a GIF whose frames would not fit in this process's memory
+    (``--frames 400 --dpi 600``: a MemoryError traceback under ``ulimit -v``, or the machine's memory)."""
+    from ..simulation import memory_problem
+    pixels = round(GIF_INCHES[0] * dpi) * round(GIF_INCHES[1] * dpi)
+    need = frames * pixels * GIF_BYTES_PER_PIXEL + 8 * pixels       # the frames, and the canvas drawing them
+    if memory_problem(1, int(need)) is not None:
+        raise UserError(None, "--frames", f"{frames} frames of {round(GIF_INCHES[0] * dpi)} × "
+                                          f"{round(GIF_INCHES[1] * dpi)} pixels (--dpi {dpi}) need about "
+                                          f"{need / 2**30:.3g} GiB of memory, more than this process may have: fewer "
+                                          "frames or a lower --dpi")
 
 
 def ball_frames(time, position, velocity, orientation, frames):

@@ -166,7 +166,9 @@ def _histogram(config, out, data, trajectories, seed, sets, force, quiet, cluste
         with written_whole(fig_path) as tmp:
             fig.savefig(tmp, dpi=150)
     except (OSError, ValueError, RuntimeError) as exc:     # RuntimeError: a format's tool missing (pgf: LaTeX)
-        cannot_write(fig_path, exc, kept=f"the samples are kept in {display_path(h5_path)}")
+        # where they are kept, and what reads them (no plot kind draws return angles)
+        cannot_write(fig_path, exc, kept=f"the samples are kept in {display_path(h5_path)} (returns/angle; "
+                                         "rbx.reader.read_returns reads them)")
 
     d = result.d
     click.echo(f"{result.samples} samples on {wall}, {result.samples - result.not_returned} returned "
