@@ -144,6 +144,8 @@ def _probe(address, timeout):
         host, _, port = where.rpartition(":")
         if not port.isdigit():
             raise ValueError("no port in the address (give tcp://HOST:PORT, e.g. tcp://127.0.0.1:8786)")
+        if not 0 < int(port) < 65536:       # the system wraps it, and said "Connection refused"
+            raise ValueError(f"port {port} does not exist (ports are 1 … 65535)")
         with socket.create_connection((host.strip("[]"), int(port)), timeout=timeout):
             pass
 
@@ -151,11 +153,16 @@ def _probe(address, timeout):
         comm = await connect(address, timeout=timeout)
         try:
             await comm.write({"op": "identity", "reply": True})
-            return await asyncio.wait_for(comm.read(), timeout)
+            return await comm.read()
         finally:
-            await comm.close()
+            comm.abort()            # closed without waiting: a peer that never answers never acknowledges either
 
-    return asyncio.run(ask())
+    async def asked():
+        # the whole exchange in one bound: a port that accepts a connection and never answers held Dask's
+        # handshake (and a polite close) for ever, and rbx simulate --scheduler with it
+        return await asyncio.wait_for(ask(), timeout)
+
+    return asyncio.run(asked())
 
 
 def connect(scheduler, key="--scheduler", slices=None, task_collisions=None):
@@ -200,6 +207,8 @@ def connect(scheduler, key="--scheduler", slices=None, task_collisions=None):
                 raise SchedulerUnreachable(key, f"{text}: {_first_line(exc)}") from None
             except OSError as exc:             # refused, timed out (TimeoutError is an OSError), no route
                 why = exc.strerror if isinstance(exc, OSError) and exc.strerror else _first_line(exc)
+                if isinstance(exc, TimeoutError) and not exc.strerror:
+                    why = f"no answer within {CONNECT_TIMEOUT:g} s"
                 raise SchedulerUnreachable(key, f"cannot reach a Dask scheduler at {address}: {why} (is "
                                                 "'dask scheduler' running there?)") from None
             except Exception:   # noqa: BLE001 - something answered, in another protocol (Dask read garbage)

@@ -23,6 +23,7 @@ import pytest
 import yaml
 
 from rbx import runfile
+from rbx.cluster import CONNECT_TIMEOUT
 from rbx.runfile import PROVENANCE_ATTRS
 from tests.catalog import SCENES
 from tests.test_interrupt import without_path
@@ -446,6 +447,37 @@ def test_an_unreachable_scheduler_is_one_line_and_exit_2(address, tmp_path):
     else:
         assert "cannot reach a Dask scheduler" in lines[0] and "Connection refused" in lines[0]
     assert not list(tmp_path.glob("run.h5*"))                # nothing written
+
+
+def test_a_port_that_accepts_and_never_answers_or_does_not_exist_is_one_line(tmp_path):
+    """``--scheduler`` naming a port where something accepts connections and never answers held ``rbx simulate``
+    for over ten minutes with no line (Dask's handshake waited for ever); a port of 99999 was 'Connection
+    refused'. Both are one line and exit 2, the first within the connection timeout."""
+    import threading
+    silent = socket.socket()
+    silent.bind(("127.0.0.1", 0))
+    silent.listen(8)
+    held = []
+    taking = threading.Thread(target=lambda: [held.append(silent.accept()) for _ in range(8)], daemon=True)
+    taking.start()
+    (tmp_path / "exp.yaml").write_text(yaml.safe_dump(SCENE_RUNS["strip-random"]))
+    try:
+        for command in (("simulate", "exp.yaml", "-o", "run.h5"), ("sweep", "study.yaml", "-o", "s.nc")):
+            if command[0] == "sweep":
+                (tmp_path / "study.yaml").write_text(yaml.safe_dump(
+                    {"base": "exp.yaml", "vary": {"ball.inertia": [0.2, 0.4]}, "measure": ["mean_free_path"],
+                     "ensemble": {"trajectories": 2, "collisions": 100}}))
+            res = rbx(*command, "--scheduler", f"tcp://127.0.0.1:{silent.getsockname()[1]}", cwd=tmp_path)
+            lines = res.stderr.strip().splitlines()
+            assert res.returncode == 2 and len(lines) == 1, res.stderr
+            assert lines[0].startswith("rbx: --scheduler: cannot reach a Dask scheduler") and \
+                f"no answer within {CONNECT_TIMEOUT:g} s" in lines[0], lines[0]
+    finally:
+        silent.close()
+    res = rbx("simulate", "exp.yaml", "-o", "run.h5", "--scheduler", "tcp://127.0.0.1:99999", cwd=tmp_path)
+    assert res.returncode == 2 and res.stderr == ("rbx: --scheduler: tcp://127.0.0.1:99999: port 99999 does not exist "
+                                                  "(ports are 1 … 65535)\n"), res.stderr
+    assert not list(tmp_path.glob("run.h5*")) and not list(tmp_path.glob("s.nc*"))
 
 
 def test_cluster_options_need_a_scheduler(tmp_path):
