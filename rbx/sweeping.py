@@ -126,7 +126,9 @@ def _empty(study, exp0):
             "description": f"of those, the regular ones: own λ₁ below {thr:g} per unit time (the point's λ₁ "
                            "pools them with the chaotic ones)"})
     data["collisions"] = xr.Variable(dims, np.zeros(shape, np.int64),
-                                     {"units": "collision", "description": "collisions run at the point (all runs)"})
+                                     {"units": "collision", "description": "collisions the point's numbers count, over all its runs "
+                                                                     "(a Lyapunov run's warm-up is not counted, and a run whose "
+                                                                     "orbits all left during it counts 0)"})
     data["wall_time"] = xr.Variable(dims, np.full(shape, np.nan), {"units": "s", "description":
                                                                     "wall-clock time of the point"})
     data["seed"] = xr.Variable(dims, np.zeros(shape, np.int64), {"description": "run.seed of the point"})
@@ -531,7 +533,7 @@ def _check_resumable(ds, template, path, study=None, points=()):
         else:
             equal = False
         if not equal:
-            raise FileError(path, name, f"holds the values {_shown(theirs)} where this study's are {_shown(mine)}; "
+            raise FileError(path, name, f"holds the values {shown_values(theirs)} where this study's are {shown_values(mine)}; "
                                         f"{fix}")
     if study is None:
         return
@@ -588,6 +590,9 @@ def value_problem(ds, measured, label=lambda index: str(tuple(int(i) for i in in
     checks += [(v, whole, f"is not a count of {what}") for v, what in
                (("collisions", "collisions"), ("lyapunov_orbits", "orbits"), ("lyapunov_regular", "orbits"))
                if v in ds]
+    if "lyapunov_orbits" in ds and "ensemble_trajectories" in ds.attrs:
+        most = int(ds.attrs["ensemble_trajectories"])
+        checks.append(("lyapunov_orbits", lambda x: ~(x > most), f"is more than the {most} trajectories of a point"))
     if "wall_time" in ds:
         checks.append(("wall_time", lambda x: np.isfinite(x) & (x >= 0), "is not a time (a number ≥ 0)"))
     for name, ok, what in checks:
@@ -608,7 +613,8 @@ def value_problem(ds, measured, label=lambda index: str(tuple(int(i) for i in in
     return None
 
 
-def _shown(values, most=4):
+def shown_values(values, most=4):
+    """Up to ``most`` of ``values``, as a short list for a message."""
     shown = ", ".join(str(v) if not isinstance(v, float) else f"{v:g}" for v in values.ravel()[:most].tolist())
     return f"[{shown}{', …' if values.size > most else ''}]"
 

@@ -103,7 +103,7 @@ def test_kac_return_path_and_return_angles():
     study = {"base": SINAI, "set": {**SPECULAR, "boundary.walls.left": {"rule": "exit"},
                                     "initial": {"sample": "billiard", "wall": "left"}},
              "vary": {"ball.inertia": [0.5]}, "measure": ["return_path", "trapped_share"],
-             "ensemble": {"trajectories": 1500, "collisions": 3000, "seed": 5}}
+             "ensemble": {"trajectories": 2500, "collisions": 3000, "seed": 5}}
     ds = sweep(study)
     area, _ = analysis.table_measure(rbx.load(SINAI).geometry())
     assert float(ds["return_path_kac"][0]) == pytest.approx(4 * area / 1.3, rel=1e-12)
@@ -1311,3 +1311,40 @@ def test_impossible_numbers_in_a_results_file_are_refused_by_resume_and_plot(lya
     with pytest.raises(rbx.FileError, match=words.replace("[", r"\[").replace("]", r"\]").replace("(", r"\(")
                        .replace(")", r"\)")):
         sweep(str(study), str(tmp_path / "r2.nc"), resume=True)
+
+
+def test_a_results_file_with_a_point_no_study_makes_is_refused_by_its_figure(specular, tmp_path):
+    """Edited by hand, a study's varied values NaN or twice, and more orbits at a point than its trajectories, were
+    drawn with exit 0 (the resume refused the first two already). Each is one line naming the variable."""
+    import xarray as xr
+    _, path = specular
+    with xr.open_dataset(path) as ds:
+        good = ds.load()
+    cases = {"nan.nc": ("table.radius", good.assign_coords({"table.radius": [0.2, np.nan]}), "a value that is not "
+                                                                                           "a number"),
+             "twice.nc": ("table.radius", good.assign_coords({"table.radius": [0.2, 0.2]}), "a value twice"),
+             "orbits.nc": ("lyapunov_orbits", good.assign(lyapunov_orbits=good["lyapunov_orbits"] * 0 + 9),
+                           "is more than the 4 trajectories of a point")}
+    for name, (key, ds, words) in cases.items():
+        ds.to_netcdf(tmp_path / name, engine="h5netcdf")
+        res = rbx_cli("plot", name, "--kind", "sweep", "--y", "mean_free_path", "-o", f"{name}.png", cwd=tmp_path)
+        assert res.returncode == 2 and res.stderr.startswith(f"rbx: {name}: {key}: ") and words in res.stderr, \
+            res.stderr
+        assert len(res.stderr.splitlines()) == 1 and not (tmp_path / f"{name}.png").exists()
+    # what `collisions` counts is said: a Lyapunov run's warm-up is not in it
+    assert "warm-up is not counted" in good["collisions"].attrs["description"]
+
+
+def test_a_study_whose_orbits_all_left_says_it_measured_nothing(specular):
+    """Every orbit of every point left during its warm-up: the figure's note read "only 0–0: the others left the
+    table first; none is regular", of no orbit at all."""
+    from rbx.cli.sweep import pooled_note
+    _, path = specular
+    import xarray as xr
+    with xr.open_dataset(path) as ds:
+        ds = ds.load()
+    ds["lyapunov_orbits"][:] = 0
+    ds["lyapunov_regular"][:] = 0
+    assert pooled_note(ds, "λ₁", 4) == "no point has an orbit that stayed past its warm-up: λ₁ is measured nowhere"
+    ds["lyapunov_orbits"][:] = [3, 3]
+    assert "(at 2 of 2 points only 3: the others left the table first)" in pooled_note(ds, "λ₁", 4)

@@ -217,12 +217,24 @@ def open_results(path):
     _check_results_attrs(ds, path)
     import json
 
-    from ..sweeping import value_problem
+    from ..sweeping import shown_values, value_problem
     dims = list(ds["done"].dims)
 
     def label(index):           # the point by its varied values, as a study names its points
         return ", ".join(f"{k} = {ds[k].values[int(index[dims.index(ds[k].dims[0])])]}"
                          for k in json.loads(ds.attrs["varied"]) if ds[k].dims[0] in dims)
+    import numpy as np
+    zipped = bool(int(ds.attrs.get("zip", 0)))
+    for key in json.loads(ds.attrs["varied"]):
+        # a point's place on the x axis: a number that is no number, or a value twice (where a study refuses it),
+        # drew a figure of points that no study makes
+        values = np.asarray(ds[key].values)
+        if values.dtype.kind in "fc" and not np.all(np.isfinite(values)):
+            raise UserError(path, key, f"holds {shown_values(values)}, a value that is not a number: the file was not "
+                                       "written as rbx sweep writes it; run the study again")
+        if not zipped and len(np.unique(values)) != len(values):
+            raise UserError(path, key, f"holds {shown_values(values)}, a value twice: the file was not written as rbx "
+                                       "sweep writes it; run the study again")
     problem = value_problem(ds, json.loads(ds.attrs["measure"]), label)
     if problem is not None:         # drawn, it was a traceback (a negative error bar) or a figure of impossible numbers
         raise UserError(path, problem[0], f"{problem[1]}: the file was not written as rbx sweep writes it; run the "
@@ -430,8 +442,11 @@ def pooled_note(ds, ysym, M):
         regular = ds["lyapunov_regular"].values[done]
         thr = float(ds["lyapunov_regular"].attrs.get("threshold", np.nan))
         fewer = int(np.sum(measured < M))
+        if points and not np.any(measured > 0):     # "only 0–0 …; none is regular" said of no orbit at all
+            return f"no point has an orbit that stayed past its warm-up: {ysym} is measured nowhere"
         if fewer:
-            pooled += (f" (at {fewer} of {points} points only {int(measured.min())}–{int(measured.max())}: the "
+            low, high = int(measured.min()), int(measured.max())
+            pooled += (f" (at {fewer} of {points} points only {low if low == high else f'{low}–{high}'}: the "
                        "others left the table first)")
         mixed = int(np.sum(regular > 0))
         if not mixed:
