@@ -496,6 +496,17 @@ class Run:
                                     f"{int(self.count[rows[j]])} records collisions/count says it wrote; no run writes "
                                     "that (a damaged or crafted file)")
         walls = len(self.wall_names)
+        if name == "time" and data.shape[1] > 1:
+            # a trajectory's time never runs back (a file edited to reverse it was drawn and animated); NaN
+            # differences (past a trajectory's end, or a NaN the check below names) compare False
+            with np.errstate(invalid="ignore"):
+                back = np.diff(data, axis=1) < 0
+            if back.any():
+                j, r = (int(x) for x in np.argwhere(back)[0])
+                raise FileError(self.path, "collisions/time", f"runs back at trajectory {int(rows[j])}, from record "
+                                                              f"{int(records[r])} ({data[j, r]:.17g}) to the next "
+                                                              f"({data[j, r + 1]:.17g}); no run writes that (a "
+                                                              "damaged or crafted file)")
         if data.dtype.kind == "f":
             with np.errstate(all="ignore"):
                 if np.isfinite(np.add.reduce(data, axis=None)):

@@ -552,3 +552,23 @@ def test_a_stored_config_larger_than_a_config_may_be_is_refused_before_it_is_par
     with pytest.raises(FileError, match=r"config: the root attribute holds 64 MiB of text, more than the 64 MiB a "
                                         r"config may have"):
         rbx.open(big)
+
+
+def test_a_time_that_runs_back_is_a_damaged_file(tmp_path):
+    """A run file edited so that a trajectory's times run backwards opened, plotted and animated with exit 0; no
+    run writes that. Refused as the field is read, naming the trajectory and the record."""
+    import h5py
+
+    from rbx.paths import FileError
+    write_config(tmp_path, strip_random(30, trajectories=2, every=1, record=("time", "position")))
+    path = tmp_path / "o.h5"
+    rbx.simulate(str(tmp_path / "exp.yaml"), output=str(path)).close()
+    assert np.all(np.diff(rbx.open(path).time, axis=1) >= 0)
+    with h5py.File(path, "r+") as f:
+        t = f["collisions/time"][...]
+        t[1, 10:] = t[1, 10:][::-1].copy()
+        f["collisions/time"][...] = t
+    run = rbx.open(path)
+    assert np.all(np.diff(run.read("time", [0]), axis=1) >= 0)
+    with pytest.raises(FileError, match=r"collisions/time: runs back at trajectory 1, from record 10 "):
+        run.time
