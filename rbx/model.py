@@ -78,6 +78,8 @@ def roughness_direction(direction, t1, t2, cos=math.cos, sin=math.sin, sqrt=math
         th = radians(value)
         c, s = cos(th), sin(th)
         return [c * a + s * b for a, b in zip(t1, t2)]
+    top = max(abs(x) for x in value)
+    value = [x / top for x in value]        # scaled first: [1e200, 0, 0] squared to inf, and the wall was specular
     x1 = sum(x * a for x, a in zip(value, t1))
     x2 = sum(x * b for x, b in zip(value, t2))
     d = [x1 * a + x2 * b for a, b in zip(t1, t2)]

@@ -291,6 +291,11 @@ def open_regular(path):
     return fd, None
 
 
+#: how much longer than an output's name the longest name rbx makes beside it may be: its lock's, while written
+#: (``OUT.h5.lock.new.<pid>.<thread>``, rbx.locks), and the journal's (``OUT.h5.partial.journal.tmp``)
+OWN_NAME_ROOM = 48
+
+
 def own_names(path):
     """The files rbx makes beside a run's output ``path`` and writes or reads itself: its ``.partial``, the
     ``.partial.new`` of a new run, the journals of these and of the output, and the run's lock -> list of paths."""
@@ -303,7 +308,19 @@ def check_own_names(path):
     """Raise :class:`FileError` unless each file rbx makes beside ``path`` (:func:`own_names`) is nothing yet or a
     regular file: rbx writes only through names it made, never through a symbolic link someone put there
     (``--resume OUT.h5 --force`` with ``OUT.h5.partial`` a link wrote HDF5 over the link's target), and never
-    opens a FIFO (the open waits for a writer for ever) or reads a directory as a journal or a lock."""
+    opens a FIFO (the open waits for a writer for ever) or reads a directory as a journal or a lock. A name too long
+    for those beside it is refused first: they said 'unreadable, not a regular file: remove it' of files that
+    were not there."""
+    name = os.fsencode(os.path.basename(os.path.abspath(path)))
+    try:
+        most = os.pathconf(os.path.dirname(os.path.abspath(path)) or ".", "PC_NAME_MAX")
+    except (OSError, ValueError, AttributeError):       # a folder that is not there yet, or no pathconf
+        most = 255
+    if len(name) + OWN_NAME_ROOM > most:
+        raise FileError(display_path(path), None, f"its name is {len(name)} bytes long; rbx keeps its own files "
+                                                  f"beside it under names up to {OWN_NAME_ROOM} bytes longer, and "
+                                                  f"this file system takes names of at most {most} bytes: give a "
+                                                  f"name of at most {most - OWN_NAME_ROOM} bytes")
     for own in own_names(path):
         what = what_it_is(own)
         if what is None or what == "a regular file":

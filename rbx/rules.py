@@ -356,9 +356,11 @@ def _constant_parse(r, key, n, c, geom, wall_ids):
         if "direction_deg" in r:
             return Constant(1, ("deg", c.number(r["direction_deg"], _join(key, "direction_deg"))))
         vec = c.nonzero_vector(r["direction"], _join(key, "direction"), 3)
+        unit = vec / np.max(np.abs(vec))        # scaled first: [1e200, 0, 0] and [1e-200, 0, 0] squared to inf and 0
+        unit = unit / np.linalg.norm(unit)
         for w in wall_ids or ():
             t = geom.wall_list[w].tangents
-            if np.linalg.norm(t @ vec) < 1e-9 * max(np.linalg.norm(vec), 1e-300):
+            if np.linalg.norm(t @ unit) < 1e-9:
                 c.fail(_join(key, "direction"), f"is normal to wall '{geom.wall_names[w]}': it has no "
                                                 "tangential part")
         return Constant(1, ("vector", tuple(vec)))

@@ -572,3 +572,45 @@ def test_a_time_that_runs_back_is_a_damaged_file(tmp_path):
     assert np.all(np.diff(run.read("time", [0]), axis=1) >= 0)
     with pytest.raises(FileError, match=r"collisions/time: runs back at trajectory 1, from record 10 "):
         run.time
+
+
+def test_a_rank_1_direction_of_any_size_is_the_direction_it_names(tmp_path):
+    """A 3D rank-1 ``direction: [1e200, 0, 0]`` squared to infinity: the wall then reflected specularly (the run bit
+    for bit the rank-0 one, the file recording rank 1), with NumPy's overflow warnings; [1e-200, 0, 0] was refused
+    as 'normal to wall top'. A direction is scaled before it is normalised: each runs as [1, 0, 0]."""
+    path = os.path.join(os.path.dirname(rbx.__file__), "..", "configs", "examples", "plates.yaml")
+    finals = []
+    for direction in ([1.0, 0.0, 0.0], [1e200, 0.0, 0.0], [1e-200, 0.0, 0.0], [3e-320, 0.0, 0.0]):
+        exp = rbx.load(path, {"boundary": {"default": {"rule": "constant", "rank": 1, "direction": direction}},
+                              "run.collisions": 300, "run.trajectories": 1, "output.record": ["velocity"]})
+        finals.append(rbx.simulate(exp).velocity[0, -1])
+    specular = rbx.load(path, {"boundary": {"default": {"rule": "constant", "rank": 0}}, "run.collisions": 300,
+                               "run.trajectories": 1, "output.record": ["velocity"]})
+    assert all(np.array_equal(f, finals[0]) for f in finals)
+    assert not np.array_equal(rbx.simulate(specular).velocity[0, -1], finals[0])
+    with pytest.raises(rbx.ConfigError, match="is normal to wall 'top'"):
+        rbx.load(path, {"boundary": {"default": {"rule": "constant", "rank": 1, "direction": [0.0, 0.0, 1e200]}}})
+
+
+def test_an_output_name_too_long_for_the_files_beside_it_is_refused_as_such(tmp_path):
+    """An output of 249 characters (a legal name) was refused with 'OUT.partial: is unreadable, not a regular file:
+    remove it', of a file that was not there (the names rbx makes beside it are longer than the file system
+    takes), or at 228–235 characters with 'cannot create the run's lock file: File name too long'. The line now
+    says what is wrong, before any work; a name within the room runs."""
+    from rbx.paths import OWN_NAME_ROOM
+    write_config(tmp_path, strip_random(20, trajectories=1, record=("time",)))
+    exe = os.path.join(os.path.dirname(sys.executable), "rbx")
+    most = os.pathconf(tmp_path, "PC_NAME_MAX")
+    for length in (most - 6, most - OWN_NAME_ROOM + 1):
+        name = "b" * (length - 3) + ".h5"
+        res = subprocess.run([exe, "simulate", "exp.yaml", "-o", name], cwd=tmp_path, capture_output=True, text=True,
+                             timeout=HANG)
+        assert res.returncode == 2 and res.stderr == (
+            f"rbx: {name}: its name is {length} bytes long; rbx keeps its own files beside it under names up to "
+            f"{OWN_NAME_ROOM} bytes longer, and this file system takes names of at most {most} bytes: give a name "
+            f"of at most {most - OWN_NAME_ROOM} bytes\n"), res.stderr
+    assert os.listdir(tmp_path) == ["exp.yaml"]
+    name = "b" * (most - OWN_NAME_ROOM - 3) + ".h5"
+    res = subprocess.run([exe, "simulate", "exp.yaml", "-o", name, "--quiet"], cwd=tmp_path, capture_output=True,
+                         text=True, timeout=HANG)
+    assert res.returncode == 0 and rbx.open(tmp_path / name).complete, res.stderr
