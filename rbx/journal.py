@@ -45,7 +45,7 @@ import os
 import struct
 import zlib
 
-from .paths import JOURNAL_SUFFIX, open_regular
+from .paths import JOURNAL_SUFFIX, FileError, create_own, open_regular
 
 #: the overlay's page size: a write below ``committed`` copies the pages it touches
 PAGE = 4096
@@ -357,7 +357,13 @@ class JournaledFile:
 
 
 def _write_journal(tmp, parts):
-    fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o666)
+    try:
+        fd = create_own(tmp)        # never through a link or into a FIFO someone put at this name
+    except FileError as exc:        # the commit fails as any I/O error does: the run stops at its last checkpoint
+        raise OSError(errno.EEXIST, f"{exc}") from None
+    except FileExistsError:
+        raise OSError(errno.EEXIST, f"{tmp}: appeared while the run wrote its journal; rbx writes nothing through "
+                                    "it: remove it, then resume") from None
     try:
         _write_all(fd, parts, 0)
     finally:

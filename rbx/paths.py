@@ -301,7 +301,25 @@ def own_names(path):
     ``.partial.new`` of a new run, the journals of these and of the output, and the run's lock -> list of paths."""
     tmp = temporary_path(path)
     new = creation_path(path)
-    return [tmp, new, f"{path}.journal", f"{tmp}.journal", f"{new}.journal", lock_path(path)]
+    journals = [f"{path}.journal", f"{tmp}.journal", f"{new}.journal"]
+    # and the scratch names written before a rename: a journal's before its commit, a study's results before they
+    # replace its .partial (a link there was written through, a FIFO there waited for ever)
+    return [tmp, new, *journals, *(f"{j}.tmp" for j in journals), f"{tmp}.tmp", lock_path(path)]
+
+
+def create_own(path):
+    """Open a new scratch file of rbx's at ``path`` for writing -> its descriptor. A regular file there (left by a
+    killed writer) is removed; anything else (a symbolic link, a FIFO, a folder) is refused as :class:`FileError`,
+    and the file is created exclusively, never through a name that appeared meanwhile (``FileExistsError``): a
+    link named as a journal's or a study's scratch file was written through, and the file it named overwritten."""
+    what = what_it_is(path)
+    if what == "a regular file":
+        os.remove(path)
+    elif what is not None:
+        raise FileError(display_path(path), None, f"is {what}, not a regular file; rbx keeps its own files under "
+                                                  "this name and writes nothing through it: remove it (or rename "
+                                                  "it), then run again")
+    return os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o666)
 
 
 def check_own_names(path):

@@ -31,8 +31,8 @@ from .dynamics import NothingMeasured, lyapunov
 from .histogram import return_experiment
 from .locks import LockNotWritable, acquire_lock, release_lock
 from .model import ConfigError
-from .paths import (DiskFull, FileError, check_own_kind, check_own_names, check_replaceable, display_path,
-                    other_commands_file)
+from .paths import (DiskFull, FileError, check_own_kind, check_own_names, check_replaceable, create_own,
+                    display_path, other_commands_file)
 from .runfile import provenance
 from .simulation import STATE_BYTES, memory_refusal, records_bytes
 from .study import Study, _representatives, load_study, needs
@@ -248,7 +248,13 @@ def _write(ds, path):
     image = io.BytesIO()
     _to_netcdf(ds, image)
     try:
-        with open(tmp, "wb") as fh:
+        fd = create_own(tmp)         # never through a link or into a FIFO someone put at this name
+    except FileExistsError:
+        raise FileError(display_path(tmp), None, "appeared while the study ran (not made by rbx): rbx writes nothing "
+                                                 "through it; remove it and run the study again (--resume keeps the "
+                                                 "points written before)") from None
+    try:
+        with open(fd, "wb") as fh:
             fh.write(image.getbuffer())
             fh.flush()
             os.fsync(fh.fileno())
@@ -512,7 +518,7 @@ def _check_resumable(ds, template, path, study=None, points=()):
                                         f"are {dict(zip(var.dims, var.shape))}; {fix}")
         if var.dtype.kind in "iufb" and got.dtype.kind not in "iufb":
             raise FileError(path, name, f"holds {got.dtype} values, not numbers; {fix}")
-        if var.dtype.kind == "f" and got.dtype.kind != "f":     # an observable stored as whole numbers
+        if var.dtype.kind == "f" and got.dtype != var.dtype:   # whole numbers, or float32's rounded values
             raise FileError(path, name, f"holds {got.dtype} values where this study writes {var.dtype}; {fix}")
     done = ds["done"].values
     if not np.all((done == 0) | (done == 1)):

@@ -614,3 +614,64 @@ def test_an_output_name_too_long_for_the_files_beside_it_is_refused_as_such(tmp_
     res = subprocess.run([exe, "simulate", "exp.yaml", "-o", name, "--quiet"], cwd=tmp_path, capture_output=True,
                          text=True, timeout=HANG)
     assert res.returncode == 0 and rbx.open(tmp_path / name).complete, res.stderr
+
+
+def test_a_link_or_fifo_at_a_scratch_name_is_never_written_through(tmp_path):
+    """A symbolic link named ``RESULTS.nc.partial.tmp`` (a study's results before they replace its ``.partial``)
+    was written through: the file it named, in any folder, overwritten with netCDF, exit 0. A FIFO there held the
+    study for ever after all its points ran; a journal's ``.journal.tmp`` was the same. Each scratch name is
+    checked with the run's own names before any work, and created exclusively when written."""
+    from rbx import journal
+    (tmp_path / "study.yaml").write_text(
+        "base: " + os.path.join(os.path.dirname(rbx.__file__), "..", "configs", "examples", "sinai.yaml") + "\n"
+        "vary: {ball.inertia: [0.2, 0.4]}\nmeasure: [mean_free_path]\nensemble: {trajectories: 2, collisions: 200}\n")
+    victim = tmp_path / "victim.txt"
+    victim.write_text("mine\n")
+    exe = os.path.join(os.path.dirname(sys.executable), "rbx")
+    scratch = tmp_path / "r.nc.partial.tmp"
+    for make in (lambda: scratch.symlink_to(victim), lambda: os.mkfifo(scratch), lambda: scratch.mkdir()):
+        make()
+        res = subprocess.run([exe, "sweep", "study.yaml", "-o", "r.nc"], cwd=tmp_path, capture_output=True, text=True,
+                             timeout=HANG)
+        assert res.returncode == 2 and res.stderr.startswith("rbx: r.nc.partial.tmp: is ") and \
+            "rbx keeps its own files under this name" in res.stderr and len(res.stderr.splitlines()) == 1, res.stderr
+        assert victim.read_text() == "mine\n" and not (tmp_path / "r.nc").exists()
+        (scratch.rmdir if scratch.is_dir() and not scratch.is_symlink() else scratch.unlink)()
+    # a journal's scratch name that appears while a run writes: the commit fails as an I/O error does (the run
+    # stops at its last checkpoint), and nothing is written through it
+    link = tmp_path / "o.h5.partial.journal.tmp"
+    link.symlink_to(victim)
+    with pytest.raises(OSError, match="is a symbolic link"):
+        journal._write_journal(str(link), [b"journal"])
+    assert victim.read_text() == "mine\n"
+
+
+@pytest.mark.parametrize("when", ["sampling", "drawing"])
+def test_a_signal_late_in_rbx_histogram_says_what_was_written(when, tmp_path):
+    """A SIGINT in the last block of the sampling was noted and not acted on: both files written, exit 0. One that
+    came after the samples' file was replaced said 'nothing written'. The signal is sent here from inside the
+    sampling (its last call) or the drawing: no timing."""
+    path = os.path.join(os.path.dirname(rbx.__file__), "..", "configs", "experiments", "histogram.yaml")
+    code = ("import os, signal, sys\n"
+            "from rbx.cli import main\n"
+            "import rbx.histogram, rbx.plotting\n"
+            "def late(f):\n"
+            "    def g(*a, **k):\n"
+            "        out = f(*a, **k)\n"
+            "        os.kill(os.getpid(), signal.SIGINT)\n"
+            "        for _ in range(10 ** 5): pass\n"
+            "        return out\n"
+            "    return g\n"
+            + ("rbx.histogram.return_experiment = late(rbx.histogram.return_experiment)\n" if when == "sampling" else
+               "rbx.plotting.histogram_figure = late(rbx.plotting.histogram_figure)\n") +
+            f"sys.argv = ['rbx', 'histogram', {path!r}, '-o', 'h.png', '--data', 'h.h5', '--trajectories', '200']\n"
+            "main.main()\n")
+    res = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=HANG)
+    assert res.returncode == 130, (res.returncode, res.stderr)
+    if when == "sampling":
+        assert res.stderr.strip().splitlines()[-1] == "rbx: interrupted by SIGINT; nothing written", res.stderr
+        assert not (tmp_path / "h.h5").exists() and not (tmp_path / "h.png").exists()
+    else:
+        assert res.stderr.strip().splitlines()[-1] == ("rbx: interrupted by SIGINT; wrote only h.h5 (the samples), "
+                                                       "not the figure"), res.stderr
+        assert (tmp_path / "h.h5").exists() and not (tmp_path / "h.png").exists()

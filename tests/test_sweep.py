@@ -1348,3 +1348,22 @@ def test_a_study_whose_orbits_all_left_says_it_measured_nothing(specular):
     assert pooled_note(ds, "λ₁", 4) == "no point has an orbit that stayed past its warm-up: λ₁ is measured nowhere"
     ds["lyapunov_orbits"][:] = [3, 3]
     assert "(at 2 of 2 points only 3: the others left the table first)" in pooled_note(ds, "λ₁", 4)
+
+
+def test_a_results_file_with_no_point_done_or_rounded_values_is_refused(specular, tmp_path):
+    """No point marked done: `rbx plot --kind sweep` drew empty axes, exit 0. An observable stored as float32
+    (its values rounded) was kept by `--resume` as 'nothing to do'."""
+    import xarray as xr
+    _, path = specular
+    with xr.open_dataset(path) as ds:
+        good = ds.load()
+    good.assign(done=good["done"] * 0).to_netcdf(tmp_path / "none.nc", engine="h5netcdf")
+    res = rbx_cli("plot", "none.nc", "--kind", "sweep", "--y", "mean_free_path", "-o", "n.png", cwd=tmp_path)
+    assert res.returncode == 2 and res.stderr == ("rbx: none.nc: done: no point of the study is done: nothing to draw "
+                                                  "(continue it with rbx sweep --resume)\n"), res.stderr
+    good.assign(mean_free_path=good["mean_free_path"].astype(np.float32)).to_netcdf(tmp_path / "r.nc",
+                                                                                    engine="h5netcdf")
+    (tmp_path / "study.yaml").write_text(yaml.safe_dump(specular_study()))
+    res = rbx_cli("sweep", "study.yaml", "-o", "r.nc", "--resume", cwd=tmp_path)
+    assert res.returncode == 2 and "mean_free_path: holds float32 values where this study writes float64" in \
+        res.stderr and len(res.stderr.splitlines()) == 1, res.stderr

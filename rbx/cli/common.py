@@ -167,8 +167,20 @@ def interrupted_exit(signum=None):
     written here: the files the command had open were closed as the exception unwound to this point."""
     if signum is None:          # the signal that was noted (SIGTERM said SIGINT, exit 130 for 143), else Ctrl-C
         signum = pending_signal() or signal.SIGINT
-    click.echo(f"rbx: interrupted by {signal.Signals(signum).name}; nothing written", err=True)
+    from ..paths import one_line
+    said = f"wrote only {'; '.join(_WRITTEN)}" if _WRITTEN else "nothing written"
+    click.echo(f"rbx: interrupted by {signal.Signals(signum).name}; {one_line(said)}", err=True)
     hard_exit(128 + int(signum))
+
+
+#: what a command that writes several files has written so far (:func:`written`), for the line of an interrupt
+_WRITTEN = []
+
+
+def written(what):
+    """Note that a command of several files has written ``what`` (``'hu.h5 (the samples), not the figure'``): an
+    interrupt after it says so, where it said 'nothing written' with the data file already replaced."""
+    _WRITTEN.append(what)
 
 
 @contextlib.contextmanager

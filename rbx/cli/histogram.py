@@ -11,7 +11,7 @@ import click
 
 from .common import (Command, Progress, UserError, cannot_write, check_cluster_options, check_figure_target,
                      check_memory, connect, display_path, duration, ending_on_signals, parse_sets, pending_signal,
-                     plural, quiet_option, report_and_exit, set_option, summary, user_errors)
+                     plural, quiet_option, report_and_exit, set_option, summary, user_errors, written)
 
 
 @click.command(cls=Command)
@@ -141,6 +141,7 @@ def _histogram(config, out, data, trajectories, seed, sets, force, quiet, cluste
         finally:
             stop.running = False        # a signal from here on aborts at once again
             progress.close()
+    stop.check()        # a signal while the last block ran was noted, not acted on: it wrote both files, exit 0
     if len(result.angle) == 0:       # nothing to compare: neither an empty list of angles nor a figure is written
         raise UserError(config, "run.collisions",
                         f"no sample returned within {plural(cfg.run.collisions, 'collision')}: nothing to compare, "
@@ -148,6 +149,7 @@ def _histogram(config, out, data, trajectories, seed, sets, force, quiet, cluste
     try:
         with user_errors():     # a lock that cannot be made, a file of another kind: one line
             write_returns(h5_path, cfg, result)
+        written(f"{display_path(h5_path)} (the samples), not the figure")
     except OSError as exc:
         if exc.errno in NO_ROOM:     # not the user's input: the disk filled meanwhile (or a size limit), exit 1
             why = exc.strerror if isinstance(exc, DiskFull) else (     # rbx's own says it already

@@ -190,6 +190,9 @@ def plot_sweep(path, kind, out, y, x, logx, logy, dpi):
     if kind != "sweep":
         raise UserError(path, "--kind", f"a study's results file is drawn with --kind sweep, not {kind}")
     ds = open_results(path)
+    if not ds["done"].values.any():     # empty axes with exit 0: an empty selection is refused, as for a run
+        raise UserError(path, "done", "no point of the study is done: nothing to draw (continue it with rbx sweep "
+                                      "--resume)")
     panel, title = sweep_panel(ds, y, x, logx, logy, path)
     fig = sweep_figure([panel], title)
     out = out or f"{os.path.splitext(path)[0]}_sweep.png"
