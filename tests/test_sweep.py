@@ -866,13 +866,28 @@ def test_a_failed_write_over_kept_points_says_how_much_room_a_write_needs(tmp_pa
     path = tmp_path / "r.nc.partial"
     _write(ds, str(path))
     before = path.read_bytes()
-    (tmp_path / "r.nc.partial.tmp").mkdir()          # where the new copy goes: it cannot be written
-    with pytest.raises(DiskFull) as info:
-        _write(ds, str(path))
+    # a file-size limit below the new copy (ENOSPC and EFBIG are said alike), with its signal ignored for the write
+    import resource
+    import signal
+    xfsz = signal.signal(signal.SIGXFSZ, signal.SIG_IGN)
+    limits = resource.getrlimit(resource.RLIMIT_FSIZE)
+    resource.setrlimit(resource.RLIMIT_FSIZE, (len(before) // 2, limits[1]))
+    try:
+        with pytest.raises(DiskFull) as info:
+            _write(ds, str(path))
+    finally:
+        resource.setrlimit(resource.RLIMIT_FSIZE, limits)
+        signal.signal(signal.SIGXFSZ, xfsz)
     said = str(info.value)
     assert "r.nc.partial is as it was (a write makes a whole new copy, " in said, said
     assert " kB, beside it before replacing it, so it needs that much free): free some room and continue with " \
            "--resume" in said, said
+    assert path.read_bytes() == before and not (tmp_path / "r.nc.partial.tmp").exists()
+    # a folder where the new copy goes is not a full disk (it said 'free some room' with 16 GB free)
+    from rbx.paths import FileError
+    (tmp_path / "r.nc.partial.tmp").mkdir()
+    with pytest.raises(FileError, match=r"r.nc.partial.tmp: is a directory, not a regular file"):
+        _write(ds, str(path))
     assert path.read_bytes() == before
 
 
