@@ -829,15 +829,15 @@ def wall_measure(geom, w):
 
 def plus_minus(value, error, digits=2):
     """'value ± error' with the error to ``digits`` significant digits and the value to the same decimal place
-    ('0.0084 ± 0.0098', not '0.008357 ± 0.01'); very small numbers share one power of ten ('1.234e-12 ±
-    0.056e-12'). A NaN, infinite or zero error: the value to 4 significant digits and the error as it is."""
+    ('0.0084 ± 0.0098', not '0.008357 ± 0.01'); very small and very large numbers (1e6 and more: speeds near
+    1e150 printed 150 digits) share one power of ten ('1.234e-12 ± 0.056e-12'). A NaN, infinite or zero error: the value to 4 significant digits and the error as it is."""
     value, error = float(value), float(error)
     if not (math.isfinite(value) and math.isfinite(error) and error > 0):
         return f"{value:.4g} ± {error:.2g}"
     place = digits - 1 - math.floor(math.log10(error))        # decimals that keep ``digits`` of the error
-    if place < 0:               # an error of 100 or more: whole numbers, rounded to the error's last digit
+    if place < 0 and max(abs(value), error) < 1e6:   # an error of 100 or more: whole numbers, to its last digit
         return f"{round(value, place):.0f} ± {round(error, place):.0f}"
-    if place <= 8:
+    if 0 <= place <= 8:
         return f"{value:.{place}f} ± {error:.{place}f}"
     power = math.floor(math.log10(max(abs(value), error)))
     places = max(0, place + power)

@@ -586,8 +586,14 @@ def _initial(init, n, c, geom, kind, R, kappa, names):
         if idx is not None and not any(p for p in geom.wall_list[idx].patches):
             c.fail("initial.wall", f"a ball of radius {R:g} never touches wall '{wall}': there is no room for its "
                                    "centre along it (the wall is shorter than the ball, or behind a narrower part)")
-        # sampled states have unit speed in (v, R√κ·ω): |v| ≤ 1, |ω| ≤ 1/(R√κ)
-        _check_spin_range(1.0, 1.0 / (R * math.sqrt(kappa)), R, c, "ball.inertia")
+        # sampled states have unit speed in (v, R√κ·ω): |v| ≤ 1, |ω| ≤ 1/(R√κ), which a tiny κ makes huge: said
+        # as κ's problem (κ = 1e-320 was 'too large: 1e+161 overflows when squared')
+        with np.errstate(all="ignore"):
+            top = 1.0 / (R * math.sqrt(kappa))
+        if not top * top < MAX_SPIN_SQUARE:
+            c.fail("ball.inertia", f"κ = {kappa:.3g} is too small: sampled spins reach 1/(R√κ) = {top:.3g}, which "
+                                   "overflows when squared")
+        _check_spin_range(1.0, top, R, c, "ball.inertia")
         return ("sample", idx), 1
     states = init if isinstance(init, list) else [init]
     if not states:

@@ -32,6 +32,7 @@ import yaml
 from . import observables as obs
 from .analysis import unbounded_axes
 from .api import _load as load
+from .config import MAX_SEED
 from .ensembles import orbit_rows, repeated_orbits
 from .yamlfile import copied, other_kind, parse_yaml, read_text
 from .model import ConfigError
@@ -255,6 +256,8 @@ def load_study(study, base=None, progress=None, sets=None, ensemble=None):
             fail(f"ensemble.{k}", "missing")
         if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)) or v < lo:     # NumPy's too
             fail(f"ensemble.{k}", f"expected an integer ≥ {lo}, got {v!r}")
+        if k == "seed" and v > MAX_SEED:    # as run.seed: a seed of 2**64 ran every point, then failed to be stored
+            fail("ensemble.seed", f"at most {MAX_SEED} (2⁶³ − 1), as run.seed; got {v}")
         ens[k] = int(v)
     for name, options in measure:       # a mean over segments of the run: at least two collisions in each
         if name != "lyapunov" and "segments" in options and ens["collisions"] < 2 * int(options["segments"]):

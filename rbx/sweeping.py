@@ -7,6 +7,7 @@ h5netcdf) is rewritten atomically as points finish (spaced so that the writes ta
 points it lacks, and refuses a study whose canonical text changed (``study_digest``).
 """
 import contextlib
+import errno
 import io
 import json
 import math
@@ -268,8 +269,10 @@ def _write(ds, path):
         else:
             kept = (f"nothing of the study was on disk yet, so no point is kept (its results need {size} free): "
                     "free some room and run the study again")
-        raise DiskFull(f"{display_path(path)}: cannot write the study's results ({exc.strerror or exc}); "
-                       + kept) from None
+        why = exc.strerror or str(exc)
+        if exc.errno == errno.EFBIG:            # not the disk: said as rbx simulate and rbx histogram say it
+            why += ": a file-size limit (ulimit -f?)"
+        raise DiskFull(f"{display_path(path)}: cannot write the study's results ({why}); " + kept) from None
     os.replace(tmp, path)
     _write_cost = time.perf_counter() - began
 

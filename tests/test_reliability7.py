@@ -675,3 +675,16 @@ def test_a_signal_late_in_rbx_histogram_says_what_was_written(when, tmp_path):
         assert res.stderr.strip().splitlines()[-1] == ("rbx: interrupted by SIGINT; wrote only h.h5 (the samples), "
                                                        "not the figure"), res.stderr
         assert (tmp_path / "h.h5").exists() and not (tmp_path / "h.png").exists()
+
+
+def test_a_tiny_kappa_and_huge_exponents_are_said_as_what_they_are():
+    """``ball.inertia: 1e-320`` was refused as 'too large: 1e+161 overflows when squared' (the sampled spin
+    1/(R√κ)), naming no κ; exponents of runs at speeds near 1e150 printed as 150-digit numbers."""
+    from rbx.analysis import plus_minus
+    from rbx.cli.lyapunov import _six
+    path = os.path.join(os.path.dirname(rbx.__file__), "..", "configs", "examples", "sinai.yaml")
+    with pytest.raises(rbx.ConfigError, match=r"ball.inertia: κ = 1e-320 is too small: sampled spins reach "
+                                              r"1/\(R√κ\) = 1e\+161, which overflows when squared"):
+        rbx.load(path, {"ball.inertia": 1e-320})
+    assert _six(1.2e150, True) == " 1.200000e+150" and _six(0.572837, True) == " 0.572837"
+    assert plus_minus(1.2345e150, 3.4e148) == "1.234e150 ± 0.034e150" and plus_minus(123456.0, 234.0) == "123460 ± 230"

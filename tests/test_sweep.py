@@ -882,6 +882,7 @@ def test_a_failed_write_over_kept_points_says_how_much_room_a_write_needs(tmp_pa
     assert "r.nc.partial is as it was (a write makes a whole new copy, " in said, said
     assert " kB, beside it before replacing it, so it needs that much free): free some room and continue with " \
            "--resume" in said, said
+    assert "(File too large: a file-size limit (ulimit -f?))" in said, said     # not only 'free some room'
     assert path.read_bytes() == before and not (tmp_path / "r.nc.partial.tmp").exists()
     # a folder where the new copy goes is not a full disk (it said 'free some room' with 16 GB free)
     from rbx.paths import FileError
@@ -1382,3 +1383,15 @@ def test_a_results_file_with_no_point_done_or_rounded_values_is_refused(specular
     res = rbx_cli("sweep", "study.yaml", "-o", "r.nc", "--resume", cwd=tmp_path)
     assert res.returncode == 2 and "mean_free_path: holds float32 values where this study writes float64" in \
         res.stderr and len(res.stderr.splitlines()) == 1, res.stderr
+
+
+def test_a_study_seed_beyond_a_runs_seed_is_refused_before_any_point_runs():
+    """``ensemble.seed: 2**64`` ran every point, then the first write of the results failed in a 63-line TypeError
+    traceback and the points were lost; ``rbx simulate --seed`` refuses such a seed. The study takes the same
+    range as run.seed."""
+    base = {"base": SINAI, "vary": {"ball.inertia": [0.3]}, "measure": ["mean_free_path"],
+            "ensemble": {"trajectories": 2, "collisions": 50}}
+    with pytest.raises(ConfigError, match=r"ensemble.seed: at most 9223372036854775807 \(2⁶³ − 1\), as run.seed; "
+                                          r"got 18446744073709551616"):
+        load_study({**base, "ensemble": {**base["ensemble"], "seed": 2 ** 64}})
+    assert load_study({**base, "ensemble": {**base["ensemble"], "seed": 2 ** 63 - 1}}).ensemble["seed"] == 2 ** 63 - 1

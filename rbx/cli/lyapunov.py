@@ -114,7 +114,7 @@ def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as
                f"{result.time.sum():.6g} (after {result.warmup} warm-up collisions each, which are not counted)")
     click.echo(f"  (±: one {_get('lyapunov').error}, {_get('lyapunov').level})")
     for k, (lam, err) in enumerate(zip(result.exponents, result.stderr), 1):
-        click.echo(f"  λ{k:<2} = {lam: .6f} ± {err:.6f}")
+        click.echo(f"  λ{k:<2} = {_six(lam, True)} ± {_six(err)}")
     if len(result.exponents) == d:
         click.echo(f"  sum = {result.exponents.sum(): .3e}")
     else:
@@ -122,7 +122,7 @@ def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as
     tau = float(np.sum(result.time)) / max(1, int(np.sum(result.collisions)))
     click.echo(f"per collision (× the mean time between collisions, {tau:.6g}):")
     for k, (lam, err) in enumerate(zip(result.per_collision(), result.per_collision(result.stderr)), 1):
-        click.echo(f"  λ{k:<2} = {lam: .6f} ± {err:.6f}")
+        click.echo(f"  λ{k:<2} = {_six(lam, True)} ± {_six(err)}")
     share, low, high = result.regular_share(threshold)
     if copies:
         # copies of one orbit (warned about above): one orbit, regular or not; no share, no interval
@@ -159,6 +159,15 @@ def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as
                    "the end")
     summary(quiet, said)
 
+
+
+def _six(x, signed=False):
+    """A number with 6 decimals, or 6 digits after a power of ten from 1e6 up (speeds near 1e150 printed exponents
+    of 150 digits)."""
+    x = float(x)
+    if abs(x) >= 1e6:
+        return f"{x: .6e}" if signed else f"{x:.6e}"
+    return f"{x: .6f}" if signed else f"{x:.6f}"
 
 
 def _get(name):
