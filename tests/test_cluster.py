@@ -363,8 +363,10 @@ def test_ctrl_c_stops_a_run_whose_cluster_lost_every_worker(tmp_path):
     its one line, the records so far kept."""
     dask = LocalDask(tmp_path / "dask", 1)
     try:
-        # rounds of records large enough that the worker is often killed while a finished result is fetched
-        cfg = scene("strip-random", 2 * 10**8, 4, every=3, record=["time", "position", "velocity", "wall"])
+        # rounds of records large enough that the worker is often killed while a finished result is fetched; the
+        # run far longer than the test waits, and its estimate (3.7 GB) well within a CI disk's free room (at 2·10⁸
+        # collisions it was 12.3 GB, refused where less was free)
+        cfg = scene("strip-random", 6 * 10**7, 4, every=3, record=["time", "position", "velocity", "wall"])
         (tmp_path / "exp.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
         proc = start(["simulate", "exp.yaml", "-o", "run.h5", "--quiet", "--max-size", "20GB", "--scheduler",
                       dask.address], tmp_path, tmp_path / "run.h5.partial")
