@@ -523,10 +523,11 @@ class Run:
             what = f"a wall index the table does not have (its {walls} walls are 0 … {walls - 1}; −1 before the " \
                    "first collision)"
         elif name == "rank":
-            if data.min() >= -1:
+            top = self.dimension - 1        # ranks run 0 … n − 1 (−1 before the first collision and at an exit)
+            if data.min() >= -1 and data.max() <= top:
                 return
-            bad = data < -1
-            what = "a roughness rank below −1"
+            bad = (data < -1) | (data > top)
+            what = f"a roughness rank outside −1 … {top} (a {self.dimension}D ball)"
         else:
             return
         if bad.any():

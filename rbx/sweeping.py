@@ -526,7 +526,7 @@ def _check_resumable(ds, template, path, study=None, points=()):
     done = ds["done"].values
     if not np.all((done == 0) | (done == 1)):
         raise FileError(path, "done", f"holds values other than 0 and 1; {fix}")
-    for key in ("measure", "varied", "ensemble_trajectories", "ensemble_collisions", "ensemble_seed",
+    for key in ("measure", "varied", "zip", "ensemble_trajectories", "ensemble_collisions", "ensemble_seed",
                 "ensemble_orbits", "study_canonical"):
         # the attributes a figure of the finished file reads, and the study's own text: carried into it by the
         # resume (a file edited by hand then gave tracebacks when plotted, or named another study)

@@ -688,3 +688,28 @@ def test_a_tiny_kappa_and_huge_exponents_are_said_as_what_they_are():
         rbx.load(path, {"ball.inertia": 1e-320})
     assert _six(1.2e150, True) == " 1.200000e+150" and _six(0.572837, True) == " 0.572837"
     assert plus_minus(1.2345e150, 3.4e148) == "1.234e150 ± 0.034e150" and plus_minus(123456.0, 234.0) == "123460 ± 230"
+
+
+def test_a_rank_the_ball_cannot_have_is_a_damaged_file():
+    """A 3D run file with `collisions/rank = 7` was read and drawn with exit 0 (ranks run −1 … 2 in 3D; below −1
+    was refused already). Refused as read, with the range of the ball's dimension."""
+    import shutil
+    import tempfile
+
+    import h5py
+
+    from rbx.paths import FileError
+    folder = tempfile.mkdtemp()
+    try:
+        path = os.path.join(os.path.dirname(rbx.__file__), "..", "configs", "examples", "box.yaml")
+        out = os.path.join(folder, "b.h5")
+        rbx.simulate(rbx.load(path, {"run.collisions": 30, "run.trajectories": 1, "output.record": ["rank"]}),
+                     output=out).close()
+        assert set(np.unique(rbx.open(out).rank)) <= {-1, 0, 1, 2}
+        with h5py.File(out, "r+") as f:
+            f["collisions/rank"][0, 5] = 7
+        with pytest.raises(FileError, match=r"collisions/rank: holds 7 at trajectory 0, record 5: a roughness rank "
+                                            r"outside −1 … 2 \(a 3D ball\)"):
+            rbx.open(out).rank
+    finally:
+        shutil.rmtree(folder)

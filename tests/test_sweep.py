@@ -1395,3 +1395,29 @@ def test_a_study_seed_beyond_a_runs_seed_is_refused_before_any_point_runs():
                                           r"got 18446744073709551616"):
         load_study({**base, "ensemble": {**base["ensemble"], "seed": 2 ** 64}})
     assert load_study({**base, "ensemble": {**base["ensemble"], "seed": 2 ** 63 - 1}}).ensemble["seed"] == 2 ** 63 - 1
+
+
+def test_a_results_file_with_a_zip_flag_or_values_no_study_writes_is_one_line(specular, tmp_path):
+    """Edited by hand: `zip` as 'maybe' ended `rbx plot --kind sweep` in a ValueError traceback, and `--resume` kept
+    it (and a zip changed from 0 to 1); a numeric varied key holding text ended the figure in a traceback too."""
+    import xarray as xr
+    _, path = specular
+    with xr.open_dataset(path) as ds:
+        good = ds.load()
+    maybe = good.copy()
+    maybe.attrs["zip"] = "maybe"
+    maybe.to_netcdf(tmp_path / "maybe.nc", engine="h5netcdf")
+    res = rbx_cli("plot", "maybe.nc", "--kind", "sweep", "--y", "mean_free_path", "-o", "m.png", cwd=tmp_path)
+    assert res.returncode == 2 and res.stderr == ("rbx: maybe.nc: zip: is 'maybe', not 0 or 1: the file was not "
+                                                  "written as rbx sweep writes it; run the study again\n"), res.stderr
+    zipped = good.copy()
+    zipped.attrs["zip"] = 1
+    zipped.to_netcdf(tmp_path / "r.nc", engine="h5netcdf")
+    (tmp_path / "study.yaml").write_text(yaml.safe_dump(specular_study()))
+    res = rbx_cli("sweep", "study.yaml", "-o", "r.nc", "--resume", cwd=tmp_path)
+    assert res.returncode == 2 and "r.nc: zip: is '1' where this study's is '0'" in res.stderr, res.stderr
+    text = good.assign_coords({"table.radius": ["a", "b"]})
+    text.to_netcdf(tmp_path / "text.nc", engine="h5netcdf")
+    res = rbx_cli("plot", "text.nc", "--kind", "sweep", "--y", "mean_free_path", "-o", "t.png", cwd=tmp_path)
+    assert res.returncode == 2 and len(res.stderr.splitlines()) == 1 and res.stderr.startswith("rbx: text.nc: ") \
+        and "the file was not written as rbx sweep writes it" in res.stderr, res.stderr

@@ -193,8 +193,15 @@ def plot_sweep(path, kind, out, y, x, logx, logy, dpi):
     if not ds["done"].values.any():     # empty axes with exit 0: an empty selection is refused, as for a run
         raise UserError(path, "done", "no point of the study is done: nothing to draw (continue it with rbx sweep "
                                       "--resume)")
-    panel, title = sweep_panel(ds, y, x, logx, logy, path)
-    fig = sweep_figure([panel], title)
+    try:
+        panel, title = sweep_panel(ds, y, x, logx, logy, path)
+        fig = sweep_figure([panel], title)
+    except (ValueError, TypeError) as exc:
+        # a file edited by hand in a way no check above names (a numeric key's values as text): one line, not a
+        # traceback (--debug shows it)
+        raise UserError(path, None, f"cannot be drawn ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
+                                    "): the file was not written as rbx sweep writes it; run the study again") from exc
+    
     out = out or f"{os.path.splitext(path)[0]}_sweep.png"
     check_figure_target(out)
     try:
@@ -227,7 +234,11 @@ def open_results(path):
         return ", ".join(f"{k} = {ds[k].values[int(index[dims.index(ds[k].dims[0])])]}"
                          for k in json.loads(ds.attrs["varied"]) if ds[k].dims[0] in dims)
     import numpy as np
-    zipped = bool(int(ds.attrs.get("zip", 0)))
+    zipped = ds.attrs.get("zip", 0)
+    if not (np.ndim(zipped) == 0 and str(zipped) in ("0", "1")):     # 'maybe' ended the figure in a traceback
+        raise UserError(path, "zip", f"is {str(zipped)[:40]!r}, not 0 or 1: the file was not written as rbx sweep "
+                                     "writes it; run the study again")
+    zipped = str(zipped) == "1"
     for key in json.loads(ds.attrs["varied"]):
         # a point's place on the x axis: a number that is no number, or a value twice (where a study refuses it),
         # drew a figure of points that no study makes
