@@ -316,9 +316,7 @@ def create_own(path):
     if what == "a regular file":
         os.remove(path)
     elif what is not None:
-        raise FileError(display_path(path), None, f"is {what}, not a regular file; rbx keeps its own files under "
-                                                  "this name and writes nothing through it: remove it (or rename "
-                                                  "it), then run again")
+        raise _not_own(path, what)
     return os.open(path, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o666)
 
 
@@ -343,9 +341,14 @@ def check_own_names(path):
         what = what_it_is(own)
         if what is None or what == "a regular file":
             continue
-        raise FileError(display_path(own), None, f"is {what}, not a regular file; rbx keeps its own files under "
-                                                 "this name and writes nothing through it: remove it (or rename "
-                                                 "it), then run again")
+        raise _not_own(own, what)
+
+
+def _not_own(path, what):
+    """The refusal of a name rbx keeps its own files under that holds something else (``what``) -> FileError."""
+    return FileError(display_path(path), None, f"is {what}, not a regular file; rbx keeps its own files under this "
+                                               "name and writes nothing through it: remove it (or rename it), then "
+                                               "run again")
 
 
 def config_file_problem(path, limit=MAX_CONFIG_BYTES):

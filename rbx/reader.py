@@ -486,11 +486,10 @@ class Run:
             # one may hold there a block a kill cut short, which a resume writes again
             past = records[None, :] >= self.count[rows][:, None]
             if past.any():
-                flat = data.reshape(data.shape[0], data.shape[1], -1)
-                filled = np.isnan(flat).all(axis=2) if data.dtype.kind == "f" else (flat == -1).all(axis=2)
-                wrong = past & ~filled
-                if wrong.any():
-                    j, r = (int(x) for x in np.argwhere(wrong)[0])
+                slots = data[past].reshape(int(past.sum()), -1)       # those slots alone, in row-major order
+                filled = np.isnan(slots).all(axis=1) if data.dtype.kind == "f" else (slots == -1).all(axis=1)
+                if not filled.all():
+                    j, r = (int(x) for x in np.argwhere(past)[int(np.argmin(filled))])
                     raise FileError(self.path, f"collisions/{name}",
                                     f"holds a value at trajectory {int(rows[j])}, record {int(records[r])}, past the "
                                     f"{int(self.count[rows[j]])} records collisions/count says it wrote; no run writes "

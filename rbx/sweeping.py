@@ -126,10 +126,9 @@ def _empty(study, exp0):
             "units": "trajectory", "threshold": thr,
             "description": f"of those, the regular ones: own λ₁ below {thr:g} per unit time (the point's λ₁ "
                            "pools them with the chaotic ones)"})
-    data["collisions"] = xr.Variable(dims, np.zeros(shape, np.int64),
-                                     {"units": "collision", "description": "collisions the point's numbers count, over all its runs "
-                                                                     "(a Lyapunov run's warm-up is not counted, and a run whose "
-                                                                     "orbits all left during it counts 0)"})
+    counted = ("collisions the point's numbers count, over all its runs (a Lyapunov run's warm-up is not counted, "
+               "and a run whose orbits all left during it counts 0)")
+    data["collisions"] = xr.Variable(dims, np.zeros(shape, np.int64), {"units": "collision", "description": counted})
     data["wall_time"] = xr.Variable(dims, np.full(shape, np.nan), {"units": "s", "description":
                                                                     "wall-clock time of the point"})
     data["seed"] = xr.Variable(dims, np.zeros(shape, np.int64), {"description": "run.seed of the point"})
@@ -542,8 +541,8 @@ def _check_resumable(ds, template, path, study=None, points=()):
         else:
             equal = False
         if not equal:
-            raise FileError(path, name, f"holds the values {shown_values(theirs)} where this study's are {shown_values(mine)}; "
-                                        f"{fix}")
+            raise FileError(path, name, f"holds the values {shown_values(theirs)} where this study's are "
+                                        f"{shown_values(mine)}; {fix}")
     if study is None:
         return
     finished = done.astype(bool)

@@ -199,9 +199,8 @@ def plot_sweep(path, kind, out, y, x, logx, logy, dpi):
     except (ValueError, TypeError) as exc:
         # a file edited by hand in a way no check above names (a numeric key's values as text): one line, not a
         # traceback (--debug shows it)
-        raise UserError(path, None, f"cannot be drawn ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__}"
-                                    "): the file was not written as rbx sweep writes it; run the study again") from exc
-    
+        raise _not_written(path, None, f"cannot be drawn ({str(exc).splitlines()[0] if str(exc) else type(exc).__name__})"
+                           ) from exc
     out = out or f"{os.path.splitext(path)[0]}_sweep.png"
     check_figure_target(out)
     try:
@@ -227,33 +226,35 @@ def open_results(path):
     _check_results_attrs(ds, path)
     import json
 
-    from ..sweeping import shown_values, value_problem
-    dims = list(ds["done"].dims)
-
-    def label(index):           # the point by its varied values, as a study names its points
-        return ", ".join(f"{k} = {ds[k].values[int(index[dims.index(ds[k].dims[0])])]}"
-                         for k in json.loads(ds.attrs["varied"]) if ds[k].dims[0] in dims)
     import numpy as np
+
+    from ..sweeping import shown_values, value_problem
     zipped = ds.attrs.get("zip", 0)
     if not (np.ndim(zipped) == 0 and str(zipped) in ("0", "1")):     # 'maybe' ended the figure in a traceback
-        raise UserError(path, "zip", f"is {str(zipped)[:40]!r}, not 0 or 1: the file was not written as rbx sweep "
-                                     "writes it; run the study again")
-    zipped = str(zipped) == "1"
-    for key in json.loads(ds.attrs["varied"]):
+        raise _not_written(path, "zip", f"is {str(zipped)[:40]!r}, not 0 or 1")
+    varied = json.loads(ds.attrs["varied"])
+    for key in varied:
         # a point's place on the x axis: a number that is no number, or a value twice (where a study refuses it),
         # drew a figure of points that no study makes
         values = np.asarray(ds[key].values)
         if values.dtype.kind in "fc" and not np.all(np.isfinite(values)):
-            raise UserError(path, key, f"holds {shown_values(values)}, a value that is not a number: the file was not "
-                                       "written as rbx sweep writes it; run the study again")
-        if not zipped and len(np.unique(values)) != len(values):
-            raise UserError(path, key, f"holds {shown_values(values)}, a value twice: the file was not written as rbx "
-                                       "sweep writes it; run the study again")
+            raise _not_written(path, key, f"holds {shown_values(values)}, a value that is not a number")
+        if str(zipped) == "0" and len(np.unique(values)) != len(values):
+            raise _not_written(path, key, f"holds {shown_values(values)}, a value twice")
+    dims = list(ds["done"].dims)
+
+    def label(index):           # the point by its varied values, as a study names its points
+        return ", ".join(f"{k} = {ds[k].values[int(index[dims.index(ds[k].dims[0])])]}"
+                         for k in varied if ds[k].dims[0] in dims)
     problem = value_problem(ds, json.loads(ds.attrs["measure"]), label)
     if problem is not None:         # drawn, it was a traceback (a negative error bar) or a figure of impossible numbers
-        raise UserError(path, problem[0], f"{problem[1]}: the file was not written as rbx sweep writes it; run the "
-                                          "study again")
+        raise _not_written(path, *problem)
     return ds
+
+
+def _not_written(path, key, problem):
+    """The refusal of a results file edited by hand (or damaged) -> :class:`UserError`."""
+    return UserError(path, key, f"{problem}: the file was not written as rbx sweep writes it; run the study again")
 
 
 def _check_results_attrs(ds, path):
@@ -265,7 +266,7 @@ def _check_results_attrs(ds, path):
     import numpy as np
 
     def bad(key, problem):
-        raise UserError(path, key, f"{problem}: the file was not written as rbx sweep writes it; run the study again")
+        raise _not_written(path, key, problem)
     for key in ("measure", "varied"):
         try:
             names = json.loads(ds.attrs[key])
