@@ -1,7 +1,7 @@
 """The rule rows of bench §2 alone: rbx against the minimal loop of the same scene, timed interleaved in one
 process (scripts/bench.py's runners, hand loops and ``interleaved``), for the scenes whose rule tree the kernel
 specialises: the strip and the plates under the random rule (rough with probability ½; the plates: three rank-1
-directions), the plates under the hemisphere rule, the box completely rough.
+directions), the plates under the hemisphere rule (also against a hand loop that keeps the whole orientation, as rbx does), the box completely rough.
 
     .venv/bin/python scripts/bench_rules.py [--seconds 0.3] [--repeats 7] [--rounds 1]
 
@@ -38,9 +38,14 @@ def main():
                 t0 = time.perf_counter()
                 fn(N)
                 return time.perf_counter() - t0, N
-            rbx_t, hand_t = bench.interleaved([bench.rbx_run(bench.scene_dict(scene, rule)), hand], args)
+            runs = [bench.rbx_run(bench.scene_dict(scene, rule)), hand]
+            if (scene, rule) in bench.HAND_KEEPING_A:       # and the hand loop that keeps the whole orientation
+                runs.append(lambda N, fn=bench.HAND_KEEPING_A[scene, rule]: hand(N, fn))
+            got = bench.interleaved(runs, args)
+            rbx_t, hand_t = got[0], got[1]
+            also = f"  keeping A {got[2].rate:10.3e}/s  rbx/it {rbx_t.rate / got[2].rate:.2f}" if len(got) > 2 else ""
             print(f"{scene:7s} {rule:10s} rbx {rbx_t.rate:10.3e}/s  hand {hand_t.rate:10.3e}/s  "
-                  f"rbx/hand {rbx_t.rate / hand_t.rate:.2f}", flush=True)
+                  f"rbx/hand {rbx_t.rate / hand_t.rate:.2f}{also}", flush=True)
 
 
 if __name__ == "__main__":

@@ -69,6 +69,10 @@ def test_bench_writes_its_document(tmp_path):
     hand, skip = by_first[("scene", "rule")]      # sections 2 and 9, in that order
     assert [(r[0], r[1]) for r in hand] == list(bench.HAND)
     assert all(is_number(r[2]) and is_number(r[4]) and is_number(r[5]) for r in hand)
+    # 2, the rows with a second hand loop that keeps the whole orientation
+    (keeping,), = [v for k, v in by_first.items() if k == ("keeping the orientation", "hand-written collisions/s")]
+    assert [r[0] for r in keeping] == [f"{s} {r}" for s, r in bench.HAND_KEEPING_A]
+    assert all(is_number(r[1]) and is_number(r[2]) for r in keeping)
     # 3: rbx simulate against the minimal program, whole processes: N collisions and one (start-up)
     (proc,), = [v for k, v in by_first.items() if k == ("scene", "collisions")]
     assert [r[0] for r in proc] == list(bench.PROCESS_SCENES)
@@ -142,6 +146,22 @@ def test_hand_written_loops_agree_with_rbx(scene, rule):
     assert bench.HAND[scene, rule](N) == pytest.approx(s, rel=1e-9, abs=1e-9)
     # and it is not a coincidence of the sum: one collision more or less changes it
     assert bench.HAND[scene, rule](N + 1) != pytest.approx(s, rel=1e-9, abs=1e-9)
+
+
+@pytest.mark.parametrize("scene,rule", list(bench.HAND_KEEPING_A))
+def test_the_hand_loop_keeping_the_orientation_follows_rbxs_orbit_and_orientation(scene, rule):
+    # the yardstick that turns all of A: rbx's orbit, and rbx's orientation (its sum is in the checksum)
+    from rbx.simulation import run_in_memory
+    N = 1000
+    cfg = bench.rbx_config(scene, N, rule)
+    _, _, final = run_in_memory(cfg)
+    s = (final["time"][0] + final["position"][0].sum() + final["velocity"][0].sum()
+         + np.sum(final["angular_velocity"][0]))
+    A = np.asarray(final["orientation"][0]).reshape(3, 3)
+    assert bench.HAND_KEEPING_A[scene, rule](N) == pytest.approx(s + A.sum(), rel=1e-9, abs=1e-9)
+    # the axis loop's checksum, without A: the two differ by A's sum, which is not a constant of the motion
+    assert bench.HAND[scene, rule](N) == pytest.approx(s, rel=1e-9, abs=1e-9)
+    assert abs(A.sum() - 3.0) > 1e-3
 
 
 @pytest.mark.parametrize("scene", bench.PROCESS_SCENES)
