@@ -32,6 +32,7 @@ from .driver import check_size, prepare_resume, resume_to_file
 from .model import ConfigError, Experiment
 from .progress import Progress
 from .reader import Run
+from .paths import renaming, work_written
 from .simulation import MemorySink, Simulation, memory_refusal, records_bytes
 
 # nothing heavy at import: the CLI takes StopFlag from here before it installs its signal handlers
@@ -343,8 +344,10 @@ class StopFlag:
         return self()
 
     def _handler(self, signum, frame):
+        if work_written():          # the command's last output is in place: too late to stop it
+            return
         self.signum = self.signum or signum
-        if not self.running:
+        if not self.running and not renaming():     # a rename under way: acted on by the next check(), after it
             raise KeyboardInterrupt
 
     @contextlib.contextmanager

@@ -29,7 +29,7 @@ from .locks import LockNotWritable, acquire_lock, lock_holder, lock_path, releas
 from .locks import busy as _busy
 from .progress import plural
 from .paths import (NO_ROOM, DiskFull, FileError, check_own_kind, check_own_names, check_replaceable, creation_path,
-                    display_path, format_size, other_commands_file, temporary_path, what_it_is)
+                    display_path, format_size, other_commands_file, place, temporary_path, what_it_is)
 from .reader import Run
 from .runfile import (H5Sink, _text, close_journal, commit, config_yaml, data_bytes, file_path, fill_returns, is_true,
                       journal_of, open_journaled)
@@ -374,24 +374,14 @@ def publish(tmp, path, complete, replace, report):
             f"are in {display_path(tmp)}")
         return
     try:
-        check_replaceable(path)          # a device or a link put there while the run wrote: not replaced
+        check_replaceable(path)          # a device or a link put there while the run wrote: not replaced, …
+        if replace:
+            check_own_kind(path)         # … nor, with --force, a file rbx did not write (a config, notes)
     except FileError as exc:
         say(f"{exc.problem}; the records are in {display_path(tmp)}")
         return
     try:
-        if replace:
-            os.replace(tmp, path)
-        else:
-            try:
-                os.link(tmp, path)      # fails if path exists: no run's file is replaced without --force
-            except FileExistsError:
-                raise
-            except OSError:             # a file system without hard links: check, then rename (not atomic)
-                if os.path.exists(path):
-                    raise FileExistsError(path) from None
-                os.replace(tmp, path)
-                return
-            os.remove(tmp)
+        place(tmp, path, replace)       # no run's file is replaced without --force, not even one that appeared
     except FileExistsError:
         message = (f"appeared while this run was writing (another run?) and was not replaced; the records are in "
                    f"{display_path(tmp)}")
@@ -406,13 +396,23 @@ def publish(tmp, path, complete, replace, report):
 
 
 
-def write_returns(path, cfg, result, force_hint="--force"):
+def _check_returns_target(path):
+    """Raise :class:`FileError` unless return angles may replace ``path`` with --force: never a run or a study's
+    results (:func:`other_commands_file`), nor a file rbx did not write."""
+    problem = other_commands_file(path, "returns")
+    if problem is not None:
+        raise problem
+    check_own_kind(path)
+
+
+def write_returns(path, cfg, result, force_hint="--force", replace=False):
     """Write a return-angle experiment (:class:`rbx.histogram.Returns`) to a new HDF5 file (via ``path.partial``,
     renamed at the end).
 
     Root attributes :data:`rbx.runfile.ROOT_ATTRS`; group ``returns/``: ``angle`` (K,) return angles [rad],
     ``trajectory`` (K,) their trajectory indices, ``collisions`` (K,) collisions to return, ``initial_angle`` (M,)
-    sampled angles; attributes :data:`rbx.runfile.RETURNS_ATTRS` (:func:`rbx.runfile.fill_returns`)."""
+    sampled angles; attributes :data:`rbx.runfile.RETURNS_ATTRS` (:func:`rbx.runfile.fill_returns`). A file at
+    ``path`` is replaced only with ``replace`` (--force), and then only one of return angles (:func:`place`)."""
     new = creation_path(path)
     made = False
     try:
@@ -435,8 +435,14 @@ def write_returns(path, cfg, result, force_hint="--force"):
             failure = close_journal(h5)
         if failure is not None:
             raise failure
-        check_replaceable(path)
-        os.replace(new, path)
+        # never over a file that appeared while the samples were drawn (a run that finished meanwhile) without
+        # --force, nor with it over a file of another kind
+        try:
+            place(new, path, replace, check=_check_returns_target)
+        except FileExistsError:
+            raise FileError(path, None, "appeared while the samples were drawn (another run?) and was not "
+                                        f"replaced; nothing was saved: give the return angles another name "
+                                        f"(--data), or {force_hint} to replace it") from None
     except BaseException:
         if made:       # a file left half written (a full disk) holds nothing worth keeping, and takes the room
             with contextlib.suppress(OSError):

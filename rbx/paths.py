@@ -135,6 +135,65 @@ def check_replaceable(path, key=None, file=None):
                                "a file name such as run.h5")
 
 
+#: the files :func:`place` put in place in this process (absolute paths), the one it is putting in place now, and
+#: the outputs whose placing ends a command (:func:`last_output`): what the signal handlers read (rbx.api.StopFlag,
+#: rbx.cli.common.note_interrupt)
+PLACED, PLACING, LAST = [], [], set()
+
+
+def last_output(path):
+    """Note that once ``path`` is put in place (:func:`place`), the command's work is written (:func:`work_written`)."""
+    LAST.add(os.path.abspath(path))
+
+
+def forget_placed():
+    """Start afresh (a command's start and end): :func:`work_written` speaks of one command's outputs."""
+    PLACED.clear()
+    LAST.clear()
+
+
+def work_written():
+    """True once a command's last output is being put in place or is in place: a signal then changes nothing (it
+    ended in 'nothing written' and exit 130 with the results in place)."""
+    return any(os.path.abspath(p) in LAST for p in PLACED + PLACING)
+
+
+def renaming():
+    """True while :func:`place` puts a file in place: a signal then is acted on after the rename, by a check that
+    knows the file is there (a KeyboardInterrupt raised just after the rename said 'nothing written')."""
+    return bool(PLACING)
+
+
+def place(tmp, path, replace, check=None):
+    """Put the finished file ``tmp`` in place as ``path`` in one rename. Without ``replace``, a file at ``path``
+    is never replaced, not even one that appeared while ``tmp`` was written: a hard link fails on an existing name
+    (where the file system has no hard links: checked, then renamed), and :class:`FileExistsError` is raised with
+    ``tmp`` left as it is. With ``replace``, only a regular file is replaced (:func:`check_replaceable`) that
+    ``check(path)`` accepts (the caller's test of what the file is, done again here: a config put under the name
+    while a study ran is not replaced by it)."""
+    check_replaceable(path)
+    if replace and check is not None:
+        check(path)
+    PLACING.append(path)
+    try:
+        if replace:
+            os.replace(tmp, path)
+        else:
+            try:
+                os.link(tmp, path)              # fails if path exists
+            except FileExistsError:
+                raise
+            except OSError:                     # no hard links here
+                if os.path.lexists(path):
+                    raise FileExistsError(errno.EEXIST, os.strerror(errno.EEXIST), path) from None
+                os.replace(tmp, path)
+            else:
+                os.remove(tmp)
+        PLACED.append(os.path.abspath(path))
+    finally:
+        PLACING.pop()
+
+
 #: the first bytes of the files rbx writes (HDF5: run files, return-angle files, a study's NetCDF results) and of
 #: a run file torn while its journal was copied in (:data:`rbx.journal.TORN`)
 OWN_SIGNATURES = (b"\x89HDF\r\n\x1a\n", b"\x89RBXtorn")
@@ -209,12 +268,42 @@ def other_commands_file(path, mine, renaming=True):
 JOURNAL_SUFFIX = ".journal"
 
 
+#: the first bytes of the figures rbx plot and rbx animate write (PNG, PDF, SVG, PostScript, JPEG, TIFF, GIF; an MP4
+#: is known by its ``ftyp`` box at byte 4): such a file, or an empty one, is replaced; anything else named as the
+#: figure (a run, a config, notes) is not
+FIGURE_SIGNATURES = (b"\x89PNG\r\n\x1a\n", b"%PDF-", b"<?xml", b"<svg", b"%!PS", b"\xff\xd8\xff", b"II*\x00",
+                     b"MM\x00*", b"GIF8", b"\x1f\x8b")      # the last: gzip, an .svgz
+#: formats matplotlib writes with no signature to know them by (raw pixels): such a file named as the figure is
+#: taken for one
+UNSIGNED_FORMATS = (".raw", ".rgba")
+
+
+def check_figure_file(path):
+    """Raise :class:`FileError` when ``path`` is a file whose first bytes are no figure's
+    (:data:`FIGURE_SIGNATURES`): a figure replaces only a figure (or an empty file, or nothing)."""
+    if not os.path.isfile(path):
+        return
+    try:
+        with open(path, "rb") as f:
+            head = f.read(12)
+    except OSError as exc:
+        raise FileError(path, None, f"cannot read it: {exc.strerror or exc}") from None
+    webp = head[:4] == b"RIFF" and head[8:12] == b"WEBP"
+    if head and head[4:8] != b"ftyp" and not webp and not path.lower().endswith(UNSIGNED_FORMATS) \
+            and not any(head[:len(sig)] == sig[:len(head)] for sig in FIGURE_SIGNATURES):
+        raise FileError(path, None, "exists and is not a figure (not a PNG, PDF, SVG, PostScript, JPEG, TIFF, GIF, "
+                                    "WebP or MP4 file: a run, a config, notes?); rbx replaces only figures: give "
+                                    "another name")
+
+
 @contextlib.contextmanager
-def written_whole(path):
+def written_whole(path, replace=True):
     """A new name beside ``path`` (its folder, its extension last, so that a writer that reads the format off the
     name still does) to write a figure or an animation to -> yields it; once written, it replaces ``path`` in one
-    rename. A failure (a full disk, Ctrl-C) removes it and leaves ``path`` as it was: a figure written in place was
-    left truncated, where a good one had been."""
+    rename (:func:`place`): only a figure (:func:`check_figure_file`, tested again at the rename: a file put there
+    while the figure was drawn is not replaced), and without ``replace`` nothing at all (FileExistsError). A
+    failure (a full disk, Ctrl-C) removes it and leaves ``path`` as it was: a figure written in place was left
+    truncated, where a good one had been."""
     folder, name = os.path.split(os.path.abspath(path))
     ext = os.path.splitext(name)[1] or (name if name.count(".") == 1 and name.startswith(".") else "")  # '.png'
     # short (a name of 250 characters must still have room) and hidden; the extension last. The part after
@@ -233,7 +322,7 @@ def written_whole(path):
         # held while the file is written: a name whose lock can be taken belongs to no live writer
         _try_lock(fd)
         yield tmp
-        os.replace(tmp, path)
+        place(tmp, path, replace, check=check_figure_file)
     except BaseException:
         with contextlib.suppress(OSError):
             os.remove(tmp)

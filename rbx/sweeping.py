@@ -33,7 +33,7 @@ from .histogram import return_experiment
 from .locks import LockNotWritable, acquire_lock, release_lock
 from .model import ConfigError
 from .paths import (DiskFull, FileError, check_own_kind, check_own_names, check_replaceable, create_own,
-                    display_path, other_commands_file)
+                    display_path, other_commands_file, place)
 from .runfile import provenance
 from .simulation import STATE_BYTES, memory_refusal, records_bytes
 from .study import Study, _representatives, load_study, needs
@@ -438,6 +438,9 @@ def _sweep(study, output, scheduler, resume, force, progress, base, changes):
         for p in (output, partial):       # replaced only if a regular file rbx wrote: never a device, a FIFO, a
             check_replaceable(p, "-o", None)  # link, a study file or notes
             check_own_kind(p, "-o", None)
+        # the results may replace a file at the end only if they may now: a file that appears while the study runs
+        # is not replaced without --force (nor, with it, one of another kind)
+        replace = force or (resume and os.path.lexists(output))
         os.makedirs(os.path.dirname(output), exist_ok=True)
     if ds is None:
         ds = _empty(st, exp0)
@@ -493,8 +496,21 @@ def _sweep(study, output, scheduler, resume, force, progress, base, changes):
     ds.attrs["complete"] = 1
     if output is not None:
         _write(ds, partial)
-        os.replace(partial, output)
+        try:
+            place(partial, output, replace, check=_check_results_target)
+        except FileExistsError:
+            raise FileError(output, None, "appeared while the study ran (another program?) and was not replaced; "
+                                          f"the results are in {display_path(partial)}") from None
     return ds
+
+
+def _check_results_target(path):
+    """Raise :class:`FileError` unless a study's results may replace ``path`` (with --force): never a run or
+    return angles, nor a file rbx did not write."""
+    problem = other_commands_file(path, "study")
+    if problem is not None:
+        raise problem
+    check_own_kind(path, "-o", None)
 
 
 #: the observables whose value is a number at every computed point (the energy of a run that went non-finite stops

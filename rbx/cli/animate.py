@@ -12,7 +12,7 @@ import time
 import click
 import numpy as np
 
-from ..paths import written_whole
+from ..paths import FileError, written_whole
 from .common import (Command, UserError, cannot_write, check_figure_target, display_path, duration, interrupted_exit,
                      quiet_option, report_and_exit, summary, user_errors)
 
@@ -93,7 +93,7 @@ def write_animation(run_file, out, trajectory=0, records=None, fps=20, frames=20
     try:
         with written_whole(out) as tmp:         # its folder exists: check_figure_target
             _render(tmp, ext, geom, R, data["position"], data["time"], t, pos, theta, title, fps, dpi)
-    except OSError as exc:
+    except (OSError, FileError) as exc:
         cannot_write(out, exc, "the animation")
     except MemoryError:      # the estimate is of the frames alone: Pillow's GIF encoder may still find too little
         raise UserError(out, "--frames", f"{frames} frames at --dpi {dpi} do not fit in this process's memory: "

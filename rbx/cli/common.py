@@ -134,10 +134,12 @@ def note_interrupt(signum, frame):
     callback of LLVM's, a finaliser) it is printed as "Exception ignored" and dropped, and the command then ran as
     if nothing had come. Once the command said its work is written, the signal is ignored: it ended in 'interrupted
     …; nothing written' and exit 130 just after 'rbx: wrote fig.png', the figure replaced."""
-    if _DONE:
+    paths = sys.modules.get("rbx.paths")       # not imported here: a handler that imports can meet a half-made module
+    if _DONE or (paths is not None and paths.work_written()):
         return
     _PENDING.append(signum)
-    raise KeyboardInterrupt
+    if paths is None or not paths.renaming():   # a file being put in place: acted on after the rename
+        raise KeyboardInterrupt
 
 
 def quiet_noted_interrupts():
@@ -303,7 +305,12 @@ class Command(OneLineUsage, click.Command):
     def invoke(self, ctx):
         if self.name in COMPILING and not ctx.params.get("quiet") and is_terminal(sys.stderr):
             announce_compiles()
-        return super().invoke(ctx)
+        from ..paths import forget_placed
+        forget_placed()         # what an earlier command of this process put in place is not this one's work
+        try:
+            return super().invoke(ctx)
+        finally:
+            forget_placed()
 
 
 #: the commands that run kernels: a first run of a scene compiles them, silent for seconds without a word
@@ -419,21 +426,12 @@ quiet_option = click.option("--quiet", is_flag=True, help="No progress bar and n
 
 # ---- where a figure is written (rbx plot, rbx animate) -------------------------------------------------------------
 
-#: the first bytes of the figures rbx plot and rbx animate write (PNG, PDF, SVG, PostScript, JPEG, TIFF, GIF; an MP4
-#: is known by its ``ftyp`` box at byte 4): such a file, or an empty one, is replaced; anything else named as the
-#: figure (a run, a config, notes) is not
-FIGURE_SIGNATURES = (b"\x89PNG\r\n\x1a\n", b"%PDF-", b"<?xml", b"<svg", b"%!PS", b"\xff\xd8\xff", b"II*\x00",
-                     b"MM\x00*", b"GIF8", b"\x1f\x8b")      # the last: gzip, an .svgz
-#: formats matplotlib writes with no signature to know them by (raw pixels): such a file named as the figure is
-#: taken for one
-UNSIGNED_FORMATS = (".raw", ".rgba")
-
-
 def check_figure_target(path):
     """Refuse, as a :class:`UserError`, to write a figure at ``path`` where that would surprise: into a folder that
     does not exist (it was made without a word, so a typo made a folder tree), through a symbolic link or onto a
-    device or FIFO, or over a file that is not a figure (its first bytes: :data:`FIGURE_SIGNATURES`)."""
-    from ..paths import FileError, check_replaceable
+    device or FIFO, or over a file that is not a figure (its first bytes: :data:`rbx.paths.FIGURE_SIGNATURES`)."""
+    from ..paths import FileError, check_figure_file, check_replaceable, last_output
+    last_output(path)       # a figure is what its command writes last: a signal once it is in place changes nothing
     folder = os.path.dirname(os.path.abspath(path))
     if not os.path.isdir(folder):
         raise UserError(path, None, f"the folder {display_path(folder)} does not exist (rbx makes no folders for a "
@@ -442,27 +440,24 @@ def check_figure_target(path):
         check_replaceable(path)
     except FileError as exc:
         raise UserError(None, None, exc.problem) from None
-    if os.path.isfile(path):
-        try:
-            with open(path, "rb") as f:
-                head = f.read(12)
-        except OSError as exc:
-            raise UserError(path, None, f"cannot read it: {exc.strerror or exc}") from None
-        webp = head[:4] == b"RIFF" and head[8:12] == b"WEBP"
-        if head and head[4:8] != b"ftyp" and not webp and not path.lower().endswith(UNSIGNED_FORMATS) \
-                and not any(head[:len(sig)] == sig[:len(head)] for sig in FIGURE_SIGNATURES):
-            raise UserError(path, None, "exists and is not a figure (not a PNG, PDF, SVG, PostScript, JPEG, TIFF, GIF, "
-                                        "WebP or MP4 file: a run, a config, notes?); rbx replaces only figures: give "
-                                        "another name")
+    try:
+        check_figure_file(path)
+    except FileError as exc:
+        raise UserError(exc.file, None, exc.problem) from None
 
 
 def cannot_write(path, exc, what="the figure", kept=""):
     """A figure or an animation that could not be written -> raises: a full disk (or a size limit) is not the
     user's input, one line and exit 1 (as for a run); anything else a :class:`UserError` (exit 2). ``kept``: what
     the command wrote before that stays (rbx histogram's samples), said at the end of the line."""
-    from ..paths import NO_ROOM
-    reason = getattr(exc, "strerror", None) or exc
+    from ..paths import NO_ROOM, FileError
     kept = f"; {kept}" if kept else ""
+    if isinstance(exc, FileError):      # what was found at the name when the figure was to replace it
+        raise UserError(exc.file or path, exc.key, f"{exc.problem}; nothing was replaced{kept}")
+    if isinstance(exc, FileExistsError):     # without --force: a file that appeared meanwhile is not replaced
+        raise UserError(path, None, f"appeared while {what} was made (another program?) and was not replaced; "
+                                    f"give another name, or --force to replace it{kept}")
+    reason = getattr(exc, "strerror", None) or exc
     if getattr(exc, "errno", None) in NO_ROOM:
         click.echo(f"rbx: {display_path(path)}: cannot write {what}: {reason}: no room on the disk (or a size limit, "
                    f"ulimit -f?); nothing was replaced{kept}", err=True)

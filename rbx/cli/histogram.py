@@ -88,7 +88,7 @@ def _histogram(config, out, data, trajectories, seed, sets, force, quiet, cluste
     from ..cluster import ClusterError
     from ..histogram import exit_problem, return_experiment
     from ..driver import check_size, returns_bytes, write_returns
-    from ..paths import NO_ROOM, DiskFull, written_whole
+    from ..paths import NO_ROOM, DiskFull, FileError, written_whole
 
     check_cluster_options(cluster)
 
@@ -148,8 +148,9 @@ def _histogram(config, out, data, trajectories, seed, sets, force, quiet, cluste
                         "nothing written; raise run.collisions")
     try:
         with user_errors():     # a lock that cannot be made, a file of another kind: one line
-            write_returns(h5_path, cfg, result)
+            write_returns(h5_path, cfg, result, replace=force)
         written(f"{display_path(h5_path)} (the samples), not the figure")
+        stop.check()        # a signal while the samples were put in place, acted on now that they are there
     except OSError as exc:
         if exc.errno in NO_ROOM:     # not the user's input: the disk filled meanwhile (or a size limit), exit 1
             why = exc.strerror if isinstance(exc, DiskFull) else (     # rbx's own says it already
@@ -165,9 +166,9 @@ def _histogram(config, out, data, trajectories, seed, sets, force, quiet, cluste
                                     f"{title}\nreturn angles to {wall}: {len(result.angle)} of {result.samples} "
                                     f"billiard-measure samples", not_returned=result.not_returned)
     try:
-        with written_whole(fig_path) as tmp:
+        with written_whole(fig_path, replace=force) as tmp:
             fig.savefig(tmp, dpi=150)
-    except (OSError, ValueError, RuntimeError) as exc:     # RuntimeError: a format's tool missing (pgf: LaTeX)
+    except (OSError, ValueError, RuntimeError, FileError) as exc:     # RuntimeError: a format's tool missing (pgf: LaTeX)
         # where they are kept, and what reads them (no plot kind draws return angles)
         cannot_write(fig_path, exc, kept=f"the samples are kept in {display_path(h5_path)} (returns/angle; "
                                          "rbx.reader.read_returns reads them)")

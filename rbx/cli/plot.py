@@ -125,10 +125,11 @@ def _plot(run_file, kind, out, records, trajectories, colour, coordinate, scales
         check_figure_target(path)                        # before the figure is made: said at once
     fig = make_figure(run_file, kind, parse_records(records), trajectories, colour=colour, coordinate=coordinate,
                       scales=parse_scales(scales), fit_from=fit_from, wall=wall, plane=plane)
+    from ..paths import FileError
     from ..plotting import save
     try:
         save(fig, path, dpi=dpi)
-    except (OSError, ValueError, RuntimeError) as exc:     # RuntimeError: a format's tool missing (pgf: LaTeX)
+    except (OSError, ValueError, RuntimeError, FileError) as exc:     # RuntimeError: a format's tool missing (pgf: LaTeX)
         cannot_write(path, exc)
     return path, getattr(fig, "rbx_result", None)     # what the picture measured, for stdout (escape)
 

@@ -94,6 +94,7 @@ def _simulate(config, out, overrides, changes, force, quiet, stop, cluster, bega
     from .. import config as cfgmod
     from ..driver import run_to_file
     from ..driver import check_size, check_target
+    from ..paths import last_output
     from ..simulation import Simulation
 
     if config is None:
@@ -111,6 +112,7 @@ def _simulate(config, out, overrides, changes, force, quiet, stop, cluster, bega
     check_target(path, force, key, file=None if out else cfg.source, force_hint="--force",
                  config_source=(cfg.source,) + tuple(cfg.includes))
     check_size(cfg, path, (None, "--max-size") if overrides["max_size"] is not None else None, option="--max-size")
+    last_output(path)
     with connect(cluster) as on:           # first: an unreachable scheduler is said before any work
         try:
             sim = Simulation(cfg)

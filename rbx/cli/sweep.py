@@ -131,11 +131,12 @@ LONG_CHECK = 10_000
 
 def _sweep(study, output, scheduler, resume, force, progress, checking=None, changes=None, again=()):
     from ..cluster import ClusterError, SchedulerUnreachable
-    from ..paths import DiskFull
+    from ..paths import DiskFull, last_output
     from ..study import load_study
     from ..sweeping import StudyWarning
     from ..sweeping import sweep as run
     from .common import _quiet_dask
+    last_output(output)
     if scheduler is not None:
         _quiet_dask()        # Dask's own log lines of a lost connection: rbx says itself what went wrong
     with user_errors():
@@ -186,6 +187,7 @@ def plot_sweep(path, kind, out, y, x, logx, logy, dpi):
     """``rbx plot RESULTS.nc --kind sweep``: the figure of :func:`sweep_panel`, written -> its path."""
     import os
 
+    from ..paths import FileError
     from ..plotting import save, sweep_figure
     if kind != "sweep":
         raise UserError(path, "--kind", f"a study's results file is drawn with --kind sweep, not {kind}")
@@ -205,7 +207,7 @@ def plot_sweep(path, kind, out, y, x, logx, logy, dpi):
     check_figure_target(out)
     try:
         save(fig, out, dpi=dpi)
-    except (OSError, ValueError, RuntimeError) as exc:     # RuntimeError: a format's tool missing (pgf: LaTeX)
+    except (OSError, ValueError, RuntimeError, FileError) as exc:     # RuntimeError: a format's tool missing (pgf: LaTeX)
         cannot_write(out, exc)
     return out
 
