@@ -165,8 +165,10 @@ NO_TANGENT = Tangent(Y=np.zeros((0, 0, 0)), sums=np.zeros((0, 0)), t_end=np.zero
 
 
 @jit_hot
-def rotate(A, W, tau, E, tmp):
-    """A ← exp(τW)·A for 3D (Rodrigues' formula with ω = (W₂₁, W₀₂, W₁₀))."""
+def rotate(A, W, tau):
+    """A ← exp(τW)·A for 3D, column by column by Rodrigues' formula, with ω = (W₂₁, W₀₂, W₁₀) and φ = τ|ω|:
+    a ← a + (sin φ/|ω|) ω × a + ((1 − cos φ)/|ω|²) ω × (ω × a): two cross products a column, where building
+    exp(τW) and multiplying A by it took a 3 × 3 product besides (the cost measured: docs/speed-gaps.md)."""
     wx, wy, wz = W[2, 1], W[0, 2], W[1, 0]
     w = np.sqrt(wx * wx + wy * wy + wz * wz)
     phi = tau * w
@@ -175,21 +177,12 @@ def rotate(A, W, tau, E, tmp):
     c, sn = sincos(phi)                  # inline: a libm call spills the loop's registers
     s = sn / w                           # the two divisions once, not once per entry (no fast-math to hoist them)
     c1 = (1.0 - c) / (w * w)
-    for i in range(3):
-        for j in range(3):
-            k2 = 0.0
-            for k in range(3):
-                k2 += W[i, k] * W[k, j]
-            E[i, j] = (1.0 if i == j else 0.0) + s * W[i, j] + c1 * k2
-    for i in range(3):
-        for j in range(3):
-            s2 = 0.0
-            for k in range(3):
-                s2 += E[i, k] * A[k, j]
-            tmp[i, j] = s2
-    for i in range(3):
-        for j in range(3):
-            A[i, j] = tmp[i, j]
+    for j in range(3):
+        ax, ay, az = A[0, j], A[1, j], A[2, j]
+        cx, cy, cz = wy * az - wz * ay, wz * ax - wx * az, wx * ay - wy * ax          # ω × a
+        A[0, j] = ax + s * cx + c1 * (wy * cz - wz * cy)
+        A[1, j] = ay + s * cy + c1 * (wz * cx - wx * cz)
+        A[2, j] = az + s * cz + c1 * (wx * cy - wy * cx)
 
 
 @jit_hot
@@ -405,8 +398,6 @@ def _make_kernel(spec):
         Aj = stack_array(9, (3, 3))
         nu = stack_array(3, (n,))
         work = stack_array(9, (3, n))
-        E = stack_array(9, (3, 3))
-        tmp = stack_array(9, (3, 3))
         base = stack_array(3, (n,))            # periodic tables: the centre's cell, …
         loc = stack_array(3, (n,))             # … its position relative to the image of the cell hit, …
         off = stack_array(3, (n,))             # … and that image's shift (loc = a − off); …
@@ -477,7 +468,7 @@ def _make_kernel(spec):
                     if n == 2:
                         th += tau * Wj[1, 0]
                     else:
-                        rotate(Aj, Wj, tau, E, tmp)
+                        rotate(Aj, Wj, tau)
                 if TANGENT:
                     # the flight's tangent step is taken with the collision's (one call); a flight that ends
                     # without one (stopped at t_end, or at an exit below) takes it alone, after the vectors'

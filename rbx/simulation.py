@@ -136,7 +136,7 @@ class Simulation:
         # would be one more compile for every 2D scene that records it; ns per collision without → with it, CPU time,
         # 3·10⁶ collisions, 3 interleaved runs each, loaded machine: strip 11.1–11.4 → 10.7–11.2, rectangle
         # 19.5–20.4 → 20.0–20.8, Sinai 25.4–26.6 → 25.3–26.1, circle 31.4–31.8 → 31.4–31.7) and in 3D only when a
-        # hemisphere rule or the recorded field needs it (the rotation costs a 3 × 3 product a flight)
+        # hemisphere rule or the recorded field needs it (the rotation turns A's three columns a flight)
         # (docs/reference.md §7)
         self.follow_orientation = n == 2 or self.rules.uses_orientation or "orientation" in self.record
         self.keys = stream_keys(cfg.run.seed, np.arange(M), PURPOSE_RULES)
