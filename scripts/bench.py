@@ -397,6 +397,25 @@ def strip_hemisphere_loop(x, y, vx, vy, w, width, N):
     return x + y + vx + vy + w + t
 
 
+@numba.njit(cache=True, inline="always")
+def turn(ax, ay, az, wx, wy, wz, sn, c1):
+    """The vector a turned by exp(τW), Rodrigues' formula with sn = sin φ/|ω|, c1 = (1 − cos φ)/|ω|², φ = τ|ω|:
+    a + sn ω × a + c1 ω × (ω × a)."""
+    cx, cy, cz = wy * az - wz * ay, wz * ax - wx * az, wx * ay - wy * ax       # ω × a
+    return (ax + sn * cx + c1 * (wy * cz - wz * cy), ay + sn * cy + c1 * (wz * cx - wx * cz),
+            az + sn * cz + c1 * (wx * cy - wy * cx))
+
+
+@numba.njit(cache=True, inline="always")
+def turn_coefficients(wx, wy, wz, tau):
+    """(φ ≠ 0, sin φ/|ω|, (1 − cos φ)/|ω|²) of a flight of τ at spin ω, φ = τ|ω| (:func:`turn`)."""
+    om = np.sqrt(wx * wx + wy * wy + wz * wz)
+    phi = tau * om
+    if phi == 0.0:
+        return False, 0.0, 0.0
+    return True, np.sin(phi) / om, (1.0 - np.cos(phi)) / (om * om)
+
+
 @numba.njit(cache=True)
 def plates_hemisphere_loop(x, y, z, vx, vy, vz, wx, wy, wz, gap, N):
     """Ball between plates under the hemisphere rule (axis z in the body frame): rough iff ν·(A e_z) < 0. Only
@@ -408,14 +427,9 @@ def plates_hemisphere_loop(x, y, z, vx, vy, vz, wx, wy, wz, gap, N):
         x += tau * vx
         y += tau * vy
         t += tau
-        om = np.sqrt(wx * wx + wy * wy + wz * wz)
-        phi = tau * om
-        if phi != 0.0:
-            sn = np.sin(phi) / om
-            c1 = (1.0 - np.cos(phi)) / (om * om)
-            cx, cy, cz = wy * bz - wz * by, wz * bx - wx * bz, wx * by - wy * bx       # ω × b
-            bx, by, bz = (bx + sn * cx + c1 * (wy * cz - wz * cy), by + sn * cy + c1 * (wz * cx - wx * cz),
-                          bz + sn * cz + c1 * (wx * cy - wy * cx))
+        turning, sn, c1 = turn_coefficients(wx, wy, wz, tau)
+        if turning:
+            bx, by, bz = turn(bx, by, bz, wx, wy, wz, sn, c1)
         vz = -vz
         if s * bz > 0.0:                        # ν_z = −s: rough iff ν_z b_z < 0
             vx, vy, wx, wy = plates_rough(vx, vy, wx, wy, s)
@@ -425,9 +439,8 @@ def plates_hemisphere_loop(x, y, z, vx, vy, vz, wx, wy, wz, gap, N):
 @numba.njit(cache=True)
 def plates_hemisphere_orientation_loop(x, y, z, vx, vy, vz, wx, wy, wz, gap, N):
     """The plates under the hemisphere rule as plates_hemisphere_loop, but keeping the whole orientation A (nine
-    numbers, as a program that reports or saves the orientation must): each column a of A turns by Rodrigues'
-    formula a ← a + (sin φ/|ω|) ω × a + ((1 − cos φ)/|ω|²) ω × (ω × a), and the test reads A's third column.
-    Returns the same sum as the other loops plus the sum of A's entries."""
+    numbers, as a program that reports or saves the orientation must): each column of A turns by :func:`turn`,
+    and the test reads A's third column. Returns the same sum as the other loops plus the sum of A's entries."""
     t = 0.0
     a00, a01, a02, a10, a11, a12, a20, a21, a22 = 1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0
     for _ in range(N):
@@ -435,20 +448,11 @@ def plates_hemisphere_orientation_loop(x, y, z, vx, vy, vz, wx, wy, wz, gap, N):
         x += tau * vx
         y += tau * vy
         t += tau
-        om = np.sqrt(wx * wx + wy * wy + wz * wz)
-        phi = tau * om
-        if phi != 0.0:
-            sn = np.sin(phi) / om
-            c1 = (1.0 - np.cos(phi)) / (om * om)
-            cx, cy, cz = wy * a20 - wz * a10, wz * a00 - wx * a20, wx * a10 - wy * a00     # column 0
-            a00, a10, a20 = (a00 + sn * cx + c1 * (wy * cz - wz * cy), a10 + sn * cy + c1 * (wz * cx - wx * cz),
-                             a20 + sn * cz + c1 * (wx * cy - wy * cx))
-            cx, cy, cz = wy * a21 - wz * a11, wz * a01 - wx * a21, wx * a11 - wy * a01     # column 1
-            a01, a11, a21 = (a01 + sn * cx + c1 * (wy * cz - wz * cy), a11 + sn * cy + c1 * (wz * cx - wx * cz),
-                             a21 + sn * cz + c1 * (wx * cy - wy * cx))
-            cx, cy, cz = wy * a22 - wz * a12, wz * a02 - wx * a22, wx * a12 - wy * a02     # column 2
-            a02, a12, a22 = (a02 + sn * cx + c1 * (wy * cz - wz * cy), a12 + sn * cy + c1 * (wz * cx - wx * cz),
-                             a22 + sn * cz + c1 * (wx * cy - wy * cx))
+        turning, sn, c1 = turn_coefficients(wx, wy, wz, tau)
+        if turning:
+            a00, a10, a20 = turn(a00, a10, a20, wx, wy, wz, sn, c1)
+            a01, a11, a21 = turn(a01, a11, a21, wx, wy, wz, sn, c1)
+            a02, a12, a22 = turn(a02, a12, a22, wx, wy, wz, sn, c1)
         vz = -vz
         if s * a22 > 0.0:                       # ν_z = −s: rough iff ν_z (A e_z)_z < 0
             vx, vy, wx, wy = plates_rough(vx, vy, wx, wy, s)
