@@ -537,6 +537,10 @@ MAX_SPIN_SQUARE = 1e306
 #: collision; a rotation vector of 1e155 squared to infinity and every orientation was NaN. At 1e8 the last digit
 #: is 1.5e-8 rad.
 MAX_ORIENTATION = 1e8
+#: the largest initial position coordinate, in units of the table's size (``geom.size``): in an unbounded table (the
+#: strip, the plates, a periodic gas) a start at x = 1e17 was taken, and x never moved (its last digit, 16, is
+#: longer than a flight), in a run that ended complete. At 1e8 sizes the last digit is 1.5e-8 of a size.
+MAX_POSITION = 1e8
 
 
 def _check_spin_range(speed, spin, R, c, key):
@@ -651,7 +655,7 @@ def _plain_states(states, n, geom, R, kappa):
         spin_norm = np.sqrt(np.sum(spin * spin, 1))
         ok = finite & (np.sum(vel * vel, 1) >= MIN_ENERGY) & np.isfinite(energy) & (energy >= MIN_ENERGY) & \
             (reach * reach < MAX_SPIN_SQUARE) & (spin_norm * spin_norm < MAX_SPIN_SQUARE) & \
-            (_angle_size(orient) <= MAX_ORIENTATION)
+            (_angle_size(orient) <= MAX_ORIENTATION) & (np.max(np.abs(pos), 1) <= MAX_POSITION * geom.size)
         ok &= geom.clearance(pos) >= -1e-12 * geom.size
     good = m if ok.all() else int(np.argmin(ok))
     for a in (pos, vel, spin, orient):
@@ -721,6 +725,11 @@ def _one_state(s, init, key, n, c, geom, R, kappa):
                                        "velocities up, or the unit of time down)")
     _check_spin_range(float(np.linalg.norm(vel)), float(np.linalg.norm(spin)), R, c,
                       _join(key, "angular_velocity"))
+    far = float(np.max(np.abs(pos)))
+    if far > MAX_POSITION * geom.size:
+        c.fail(_join(key, "position"), f"too far out: a coordinate of {far:.3g} is over {MAX_POSITION:g} times the "
+                                       f"table's size ({geom.size:.3g}); so far out a coordinate's last digit is "
+                                       "longer than a flight, and it would never move: start near the table's origin")
     with np.errstate(all="ignore"):
         clearance = float(geom.clearance(pos))
     if not clearance >= -1e-12 * geom.size:   # written so that a NaN fails too

@@ -33,7 +33,7 @@ from .histogram import return_experiment
 from .locks import LockNotWritable, acquire_lock, release_lock
 from .model import ConfigError
 from .paths import (DiskFull, FileError, check_own_kind, check_own_names, check_replaceable, create_own,
-                    display_path, other_commands_file, place)
+                    display_path, other_commands_file, place, what_it_is)
 from .runfile import provenance
 from .simulation import STATE_BYTES, memory_refusal, records_bytes
 from .study import Study, _representatives, load_study, needs
@@ -247,32 +247,40 @@ def _write(ds, path):
     tmp = f"{path}.tmp"
     image = io.BytesIO()
     _to_netcdf(ds, image)
+    made = False
     try:
         fd = create_own(tmp)         # never through a link or into a FIFO someone put at this name
-    except FileExistsError:
-        raise FileError(display_path(tmp), None, "appeared while the study ran (not made by rbx): rbx writes nothing "
-                                                 "through it; remove it and run the study again (--resume keeps the "
-                                                 "points written before)") from None
-    try:
+        made = True
         with open(fd, "wb") as fh:
             fh.write(image.getbuffer())
             fh.flush()
             os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except FileExistsError:
+        raise FileError(display_path(tmp), None, "appeared while the study ran (not made by rbx): rbx writes nothing "
+                                                 "through it; remove it and run the study again (--resume keeps the "
+                                                 "points written before)") from None
     except OSError as exc:
-        with contextlib.suppress(OSError):
-            os.remove(tmp)
+        # a full disk or a size limit; or the folder removed or made read-only while the study ran (a traceback)
+        if made:
+            with contextlib.suppress(OSError):
+                os.remove(tmp)
         size = _bytes_text(len(image.getbuffer()))
-        if os.path.exists(path):
+        folder = os.path.dirname(os.path.abspath(path))
+        if not os.path.isdir(folder):
+            kept = (f"its folder {display_path(folder)} is gone (removed while the study ran?): nothing of the "
+                    "study is kept")
+        elif os.path.exists(path):
             kept = (f"{display_path(path)} is as it was (a write makes a whole new copy, {size}, beside it before "
-                    "replacing it, so it needs that much free): free some room and continue with --resume")
+                    "replacing it, so it needs that much free): free some room (or make the folder writable) and "
+                    "continue with --resume")
         else:
             kept = (f"nothing of the study was on disk yet, so no point is kept (its results need {size} free): "
-                    "free some room and run the study again")
+                    "free some room (or make the folder writable) and run the study again")
         why = exc.strerror or str(exc)
         if exc.errno == errno.EFBIG:            # not the disk: said as rbx simulate and rbx histogram say it
             why += ": a file-size limit (ulimit -f?)"
         raise DiskFull(f"{display_path(path)}: cannot write the study's results ({why}); " + kept) from None
-    os.replace(tmp, path)
     _write_cost = time.perf_counter() - began
 
 
@@ -304,11 +312,39 @@ def _to_netcdf(ds, path):
             out.attrs.update(var.attrs)
 
 
-def _read(path):
+def read_results(path):
+    """A study's results file -> :class:`xarray.Dataset`, loaded. Only a regular file is opened (a FIFO held the
+    open for ever), and a variable along a dimension that is not one of the study's (a dataset added by hand,
+    without dimension scales: ``phony_dim_*``) is refused before anything is loaded (it ended the figure in a
+    traceback, and a large one was read whole first)."""
+    import stat as stat_
     import xarray as xr
-    # phony_dims: a variable without dimension scales (a file damaged or made by hand) is read, not warned about
+    if not stat_.S_ISREG(os.stat(path).st_mode):
+        raise FileError(path, None, f"is {what_it_is(path)}, not a regular file: not a study's results")
+    # phony_dims: such a variable is named in the refusal below, not warned about by the reader
     with xr.open_dataset(path, engine="h5netcdf", phony_dims="access") as ds:
+        for name, var in ds.variables.items():
+            if any(str(d).startswith("phony_dim") for d in var.dims):
+                raise FileError(path, str(name), "is along no dimension of a study (a dataset rbx sweep does not "
+                                                 "write): the file was changed after rbx wrote it")
+        for name in ds.data_vars:
+            if not _written_variable(str(name)):
+                raise FileError(path, str(name), "is a variable rbx sweep does not write: the file was changed "
+                                                 "after rbx wrote it")
         return ds.load()
+
+
+#: the variables every study writes besides its observables' (:func:`_empty`)
+_EVERY_STUDY = frozenset({"collisions", "wall_time", "seed", "done", "lyapunov_orbits", "lyapunov_regular"})
+
+
+def _written_variable(name):
+    """Whether a study can write a data variable named ``name``: one of :data:`_EVERY_STUDY`, an observable, its
+    standard error or one of its companions (the registry of observables, :mod:`rbx.observables`)."""
+    if name in _EVERY_STUDY or name in obs.REGISTRY:
+        return True
+    return any(name == f"{o}_stderr" or any(name == f"{o}_{c.suffix}" for c in rec.companions)
+               for o, rec in obs.REGISTRY.items())
 
 
 def partial_path(output):
@@ -408,7 +444,9 @@ def _sweep(study, output, scheduler, resume, force, progress, base, changes):
             source = partial if os.path.exists(partial) else output if os.path.exists(output) else None
             if source is not None:
                 try:
-                    ds = _read(source)
+                    ds = read_results(source)
+                except FileError:
+                    raise
                 except Exception as exc:     # not a results file
                     raise FileError(source, None, f"cannot read as a study's results: {exc}") from None
                 if ds.attrs.get("study_digest") != st.digest:
@@ -501,6 +539,11 @@ def _sweep(study, output, scheduler, resume, force, progress, base, changes):
         except FileExistsError:
             raise FileError(output, None, "appeared while the study ran (another program?) and was not replaced; "
                                           f"the results are in {display_path(partial)}") from None
+        except OSError as exc:       # the folder removed or made read-only just now
+            where = (f"the results are in {display_path(partial)}" if os.path.exists(partial) else
+                     "nothing of the study is kept")
+            raise DiskFull(f"{display_path(output)}: cannot put the study's results in place "
+                           f"({exc.strerror or exc}); {where}") from None
     return ds
 
 
@@ -732,7 +775,7 @@ def kept_points(path, digest=None):
     if not os.path.exists(path):
         return None, 0, 0
     try:
-        ds = _read(path)
+        ds = read_results(path)
         if digest is not None and ds.attrs.get("study_digest") != digest:
             return None, 0, 0
         done = np.asarray(ds["done"].values)

@@ -153,6 +153,9 @@ CASES = {
     "position-outside": ({}, setp("initial.position", [0.0, 0.05]), [], "exp.yaml", "initial.position",
                          "outside the table shrunk"),
     "position-nan": ({}, setp("initial.position", [0.0, math.nan]), [], "exp.yaml", "initial.position[1]", "finite"),
+    # along the strip, x = 1e17 never moved (its last digit is longer than a flight), and the run ended complete
+    "position-too-far": ({}, setp("initial.position", [1e17, 0.5]), [], "exp.yaml", "initial.position",
+                         "too far out: a coordinate of 1e+17"),
     "position-3-numbers": ({}, setp("initial.position", [0, 0.5, 0]), [], "exp.yaml", "initial.position",
                            "expected 2 numbers"),
     # the output-size guard: refused before anything is written, with the estimate

@@ -1,8 +1,10 @@
 """Eighteenth round: a file that appears under an output's name while a command works is never replaced without
 --force (return angles, a study's results, a histogram's figure), a figure never replaces a file that is not one
-(put there while it was drawn), and a signal that comes once a command's output is in place does not say
-'nothing written'. Each reproduction runs the real command line in a subprocess, with the racing file made from
+(put there while it was drawn), a signal that comes once a command's output is in place does not say 'nothing
+written', a study's results file is checked for what it is (a FIFO, a dataset added by hand), and a study whose
+folder is removed ends in one line. Each reproduction runs the real command line in a subprocess, with the racing file made from
 inside the command (a function it calls wrapped, no timing); each test was seen to fail on the code before it."""
+import os
 import shutil
 import subprocess
 import sys
@@ -173,3 +175,64 @@ def test_a_signal_while_the_samples_are_put_in_place_says_they_were_written(tmp_
     assert "interrupted by SIGINT; wrote only" in res.stderr and "r.h5 (the samples)" in res.stderr, res.stderr
     assert data.exists() and not (tmp_path / "h.png").exists()
     assert "Traceback" not in res.stderr and len(res.stderr.splitlines()) == 1, res.stderr
+
+
+def _results(tmp_path):
+    """A finished study's results file, out.nc, and its study file."""
+    (tmp_path / "study.yaml").write_text(yaml.safe_dump(specular_study(trajectories=2, collisions=100)))
+    res = cli("", "sweep", "study.yaml", "-o", "out.nc", "--quiet", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    return tmp_path / "out.nc"
+
+
+def test_a_fifo_named_as_a_studys_results_is_refused_not_opened(tmp_path):
+    """`rbx sweep --resume` and `rbx plot --kind sweep` of a FIFO named out.nc waited in open() for ever (the first
+    SIGTERM did not end the sweep). Now one line, exit 2, at once."""
+    os.mkfifo(tmp_path / "o.nc")
+    (tmp_path / "study.yaml").write_text(yaml.safe_dump(specular_study(trajectories=2, collisions=100)))
+    for args in (["sweep", "study.yaml", "-o", "o.nc", "--resume"], ["plot", "o.nc", "--kind", "sweep", "-o", "x.png"]):
+        res = cli("", *args, cwd=tmp_path)
+        assert res.returncode == 2, res.stderr
+        assert len(res.stderr.splitlines()) == 1 and "is a FIFO (named pipe), not a regular file" in res.stderr, \
+            res.stderr
+
+
+def test_a_dataset_added_to_a_results_file_is_named_not_a_traceback(tmp_path):
+    """A results file with one more dataset, without dimension scales: `rbx plot --kind sweep` printed xarray's
+    warning and an IndexError traceback (or, here, drew it, the reader taking it along the walls' dimension);
+    `--resume` named the wrong variable. Now one line naming it, exit 2."""
+    out = _results(tmp_path)
+    with h5py.File(out, "a") as f:
+        f.create_dataset("junk", shape=(5,), dtype="f8")
+    shutil.copyfile(out, tmp_path / "out.nc.partial")
+    out.unlink()
+    for args in (["plot", "out.nc.partial", "--kind", "sweep", "-o", "x.png"],
+                 ["sweep", "study.yaml", "-o", "out.nc", "--resume"]):
+        res = cli("", *args, cwd=tmp_path)
+        assert res.returncode == 2, res.stderr
+        assert len(res.stderr.splitlines()) == 1 and "Traceback" not in res.stderr, res.stderr
+        assert "junk: is a variable rbx sweep does not write" in res.stderr, res.stderr
+
+
+def test_a_study_whose_folder_is_removed_while_it_runs_ends_in_one_line(tmp_path):
+    """The output folder removed while the points ran: a 40-line FileNotFoundError traceback, exit 1. Now one line,
+    exit 1, saying that nothing is kept."""
+    (tmp_path / "study.yaml").write_text(yaml.safe_dump(specular_study(trajectories=2, collisions=100)))
+    (tmp_path / "d").mkdir()
+    prelude = wrapped("rbx.sweeping", "run_point", f"import shutil; shutil.rmtree({str(tmp_path / 'd')!r})")
+    res = cli(prelude, "sweep", "study.yaml", "-o", "d/r.nc", "--quiet", cwd=tmp_path)
+    assert res.returncode == 1, res.stderr
+    assert len(res.stderr.splitlines()) == 1 and "Traceback" not in res.stderr, res.stderr
+    assert "cannot write the study's results" in res.stderr and "is gone" in res.stderr, res.stderr
+
+
+def test_a_signal_while_python_exits_after_the_summary_does_not_kill_the_command(tmp_path, a_run):
+    """SIGINT late in Python's exit, after its signal handlers are gone (here sent from a finaliser): a finished
+    command was killed by SIGINT just after 'rbx: wrote …'. Now exit 0."""
+    run = tmp_path / "run.h5"
+    shutil.copyfile(a_run, run)
+    prelude = ("import builtins, os, signal\nclass _Late:\n    def __del__(self):\n"
+               "        os.kill(os.getpid(), signal.SIGINT)\nbuiltins._late = _Late()\n")
+    res = cli(prelude, "plot", str(run), "--kind", "orbit", "-o", str(tmp_path / "f.png"), cwd=tmp_path)
+    assert res.returncode == 0, (res.returncode, res.stderr)
+    assert res.stderr.startswith("rbx: wrote ") and (tmp_path / "f.png").exists()

@@ -12,6 +12,7 @@ import os
 import re
 import signal
 import sys
+import threading
 
 import click
 
@@ -411,10 +412,20 @@ def _quiet_dask():
 
 # ---- progress (the bar itself is in rbx.progress, which the library uses too) -------------------------------
 
+#: set by the console script's entry point (rbx.cli.main.main): the process is rbx's own, so its signal handling may
+#: change for good (not under a test runner invoking commands in its own process)
+OWN_PROCESS = []
+
+
 def summary(quiet, message):
     """The one line a command ends with on stderr (``rbx: wrote run.h5: …``), unless ``--quiet``. Its work is
-    written: from here a signal changes nothing (:func:`note_interrupt`)."""
+    written: from here a signal changes nothing (:func:`note_interrupt`); in rbx's own process SIGINT and SIGTERM
+    are ignored from here on, so that one during Python's exit, after its handlers are gone, does not kill the
+    process (a finished study's command killed by SIGINT just after 'rbx: wrote …')."""
     _DONE.append(True)
+    if OWN_PROCESS and threading.current_thread() is threading.main_thread():
+        for s in (signal.SIGINT, signal.SIGTERM):
+            signal.signal(s, signal.SIG_IGN)
     if not quiet:
         from ..paths import one_line
         click.echo(f"rbx: {one_line(message)}", err=True)

@@ -9,7 +9,7 @@ import warnings
 import click
 
 from .. import __version__
-from .common import Group, Interrupted, note_interrupt, pending_signal, quiet_noted_interrupts
+from .common import OWN_PROCESS, Group, Interrupted, note_interrupt, pending_signal, quiet_noted_interrupts
 from .simulate import simulate
 from . import histogram, lyapunov, plot, sweep
 
@@ -31,6 +31,7 @@ def main():
     # imported: Ctrl-C is a KeyboardInterrupt again, and noted, so that a command sees it even where it was lost
     # (and where it is lost, inside a callback, Python's report of it is left out: the command says it)
     quiet_noted_interrupts()
+    OWN_PROCESS.append(True)
     signal.signal(signal.SIGINT, note_interrupt)
     if signal.getsignal(signal.SIGTERM) is not signal.SIG_IGN:      # SIGTERM too, until a command installs its own
         signal.signal(signal.SIGTERM, note_interrupt)

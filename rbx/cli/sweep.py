@@ -215,12 +215,14 @@ def plot_sweep(path, kind, out, y, x, logx, logy, dpi):
 def open_results(path):
     """A study's results file -> xarray.Dataset (loaded), or a UserError."""
     import os
+    from ..paths import FileError
+    from ..sweeping import read_results
     if not os.path.exists(path):
         raise UserError(path, None, "file not found")
     try:
-        import xarray as xr
-        with xr.open_dataset(path, engine="h5netcdf") as ds:
-            ds = ds.load()
+        ds = read_results(path)
+    except FileError as exc:
+        raise UserError(exc.file, exc.key, exc.problem) from None
     except Exception as exc:
         raise UserError(path, None, f"not a NetCDF file rbx sweep wrote ({str(exc).splitlines()[0]})") from None
     if "rbx_study" not in ds.attrs:
