@@ -204,8 +204,18 @@ def check_layout(f, path):
         raise FileError(path, f"collisions/{name}", f"{problem} (a damaged or crafted file)")
 
     for group in ("collisions",) + STATE_GROUPS:
-        for name, ds in (f[group].items() if isinstance(f.get(group), h5py.Group) else ()):
+        # a link to another file (or elsewhere in this one) is refused before it is followed: its values would be
+        # read from a file rbx never wrote (an external link is opened by the mere lookup)
+        if group in f and not isinstance(f.get(group, getlink=True), h5py.HardLink):
+            raise FileError(path, group, "is a link, not a group of this file: a run file holds its own records (a "
+                                         "crafted file)")
+        names = list(f[group].keys()) if isinstance(f.get(group), h5py.Group) else []
+        for name in names:
             where = f"{group}/{name}"
+            if not isinstance(f[group].get(name, getlink=True), h5py.HardLink):
+                raise FileError(path, where, "is a link, not a dataset of this file: its values lie elsewhere; a "
+                                             "run file holds its own (a crafted file)")
+            ds = f[group][name]
             if not isinstance(ds, h5py.Dataset):
                 raise FileError(path, where, "is not a dataset (a damaged or crafted file)")
             if ds.is_virtual or ds.external:

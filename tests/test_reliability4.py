@@ -197,6 +197,15 @@ def _external(g):
     g.create_dataset("time", shape=shape, dtype="f8", external=[(raw, 0, h5py.h5f.UNLIMITED)])
 
 
+def _external_link(g):
+    """``collisions/time`` made an HDF5 external link to a dataset of another file (the run's own values)."""
+    other = os.path.join(os.path.dirname(g.file.filename), "linked.h5")
+    with h5py.File(other, "w") as f:
+        f["time"] = g["time"][...]
+    del g["time"]
+    g["time"] = h5py.ExternalLink("linked.h5", "time")
+
+
 def _set(name, at, value):
     return lambda g: g[name].__setitem__(at, value)
 
@@ -215,6 +224,8 @@ BAD_VALUES = {
                                              "files"),
     "an external dataset": (_external, "orbit", "collisions/time: is an HDF5 external dataset: its values lie in "
                                                 "other files"),
+    "an external link": (_external_link, "orbit", "collisions/time: is a link, not a dataset of this file: its "
+                                                  "values lie elsewhere"),
     "a step out of line": (_set("step", 5, 77), "orbit",
                            "collisions/step: holds 77 at record 5; the layout says record × output.every (5)"),
 }
