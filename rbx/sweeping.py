@@ -272,11 +272,10 @@ def _write(ds, path):
                     "study is kept")
         elif os.path.exists(path):
             kept = (f"{display_path(path)} is as it was (a write makes a whole new copy, {size}, beside it before "
-                    "replacing it, so it needs that much free): free some room (or make the folder writable) and "
-                    "continue with --resume")
+                    "replacing it, so it needs that much free): free some room and continue with --resume")
         else:
             kept = (f"nothing of the study was on disk yet, so no point is kept (its results need {size} free): "
-                    "free some room (or make the folder writable) and run the study again")
+                    "free some room and run the study again")
         why = exc.strerror or str(exc)
         if exc.errno == errno.EFBIG:            # not the disk: said as rbx simulate and rbx histogram say it
             why += ": a file-size limit (ulimit -f?)"
@@ -314,21 +313,20 @@ def _to_netcdf(ds, path):
 
 def read_results(path):
     """A study's results file -> :class:`xarray.Dataset`, loaded. Only a regular file is opened (a FIFO held the
-    open for ever), and a variable along a dimension that is not one of the study's (a dataset added by hand,
-    without dimension scales: ``phony_dim_*``) is refused before anything is loaded (it ended the figure in a
-    traceback, and a large one was read whole first)."""
+    open for ever), and a variable no study writes (a dataset added by hand) is refused before anything is loaded
+    (it ended the figure in a traceback, and a large one was read whole first)."""
     import stat as stat_
     import xarray as xr
     if not stat_.S_ISREG(os.stat(path).st_mode):
         raise FileError(path, None, f"is {what_it_is(path)}, not a regular file: not a study's results")
-    # phony_dims: such a variable is named in the refusal below, not warned about by the reader
+    # phony_dims: a variable without dimension scales is named in a refusal, not warned about by the reader
     with xr.open_dataset(path, engine="h5netcdf", phony_dims="access") as ds:
-        for name, var in ds.variables.items():
-            if any(str(d).startswith("phony_dim") for d in var.dims):
-                raise FileError(path, str(name), "is along no dimension of a study (a dataset rbx sweep does not "
-                                                 "write): the file was changed after rbx wrote it")
+        try:
+            varied = set(json.loads(str(ds.attrs.get("varied", "[]"))))
+        except ValueError:
+            varied = set()          # said where the attribute is read
         for name in ds.data_vars:
-            if not _written_variable(str(name)):
+            if str(name) not in varied and not _written_variable(str(name)):
                 raise FileError(path, str(name), "is a variable rbx sweep does not write: the file was changed "
                                                  "after rbx wrote it")
         return ds.load()
