@@ -15,6 +15,7 @@ when, and under which name.
 import contextlib
 import dataclasses
 import errno
+import functools
 import os
 import shutil
 import weakref
@@ -28,8 +29,9 @@ from .config import loads
 from .locks import LockNotWritable, acquire_lock, lock_holder, lock_path, release_lock, taken_fresh
 from .locks import busy as _busy
 from .progress import plural
-from .paths import (NO_ROOM, DiskFull, FileError, check_own_kind, check_own_names, check_replaceable, creation_path,
-                    display_path, format_size, other_commands_file, place, temporary_path, what_it_is)
+from .paths import (NO_ROOM, DiskFull, FileError, check_own_file, check_own_kind, check_own_names,
+                    check_replaceable, creation_path, display_path, format_size, other_commands_file, place,
+                    temporary_path, what_it_is)
 from .reader import Run
 from .runfile import (H5Sink, _text, close_journal, commit, config_yaml, data_bytes, file_path, fill_returns, is_true,
                       journal_of, open_journaled)
@@ -374,14 +376,15 @@ def publish(tmp, path, complete, replace, report):
             f"are in {display_path(tmp)}")
         return
     try:
-        check_replaceable(path)          # a device or a link put there while the run wrote: not replaced, …
-        if replace:
-            check_own_kind(path)         # … nor, with --force, a file rbx did not write (a config, notes)
+        # no run's file is replaced without --force, not even one that appeared while this run wrote; with it,
+        # neither a device or a link put there, nor another command's file, nor a file rbx did not write
+        place(tmp, path, replace, check=functools.partial(check_own_file, mine="run"))
     except FileError as exc:
-        say(f"{exc.problem}; the records are in {display_path(tmp)}")
-        return
-    try:
-        place(tmp, path, replace)       # no run's file is replaced without --force, not even one that appeared
+        # refused: a complete run not in place is an error (as when a file appeared), an unfinished one a note
+        problem = exc.problem if exc.file is None else f"{display_path(exc.file)}: {exc.problem}"
+        if complete:
+            raise FileError(None, None, f"{problem}; the records are in {display_path(tmp)}") from None
+        say(f"{problem}; the records are in {display_path(tmp)}")
     except FileExistsError:
         message = (f"appeared while this run was writing (another run?) and was not replaced; the records are in "
                    f"{display_path(tmp)}")
@@ -394,15 +397,6 @@ def publish(tmp, path, complete, replace, report):
 
 
 
-
-
-def _check_returns_target(path):
-    """Raise :class:`FileError` unless return angles may replace ``path`` with --force: never a run or a study's
-    results (:func:`other_commands_file`), nor a file rbx did not write."""
-    problem = other_commands_file(path, "returns")
-    if problem is not None:
-        raise problem
-    check_own_kind(path)
 
 
 def write_returns(path, cfg, result, force_hint="--force", replace=False):
@@ -438,7 +432,7 @@ def write_returns(path, cfg, result, force_hint="--force", replace=False):
         # never over a file that appeared while the samples were drawn (a run that finished meanwhile) without
         # --force, nor with it over a file of another kind
         try:
-            place(new, path, replace, check=_check_returns_target)
+            place(new, path, replace, check=functools.partial(check_own_file, mine="returns"))
         except FileExistsError:
             raise FileError(path, None, "appeared while the samples were drawn (another run?) and was not "
                                         f"replaced; nothing was saved: give the return angles another name "

@@ -215,6 +215,17 @@ def check_own_kind(path, key=None, file=None):
                                    "notes?): rbx writes only over its own files; give another name")
 
 
+def check_own_file(path, mine, key=None):
+    """Raise :class:`FileError` unless ``--force`` may replace ``path`` by the output of a command that writes rbx's
+    files of kind ``mine`` ('run', 'returns' or 'study'): never another command's file
+    (:func:`other_commands_file`), nor a file rbx did not write (:func:`check_own_kind`). The test every such
+    command makes of its output's name before it starts and again at the rename (:func:`place`)."""
+    problem = other_commands_file(path, mine)
+    if problem is not None:
+        raise problem
+    check_own_kind(path, key)
+
+
 def rbx_kind(path):
     """Which of rbx's HDF5 files ``path`` is, by its root attributes and groups -> 'study' (a study's results, rbx
     sweep), 'returns' (the return angles of rbx histogram: ``returns/``, no ``collisions/``), 'run' (a run of rbx

@@ -8,6 +8,7 @@ points it lacks, and refuses a study whose canonical text changed (``study_diges
 """
 import contextlib
 import errno
+import functools
 import io
 import json
 import math
@@ -32,7 +33,7 @@ from .dynamics import NothingMeasured, lyapunov
 from .histogram import return_experiment
 from .locks import LockNotWritable, acquire_lock, release_lock
 from .model import ConfigError
-from .paths import (DiskFull, FileError, check_own_kind, check_own_names, check_replaceable, create_own,
+from .paths import (DiskFull, FileError, check_own_file, check_own_kind, check_own_names, check_replaceable, create_own,
                     display_path, other_commands_file, place, what_it_is)
 from .runfile import provenance
 from .simulation import STATE_BYTES, memory_refusal, records_bytes
@@ -533,7 +534,7 @@ def _sweep(study, output, scheduler, resume, force, progress, base, changes):
     if output is not None:
         _write(ds, partial)
         try:
-            place(partial, output, replace, check=_check_results_target)
+            place(partial, output, replace, check=functools.partial(check_own_file, mine="study", key="-o"))
         except FileExistsError:
             raise FileError(output, None, "appeared while the study ran (another program?) and was not replaced; "
                                           f"the results are in {display_path(partial)}") from None
@@ -543,15 +544,6 @@ def _sweep(study, output, scheduler, resume, force, progress, base, changes):
             raise DiskFull(f"{display_path(output)}: cannot put the study's results in place "
                            f"({exc.strerror or exc}); {where}") from None
     return ds
-
-
-def _check_results_target(path):
-    """Raise :class:`FileError` unless a study's results may replace ``path`` (with --force): never a run or
-    return angles, nor a file rbx did not write."""
-    problem = other_commands_file(path, "study")
-    if problem is not None:
-        raise problem
-    check_own_kind(path, "-o", None)
 
 
 #: the observables whose value is a number at every computed point (the energy of a run that went non-finite stops

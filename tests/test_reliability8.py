@@ -236,3 +236,29 @@ def test_a_signal_while_python_exits_after_the_summary_does_not_kill_the_command
     res = cli(prelude, "plot", str(run), "--kind", "orbit", "-o", str(tmp_path / "f.png"), cwd=tmp_path)
     assert res.returncode == 0, (res.returncode, res.stderr)
     assert res.stderr.startswith("rbx: wrote ") and (tmp_path / "f.png").exists()
+
+
+@pytest.mark.parametrize("appears", ["results", "notes"])
+def test_a_run_with_force_never_replaces_another_kind_of_file_that_appeared_while_it_ran(tmp_path, appears):
+    """`rbx simulate -o r.h5 --force`, and a study's results (or notes) put at r.h5 while it ran: the study's
+    results were replaced by the run, exit 0; notes were kept, but with exit 0 and a line without the file's name.
+    Now one line naming r.h5 and what it is, exit 2, the file as it was, the records kept in r.h5.partial."""
+    conf = histogram_config(tmp_path / "h.yaml", run="{collisions: 100, trajectories: 1, seed: 2}",
+                            initial="{position: [1.0, 0.5], velocity: [0.6, 0.8]}")
+    target = tmp_path / "r.h5"
+    make = (f"import h5py\nwith h5py.File({str(target)!r}, 'w') as f:\n    f.attrs['rbx_study'] = 'x'"
+            if appears == "results" else f"open({str(target)!r}, 'wb').write({NOTES!r})")
+    res = cli(wrapped("rbx.driver", "check_target", make), "simulate", str(conf), "-o", str(target), "--force",
+              "--quiet", cwd=tmp_path)
+    assert res.returncode == 2, (res.returncode, res.stderr)
+    assert len(res.stderr.splitlines()) == 1 and "Traceback" not in res.stderr, res.stderr
+    assert res.stderr.startswith("rbx: r.h5"), res.stderr
+    assert ("a study's results" if appears == "results" else "is not an HDF5 file") in res.stderr
+    assert "the records are in" in res.stderr and "r.h5.partial" in res.stderr
+    if appears == "results":
+        with h5py.File(target, "r") as f:
+            assert dict(f.attrs) == {"rbx_study": "x"} and not list(f)
+    else:
+        assert target.read_bytes() == NOTES
+    with h5py.File(tmp_path / "r.h5.partial", "r") as f:
+        assert bool(f.attrs["complete"]) and f["collisions/time"].shape[-1] > 1
