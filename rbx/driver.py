@@ -392,6 +392,11 @@ def publish(tmp, path, complete, replace, report):
             raise FileError(path, None, message) from None
         say(f"{display_path(path)}: {message}")
     except OSError as exc:
+        if not os.path.lexists(tmp):
+            # its folder removed while the run wrote: nothing is where the records would be
+            raise FileNotFoundError(errno.ENOENT, f"the folder {display_path(os.path.dirname(path) or '.')} is "
+                                                  "gone (removed while the run wrote?): nothing was saved",
+                                    path) from None
         say(f"{display_path(path)}: cannot rename {display_path(tmp)} to it: {exc.strerror or exc}; the records "
             f"are in {display_path(tmp)}")
 

@@ -262,3 +262,25 @@ def test_a_run_with_force_never_replaces_another_kind_of_file_that_appeared_whil
         assert target.read_bytes() == NOTES
     with h5py.File(tmp_path / "r.h5.partial", "r") as f:
         assert bool(f.attrs["complete"]) and f["collisions/time"].shape[-1] > 1
+
+
+def test_a_run_whose_folder_is_removed_while_it_runs_ends_in_one_line(tmp_path):
+    """`rbx simulate -o out/r.h5` and the folder out removed while the run wrote: two lines that contradicted each
+    other ('the records are in out/r.h5.partial', then 'nothing was saved (the run stopped before its file was
+    made)'). Now one line saying the folder is gone, exit 1; the API raises the same as a FileNotFoundError."""
+    conf = histogram_config(tmp_path / "h.yaml", run="{collisions: 200, trajectories: 1, seed: 2}",
+                            initial="{position: [1.0, 0.5], velocity: [0.6, 0.8]}")
+    (tmp_path / "out").mkdir()
+    prelude = wrapped("rbx.driver", "publish_new", f"import shutil; shutil.rmtree({str(tmp_path / 'out')!r})")
+    res = cli(prelude, "simulate", str(conf), "-o", "out/r.h5", "--quiet", cwd=tmp_path)
+    assert res.returncode == 1, (res.returncode, res.stderr)
+    assert res.stderr.splitlines() == ["rbx: out/r.h5: its folder out is gone (removed while the run wrote?): "
+                                       "nothing was saved"], res.stderr
+    (tmp_path / "out").mkdir()
+    code = (f"{prelude}\nimport rbx\ntry:\n    rbx.simulate({str(conf)!r}, output='out/r.h5')\n"
+            f"except FileNotFoundError as exc:\n    print('raised:', exc)\n")
+    res = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True, text=True, timeout=HANG)
+    assert res.returncode == 0 and "Traceback" not in res.stderr, res.stderr
+    assert res.stdout.startswith("raised: [Errno 2] the folder out is gone (removed while the run wrote?)"), \
+        res.stdout
+    assert not (tmp_path / "out").exists()

@@ -198,6 +198,9 @@ def _execute(sim, path, stop, quiet, done, start, began):
                        "its last checkpoint (complete = false). Free some space, then continue with: "
                        f"rbx simulate --resume {display_path(where)} (or continue it on another disk: add -o "
                        "with a file there)", err=True)
+        elif not os.path.isdir(os.path.dirname(os.path.abspath(where))):
+            click.echo(f"rbx: {display_path(where)}: its folder {display_path(os.path.dirname(where) or '.')} is "
+                       "gone (removed while the run wrote?): nothing was saved", err=True)
         elif not os.path.exists(where):
             click.echo(f"rbx: {display_path(where)}: writing failed: {failure.strerror or failure}; nothing was "
                        "saved (the run stopped before its file was made)", err=True)
