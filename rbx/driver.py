@@ -49,15 +49,28 @@ def estimated_size(cfg):
     return data_bytes(cfg) + METADATA_BYTES
 
 
-def free_space(path):
-    """Bytes free on the disk ``path`` is (or will be) on, asking its nearest existing folder -> int, or None."""
+def _nearest_folder(path):
+    """The folder ``path`` is (or will be) in, or its nearest existing parent (the folder is made later)."""
     folder = os.path.dirname(os.path.abspath(path)) or "."
     while not os.path.isdir(folder) and os.path.dirname(folder) != folder:
-        folder = os.path.dirname(folder)                   # the folder is made later: ask its nearest parent
+        folder = os.path.dirname(folder)
+    return folder
+
+
+def free_space(path):
+    """Bytes free on the disk ``path`` is (or will be) on, asking its nearest existing folder -> int, or None."""
     try:
-        return shutil.disk_usage(folder).free
+        return shutil.disk_usage(_nearest_folder(path)).free
     except OSError:
         return None
+
+
+def read_only(path):
+    """True when the disk ``path`` is (or will be) on is mounted read-only: no room to ask of it."""
+    try:
+        return bool(os.statvfs(_nearest_folder(path)).f_flag & os.ST_RDONLY)
+    except (OSError, AttributeError):
+        return False
 
 
 def returns_bytes(cfg):
@@ -89,6 +102,9 @@ def check_size(cfg, path, key_file=None, written=0, option="max_size=", hint="",
     if free is None:
         return
     if need - written > free:
+        if read_only(path):     # its free space is no measure of anything: it cannot be written at all
+            raise FileError(path, None, f"its folder {display_path(_nearest_folder(path))} is on a read-only file "
+                                        "system: give an output on a writable disk")
         more = f", {format_size(written)} of it written already," if written else ""
         raise FileError(path, None, f"the run would write about {format_size(need)}{raw}{more} but the disk has "
                                     f"{format_size(free)} free{hint}")

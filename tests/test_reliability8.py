@@ -284,3 +284,37 @@ def test_a_run_whose_folder_is_removed_while_it_runs_ends_in_one_line(tmp_path):
     assert res.stdout.startswith("raised: [Errno 2] the folder out is gone (removed while the run wrote?)"), \
         res.stdout
     assert not (tmp_path / "out").exists()
+
+
+def test_a_read_only_disk_is_called_read_only_not_full(tmp_path):
+    """`rbx simulate -o ro/r.h5` (and `rbx histogram --data ro/r.h5`) on a read-only disk with less free space than
+    the run needs: 'the disk has 1.05 MB free', as if freeing space would help. Now one line saying the disk is
+    read-only, exit 2, before any work."""
+    from tests.test_reliability3 import tmpfs
+    conf = histogram_config(tmp_path / "h.yaml", run="{collisions: 500, trajectories: 200000, seed: 2}")
+    with tmpfs(tmp_path / "ro", "1m") as ro:
+        res = subprocess.run(["mount", "-o", "remount,ro", str(ro)], capture_output=True, text=True)
+        if res.returncode != 0:
+            pytest.skip(f"cannot make the tmpfs read-only: {res.stderr.strip()}")
+        for args in (["simulate", str(conf), "-o", "ro/r.h5"],
+                     ["histogram", str(conf), "--data", "ro/r.h5", "-o", "h.png"]):
+            res = cli("", *args, cwd=tmp_path)
+            assert res.returncode == 2, (args, res.stderr)
+            assert res.stderr.splitlines() == ["rbx: ro/r.h5: its folder ro is on a read-only file system: give an "
+                                               "output on a writable disk"], res.stderr
+        assert not list(ro.iterdir())
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["h.yaml", "ro"]
+
+
+def test_return_angles_never_remake_a_folder_removed_while_they_were_drawn(tmp_path):
+    """`rbx histogram --data out/r.h5` (rbx makes no folders for it) and out removed while the samples were drawn:
+    the folder was made again and the files written into it. Now one line saying it is gone, exit 1."""
+    conf = histogram_config(tmp_path / "h.yaml", run="{collisions: 300, trajectories: 400, seed: 2}")
+    (tmp_path / "out").mkdir()
+    prelude = wrapped("rbx.histogram", "return_experiment", f"import shutil; shutil.rmtree({str(tmp_path / 'out')!r})")
+    res = cli(prelude, "histogram", str(conf), "--data", "out/r.h5", "-o", "h.png", cwd=tmp_path)
+    assert res.returncode == 1, (res.returncode, res.stderr)
+    assert res.stderr.splitlines()[-1] == ("rbx: out/r.h5: its folder out is gone (removed while the samples were "
+                                           "drawn?): nothing was saved"), res.stderr
+    assert "Traceback" not in res.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["h.yaml"]

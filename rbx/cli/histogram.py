@@ -146,6 +146,10 @@ def _histogram(config, out, data, trajectories, seed, sets, force, quiet, cluste
         raise UserError(config, "run.collisions",
                         f"no sample returned within {plural(cfg.run.collisions, 'collision')}: nothing to compare, "
                         "nothing written; raise run.collisions")
+    if not os.path.isdir(os.path.dirname(h5_path)):     # it was there at the start: removed since, not remade
+        click.echo(f"rbx: {display_path(h5_path)}: its folder {display_path(os.path.dirname(h5_path))} is gone "
+                   "(removed while the samples were drawn?): nothing was saved", err=True)
+        raise SystemExit(1)
     try:
         with user_errors():     # a lock that cannot be made, a file of another kind: one line
             write_returns(h5_path, cfg, result, replace=force)
