@@ -44,6 +44,7 @@ import numpy as np
 from . import __version__, _jit
 from .engine import State
 from .model import FIELD
+from .paths import what_it_is
 from .simulation import advance_state, record_buffers, records_block
 
 #: seconds to reach the scheduler before giving up (an unreachable address is an error, not a wait)
@@ -191,6 +192,10 @@ def connect(scheduler, key="--scheduler", slices=None, task_collisions=None):
         try:
             if os.path.isfile(text):     # a scheduler file: its address, tried like one given (a dead scheduler's
                 address = _scheduler_file(text, key)      # file must not make Dask's Client wait and retry)
+            elif os.path.lexists(text):      # a FIFO, a folder, a dangling link: no address and no file to read
+                raise SchedulerUnreachable(key, f"{text} is {what_it_is(text)}, not a scheduler file (give "
+                                                "tcp://HOST:PORT, or the file dask scheduler --scheduler-file "
+                                                "wrote)")
             else:
                 address = _address(text)
             scheme = address.partition("://")[0]

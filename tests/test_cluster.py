@@ -432,12 +432,18 @@ def free_port():
 
 
 @pytest.mark.parametrize("address", ["tcp://127.0.0.1:{port}", "127.0.0.1:{port}", "nonsense://where",
-                                     "scheduler.json", "tls://127.0.0.1:{port}", "inproc://x"])
+                                     "scheduler.json", "tls://127.0.0.1:{port}", "inproc://x", "fifo", "folder"])
 def test_an_unreachable_scheduler_is_one_line_and_exit_2(address, tmp_path):
+    """Each a line saying what is wrong; a FIFO or a folder named as the scheduler file was said to have 'no port
+    in the address'."""
     port = free_port()
     address = address.format(port=port)
     if address == "scheduler.json":     # the file of a scheduler that is gone
         (tmp_path / address).write_text(json.dumps({"type": "Scheduler", "address": f"tcp://127.0.0.1:{port}"}))
+    if address == "fifo":
+        os.mkfifo(tmp_path / address)
+    if address == "folder":
+        (tmp_path / address).mkdir()
     (tmp_path / "exp.yaml").write_text(yaml.safe_dump(SCENE_RUNS["strip-random"]))
     res = rbx("simulate", "exp.yaml", "-o", "run.h5", "--scheduler", address, cwd=tmp_path)
     assert res.returncode == 2, res.stderr
@@ -446,6 +452,10 @@ def test_an_unreachable_scheduler_is_one_line_and_exit_2(address, tmp_path):
     if address.startswith(("nonsense", "tls", "inproc")):
         # tls:// was said to have "answered, but not as a Dask scheduler", inproc://x "not enough values to unpack"
         assert "rbx connects to a scheduler over tcp://" in lines[0], lines[0]
+    elif address in ("fifo", "folder"):
+        what = "a FIFO (named pipe)" if address == "fifo" else "a directory"
+        assert lines[0] == f"rbx: --scheduler: {address} is {what}, not a scheduler file (give tcp://HOST:PORT, or " \
+                           "the file dask scheduler --scheduler-file wrote)", lines[0]
     else:
         assert "cannot reach a Dask scheduler" in lines[0] and "Connection refused" in lines[0]
     assert not list(tmp_path.glob("run.h5*"))                # nothing written
