@@ -226,6 +226,29 @@ def check_own_file(path, mine, key=None):
     check_own_kind(path, key)
 
 
+def check_own_objects(path, fix):
+    """Raise :class:`FileError` naming the first group or dataset of the HDF5 file ``path`` that is not the file's
+    own: a link (soft or external: an external link is opened by the mere lookup, and one to a FIFO held the reader
+    for ever, deaf to SIGTERM), or a virtual or external dataset (its values read from other files). ``fix``: what
+    to do, said after the problem. Nothing is followed: each name is looked at as a link first."""
+    import h5py
+    with h5py.File(path, "r", locking=False) as f:
+        todo = [("", f)]
+        while todo:
+            prefix, group = todo.pop()
+            for name in group:
+                where = f"{prefix}{name}"
+                if not isinstance(group.get(name, getlink=True), h5py.HardLink):
+                    raise FileError(path, where, f"is a link, not a variable of this file: its values lie elsewhere; "
+                                                 f"{fix}")
+                item = group[name]
+                if isinstance(item, h5py.Group):
+                    todo.append((f"{where}/", item))
+                elif item.is_virtual or item.external:
+                    raise FileError(path, where, f"is an HDF5 {'virtual' if item.is_virtual else 'external'} "
+                                                 f"dataset: its values lie in other files; {fix}")
+
+
 def rbx_kind(path):
     """Which of rbx's HDF5 files ``path`` is, by its root attributes and groups -> 'study' (a study's results, rbx
     sweep), 'returns' (the return angles of rbx histogram: ``returns/``, no ``collisions/``), 'run' (a run of rbx

@@ -33,8 +33,8 @@ from .dynamics import NothingMeasured, lyapunov
 from .histogram import return_experiment
 from .locks import LockNotWritable, acquire_lock, release_lock
 from .model import ConfigError
-from .paths import (DiskFull, FileError, check_own_file, check_own_kind, check_own_names, check_replaceable, create_own,
-                    display_path, other_commands_file, place, what_it_is)
+from .paths import (DiskFull, FileError, check_own_file, check_own_kind, check_own_names, check_own_objects,
+                    check_replaceable, create_own, display_path, other_commands_file, place, what_it_is)
 from .runfile import provenance
 from .simulation import STATE_BYTES, memory_refusal, records_bytes
 from .study import Study, _representatives, load_study, needs
@@ -320,6 +320,7 @@ def read_results(path):
     import xarray as xr
     if not stat_.S_ISREG(os.stat(path).st_mode):
         raise FileError(path, None, f"is {what_it_is(path)}, not a regular file: not a study's results")
+    check_own_objects(path, "a study's results hold their own (the file was changed after rbx wrote it)")
     # phony_dims: a variable without dimension scales is named in a refusal, not warned about by the reader
     with xr.open_dataset(path, engine="h5netcdf", phony_dims="access") as ds:
         try:
