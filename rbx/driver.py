@@ -29,8 +29,8 @@ from .config import loads
 from .locks import LockNotWritable, acquire_lock, lock_holder, lock_path, release_lock, taken_fresh
 from .locks import busy as _busy
 from .progress import plural
-from .paths import (NO_ROOM, DiskFull, FileError, check_own_file, check_own_kind, check_own_names,
-                    check_replaceable, creation_path, display_path, format_size, other_commands_file, place,
+from .paths import (ANY, NO_ROOM, DiskFull, FileError, check_own_file, check_own_kind, check_own_names,
+                    check_replaceable, creation_path, display_path, file_id, format_size, other_commands_file, place,
                     temporary_path, what_it_is)
 from .reader import Run
 from .runfile import (H5Sink, _text, close_journal, commit, config_yaml, data_bytes, file_path, fill_returns, is_true,
@@ -298,7 +298,7 @@ def stream(sim, h5, tmp, path, **options):
 
 
 def _stream(sim, h5, tmp, path, *, fresh=True, progress=None, should_stop=None, write_initial=None, report=None,
-            replace=False):
+            replace=False, only=ANY):
     """Run ``sim`` into the open file ``h5`` (at ``tmp``, or made by :func:`create` and renamed to ``tmp`` once
     its structure is written: :func:`publish_new`), mark it complete or not, close it and rename it to ``path``
     -> True if the run finished (False: ``should_stop()`` said stop). The config stored in the file names
@@ -352,7 +352,7 @@ def _stream(sim, h5, tmp, path, *, fresh=True, progress=None, should_stop=None, 
             else:
                 if sink is not None and sink.reserved and journal_of(h5) is None:
                     trim(tmp)        # a journaled file was cut to HDF5's end when it closed (JournaledFile.close)
-                publish(tmp, path, complete, replace, report)
+                publish(tmp, path, complete, replace, report, only)
         finally:
             # the run's lock (taken by create, or by rbx.resume.load for the file resumed), released last
             release_lock(path)
@@ -381,8 +381,12 @@ def trim(path):
             pass
 
 
-def publish(tmp, path, complete, replace, report):
-    """Rename ``tmp`` to ``path`` by the rules of :func:`stream` (also the last step of a resume in place)."""
+def publish(tmp, path, complete, replace, report, only=ANY):
+    """Rename ``tmp`` to ``path`` by the rules of :func:`stream` (also the last step of a resume in place).
+    ``only`` (a resume without --force): the file (:func:`file_id`) that may be replaced, the one at ``path`` when
+    the resume started (None: nothing); another one put there meanwhile is not (a run moved there was replaced by
+    the resumed one, exit 0)."""
+
     def say(message):
         if report is not None:
             report(message)
@@ -394,7 +398,7 @@ def publish(tmp, path, complete, replace, report):
     try:
         # no run's file is replaced without --force, not even one that appeared while this run wrote; with it,
         # neither a device or a link put there, nor another command's file, nor a file rbx did not write
-        place(tmp, path, replace, check=functools.partial(check_own_file, mine="run"))
+        place(tmp, path, replace, check=functools.partial(check_own_file, mine="run"), only=only)
     except FileError as exc:
         # refused: a complete run not in place is an error (as when a file appeared), an unfinished one a note
         problem = exc.problem if exc.file is None else f"{display_path(exc.file)}: {exc.problem}"
@@ -511,6 +515,10 @@ class Resumption:
     notes: list = dataclasses.field(default_factory=list)
     #: the source (OUT.h5) is renamed to ``tmp`` and continued in place: the disk has no room for a copy
     move: bool = False
+    #: without --force, the file (:func:`file_id`) the end may replace at ``path``: the one there when the resume
+    #: started (its own earlier file), or None if there was none; a file put there meanwhile is not replaced.
+    #: With --force: :data:`ANY`
+    replaces: object = None
 
 
 def resumed_source(run_file):
@@ -633,7 +641,7 @@ def prepare_resume(run_file, output=None, *, force=False, max_size=None, out_key
                      "(torn by the kill while HDF5 rewrote them): the saved records were read from the raw bytes "
                      "of the chunks")
     return Resumption("continue", source, path, tmp, in_place, force or own or path == source, sim, write_initial,
-                      done, notes, move)
+                      done, notes, move, ANY if force else file_id(path))
 
 
 def _newer_partial(source, locked, force_hint):
@@ -790,7 +798,8 @@ def resume_to_file(r, *, progress=None, should_stop=None, report=None):
             os.remove(tmp)
         raise
     return stream(sim, h5, tmp, r.path, fresh=False, write_initial=r.write_initial, replace=r.force,
-                  progress=progress, should_stop=should_stop, report=report)
+                  progress=progress, should_stop=should_stop, report=report,
+                  only=r.replaces)
 
 
 def _reason(exc):

@@ -164,16 +164,34 @@ def renaming():
     return bool(PLACING)
 
 
-def place(tmp, path, replace, check=None):
+def file_id(path):
+    """Which file ``path`` is -> (device, inode), or None when there is none: a file put at a name meanwhile (moved
+    there) is another file, though of the same kind."""
+    try:
+        st = os.lstat(path)
+    except OSError:
+        return None
+    return st.st_dev, st.st_ino
+
+
+#: ``only`` of :func:`place`: whatever ``check`` allows (--force)
+ANY = object()
+
+
+def place(tmp, path, replace, check=None, only=ANY):
     """Put the finished file ``tmp`` in place as ``path`` in one rename. Without ``replace``, a file at ``path``
     is never replaced, not even one that appeared while ``tmp`` was written: a hard link fails on an existing name
     (where the file system has no hard links: checked, then renamed), and :class:`FileExistsError` is raised with
     ``tmp`` left as it is. With ``replace``, only a regular file is replaced (:func:`check_replaceable`) that
     ``check(path)`` accepts (the caller's test of what the file is, done again here: a config put under the name
-    while a study ran is not replaced by it)."""
+    while a study ran is not replaced by it), and only the file ``only`` (:func:`file_id`; None: none) if given:
+    a resume without --force replaces the file it continues, not another moved there meanwhile
+    (FileExistsError)."""
     check_replaceable(path)
     if replace and check is not None:
         check(path)
+    if replace and only is not ANY and file_id(path) not in (only, None):
+        raise FileExistsError(errno.EEXIST, "another file is there", path)
     PLACING.append(path)
     try:
         if replace:

@@ -33,8 +33,8 @@ from .dynamics import NothingMeasured, lyapunov
 from .histogram import return_experiment
 from .locks import LockNotWritable, acquire_lock, release_lock
 from .model import ConfigError
-from .paths import (DiskFull, FileError, check_own_file, check_own_kind, check_own_names, check_own_objects,
-                    check_replaceable, create_own, display_path, other_commands_file, place, what_it_is)
+from .paths import (ANY, DiskFull, FileError, check_own_file, check_own_kind, check_own_names, check_own_objects,
+                    check_replaceable, create_own, display_path, file_id, other_commands_file, place, what_it_is)
 from .runfile import provenance
 from .simulation import STATE_BYTES, memory_refusal, records_bytes
 from .study import Study, _representatives, load_study, needs
@@ -479,6 +479,8 @@ def _sweep(study, output, scheduler, resume, force, progress, base, changes):
         # the results may replace a file at the end only if they may now: a file that appears while the study runs
         # is not replaced without --force (nor, with it, one of another kind)
         replace = force or (resume and os.path.lexists(output))
+        # and a resume without --force replaces only the file it continues: another put there meanwhile is not
+        replaces = ANY if force else file_id(output)
         os.makedirs(os.path.dirname(output), exist_ok=True)
     if ds is None:
         ds = _empty(st, exp0)
@@ -535,7 +537,8 @@ def _sweep(study, output, scheduler, resume, force, progress, base, changes):
     if output is not None:
         _write(ds, partial)
         try:
-            place(partial, output, replace, check=functools.partial(check_own_file, mine="study", key="-o"))
+            place(partial, output, replace, check=functools.partial(check_own_file, mine="study", key="-o"),
+                  only=replaces)
         except FileExistsError:
             raise FileError(output, None, "appeared while the study ran (another program?) and was not replaced; "
                                           f"the results are in {display_path(partial)}") from None

@@ -55,3 +55,73 @@ def test_a_results_variable_that_lies_in_another_file_is_refused_not_followed(tm
     assert res.returncode == 0 and res.stdout.startswith("refused: ") and "mean_free_path" in res.stdout, \
         (res.stdout, res.stderr)
     assert not (tmp_path / "x.png").exists()
+
+
+#: a prelude that makes blocks of a few hundred collisions, a checkpoint after each, and sends this process SIGINT
+#: after the third block: an interrupted run file (complete = false) to resume
+INTERRUPT = ("import os, signal\nimport rbx.simulation as _s\nimport rbx.cli.common as _c\n"
+             "_s.BLOCK_WORK = 300\n_s.CHECKPOINT_SECONDS = 0\n_seen = [0]\n_call = _c.Progress.__call__\n"
+             "def _p(self, done, total):\n    _seen[0] += 1\n    if _seen[0] == 3:\n"
+             "        os.kill(os.getpid(), signal.SIGINT)\n    return _call(self, done, total)\n"
+             "_c.Progress.__call__ = _p\n")
+
+
+@pytest.mark.long
+def test_a_resume_never_replaces_another_file_moved_to_its_output_while_it_ran(tmp_path):
+    """`rbx simulate --resume rr.h5` and a complete run moved to rr.h5 while it ran: replaced by the resumed run,
+    exit 0, nothing said (the resume was allowed to replace rr.h5, its own earlier file, and replaced whatever was
+    there). Now the file moved there is kept, one line, exit 2, the records in rr.h5.partial; and a resume that
+    nothing disturbs still replaces its own file."""
+    from tests.test_histogram import write_config as histogram_config
+    conf = histogram_config(tmp_path / "h.yaml", run="{collisions: 3000, trajectories: 1, seed: 2}",
+                            initial="{position: [1.0, 0.5], velocity: [0.6, 0.8]}")
+    other = histogram_config(tmp_path / "o.yaml", run="{collisions: 50, trajectories: 1, seed: 3}",
+                             initial="{position: [1.0, 0.5], velocity: [0.6, 0.8]}")
+    res = cli("", "simulate", str(other), "-o", "other.h5", "--quiet", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    theirs = (tmp_path / "other.h5").read_bytes()
+    for name in ("rr.h5", "ok.h5"):
+        res = cli(INTERRUPT, "simulate", str(conf), "-o", name, "--quiet", cwd=tmp_path)
+        assert res.returncode == 130, res.stderr
+        with h5py.File(tmp_path / name, "r") as f:
+            assert not f.attrs["complete"]
+    move = (f"import shutil, os\nshutil.copyfile({str(tmp_path / 'other.h5')!r}, {str(tmp_path / 'moving')!r})\n"
+            f"os.replace({str(tmp_path / 'moving')!r}, {str(tmp_path / 'rr.h5')!r})")
+    res = cli(wrapped("rbx.driver", "open_journaled", move), "simulate", "--resume", "rr.h5", "--quiet",
+              cwd=tmp_path)
+    assert res.returncode == 2, (res.returncode, res.stderr)
+    assert res.stderr.splitlines() == ["rbx: rr.h5: appeared while this run was writing (another run?) and was not "
+                                       "replaced; the records are in rr.h5.partial"], res.stderr
+    assert (tmp_path / "rr.h5").read_bytes() == theirs
+    with h5py.File(tmp_path / "rr.h5.partial", "r") as f:
+        assert f.attrs["complete"]
+    res = cli("", "simulate", "--resume", "ok.h5", "--quiet", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    with h5py.File(tmp_path / "ok.h5", "r") as f:
+        assert f.attrs["complete"]
+    assert not (tmp_path / "ok.h5.partial").exists()
+
+
+@pytest.mark.long
+def test_a_study_resume_never_replaces_other_results_moved_to_its_output_while_it_ran(tmp_path):
+    """`rbx sweep STUDY -o C.nc --resume` and another study's results moved to C.nc while the points ran: replaced,
+    exit 0. Now they are kept, one line, exit 2, the resumed results in C.nc.partial."""
+    out = _results(tmp_path)
+    shutil.copyfile(out, tmp_path / "other.nc")
+    with h5py.File(tmp_path / "other.nc", "r+") as f:
+        f.attrs["title"] = "another study"
+    theirs = (tmp_path / "other.nc").read_bytes()
+    with h5py.File(out, "r+") as f:
+        f["done"][1:] = 0
+        f.attrs["complete"] = 0
+    move = (f"import shutil, os\nshutil.copyfile({str(tmp_path / 'other.nc')!r}, {str(tmp_path / 'moving')!r})\n"
+            f"os.replace({str(tmp_path / 'moving')!r}, {str(out)!r})")
+    res = cli(wrapped("rbx.sweeping", "run_point", move), "sweep", "study.yaml", "-o", "out.nc", "--resume",
+              "--quiet", cwd=tmp_path)
+    assert res.returncode == 2, (res.returncode, res.stderr)
+    assert res.stderr.splitlines() == ["rbx: out.nc: appeared while the study ran (another program?) and was not "
+                                       "replaced; the results are in out.nc.partial"], res.stderr
+    assert out.read_bytes() == theirs
+    import xarray as xr
+    with xr.open_dataset(tmp_path / "out.nc.partial", engine="h5netcdf") as ds:
+        assert int(ds["done"].values.min()) == 1 and ds.attrs["complete"] == 1
