@@ -547,6 +547,10 @@ def prepare_resume(run_file, output=None, *, force=False, max_size=None, out_key
     if problem is not None:
         raise problem
     default = source[:-len(".partial")] if source.endswith(".partial") else source
+    if forget_second_name(temporary_path(default), default) and source != default:
+        # OUT.h5.partial was OUT.h5 under a second name (a kill between the final link and the remove): one file,
+        # now under its one name; it was taken as the source, then removed as a second name (a traceback)
+        source = default
     path = os.path.abspath(os.fspath(output)) if output else default
     if output:
         check_not_own_name(path, out_key)      # before the source is locked or read

@@ -125,3 +125,22 @@ def test_a_study_resume_never_replaces_other_results_moved_to_its_output_while_i
     import xarray as xr
     with xr.open_dataset(tmp_path / "out.nc.partial", engine="h5netcdf") as ds:
         assert int(ds["done"].values.min()) == 1 and ds.attrs["complete"] == 1
+
+
+@pytest.mark.long
+@pytest.mark.parametrize("given", ["hl.h5", "hl.h5.partial"])
+def test_a_partial_that_is_the_run_under_a_second_name_resumes(tmp_path, given):
+    """hl.h5.partial a hard link to an interrupted hl.h5 (what a kill between the final link and the remove
+    leaves): `rbx simulate --resume hl.h5` took the .partial as the further file, then removed it as a second name:
+    a FileNotFoundError traceback, exit 1. Now the second name is removed first and the run resumes to the end."""
+    from tests.test_histogram import write_config as histogram_config
+    conf = histogram_config(tmp_path / "h.yaml", run="{collisions: 3000, trajectories: 1, seed: 2}",
+                            initial="{position: [1.0, 0.5], velocity: [0.6, 0.8]}")
+    res = cli(INTERRUPT, "simulate", str(conf), "-o", "hl.h5", "--quiet", cwd=tmp_path)
+    assert res.returncode == 130, res.stderr
+    os.link(tmp_path / "hl.h5", tmp_path / "hl.h5.partial")
+    res = cli("", "simulate", "--resume", given, "--quiet", cwd=tmp_path)
+    assert res.returncode == 0 and "Traceback" not in res.stderr, res.stderr
+    with h5py.File(tmp_path / "hl.h5", "r") as f:
+        assert f.attrs["complete"] and int(f["final/collisions"][0]) == 3000
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["h.yaml", "hl.h5"]
