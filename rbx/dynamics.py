@@ -18,7 +18,8 @@ from .ensembles import orbit_rows
 from .engine import State
 from .physics import spin_vector
 from .reader import Run
-from .simulation import Simulation, record_buffers
+from .model import ConfigError
+from .simulation import STATE_BYTES, Simulation, memory_problem, record_buffers
 from .tangent import coordinate_names, tangent_dimension
 
 __all__ = ["lyapunov", "Lyapunov", "flow_jacobian", "escape_times", "Escape"]
@@ -144,6 +145,11 @@ def _measure_slice(task):
     kernel = (type(table)(*map(own, table)), type(rules)(*map(own, rules)), settings)
     state = State(*map(own, task.state))
     return _measure(kernel, state, own(task.Y), own(task.sums), own(task.cuts))
+
+
+#: bytes per trajectory, generously, beyond its state (rbx.simulation.STATE_BYTES): its tangent vectors (at most
+#: 12 × 12 numbers) and their sums per segment
+TANGENT_BYTES = 2000
 
 
 def _load(experiment, collisions=None, trajectories=None, seed=None):
@@ -327,6 +333,11 @@ def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segme
         if isinstance(exponents, bool) or not isinstance(exponents, (int, np.integer)) or not 1 <= exponents <= d:
             raise ValueError(f"exponents must be an integer from 1 to {d} (the dimension of the phase space), "
                              f"not {exponents!r}")
+    # refused as rbx simulate refuses it, not a MemoryError (7 TiB asked) after setting up
+    problem = memory_problem(exp.run.trajectories, STATE_BYTES + TANGENT_BYTES)
+    if problem:
+        given = trajectories is not None
+        raise ConfigError(None if given else exp.source, "trajectories" if given else "run.trajectories", problem)
     tan = _Tangent(exp, vectors=exponents)
     # copies of one orbit are one sample: the exponents and their errors come from the distinct orbits alone
     # (counted as samples, 8 copies gave an error 2.96 times smaller than one orbit's)

@@ -538,6 +538,8 @@ def test_a_deleted_working_directory_is_one_line(tmp_path):
     (["histogram"], "CONFIG", "Missing argument"),
     # memory: the histogram's sample count and a plot's trajectory range are checked before anything is allocated
     (["histogram", "{config}", "--trajectories", "1000000000"], "--trajectories", "GiB of memory"),
+    # and rbx lyapunov's (a MemoryError traceback, 7 TiB asked)
+    (["lyapunov", "{config}", "--trajectories", "1000000000000"], "--trajectories", "GiB of memory"),
     (["plot", "{run}", "--kind", "orbit", "--trajectories", "0-100000000000"], "--trajectories", "does not exist"),
     # -o '' used output.path silently; -o newdir/ wrote a file named newdir
     (["simulate", "{config}", "-o", ""], "-o", "an empty file name"),

@@ -489,6 +489,14 @@ def test_the_warm_up_and_the_segments_are_checked(option, value):
         lyapunov(_scene(SINAI, SMOOTH, 100), **{option: value})
 
 
+def test_an_ensemble_too_large_for_memory_is_refused_before_it_is_set_up():
+    """rbx.lyapunov(…, trajectories=10**12) raised NumPy's MemoryError (7.28 TiB asked) after setting up; now a
+    ConfigError naming trajectories, as rbx.simulate refuses it."""
+    from rbx.model import ConfigError
+    with pytest.raises(ConfigError, match="^trajectories: 1000000000000 trajectories need about .* GiB of memory"):
+        lyapunov(_scene(SINAI, SMOOTH, 100), trajectories=10**12)
+
+
 def test_lyapunov_command_follows_k_vectors(tmp_path):
     import subprocess
     import sys

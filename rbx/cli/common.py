@@ -113,11 +113,13 @@ def warn_repeated(cfg, overrides, changes=None):
 EXTRA_BYTES_PER_TRAJECTORY = {"simulate": 0, "histogram": 800}
 
 
-def check_memory(cfg, overrides, command="simulate"):
+def check_memory(cfg, overrides, command="simulate", extra=None):
     """Refuse an ensemble whose state alone would not fit in this machine's memory, rather than spend minutes
-    setting it up and then crash (``rbx histogram`` with 10⁹ samples died with MemoryError)."""
+    setting it up and then crash (``rbx histogram`` with 10⁹ samples died with MemoryError). ``extra``: bytes per
+    trajectory beyond its state, where the command's own (:data:`EXTRA_BYTES_PER_TRAJECTORY`) do not say."""
     from ..simulation import STATE_BYTES, memory_problem
-    problem = memory_problem(cfg.run.trajectories, STATE_BYTES + EXTRA_BYTES_PER_TRAJECTORY[command])
+    extra = EXTRA_BYTES_PER_TRAJECTORY[command] if extra is None else extra
+    problem = memory_problem(cfg.run.trajectories, STATE_BYTES + extra)
     if problem:
         file, key = (None, "--trajectories") if overrides.get("trajectories") else (cfg.source, "run.trajectories")
         raise UserError(file, key, problem)

@@ -6,8 +6,8 @@ import time
 import click
 import numpy as np
 
-from .common import (Command, UserError, check_cluster_options, connect, duration, ending_on_signals, parse_sets,
-                     pending_signal, plural, quiet_option, report_and_exit, set_option, summary, user_errors,
+from .common import (Command, UserError, check_cluster_options, check_memory, connect, duration, ending_on_signals,
+                     parse_sets, pending_signal, plural, quiet_option, report_and_exit, set_option, summary, user_errors,
                      warn_repeated)
 from ..progress import compile_note, watch_compiles
 
@@ -84,6 +84,8 @@ def _lyapunov(config, collisions, trajectories, seed, sets, segments, warmup, as
     if exponents is not None and not 1 <= exponents <= d:
         raise UserError(None, "--exponents", f"must be from 1 to {d} (the dimension of the phase space), "
                                              f"not {exponents}")
+    from ..dynamics import TANGENT_BYTES
+    check_memory(exp, overrides, extra=TANGENT_BYTES)
     with connect(cluster) as on:     # an unreachable scheduler is a user error, said before any work
         watch_compiles()
         try:
