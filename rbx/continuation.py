@@ -142,7 +142,9 @@ def _check_orbit(run, slot, source):
         return
     try:
         was = json.loads(runfile._text(stored))
-    except ValueError:
+        if not isinstance(was, dict):
+            raise ValueError(was)
+    except (ValueError, RecursionError):       # RecursionError: '{"a":' nested 100 000 deep
         raise ConfigError(source, f"{slot}.orbit", "damaged (not the digests rbx writes); the file cannot be "
                                                    "resumed") from None
     now = json.loads(runfile.orbit_digests(run.config))

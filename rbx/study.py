@@ -408,8 +408,8 @@ def _duplicates(text, file):
     """Refuse a key given twice in one mapping, naming its dotted path (``vary.ball.inertia``)."""
     try:
         root = yaml.compose(text, Loader=yaml.SafeLoader)
-    except yaml.YAMLError:
-        return                      # parse_yaml says where the syntax is wrong
+    except (yaml.YAMLError, RecursionError):
+        return                      # parse_yaml says where the syntax is wrong, or that it is nested too deeply
     stack, visited = [(root, "")], set()
     while stack:
         node, path = stack.pop()

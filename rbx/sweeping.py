@@ -325,7 +325,7 @@ def read_results(path):
     with xr.open_dataset(path, engine="h5netcdf", phony_dims="access") as ds:
         try:
             varied = set(json.loads(str(ds.attrs.get("varied", "[]"))))
-        except ValueError:
+        except (ValueError, TypeError, RecursionError):
             varied = set()          # said where the attribute is read
         for name in ds.data_vars:
             if str(name) not in varied and not _written_variable(str(name)):

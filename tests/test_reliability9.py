@@ -144,3 +144,31 @@ def test_a_partial_that_is_the_run_under_a_second_name_resumes(tmp_path, given):
     with h5py.File(tmp_path / "hl.h5", "r") as f:
         assert f.attrs["complete"] and int(f["final/collisions"][0]) == 3000
     assert sorted(p.name for p in tmp_path.iterdir()) == ["h.yaml", "hl.h5"]
+
+
+@pytest.mark.long
+def test_inputs_nested_too_deeply_are_one_line(tmp_path):
+    """A study file nested 5000 deep, a results file whose `measure` is '[' 100 000 times, an interrupted run whose
+    saved state's `orbit` digests are '{"a":' 100 000 times: each a RecursionError traceback, exit 1. Now one line
+    each, exit 2."""
+    from tests.test_histogram import write_config as histogram_config
+    study = specular_study(trajectories=2, collisions=100)
+    (tmp_path / "deep.yaml").write_text(yaml.safe_dump(study) + "notes: " + "{a: " * 5000 + "1" + "}" * 5000 + "\n")
+    res = cli("", "sweep", "deep.yaml", "-o", "d.nc", cwd=tmp_path)
+    assert res.returncode == 2 and res.stderr.splitlines() == ["rbx: deep.yaml: the YAML is nested too deeply"], \
+        res.stderr
+    out = _results(tmp_path)
+    with h5py.File(out, "r+") as f:
+        f.attrs["measure"] = "[" * 100_000
+    res = cli("", "plot", "out.nc", "--kind", "sweep", "-o", "x.png", cwd=tmp_path)
+    assert res.returncode == 2 and len(res.stderr.splitlines()) == 1, res.stderr
+    assert res.stderr.startswith("rbx: out.nc: measure: is not a JSON list"), res.stderr
+    conf = histogram_config(tmp_path / "h.yaml", run="{collisions: 3000, trajectories: 1, seed: 2}",
+                            initial="{position: [1.0, 0.5], velocity: [0.6, 0.8]}")
+    res = cli(INTERRUPT, "simulate", str(conf), "-o", "r.h5", "--quiet", cwd=tmp_path)
+    assert res.returncode == 130, res.stderr
+    with h5py.File(tmp_path / "r.h5", "r+") as f:
+        f["final"].attrs["orbit"] = '{"a":' * 100_000
+    res = cli("", "simulate", "--resume", "r.h5", "--quiet", cwd=tmp_path)
+    assert res.returncode == 2 and len(res.stderr.splitlines()) == 1, res.stderr
+    assert "final.orbit: damaged" in res.stderr and "Traceback" not in res.stderr, res.stderr

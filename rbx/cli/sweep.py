@@ -276,7 +276,7 @@ def _check_results_attrs(ds, path):
             names = json.loads(ds.attrs[key])
         except KeyError:
             bad(key, "missing")
-        except (TypeError, ValueError):
+        except (TypeError, ValueError, RecursionError):     # RecursionError: '[' nested 100 000 deep
             bad(key, f"is not a JSON list ({str(ds.attrs[key])[:40]!r})")
         if not (isinstance(names, list) and names and all(isinstance(n, str) for n in names)):
             bad(key, f"is not a list of names ({str(ds.attrs[key])[:40]!r})")
