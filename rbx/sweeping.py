@@ -386,7 +386,13 @@ def sweep(study, output=None, *, scheduler=None, resume=False, force=False, prog
         return _sweep(study, None, scheduler, resume, force, progress, base, changes)
     if not isinstance(output, (str, bytes, os.PathLike)):
         raise TypeError(f"rbx.sweep: output is a file path (a str or os.PathLike), not {type(output).__name__}")
-    output = os.path.abspath(os.fsdecode(os.fspath(output)))        # a bytes path is the path it names
+    given = os.fsdecode(os.fspath(output))
+    if not given.strip() or given.endswith(os.sep) or os.path.isdir(given):
+        # '' and a folder were taken as the folder's own name: every point ran, then the results and the lock went
+        # beside it, in the folder above ('/' as output: '/.partial'), and the end said the disk was full
+        raise FileError(None, "-o", "an empty file name" if not given.strip() else
+                        f"{given} is a folder: give the results a file name, such as results.nc")
+    output = os.path.abspath(given)        # a bytes path is the path it names
     _check_not_own_name(output)
     check_own_names(output)        # a FIFO named as the lock would block its read
     try:

@@ -1442,3 +1442,16 @@ def test_a_results_file_with_a_zip_flag_or_values_no_study_writes_is_one_line(sp
     res = rbx_cli("plot", "text.nc", "--kind", "sweep", "--y", "mean_free_path", "-o", "t.png", cwd=tmp_path)
     assert res.returncode == 2 and len(res.stderr.splitlines()) == 1 and res.stderr.startswith("rbx: text.nc: ") \
         and "the file was not written as rbx sweep writes it" in res.stderr, res.stderr
+
+
+@pytest.mark.parametrize("output", ["", "sub", "sub/", "/"])
+def test_results_named_as_a_folder_are_refused_before_any_point(tmp_path, monkeypatch, output):
+    """rbx.sweep(study, output='' or a folder, force=True) ran every point, then put the results and the lock
+    beside the folder, in the one above (output='/': '/.partial'), and said the disk was full. Now refused before
+    any point, nothing written."""
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "sub").mkdir()
+    with pytest.raises(rbx.FileError, match="an empty file name" if not output else "is a folder: give the results"):
+        rbx.sweep(specular_study(trajectories=2, collisions=100), output=output, force=True)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["sub"] and not list((tmp_path / "sub").iterdir())
+    assert not os.path.exists("/.partial") and not os.path.exists("/.lock")
