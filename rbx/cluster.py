@@ -417,6 +417,17 @@ class Cluster:
             raise ClusterError(self.key, f"a task failed ({what}): {type(exc).__name__}: {_first_line(exc)}") \
                 from None
 
+    def _submit(self, function, *args, **options):
+        """``client.submit``; a client closed meanwhile (its scheduler killed: Dask closes the client, and the next
+        submit raised ClosedClientError, a traceback) raises :class:`ClusterError` as a lost scheduler does."""
+        from distributed.client import ClosedClientError
+        from distributed.comm.core import CommClosedError
+        try:
+            return self.client.submit(function, *args, **options)
+        except (ClosedClientError, CommClosedError, OSError) as exc:
+            raise ClusterError(self.key, f"the scheduler is gone (shut down, or the network to it lost): "
+                                         f"{_first_line(exc)}") from None
+
     def map(self, function, tasks, what="task", should_stop=None):
         """``function(task)`` for each of ``tasks`` on the workers -> the results, in the order of ``tasks`` (None
         if ``should_stop()`` became true first). Every task is submitted at once (for work that is not cut into
@@ -429,7 +440,7 @@ class Cluster:
         results = [None] * len(tasks)
         try:
             for i, task in enumerate(tasks):
-                future = self.client.submit(function, task, key=f"{run_id}-{i}", pure=False)
+                future = self._submit(function, task, key=f"{run_id}-{i}", pure=False)
                 running[future] = i
                 future.add_done_callback(finished.put)   # called in the client's thread: the queue hands over
             while running:
@@ -516,7 +527,7 @@ class Cluster:
                 return
             records = ends[r] // every - starts[r] // every if sim.record else 0
             task = _Task(groups, state, ends[r], sim.record, sim.n, records)
-            future = self.client.submit(run_task, task, key=f"{run_id}-s{s}-r{r}", pure=False, priority=-r)
+            future = self._submit(run_task, task, key=f"{run_id}-s{s}-r{r}", pure=False, priority=-r)
             running[future] = (s, r)
             future.add_done_callback(finished.put)     # called in the client's thread: the queue is the hand-over
 

@@ -676,3 +676,19 @@ def test_a_scheduler_lost_mid_study_is_one_line_exit_1_and_how_to_continue(tmp_p
     with xr.open_dataset(tmp_path / "out.nc.partial") as ds:
         kept = int(ds["done"].sum())
     assert 1 <= kept < 3 and f"the file holds the {kept} of 3 points finished before" in line, line
+
+
+def test_a_task_submitted_to_a_client_its_scheduler_closed_is_a_lost_cluster_not_a_traceback():
+    """The scheduler killed while rbx histogram --scheduler ran: Dask closed the client, and the next task's submit
+    raised ClosedClientError, a traceback (2 of 3 tries). Now the ClusterError of a lost scheduler (one line, exit
+    1). A real client on a real (in-process) scheduler, closed."""
+    from distributed import Client, LocalCluster
+
+    from rbx.cluster import Cluster, ClusterError
+    with LocalCluster(n_workers=1, threads_per_worker=1, processes=False, dashboard_address=None) as local:
+        client = Client(local, set_as_default=False)
+        cluster = Cluster(client)
+        assert cluster._submit(abs, -2, pure=False).result(timeout=60) == 2
+        client.close()
+        with pytest.raises(ClusterError, match=r"^--scheduler: the scheduler is gone \(shut down, or the network"):
+            cluster._submit(abs, -3, pure=False)
