@@ -548,6 +548,9 @@ def _sweep(study, output, scheduler, resume, force, progress, base, changes):
         except FileExistsError:
             raise FileError(output, None, "appeared while the study ran (another program?) and was not replaced; "
                                           f"the results are in {display_path(partial)}") from None
+        except FileError as exc:     # a link, a FIFO, another command's file put there meanwhile: not replaced
+            raise FileError(exc.file, exc.key, f"{exc.problem}; it was put there while the study ran and was not "
+                                               f"replaced: the results are in {display_path(partial)}") from None
         except OSError as exc:       # the folder removed or made read-only just now
             where = (f"the results are in {display_path(partial)}" if os.path.exists(partial) else
                      "nothing of the study is kept")

@@ -119,6 +119,14 @@ def test_a_studys_results_never_replace_a_file_that_appeared_while_it_ran(tmp_pa
     assert res.returncode == 2 and "Traceback" not in res.stderr, res.stderr
     assert "a run file of rbx simulate" in res.stderr
     assert out.read_bytes() == a_run.read_bytes()
+    # nor a link put there (it did not say where the results were)
+    out.unlink()
+    link = f"import os; os.symlink({str(a_run)!r}, {str(out)!r})"
+    res = cli(wrapped("rbx.sweeping", "run_point", link), "sweep", "study.yaml", "-o", "out.nc", "--quiet",
+              "--force", cwd=tmp_path)
+    assert res.returncode == 2 and len(res.stderr.splitlines()) == 1, res.stderr
+    assert "is a symbolic link" in res.stderr and "the results are in out.nc.partial" in res.stderr, res.stderr
+    assert os.readlink(out) == str(a_run)
 
 
 @pytest.mark.long
