@@ -382,6 +382,10 @@ def sweep(study, output=None, *, scheduler=None, resume=False, force=False, prog
                         "Study (give them to load_study)")
     if sets is not None and not isinstance(sets, Mapping):
         raise TypeError(f"rbx.sweep: sets is a mapping {{'ball.inertia': 0.2, …}}, not {type(sets).__name__}")
+    for key in sets or ():      # {1: 2} ended in "unsupported operand type(s) for +: 'int' and 'str'"
+        if not isinstance(key, str):
+            raise TypeError(f"rbx.sweep: the keys of sets are dotted config keys such as 'ball.inertia', not "
+                            f"{key!r} ({type(key).__name__})")
     if output is None:
         return _sweep(study, None, scheduler, resume, force, progress, base, changes)
     if not isinstance(output, (str, bytes, os.PathLike)):

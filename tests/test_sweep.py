@@ -752,6 +752,9 @@ def test_the_api_sweep_shortens_a_study_as_the_command_line_does(tmp_path):
     same(got, sweep(written))
     with pytest.raises(rbx.ConfigError, match="the study varies ball.inertia"):
         rbx.sweep(tmp_path / "study.yaml", sets={"ball.inertia": 0.2})
+    # a key that is not text: it was "unsupported operand type(s) for +: 'int' and 'str'"
+    with pytest.raises(TypeError, match="the keys of sets are dotted config keys such as 'ball.inertia', not 1"):
+        rbx.sweep(tmp_path / "study.yaml", sets={1: 2})
 
 
 def test_a_studys_own_set_of_a_varied_key_is_refused():
