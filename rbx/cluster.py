@@ -243,8 +243,12 @@ def _scheduler_file(path, key):
             address = json.load(f).get("address")
     except (OSError, ValueError, AttributeError) as exc:
         raise SchedulerUnreachable(key, f"{path}: not a Dask scheduler file ({_first_line(exc)})") from None
-    if not isinstance(address, str):
+    if address is None:
         raise SchedulerUnreachable(key, f"{path}: not a Dask scheduler file (no 'address')")
+    if not isinstance(address, str) or "://" not in address:
+        # a number, or a name without a protocol, was said as 'no address' or as the protocol 's1.json://'
+        raise SchedulerUnreachable(key, f"{path}: not a Dask scheduler file (its 'address' is {str(address)[:60]!r}, "
+                                        "not an address such as tcp://HOST:PORT)")
     return address
 
 

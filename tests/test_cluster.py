@@ -440,7 +440,8 @@ def free_port():
 
 
 @pytest.mark.parametrize("address", ["tcp://127.0.0.1:{port}", "127.0.0.1:{port}", "nonsense://where",
-                                     "scheduler.json", "tls://127.0.0.1:{port}", "inproc://x", "fifo", "folder"])
+                                     "scheduler.json", "tls://127.0.0.1:{port}", "inproc://x", "fifo", "folder",
+                                     "number.json", "name.json"])
 def test_an_unreachable_scheduler_is_one_line_and_exit_2(address, tmp_path):
     """Each a line saying what is wrong; a FIFO or a folder named as the scheduler file was said to have 'no port
     in the address'."""
@@ -448,6 +449,8 @@ def test_an_unreachable_scheduler_is_one_line_and_exit_2(address, tmp_path):
     address = address.format(port=port)
     if address == "scheduler.json":     # the file of a scheduler that is gone
         (tmp_path / address).write_text(json.dumps({"type": "Scheduler", "address": f"tcp://127.0.0.1:{port}"}))
+    if address in ("number.json", "name.json"):   # said as "no 'address'", and as the protocol "s1.json://"
+        (tmp_path / address).write_text(json.dumps({"address": 12345 if address == "number.json" else "s1.json"}))
     if address == "fifo":
         os.mkfifo(tmp_path / address)
     if address == "folder":
@@ -464,6 +467,10 @@ def test_an_unreachable_scheduler_is_one_line_and_exit_2(address, tmp_path):
         what = "a FIFO (named pipe)" if address == "fifo" else "a directory"
         assert lines[0] == f"rbx: --scheduler: {address} is {what}, not a scheduler file (give tcp://HOST:PORT, or " \
                            "the file dask scheduler --scheduler-file wrote)", lines[0]
+    elif address in ("number.json", "name.json"):
+        value = "'12345'" if address == "number.json" else "'s1.json'"
+        assert lines[0] == f"rbx: --scheduler: {address}: not a Dask scheduler file (its 'address' is {value}, not " \
+                           "an address such as tcp://HOST:PORT)", lines[0]
     else:
         assert "cannot reach a Dask scheduler" in lines[0] and "Connection refused" in lines[0]
     assert not list(tmp_path.glob("run.h5*"))                # nothing written
