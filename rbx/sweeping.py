@@ -415,6 +415,23 @@ def sweep(study, output=None, *, scheduler=None, resume=False, force=False, prog
         release_lock(output)
 
 
+def _own_results_note(output, partial, st):
+    """Where ``partial`` (of another study: a killed --force run of it under this name) stands beside ``output``
+    holding this study's results: a note saying so and how to keep them (the refusal said only 'the study
+    changed', as if the results were lost) -> text, or ''."""
+    if not os.path.isfile(output):
+        return ""
+    try:
+        ds = read_results(output)
+    except Exception:   # noqa: BLE001 - not results of this study: nothing to add
+        return ""
+    if ds.attrs.get("study_digest") != st.digest or "done" not in ds:
+        return ""
+    done, total = int(np.sum(ds["done"].values)), int(ds["done"].size)
+    return (f"; {display_path(output)} holds this study's results ({done} of {total} points): to go on with them, "
+            f"remove {display_path(partial)} (another study's, left by a killed run)")
+
+
 def _check_not_own_name(output):
     """Refuse results named as rbx names the files beside another output (``X.nc.partial``, ``X.nc.lock``, …): a
     sweep wrote its results there, which ``--resume -o X.nc`` then took for its own unfinished results (and
@@ -473,7 +490,7 @@ def _sweep(study, output, scheduler, resume, force, progress, base, changes):
                                                         "resume with the study and options it was started with, or "
                                                         "run it afresh with --force, which discards its "
                                                         f"{int(np.sum(ds['done'].values)) if 'done' in ds else 0} "
-                                                        "finished points")
+                                                        "finished points" + _own_results_note(output, partial, st))
                 template = _empty(st, exp0)
                 _check_resumable(ds, template, source, st, points)
                 ds.attrs["study"] = template.attrs["study"]     # the study's own text as it is now (its comments)

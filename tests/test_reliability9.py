@@ -172,3 +172,21 @@ def test_inputs_nested_too_deeply_are_one_line(tmp_path):
     res = cli("", "simulate", "--resume", "r.h5", "--quiet", cwd=tmp_path)
     assert res.returncode == 2 and len(res.stderr.splitlines()) == 1, res.stderr
     assert "final.orbit: damaged" in res.stderr and "Traceback" not in res.stderr, res.stderr
+
+
+@pytest.mark.long
+def test_a_resume_beside_another_studys_partial_says_the_results_are_there(tmp_path):
+    """`rbx sweep A -o r.nc --resume`, r.nc holding every point of A and r.nc.partial another study's (a killed
+    --force run of it): the line said only that the study changed, as if A's results were lost. Now it also says
+    that r.nc holds them and how to go on."""
+    out = _results(tmp_path)
+    shutil.copyfile(out, tmp_path / "out.nc.partial")
+    with h5py.File(tmp_path / "out.nc.partial", "r+") as f:
+        f.attrs["study_digest"] = "0" * 64
+    before = out.read_bytes()
+    res = cli("", "sweep", "study.yaml", "-o", "out.nc", "--resume", cwd=tmp_path)
+    assert res.returncode == 2 and len(res.stderr.splitlines()) == 1, res.stderr
+    assert "the study changed since this file was started" in res.stderr
+    assert res.stderr.rstrip().endswith("; out.nc holds this study's results (2 of 2 points): to go on with them, "
+                                        "remove out.nc.partial (another study's, left by a killed run)"), res.stderr
+    assert out.read_bytes() == before
