@@ -24,6 +24,7 @@ import numpy as np
 from . import __version__, runfile
 from .locks import acquire_lock, release_lock
 from .model import ConfigError
+from .paths import shortened
 from .runfile import STATE_GROUPS, latest_state
 from .simulation import Simulation
 
@@ -170,8 +171,9 @@ def _check_state_fits(run, cfg, state, slot, damaged):
                                   ("table_kind", run.table_kind, cfg.table_kind),
                                   ("wall_names", list(run.wall_names), list(cfg.wall_names))):
         if stored != expected:
-            raise damaged(f"config: {key}", f"is {expected!r} but the run was made with {stored!r} (root attribute "
-                                            f"'{key}'): the stored config was changed")
+            raise damaged(f"config: {key}", f"is {shortened(repr(expected))} but the run was made with "
+                                            f"{shortened(repr(stored))} (root attribute '{key}'): the stored config "
+                                            "was changed")
     alive = np.asarray(state["alive"]).astype(bool)
     for k in ("time", "position", "velocity", "angular_velocity", "orientation"):
         values = np.asarray(state[k])[alive]

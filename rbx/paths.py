@@ -40,6 +40,13 @@ class DiskFull(OSError):
         return self.strerror
 
 
+def shortened(text, most=80):
+    """``text`` cut to ``most`` characters (an ellipsis last): a value quoted in a message (a crafted attribute of
+    300 kB made a 'line' of 300 kB)."""
+    text = str(text)
+    return text if len(text) <= most else f"{text[:most - 1]}…"
+
+
 def one_line(text):
     """``text`` with its control characters written as escapes ('a\\nb'): a file name holding a newline split a
     one-line message in two."""

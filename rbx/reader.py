@@ -22,7 +22,7 @@ from .config import loads
 from .locks import acquire_lock, lock_holder, release_lock
 from .locks import busy as _busy
 from .model import FIELD, RECORD_FIELDS, ConfigError
-from .paths import MAX_CONFIG_BYTES, FileError, display_path, what_it_is
+from .paths import MAX_CONFIG_BYTES, FileError, display_path, shortened, what_it_is
 from .progress import plural
 from .runfile import (INDEX_DATASETS, REQUIRED_ATTRS, ROOT_ATTRS, SCHEMA_VERSION, STATE_GROUPS, _plain, _text,
                       is_true, latest_state, root_attrs)
@@ -583,7 +583,7 @@ class Run:
             if list(exp.wall_names) != list(self.wall_names):   # what collisions/wall indexes: the plots read both
                 raise FileError(self.path or "<run>", "wall_names",
                                 f"the root attribute names {len(self.wall_names)} walls "
-                                f"({', '.join(map(str, self.wall_names))}), the stored config's table "
+                                f"({shortened(', '.join(map(str, self.wall_names)))}), the stored config's table "
                                 f"{len(exp.wall_names)} ({', '.join(exp.wall_names)}): a damaged or crafted file")
             self._experiment = exp
         return self._experiment

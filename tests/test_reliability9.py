@@ -190,3 +190,20 @@ def test_a_resume_beside_another_studys_partial_says_the_results_are_there(tmp_p
     assert res.stderr.rstrip().endswith("; out.nc holds this study's results (2 of 2 points): to go on with them, "
                                         "remove out.nc.partial (another study's, left by a killed run)"), res.stderr
     assert out.read_bytes() == before
+
+
+@pytest.mark.long
+def test_a_crafted_attribute_is_quoted_short(tmp_path):
+    """An interrupted run whose root attribute wall_names was made '[' 100 000 times: the resume's refusal quoted it
+    whole, a 'line' of 300 kB. Now the line is short and says what changed."""
+    from tests.test_histogram import write_config as histogram_config
+    conf = histogram_config(tmp_path / "h.yaml", run="{collisions: 3000, trajectories: 1, seed: 2}",
+                            initial="{position: [1.0, 0.5], velocity: [0.6, 0.8]}")
+    res = cli(INTERRUPT, "simulate", str(conf), "-o", "r.h5", "--quiet", cwd=tmp_path)
+    assert res.returncode == 130, res.stderr
+    with h5py.File(tmp_path / "r.h5", "r+") as f:
+        f.attrs["wall_names"] = "[" * 100_000
+    res = cli("", "simulate", "--resume", "r.h5", "--quiet", cwd=tmp_path)
+    assert res.returncode == 2 and len(res.stderr.splitlines()) == 1 and len(res.stderr) < 600, res.stderr[:600]
+    assert "wall_names: the root attribute names 100000 walls ([, [, [" in res.stderr and "…" in res.stderr, \
+        res.stderr
