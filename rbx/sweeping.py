@@ -36,8 +36,8 @@ from .model import ConfigError
 from .paths import (ANY, DiskFull, FileError, check_own_file, check_own_kind, check_own_names, check_own_objects,
                     check_replaceable, create_own, display_path, file_id, other_commands_file, place, what_it_is)
 from .runfile import provenance
-from .simulation import STATE_BYTES, memory_refusal, records_bytes
-from .study import Study, _representatives, load_study, needs
+from .simulation import STATE_BYTES, memory_problem, memory_refusal, records_bytes
+from .study import MAX_POINTS, Study, _representatives, load_study, needs
 
 __all__ = ["sweep", "run_point", "StudyInterrupted", "kept_points", "partial_path", "study_title"]
 
@@ -321,6 +321,7 @@ def read_results(path):
     if not stat_.S_ISREG(os.stat(path).st_mode):
         raise FileError(path, None, f"is {what_it_is(path)}, not a regular file: not a study's results")
     check_own_objects(path, "a study's results hold their own (the file was changed after rbx wrote it)")
+    _check_sizes(path)
     # phony_dims: a variable without dimension scales is named in a refusal, not warned about by the reader
     with xr.open_dataset(path, engine="h5netcdf", phony_dims="access") as ds:
         try:
@@ -332,6 +333,24 @@ def read_results(path):
                 raise FileError(path, str(name), "is a variable rbx sweep does not write: the file was changed "
                                                  "after rbx wrote it")
         return ds.load()
+
+
+def _check_sizes(path):
+    """Refuse (:class:`FileError`) a results file larger once read than any study's: a file of 7 kB can declare
+    2·10⁹ points (its chunks never written), which reading it allocated (15 GiB per variable, the coordinates
+    before anything else). No dimension may be longer than :data:`MAX_POINTS`, nor all the variables together
+    larger than the memory this process may have."""
+    import h5py
+    with h5py.File(path, "r", locking=False) as f:
+        shapes = {name: (item.shape, item.dtype.itemsize) for name, item in f.items()
+                  if isinstance(item, h5py.Dataset)}
+    for name, (shape, _) in shapes.items():
+        if shape and max(shape) > MAX_POINTS:     # no key takes more values, no table has as many walls
+            raise FileError(path, name, f"has a dimension of {max(shape)}; a study has at most {MAX_POINTS} points: "
+                                        "the file was changed after rbx wrote it")
+    problem = memory_problem(1, sum(int(np.prod(shape, dtype=np.float64)) * size for shape, size in shapes.values()))
+    if problem:
+        raise FileError(path, None, f"its variables would not fit in memory ({problem})")
 
 
 #: the variables every study writes besides its observables' (:func:`_empty`)

@@ -207,3 +207,22 @@ def test_a_crafted_attribute_is_quoted_short(tmp_path):
     assert res.returncode == 2 and len(res.stderr.splitlines()) == 1 and len(res.stderr) < 600, res.stderr[:600]
     assert "wall_names: the root attribute names 100000 walls ([, [, [" in res.stderr and "…" in res.stderr, \
         res.stderr
+
+
+@pytest.mark.long
+def test_a_results_file_declaring_more_points_than_a_study_has_is_refused_before_it_is_read(tmp_path):
+    """A 7 kB results file declaring 2·10⁹ points (chunks never written): `rbx plot --kind sweep` allocated 14.9 GiB
+    for its coordinate (a MemoryError under a memory limit, the machine's memory without one). Now one line, exit 2,
+    before anything is read; run here under a 4 GB limit so that the old code fails without taking the machine."""
+    import h5netcdf
+    with h5netcdf.File(tmp_path / "big.nc", "w") as f:
+        f.dimensions = {"table.radius": 2_000_000_000}
+        f.attrs.update(rbx_study="1", varied='["table.radius"]', measure='["mean_free_path"]')
+        for name, dtype in (("table.radius", "f8"), ("done", "i1"), ("mean_free_path", "f8"), ("wall_time", "f8")):
+            f.create_variable(name, ("table.radius",), dtype, chunks=(1_000_000,))
+    assert (tmp_path / "big.nc").stat().st_size < 100_000
+    prelude = "import resource\nresource.setrlimit(resource.RLIMIT_AS, (4 << 30, 4 << 30))"
+    res = cli(prelude, "plot", "big.nc", "--kind", "sweep", "-o", "b.png", cwd=tmp_path)
+    assert res.returncode == 2 and res.stderr.splitlines() == [
+        "rbx: big.nc: table.radius: has a dimension of 2000000000; a study has at most 100000 points: the file was "
+        "changed after rbx wrote it"], res.stderr
