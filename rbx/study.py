@@ -225,6 +225,11 @@ def load_study(study, base=None, progress=None, sets=None, ensemble=None):
         fail("vary", "a mapping of dotted config keys to lists of values or {from, to, num, scale}")
     own = {str(k): v for k, v in (data.get("set") or {}).items()}
     for key in vary:
+        try:
+            str(key).encode("utf-8")
+        except UnicodeEncodeError:      # a lone surrogate ('\udc80'): the study's digest cannot be taken
+            fail(f"vary.{ascii(str(key))[1:-1]}", "is not a config key (it holds a character that is not text: a "
+                                                  "lone surrogate)")
         _not_the_studys(str(key), None, f"vary.{key}", fail)
         # a set: or --set of a varied key would be replaced at every point without a word
         for where, given, value in ([("set.", k, v) for k, v in own.items()]

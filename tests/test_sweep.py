@@ -266,6 +266,8 @@ BASE = f"base: {SINAI}\n"
 ENSEMBLE = "ensemble: {trajectories: 2, collisions: 100, seed: 1}\n"
 BAD = {
     "unknown-key": ("vary: {ball.inertai: [0.1]}\nmeasure: [lyapunov]\n", "vary.ball.inertai", "did you mean"),
+    # a lone surrogate in a key: "'utf-8' codec can't encode character '\udc80'", naming no key
+    "surrogate-key": ('vary: {"ball.\\udc80": [0.1]}\nmeasure: [lyapunov]\n', "vary.ball.\\udc80", "lone surrogate"),
     "empty-list": ("vary: {ball.inertia: []}\nmeasure: [lyapunov]\n", "vary.ball.inertia", "empty"),
     "not-a-number": ("vary: {ball.inertia: [0.1, x]}\nmeasure: [lyapunov]\n", "vary.ball.inertia", "number"),
     "twice": ("vary:\n  ball.inertia: [0.1]\n  ball.inertia: [0.2]\nmeasure: [lyapunov]\n", "vary.ball.inertia",
