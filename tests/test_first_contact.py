@@ -188,7 +188,6 @@ def test_an_edited_config_mapping_finds_its_includes(tmp_path, monkeypatch):
     assert rbx.load(STRIP).resolved["ball"]["inertia"] == "uniform"      # the copy was edited, not the experiment
 
 
-@pytest.mark.long
 def test_set_on_the_command_line(strip_inertia, tmp_path):
     reference = records(rbx.simulate(rbx.load(strip_inertia), collisions=100))
     res = cli("simulate", STRIP, "-o", "a.h5", "--collisions", 100, "--set", "ball.inertia=0.2",
@@ -219,7 +218,6 @@ def test_set_on_the_command_line(strip_inertia, tmp_path):
 
 # ---- 2. an ensemble of one orbit ---------------------------------------------------------------------------------
 
-@pytest.mark.long
 def test_copies_of_one_orbit_are_warned_about_and_their_diffusion_refused(tmp_path):
     res = cli("simulate", STRIP, "-o", "same.h5", "--collisions", 2000, "--trajectories", 4, "--quiet", cwd=tmp_path)
     assert res.returncode == 0, res.stderr
@@ -256,7 +254,6 @@ def test_the_api_warns_of_copies_of_one_orbit(tmp_path):
         "run.trajectories" not in res.stderr, res.stderr
 
 
-@pytest.mark.long
 def test_a_seed_that_nothing_uses_is_warned_about(tmp_path):
     """--seed (or --set run.seed) on a run that draws no random numbers (a fixed start, no random rule) changes
     nothing: one warning line, as for copies of one orbit; a run that draws numbers says nothing."""
@@ -297,7 +294,6 @@ def histogram_config(folder):
     return path
 
 
-@pytest.mark.long
 def test_histogram_never_replaces_the_simulation_by_default_and_data_names_its_file(tmp_path):
     conf = histogram_config(tmp_path)
     assert cli("simulate", conf, "--collisions", 30, "--quiet", cwd=tmp_path).returncode == 0
