@@ -325,7 +325,7 @@ KILL_AFTER_LINK = ("import os, sys\n"
 def test_a_kill_between_the_final_link_and_the_remove_is_cleaned_up(tmp_path):
     """Killed between linking OUT.h5.partial to OUT.h5 and removing the .partial, the two names were one inode;
     ``--resume OUT.h5.partial`` then always said ``OUT.h5: exists; use --force``. The second name is removed
-    (the rename was done), by the resume and by the next run's check."""
+    (the rename was done), by the resume (which then finds run.h5 complete) and by the next run's check."""
     write_config(tmp_path, strip_random(3000, trajectories=2, every=3, record=("time", "position")))
     reference_run(tmp_path)
     for then in ("resume", "a new run"):
@@ -337,8 +337,9 @@ def test_a_kill_between_the_final_link_and_the_remove_is_cleaned_up(tmp_path):
         assert os.path.samefile(tmp_path / "run.h5", tmp_path / "run.h5.partial")
         if then == "resume":
             res = rbx_cli("simulate", "--resume", "run.h5.partial", cwd=tmp_path)
+            # run.h5 holds the complete run under its one name: nothing is left to rename or resume
             assert res.returncode == 0, res.stderr
-            assert "renamed to run.h5" in one_line(res)
+            assert "rbx: run.h5: the run is complete; nothing to resume" in one_line(res), res.stderr
         else:
             res = rbx_cli("simulate", "exp.yaml", "-o", "run.h5", cwd=tmp_path)
             assert res.returncode == 2 and "run.h5: exists; use --force" in one_line(res), res.stderr
