@@ -251,27 +251,38 @@ def check_own_file(path, mine, key=None):
     check_own_kind(path, key)
 
 
-def check_own_objects(path, fix):
-    """Raise :class:`FileError` naming the first group or dataset of the HDF5 file ``path`` that is not the file's
-    own: a link (soft or external: an external link is opened by the mere lookup, and one to a FIFO held the reader
-    for ever, deaf to SIGTERM), or a virtual or external dataset (its values read from other files). ``fix``: what
-    to do, said after the problem. Nothing is followed: each name is looked at as a link first."""
+def foreign_object(group, prefix=""):
+    """The first group or dataset under the open HDF5 ``group`` that is not the file's own -> ``(name, what)``, its
+    name (after ``prefix``) and what it is: 'link' (soft or external: an external link is opened by the mere lookup,
+    and one to a FIFO held the reader for ever, deaf to SIGTERM), 'virtual' or 'external' (a dataset whose values
+    are read from other files); None when every one is its own. Nothing is followed: each name is looked at as a
+    link first."""
     import h5py
-    with h5py.File(path, "r", locking=False) as f:
-        todo = [("", f)]
-        while todo:
-            prefix, group = todo.pop()
-            for name in group:
-                where = f"{prefix}{name}"
-                if not isinstance(group.get(name, getlink=True), h5py.HardLink):
-                    raise FileError(path, where, f"is a link, not a variable of this file: its values lie elsewhere; "
-                                                 f"{fix}")
-                item = group[name]
-                if isinstance(item, h5py.Group):
-                    todo.append((f"{where}/", item))
-                elif item.is_virtual or item.external:
-                    raise FileError(path, where, f"is an HDF5 {'virtual' if item.is_virtual else 'external'} "
-                                                 f"dataset: its values lie in other files; {fix}")
+    todo = [(prefix, group)]
+    while todo:
+        prefix, group = todo.pop()
+        for name in group:
+            where = f"{prefix}{name}"
+            if not isinstance(group.get(name, getlink=True), h5py.HardLink):
+                return where, "link"
+            item = group[name]
+            if isinstance(item, h5py.Group):
+                todo.append((f"{where}/", item))
+            elif item.is_virtual or item.external:
+                return where, "virtual" if item.is_virtual else "external"
+    return None
+
+
+def check_own_objects(path, f, fix):
+    """Raise :class:`FileError` naming the first group or dataset of ``f`` (the HDF5 file ``path``, open) that is
+    not the file's own (:func:`foreign_object`). ``fix``: what to do, said after the problem."""
+    found = foreign_object(f)
+    if found is None:
+        return
+    where, what = found
+    if what == "link":
+        raise FileError(path, where, f"is a link, not a variable of this file: its values lie elsewhere; {fix}")
+    raise FileError(path, where, f"is an HDF5 {what} dataset: its values lie in other files; {fix}")
 
 
 def rbx_kind(path):

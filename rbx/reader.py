@@ -22,7 +22,7 @@ from .config import loads
 from .locks import acquire_lock, lock_holder, release_lock
 from .locks import busy as _busy
 from .model import FIELD, RECORD_FIELDS, ConfigError
-from .paths import MAX_CONFIG_BYTES, FileError, display_path, shortened, what_it_is
+from .paths import MAX_CONFIG_BYTES, FileError, display_path, foreign_object, shortened, what_it_is
 from .progress import plural
 from .runfile import (INDEX_DATASETS, REQUIRED_ATTRS, ROOT_ATTRS, SCHEMA_VERSION, STATE_GROUPS, _plain, _text,
                       is_true, latest_state, root_attrs)
@@ -209,20 +209,20 @@ def check_layout(f, path):
         if group in f and not isinstance(f.get(group, getlink=True), h5py.HardLink):
             raise FileError(path, group, "is a link, not a group of this file: a run file holds its own records (a "
                                          "crafted file)")
-        names = list(f[group].keys()) if isinstance(f.get(group), h5py.Group) else []
-        for name in names:
-            where = f"{group}/{name}"
-            if not isinstance(f[group].get(name, getlink=True), h5py.HardLink):
+        if not isinstance(f.get(group), h5py.Group):
+            continue
+        found = foreign_object(f[group], f"{group}/")
+        if found is not None:
+            # its values would be read from other files, which rbx never wrote (and a reader trusts)
+            where, what = found
+            if what == "link":
                 raise FileError(path, where, "is a link, not a dataset of this file: its values lie elsewhere; a "
                                              "run file holds its own (a crafted file)")
-            ds = f[group][name]
-            if not isinstance(ds, h5py.Dataset):
-                raise FileError(path, where, "is not a dataset (a damaged or crafted file)")
-            if ds.is_virtual or ds.external:
-                # its values would be read from other files, which rbx never wrote (and a reader trusts)
-                raise FileError(path, where, f"is an HDF5 {'virtual' if ds.is_virtual else 'external'} dataset: "
-                                             "its values lie in other files; a run file holds its own (a crafted "
-                                             "file)")
+            raise FileError(path, where, f"is an HDF5 {what} dataset: its values lie in other files; a run file "
+                                         "holds its own (a crafted file)")
+        for name in f[group]:
+            if not isinstance(f[group][name], h5py.Dataset):
+                raise FileError(path, f"{group}/{name}", "is not a dataset (a damaged or crafted file)")
     count, step = g["count"], g["step"]
     if count.ndim != 1 or count.dtype.kind not in "iu":
         fail("count", f"has shape {count.shape} and dtype {count.dtype}; the layout says (T,) integers")

@@ -320,8 +320,10 @@ def read_results(path):
     import xarray as xr
     if not stat_.S_ISREG(os.stat(path).st_mode):
         raise FileError(path, None, f"is {what_it_is(path)}, not a regular file: not a study's results")
-    check_own_objects(path, "a study's results hold their own (the file was changed after rbx wrote it)")
-    _check_sizes(path)
+    import h5py
+    with h5py.File(path, "r", locking=False) as f:
+        check_own_objects(path, f, "a study's results hold their own (the file was changed after rbx wrote it)")
+        _check_sizes(path, f)
     # phony_dims: a variable without dimension scales is named in a refusal, not warned about by the reader
     with xr.open_dataset(path, engine="h5netcdf", phony_dims="access") as ds:
         try:
@@ -335,15 +337,13 @@ def read_results(path):
         return ds.load()
 
 
-def _check_sizes(path):
-    """Refuse (:class:`FileError`) a results file larger once read than any study's: a file of 7 kB can declare
-    2·10⁹ points (its chunks never written), which reading it allocated (15 GiB per variable, the coordinates
+def _check_sizes(path, f):
+    """Refuse (:class:`FileError`) a results file (``f``, open) larger once read than any study's: a file of 7 kB can
+    declare 2·10⁹ points (its chunks never written), which reading it allocated (15 GiB per variable, the coordinates
     before anything else). No dimension may be longer than :data:`MAX_POINTS`, nor all the variables together
     larger than the memory this process may have."""
     import h5py
-    with h5py.File(path, "r", locking=False) as f:
-        shapes = {name: (item.shape, item.dtype.itemsize) for name, item in f.items()
-                  if isinstance(item, h5py.Dataset)}
+    shapes = {name: (item.shape, item.dtype.itemsize) for name, item in f.items() if isinstance(item, h5py.Dataset)}
     for name, (shape, _) in shapes.items():
         if shape and max(shape) > MAX_POINTS:     # no key takes more values, no table has as many walls
             raise FileError(path, name, f"has a dimension of {max(shape)}; a study has at most {MAX_POINTS} points: "
