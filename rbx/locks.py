@@ -14,6 +14,7 @@ import contextlib
 import errno
 import glob
 import os
+import secrets
 import socket
 import sys
 import threading
@@ -209,8 +210,18 @@ def _cannot(lock, exc, what):
 def _create(lock):
     """Make ``lock`` whole at once: written under another name, then linked (fails if ``lock`` exists). Where
     the file system has no hard links, created exclusively and written."""
-    aside = f"{lock}.new.{os.getpid()}.{threading.get_ident()}"
-    fd = os.open(aside, os.O_WRONLY | os.O_CREAT | os.O_TRUNC, 0o644)
+    # a name of its own, created exclusively: whatever is at the name already (a link, a FIFO, a file) is never
+    # opened. The random part makes it unknown in advance (a link put at a name known from the pid and the thread
+    # had the lock written through it into a file outside the run, and a FIFO held the open past SIGTERM)
+    for _ in range(16):
+        aside = f"{lock}.new.{os.getpid()}.{threading.get_ident()}.{secrets.token_hex(4)}"
+        try:
+            fd = os.open(aside, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o644)
+            break
+        except FileExistsError:
+            continue
+    else:
+        raise FileExistsError(errno.EEXIST, "every scratch name tried exists", aside)
     try:
         try:
             os.write(fd, _lock_text().encode())

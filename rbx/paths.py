@@ -451,7 +451,7 @@ def open_regular(path):
 
 
 #: how much longer than an output's name the longest name rbx makes beside it may be: its lock's, while written
-#: (``OUT.h5.lock.new.<pid>.<thread>``, rbx.locks), and the journal's (``OUT.h5.partial.journal.tmp``)
+#: (``OUT.h5.lock.new.<pid>.<thread>.<8 random hex digits>``, rbx.locks), and the journal's (``OUT.h5.partial.journal.tmp``)
 OWN_NAME_ROOM = 48
 
 
