@@ -417,8 +417,12 @@ def publish(tmp, path, complete, replace, report, only=ANY):
             raise FileNotFoundError(errno.ENOENT, f"the folder {display_path(os.path.dirname(path) or '.')} is "
                                                   "gone (removed while the run wrote?): nothing was saved",
                                     path) from None
-        say(f"{display_path(path)}: cannot rename {display_path(tmp)} to it: {exc.strerror or exc}; the records "
-            f"are in {display_path(tmp)}")
+        message = f"cannot rename {display_path(tmp)} to it: {exc.strerror or exc}; the records are in " \
+                  f"{display_path(tmp)}"
+        if complete:
+            # the run is not where it was asked for (a folder or an immutable file there): an error, not "wrote"
+            raise FileError(path, None, message) from None
+        say(f"{display_path(path)}: {message}")
 
 
 
