@@ -513,6 +513,12 @@ def _read_journal(jpath):
         raise JournalError(f"is {other}, not a journal rbx wrote: rbx keeps a file's journal under "
                            f"this name and reads it before the file; remove it (or rename it), then run again")
     with os.fdopen(fd, "rb") as fh:
+        from .simulation import memory_problem
+        problem = memory_problem(1, os.fstat(fh.fileno()).st_size)
+        if problem:     # it is read whole: a file of 4 GB put at the name ended in a MemoryError traceback
+            raise JournalError(f"is larger than this process may hold ({problem}): not a journal rbx wrote; rbx "
+                               "keeps a file's journal under this name and reads it before the file; move it "
+                               "elsewhere (or rename it), then run again")
         raw = fh.read()
     first = raw[:len(MAGIC_1)] == MAGIC_1
     second = raw[:len(MAGIC_2)] == MAGIC_2

@@ -22,7 +22,8 @@ from .config import loads
 from .locks import acquire_lock, lock_holder, release_lock
 from .locks import busy as _busy
 from .model import FIELD, RECORD_FIELDS, ConfigError
-from .paths import MAX_CONFIG_BYTES, FileError, display_path, foreign_object, shortened, what_it_is
+from .paths import (MAX_CONFIG_BYTES, FileError, display_path, file_id, foreign_object, shortened,
+                    what_it_is)
 from .progress import plural
 from .runfile import (INDEX_DATASETS, REQUIRED_ATTRS, ROOT_ATTRS, SCHEMA_VERSION, STATE_GROUPS, _plain, _text,
                       is_true, latest_state, root_attrs)
@@ -174,6 +175,10 @@ def _check_rbx_file(f, path, group):
     missing = [a for a in ROOT_ATTRS if a not in f.attrs and a != "schema_version"]
     if missing:
         raise FileError(path, None, f"not an rbx run file (no root attribute '{missing[0]}')")
+    link = f.get(group, getlink=True)            # looked at as a link first: an external link opens its file
+    if link is not None and not isinstance(link, h5py.HardLink):
+        raise FileError(path, group, "is a link, not a group of this file: an rbx file holds its own (a crafted "
+                                     "file)")
     if group not in f:
         raise FileError(path, None, f"not an rbx {'run' if group == 'collisions' else 'return-angle'} file "
                                     f"(no group '{group}/')")
@@ -360,6 +365,7 @@ class Run:
         self._arrays = {} if arrays is None else {k: _frozen(v) for k, v in arrays.items()}
         self._experiment = experiment
         self._h5, self._depth = None, 0
+        self._file = None           # which file (device, inode) the path named when it was read: see _open
         self.dimension = int(attrs["dimension"])
         self.table_kind = str(attrs["table_kind"])
         self.wall_names = list(attrs["wall_names"])
@@ -383,6 +389,7 @@ class Run:
         """Read the run file at ``path`` (checked: an rbx run of a schema this rbx reads) -> :class:`Run`.
         Raises :class:`FileError`."""
         path = str(path)
+        ident = file_id(path)
         with _open_h5(path) as f:
             try:
                 _check_rbx_file(f, path, "collisions")
@@ -393,6 +400,7 @@ class Run:
                 final, _, _ = latest_state(f)
                 _check_final(final, len(g["count"]), path, len(attrs["wall_names"]))
                 run = cls(attrs, g["count"][...], g["step"][...], final, fields, path=path)
+                run._file = ident
                 # an unfinished run's records past its saved state may be a block a kill cut short (written before
                 # the journal): a resume drops them, a reader is not refused for them
                 upto = run.records if run.complete else \
@@ -418,10 +426,19 @@ class Run:
                    experiment=experiment, config=_plain(experiment.resolved))
 
     # -- reading -----------------------------------------------------------------------------------------------
+    def _open(self):
+        """The run's file, opened again for a read -> ``h5py.File``. Refused (:class:`FileError`) when another file
+        has been put at its path since it was read: its records would be read beside this run's counts, steps and
+        config (a run of 8 trajectories moved over one of 64 was read without a word)."""
+        if self._file is not None and file_id(self.path) != self._file:
+            raise FileError(self.path, None, "is another file than the one opened: it was replaced since (by "
+                                             "another run?); open it again (rbx.open) to read what it holds now")
+        return _open_h5(self.path)
+
     def __enter__(self):
         if self.path is not None:
             if self._h5 is None:
-                self._h5 = _open_h5(self.path)
+                self._h5 = self._open()
             self._depth += 1
         return self
 
@@ -448,7 +465,7 @@ class Run:
             if self._h5 is not None:
                 yield self._h5["collisions"]
             else:
-                with _open_h5(self.path) as f:
+                with self._open() as f:
                     yield f["collisions"]
         except (OSError, KeyError, ValueError) as exc:
             # a chunk whose Fletcher-32 checksum does not match (its bytes changed on disk), or a damaged header
@@ -638,6 +655,28 @@ def _frozen(a):
 
 
 
+def _check_returns_objects(f, path):
+    """Refuse (:class:`FileError`) return angles whose ``returns/`` is not the file's own or larger than memory
+    once read: an external link, a virtual or an external dataset to a FIFO held the reader for ever, and a dataset
+    declared 10¹¹ samples long in a file of 650 kB (its chunks never written) ended in a MemoryError."""
+    found = foreign_object(f["returns"], "returns/")
+    if found is not None:
+        where, what = found
+        raise FileError(path, where, ("is a link, not a dataset of this file" if what == "link" else
+                                      f"is an HDF5 {what} dataset") + ": its values lie elsewhere; return angles hold "
+                                                                       "their own (a crafted file)")
+    total = 0
+    for name, item in f["returns"].items():
+        if not isinstance(item, h5py.Dataset):
+            raise FileError(path, f"returns/{name}", "is not a dataset (a damaged or crafted file)")
+        total += int(np.prod(item.shape, dtype=np.float64)) * item.dtype.itemsize
+    from .simulation import memory_problem
+    problem = memory_problem(1, total)
+    if problem:
+        raise FileError(path, "returns", f"its datasets would not fit in memory ({problem}; a damaged or crafted "
+                                         "file)")
+
+
 def read_returns(path):
     """Read a file written by ``rbx histogram`` -> dict: the ``returns/`` datasets (``angle``, ``trajectory``,
     ``collisions``, ``initial_angle``), its attributes (:data:`RETURNS_ATTRS`) and ``attrs`` (the root
@@ -645,6 +684,7 @@ def read_returns(path):
     path = str(path)
     with _open_h5(path) as f:
         _check_rbx_file(f, path, "returns")
+        _check_returns_objects(f, path)
         g = f["returns"]
         out = {k: g[k][...] for k in g}
         out.update({k: _attr(v) for k, v in g.attrs.items()})

@@ -12,6 +12,8 @@ the start angles of the other half (odd), independent samples that must follow t
 preserved (two-sample KS p ≈ 0.88). Why these parameters: the paper's table shape, ball and sample size; the bottom
 wall is the paper's face x₂ = 0; seed 1 is fixed so the figure is reproducible.
 """
+import sys
+
 import numpy as np
 from matplotlib.figure import Figure as MplFigure
 from scipy import stats
@@ -27,8 +29,9 @@ P_PASS = 0.01       # KS p-value below which the law is rejected
 def read_returns(path):
     try:
         r = read_returns_file(path)
-    except FileError as exc:
-        raise SystemExit(str(exc)) from None
+    except FileError as exc:       # a damaged or crafted file: one line, exit 2, as arguments() refuses one
+        print(f"rbx: {exc}", file=sys.stderr)
+        raise SystemExit(2) from None
     a = r["attrs"]
     return dict(angle=r["angle"], initial=r["initial_angle"], collisions=r["collisions"], trajectory=r["trajectory"],
                 d=int(r["velocity_dimension"]), samples=int(r["samples"]), not_returned=int(r["not_returned"]),
