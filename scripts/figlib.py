@@ -43,6 +43,7 @@ import numpy as np
 from matplotlib import scale as mscale
 from matplotlib import ticker as mticker
 
+from rbx.paths import FileError, display_path, written_whole
 from rbx.plotting import letter_panels
 
 OPS = {"<": operator.lt, "<=": operator.le, ">": operator.gt, ">=": operator.ge}
@@ -162,8 +163,15 @@ class Figure:
         out = args.output
         os.makedirs(os.path.dirname(os.path.abspath(out)), exist_ok=True)
         letter_panels(mpl_figure)          # (a), (b), … as rbx plot letters its panels
-        # no timestamps in the PNG: the same data gives the same bytes
-        mpl_figure.savefig(out, dpi=dpi, metadata={"Software": None})
+        record_path = os.path.splitext(out)[0] + ".json"
+        _check_record(record_path)          # before anything is written: a figure without its record is none
+        # no timestamps in the PNG: the same data gives the same bytes. Written beside its name and renamed over
+        # it (only over a figure: a link or another file there is refused, not written through)
+        try:
+            with written_whole(out) as scratch:
+                mpl_figure.savefig(scratch, dpi=dpi, metadata={"Software": None})
+        except FileError as exc:
+            _refuse(str(exc))
         # nothing that depends on the run (no timings): re-plotting the same data writes the same JSON
         record = {
             "label": self.label,
@@ -173,14 +181,52 @@ class Figure:
             "measured": self.measured,
             "checks": self.checks,
         }
-        with open(os.path.splitext(out)[0] + ".json", "w") as f:
-            json.dump(record, f, indent=1)
+        _write_record(record_path, record)
         failed = [c for c in self.checks if not c["ok"]]
         for c in self.checks:
             print(f"{self.label}: {'ok  ' if c['ok'] else 'FAIL'} {c['claim']}: {c['value']:.6g} {c['op']} "
                   f"{c['bound']:.6g}")
         if failed:
             sys.exit(1)
+
+
+def _refuse(message):
+    print(f"rbx: {message}", file=sys.stderr)
+    sys.exit(2)
+
+
+def _is_record(path):
+    """Whether ``path`` is a regular file (not a link) holding a figure's JSON record, as :func:`_write_record`
+    writes it."""
+    if os.path.islink(path) or not os.path.isfile(path) or os.path.getsize(path) > 2 ** 20:
+        return False
+    try:
+        with open(path, encoding="utf-8") as f:
+            old = json.load(f)
+    except (OSError, ValueError):
+        return False
+    return isinstance(old, dict) and {"label", "checks"} <= set(old)
+
+
+def _check_record(path):
+    if os.path.lexists(path) and not _is_record(path):
+        _refuse(f"{display_path(path)}: is not the JSON record of a figure (a link, or another file): not "
+                "replaced; move it, or draw the figure under another name")
+
+
+def _write_record(path, record):
+    """The JSON record beside a figure, written whole: to a new name beside it, then renamed over it. Only a
+    figure's earlier record is replaced: a link there (it was written through, into the file it pointed to) or a
+    file of another kind is refused in one line, exit 2."""
+    _check_record(path)
+    scratch = f"{path}.{os.getpid()}.new"
+    try:
+        with open(scratch, "x", encoding="utf-8") as f:
+            json.dump(record, f, indent=1)
+        os.replace(scratch, path)
+    finally:
+        if os.path.lexists(scratch):
+            os.remove(scratch)
 
 
 def _config_of(data_path):

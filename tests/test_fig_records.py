@@ -93,3 +93,27 @@ def test_a_figure_refuses_data_not_made_with_its_configs_own_run_settings(tmp_pa
     res = _run(script, tree)
     assert res.returncode in (0, 1) and "rbx:" not in res.stderr, res.stdout + res.stderr
     assert (tree / "figures" / "histogram.png").exists()
+
+
+def test_a_figure_and_its_record_never_write_through_a_link_or_replace_another_file(tmp_path):
+    """figs/circ.json a link to notes.txt: the figure script wrote its JSON record into notes.txt, exit 0; an
+    unrelated c2.json beside c2.png was replaced the same way. Now each is refused in one line, exit 2, and left as
+    it was; the figure's own earlier record and PNG are replaced as before."""
+    import pytest
+    notes = tmp_path / "notes.txt"
+    notes.write_text("notes\n")
+    (tmp_path / "a.json").symlink_to(notes)
+    (tmp_path / "b.json").write_text('{"mine": 1}\n')
+    for name in ("a", "b"):
+        with pytest.raises(SystemExit) as exit_:
+            save_once(tmp_path, name)
+        assert exit_.value.code == 2
+    assert notes.read_text() == "notes\n" and (tmp_path / "b.json").read_text() == '{"mine": 1}\n'
+    assert os.path.islink(tmp_path / "a.json")
+    (tmp_path / "c.png").symlink_to(notes)       # a link at the figure's own name: not written through either
+    with pytest.raises(SystemExit) as exit_:
+        save_once(tmp_path, "c")
+    assert exit_.value.code == 2 and notes.read_text() == "notes\n"
+    first = save_once(tmp_path, "d")
+    assert save_once(tmp_path, "d") == first      # its own record and figure: replaced, the same bytes
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["a.json", "b.json", "c.png", "d.json", "d.png", "notes.txt"]
