@@ -253,7 +253,7 @@ def check_own_file(path, mine, key=None):
 
 def foreign_object(group, prefix=""):
     """The first group or dataset under the open HDF5 ``group`` that is not the file's own -> ``(name, what)``, its
-    name (after ``prefix``) and what it is: 'link' (soft or external: an external link is opened by the mere lookup,
+    name (after ``prefix``) and what it is: 'datatype' (a committed HDF5 datatype, no values), 'link' (soft or external: an external link is opened by the mere lookup,
     and one to a FIFO held the reader for ever, deaf to SIGTERM), 'virtual' or 'external' (a dataset whose values
     are read from other files); None when every one is its own. Nothing is followed: each name is looked at as a
     link first."""
@@ -268,6 +268,8 @@ def foreign_object(group, prefix=""):
             item = group[name]
             if isinstance(item, h5py.Group):
                 todo.append((f"{where}/", item))
+            elif not isinstance(item, h5py.Dataset):
+                return where, "datatype"         # a committed datatype: no values at all
             elif item.is_virtual or item.external:
                 return where, "virtual" if item.is_virtual else "external"
     return None
@@ -282,6 +284,8 @@ def check_own_objects(path, f, fix):
     where, what = found
     if what == "link":
         raise FileError(path, where, f"is a link, not a variable of this file: its values lie elsewhere; {fix}")
+    if what == "datatype":
+        raise FileError(path, where, f"is an HDF5 committed datatype, not a variable; {fix}")
     raise FileError(path, where, f"is an HDF5 {what} dataset: its values lie in other files; {fix}")
 
 

@@ -223,6 +223,8 @@ def check_layout(f, path):
             if what == "link":
                 raise FileError(path, where, "is a link, not a dataset of this file: its values lie elsewhere; a "
                                              "run file holds its own (a crafted file)")
+            if what == "datatype":
+                raise FileError(path, where, "is not a dataset (a damaged or crafted file)")
             raise FileError(path, where, f"is an HDF5 {what} dataset: its values lie in other files; a run file "
                                          "holds its own (a crafted file)")
         for name in f[group]:
@@ -662,6 +664,8 @@ def _check_returns_objects(f, path):
     found = foreign_object(f["returns"], "returns/")
     if found is not None:
         where, what = found
+        if what == "datatype":
+            raise FileError(path, where, "is not a dataset (a damaged or crafted file)")
         raise FileError(path, where, ("is a link, not a dataset of this file" if what == "link" else
                                       f"is an HDF5 {what} dataset") + ": its values lie elsewhere; return angles hold "
                                                                        "their own (a crafted file)")

@@ -7,6 +7,7 @@ import subprocess
 import sys
 
 import h5py
+import numpy as np
 import pytest
 
 from tests.test_histogram import write_config as histogram_config
@@ -150,3 +151,19 @@ def test_a_journal_larger_than_memory_is_refused_not_read(tmp_path):
     assert len(lines) == 1 and lines[0].startswith("rbx: j.h5.journal: is larger than this process may hold"), lines
     assert (tmp_path / "j.h5").read_bytes() == before and os.path.getsize(tmp_path / "j.h5.journal") == 4 * 2 ** 30
     assert not (tmp_path / "j.png").exists()
+
+
+def test_a_committed_datatype_in_a_results_file_is_named(tmp_path):
+    """A committed HDF5 datatype added to a study's results: `rbx plot --kind sweep` and `rbx sweep --resume` quoted
+    Python's "'Datatype' object has no attribute 'is_virtual'". Now a line naming it, exit 2."""
+    from tests.test_reliability8 import _results
+    out = _results(tmp_path)
+    with h5py.File(out, "r+") as f:
+        f["odd"] = np.dtype("f8")
+    for args in (["plot", "out.nc", "--kind", "sweep", "-o", "x.png"],
+                 ["sweep", "study.yaml", "-o", "out.nc", "--resume"]):
+        res = cli("", *args, cwd=tmp_path)
+        assert res.returncode == 2, (args, res.stderr)
+        assert res.stderr.splitlines() == ["rbx: out.nc: odd: is an HDF5 committed datatype, not a variable; a "
+                                           "study's results hold their own (the file was changed after rbx wrote "
+                                           "it)"], res.stderr
