@@ -35,6 +35,8 @@ collision's linearisations, :mod:`rbx.tangent`, added after steps 2 and 5): the 
 the orbit ``rbx simulate`` records, by construction — the same search, snapping, compensated sums and exit
 bookkeeping.
 """
+import os
+import warnings
 from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
 
@@ -293,6 +295,7 @@ S_ROUND_HEMI = 8192  # 2D: a hemisphere rule on a wall without one normal: cos �
 S_TANGENT = 16384   # carry tangent vectors (Tangent) along the orbit: the Lyapunov spectrum, the flow's Jacobian
 S_BLEND = 32768     # the rank is drawn at random: the map computed without a branch on it (rbx.physics.rough_factor)
 S_PAIRS = 65536     # every wall's rule is a random choice between two constant rules: picked without the walk
+S_GENERAL = 131072  # the general loop (compiled_spec): every bit but the dimension and S_TANGENT read at run time
 #: the bits compiled into the kernel; the others are tested at run time (a predictable branch). Each compiled
 #: combination in use costs a compile of 5–15 s the first time (then it is on disk), so the bits compiled are the
 #: ones that pay: the dimension (loops of constant length, state in registers), spin arithmetic, the slab's closed
@@ -310,6 +313,36 @@ S_PAIRS = 65536     # every wall's rule is a random choice between two constant 
 COMPILED_BITS = (S_DIM3 | S_SPIN | S_SLAB | S_TREE | S_ORIENT | S_AXES | S_PERIODIC | S_EXIT | S_ROUND_HEMI
                  | S_TANGENT)
 RUNTIME_BITS = ~COMPILED_BITS
+
+#: which loops are compiled. ``"specialised"`` (the default): one per combination of :data:`COMPILED_BITS` in use,
+#: each with the code its scene needs and nothing else (the fastest per collision, 5–15 s to compile each).
+#: ``"general"`` (the environment variable ``RBX_KERNELS=general``): one per dimension (and with or without
+#: ``S_TANGENT``), every other bit read at run time like the run-time bits. Its numbers are the specialised loop's bit
+#: for bit: both do the same floating-point operations in the same order (no fast-math, so no contraction or
+#: reassociation); only whether a branch is decided when compiling or when running differs. It is slower per
+#: collision and compiles once for every scene: the test suite uses it (tests/conftest.py), and the tests compare
+#: both on every example (tests/test_kernels.py).
+KERNEL_MODES = ("specialised", "general")
+
+
+def _kernel_mode_from_environment():
+    mode = os.environ.get("RBX_KERNELS", "").strip() or "specialised"
+    if mode not in KERNEL_MODES:
+        warnings.warn(f"RBX_KERNELS={mode!r} is not one of {', '.join(KERNEL_MODES)}: the specialised loops are used",
+                      stacklevel=2)
+        mode = "specialised"
+    return mode
+
+
+KERNELS = _kernel_mode_from_environment()
+
+
+def compiled_spec(flags):
+    """The bits of ``flags`` compiled into the loop that runs them (:data:`KERNELS`): ``flags & COMPILED_BITS``, or
+    for the general loop the dimension, ``S_TANGENT`` and :data:`S_GENERAL`."""
+    if KERNELS == "general":
+        return (int(flags) & (S_DIM3 | S_TANGENT)) | S_GENERAL
+    return int(flags) & COMPILED_BITS
 
 
 def make_spec(n, orient=False, spin=True, tree=False, record=False, compensated=False, snap=False,
@@ -342,7 +375,7 @@ _KERNELS = {}
 
 
 def kernel(spec):
-    """The compiled loop over trajectories for the compiled bits ``spec`` (``flags & COMPILED_BITS``): made on first
+    """The compiled loop over trajectories for the compiled bits ``spec`` (:func:`compiled_spec`): made on first
     use by :func:`_make_kernel`, compiled (or loaded from the disk cache) on its first call."""
     k = _KERNELS.get(spec)
     if k is None:
@@ -364,6 +397,7 @@ def _make_kernel(spec):
     SLAB, PERIODIC = bool(spec & S_SLAB), bool(spec & S_PERIODIC)
     EXIT_, AXES, ROUND_HEMI = bool(spec & S_EXIT), bool(spec & S_AXES), bool(spec & S_ROUND_HEMI)
     TANGENT = bool(spec & S_TANGENT)
+    GENERAL = bool(spec & S_GENERAL)
     BLEND = SPIN and TREE   # a rank chosen per collision: S_BLEND can apply
 
     @jit_loop
@@ -385,8 +419,8 @@ def _make_kernel(spec):
         own rows)."""
         n = N
         on = settings.flags                        # the run-time bits are read from here (the compiled ones: constants)
-        blend = BLEND and (on & S_BLEND) != 0
-        pairs = TREE and (on & S_PAIRS) != 0
+        blend = (BLEND or (GENERAL and (on & S_SPIN) != 0 and (on & S_TREE) != 0)) and (on & S_BLEND) != 0
+        pairs = (TREE or GENERAL) and (on & S_PAIRS) != 0
         codes, prim_wall, params, tol = table.codes, table.prim_wall, table.params, table.tol
         first_hit = table.first_hit
         R, kappa, every, renorm_every = settings.R, settings.kappa, settings.every, settings.renorm_every
@@ -417,7 +451,7 @@ def _make_kernel(spec):
                 v[i] = state.vel[j, i]
                 for k in range(n):
                     Wj[i, k] = state.W[j, i, k]
-            if ORIENT:
+            if ORIENT or (GENERAL and (on & S_ORIENT) != 0):
                 for i in range(3):
                     for k in range(3):
                         Aj[i, k] = state.A[j, i, k]
@@ -439,14 +473,14 @@ def _make_kernel(spec):
                 since = 0                       # collisions since the vectors were last re-orthonormalised
             while c < stop[j]:
                 # 1. next collision: the flight time and the primitive hit
-                if SLAB:
+                if SLAB or (GENERAL and (on & S_SLAB) != 0):
                     tau, p = slab_collision(params, a, v, n)
-                elif PERIODIC:
+                elif PERIODIC or (GENERAL and (on & S_PERIODIC) != 0):
                     tau, p = periodic_flight(codes, params, a, v, tol, n, table.lattice_lo, table.period, table.images,
                                              table.image_shift, base, loc, off, ahead)
                 else:
-                    tau, p = box_collision(codes, params, a, v, tol, n, table.box, table.others, AXES,
-                                            first_hit)
+                    tau, p = box_collision(codes, params, a, v, tol, n, table.box, table.others,
+                                           AXES or (GENERAL and (on & S_AXES) != 0), first_hit)
                 in_flight = False               # the tangent loop's stop at t_end, in flight
                 if TANGENT:
                     if t + tau > t_end:
@@ -464,7 +498,7 @@ def _make_kernel(spec):
                     for i in range(n):
                         a[i] += tau * v[i]
                     t += tau
-                if ORIENT:
+                if ORIENT or (GENERAL and (on & S_ORIENT) != 0):
                     if n == 2:
                         th += tau * Wj[1, 0]
                     else:
@@ -479,17 +513,17 @@ def _make_kernel(spec):
                         if on & S_COMPENSATED:
                             comp[j, n] = 0.0
                         break
-                if SLAB:
+                if SLAB or (GENERAL and (on & S_SLAB) != 0):
                     a[n - 1] = params[p, P_POINT + n - 1]  # exactly on the wall: the normal coordinate is known
                     if on & S_COMPENSATED:
                         comp[j, n - 1] = 0.0
                 # 3. contact normal (a slab's is ±e_{n−1}, known from the wall: no lookup; the rule tree and snapping
                 #    read it, and the slab map takes only its sign); in a periodic table, on the image hit
-                if SLAB:
+                if SLAB or (GENERAL and (on & S_SLAB) != 0):
                     for i in range(n - 1):
                         nu[i] = 0.0
                     nu[n - 1] = 1.0 if p == 0 else -1.0
-                elif PERIODIC:
+                elif PERIODIC or (GENERAL and (on & S_PERIODIC) != 0):
                     for i in range(n):
                         loc[i] = a[i] - off[i]
                     contact_normal(codes[p], params, p, loc, nu, n)
@@ -503,17 +537,18 @@ def _make_kernel(spec):
                         snap(codes[p], params, p, a, nu, n)
                 # 4. rule
                 w = prim_wall[p]
-                if TREE:
+                if TREE or (GENERAL and (on & S_TREE) != 0):
                     if pairs:       # every wall a random choice between two constant rules: one draw, one comparison
                         node = rules.pair_child[w, np.int64(draw53(key, d) >= rules.pair_threshold[w])]
                         d += 1
                     else:
                         node, d = choose(w, nu, Aj, th, key, d, rules.root, rules.kind, rules.first, rules.nchild,
-                                         rules.children, rules.threshold, rules.axis, rules.phase, n, ROUND_HEMI)
+                                         rules.children, rules.threshold, rules.axis, rules.phase, n,
+                                         ROUND_HEMI or (GENERAL and (on & S_ROUND_HEMI) != 0))
                 else:
                     node = rules.root[w]
                 rk = rules.rank[node]
-                if EXIT_:
+                if EXIT_ or (GENERAL and (on & S_EXIT) != 0):
                     if rules.kind[node] == EXIT:          # a hole: the contact is the trajectory's last record
                         if TANGENT:
                             since = last_flight(Yj, tangent.sums, j, since, tau, v, Wj, nu, Jn, R, kappa, rules.basis,
@@ -532,11 +567,11 @@ def _make_kernel(spec):
                         for k in range(n):
                             Wm[i, k] = Wj[i, k]
                     curved = False              # a flat wall: J = 0, not read
-                    if not SLAB:
+                    if not (SLAB or (GENERAL and (on & S_SLAB) != 0)):
                         code = codes[p]
                         if code != HALFSPACE and code != SEGMENT:
                             curved = True
-                            if PERIODIC:
+                            if PERIODIC or (GENERAL and (on & S_PERIODIC) != 0):
                                 normal_jacobian(code, params, p, loc, Jn, n)
                             else:
                                 normal_jacobian(code, params, p, a, Jn, n)
@@ -547,14 +582,14 @@ def _make_kernel(spec):
                 # computing the factor beside the map keeps it off the chain of operations that sets the speed.
                 f = 0.0
                 map_rank = 0
-                if SPIN:
+                if SPIN or (GENERAL and (on & S_SPIN) != 0):
                     map_rank = rk
                     if renorm_every > 0:
                         until_renorm -= 1
                         if until_renorm == 0:
                             until_renorm = renorm_every
                             f = energy_factor(v, Wj, R, kappa, e0, half_inv_e0, n)
-                elif renorm_every > 0 and not SLAB:
+                elif renorm_every > 0 and not (SLAB or (GENERAL and (on & S_SLAB) != 0)):
                     # every wall specular: the speed alone is put back, the spin kept. A reflection off a wall of
                     # normal ±e_i negates one component and keeps |v| exactly (a slab's: not projected); off a
                     # curved or slanted wall it does not. The factor is the state's before the map, applied after
@@ -566,7 +601,7 @@ def _make_kernel(spec):
                 # a flat wall of normal ±e_i (a slab's, a box's side, an axis-aligned segment) takes the map with ν's
                 # zeros left out, one call per axis so that i is a constant in each; the same numbers as collide
                 # (tests/test_physics.py)
-                if SLAB:
+                if SLAB or (GENERAL and (on & S_SLAB) != 0):
                     collide_axis(v, Wj, n - 1, nu[n - 1], R, kappa, map_rank, rules.basis, node, w, work, n, blend)
                 else:
                     ax = table.axis[p]
@@ -579,7 +614,7 @@ def _make_kernel(spec):
                     else:
                         collide(v, Wj, nu, R, kappa, map_rank, rules.basis, node, w, work, n, blend)
                 if f != 0.0:
-                    if SPIN:
+                    if SPIN or (GENERAL and (on & S_SPIN) != 0):
                         scale_state(v, Wj, f, n)
                     else:
                         for i in range(n):
@@ -611,7 +646,7 @@ def _make_kernel(spec):
                 state.vel[j, i] = v[i]
                 for k in range(n):
                     state.W[j, i, k] = Wj[i, k]
-            if ORIENT:
+            if ORIENT or (GENERAL and (on & S_ORIENT) != 0):
                 for i in range(3):
                     for k in range(3):
                         state.A[j, i, k] = Aj[i, k]
@@ -667,7 +702,7 @@ def run_advance_all(stop, table, rules, settings, state, out, tangent=NO_TANGENT
     written per trajectory (M,).
 
     ``table``, ``rules``, ``settings``, ``state``, ``out``: :class:`Table`, :class:`Rules`, :class:`Settings`,
-    :class:`State` (M trajectories), :class:`Records`. The compiled bits ``spec = settings.flags & COMPILED_BITS``
+    :class:`State` (M trajectories), :class:`Records`. The compiled bits ``compiled_spec(settings.flags)``
     select the specialisation.
 
     The trajectories are cut into slices (8 per thread, so that slices of short trajectories even out), each run
@@ -679,7 +714,7 @@ def run_advance_all(stop, table, rules, settings, state, out, tangent=NO_TANGENT
     (which compiles it or loads it from the cache). Each trajectory's numbers depend only on its own state and
     stream, never on the slicing or the thread count."""
     M = state.pos.shape[0]
-    spec = int(settings.flags) & COMPILED_BITS
+    spec = compiled_spec(settings.flags)
     nrec = np.zeros(M, np.int64)
     groups = (table, rules, settings, state, out, tangent)
     entry = _entry_point(stop, spec, groups, nrec)

@@ -148,7 +148,7 @@ def test_a_signal_while_setting_up_aborts_at_once(tmp_path):
     from rbx.simulation import Simulation
     cfg = strip_random(1000)
     write_config(tmp_path, cfg)
-    spec = Simulation(config.from_dict(cfg, str(tmp_path / "exp.yaml"))).spec() & engine.COMPILED_BITS
+    spec = engine.compiled_spec(Simulation(config.from_dict(cfg, str(tmp_path / "exp.yaml"))).spec())
     lock = os.path.join(_jit.CACHE_DIR, f".advance-{spec}.lock")    # taken by a process's first run of a kernel
     with _jit.compile_lock_at(lock):
         proc = subprocess.Popen([RBX, "simulate", "exp.yaml", "-o", "run.h5"], cwd=tmp_path,

@@ -100,7 +100,7 @@ def test_the_entry_point_is_found_by_the_fingerprint_of_the_types(monkeypatch):
     """run_advance_all finds the compiled entry point by Numba's fingerprint of the arguments' types (a few µs)
     instead of typing them (~0.2 ms a block); without the fingerprint it types them, with the same results."""
     cfg = config.load(STRIP, {"collisions": 300})
-    spec = Simulation(cfg).spec() & engine.COMPILED_BITS
+    spec = engine.compiled_spec(Simulation(cfg).spec())
     records, count, final = run_in_memory(cfg)
     assert any(key is not None and key[0] == spec for key in engine._ENTRY)
     monkeypatch.setattr(engine.hooks, "_compute_fingerprint", None)
