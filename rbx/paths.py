@@ -275,17 +275,19 @@ def foreign_object(group, prefix=""):
     return None
 
 
-def check_own_objects(path, f, fix):
-    """Raise :class:`FileError` naming the first group or dataset of ``f`` (the HDF5 file ``path``, open) that is
-    not the file's own (:func:`foreign_object`). ``fix``: what to do, said after the problem."""
-    found = foreign_object(f)
+def check_own_objects(path, group, fix, prefix="", noun="variable"):
+    """Raise :class:`FileError` naming the first group or dataset under ``group`` (of the HDF5 file ``path``, open;
+    its name in the file ``prefix`` + name) that is not the file's own (:func:`foreign_object`): the one message for
+    every reader. ``noun``: what the file holds there ('variable', 'dataset'); ``fix``: what to do, said after the
+    problem."""
+    found = foreign_object(group, prefix)
     if found is None:
         return
     where, what = found
     if what == "link":
-        raise FileError(path, where, f"is a link, not a variable of this file: its values lie elsewhere; {fix}")
+        raise FileError(path, where, f"is a link, not a {noun} of this file: its values lie elsewhere; {fix}")
     if what == "datatype":
-        raise FileError(path, where, f"is an HDF5 committed datatype, not a variable; {fix}")
+        raise FileError(path, where, f"is an HDF5 committed datatype, not a {noun}; {fix}")
     raise FileError(path, where, f"is an HDF5 {what} dataset: its values lie in other files; {fix}")
 
 

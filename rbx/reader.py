@@ -22,7 +22,7 @@ from .config import loads
 from .locks import acquire_lock, lock_holder, release_lock
 from .locks import busy as _busy
 from .model import FIELD, RECORD_FIELDS, ConfigError
-from .paths import (MAX_CONFIG_BYTES, FileError, display_path, file_id, foreign_object, shortened,
+from .paths import (MAX_CONFIG_BYTES, FileError, check_own_objects, display_path, file_id, shortened,
                     what_it_is)
 from .progress import plural
 from .runfile import (INDEX_DATASETS, REQUIRED_ATTRS, ROOT_ATTRS, SCHEMA_VERSION, STATE_GROUPS, _plain, _text,
@@ -216,17 +216,8 @@ def check_layout(f, path):
                                          "crafted file)")
         if not isinstance(f.get(group), h5py.Group):
             continue
-        found = foreign_object(f[group], f"{group}/")
-        if found is not None:
-            # its values would be read from other files, which rbx never wrote (and a reader trusts)
-            where, what = found
-            if what == "link":
-                raise FileError(path, where, "is a link, not a dataset of this file: its values lie elsewhere; a "
-                                             "run file holds its own (a crafted file)")
-            if what == "datatype":
-                raise FileError(path, where, "is not a dataset (a damaged or crafted file)")
-            raise FileError(path, where, f"is an HDF5 {what} dataset: its values lie in other files; a run file "
-                                         "holds its own (a crafted file)")
+        # its values would be read from other files, which rbx never wrote (and a reader trusts)
+        check_own_objects(path, f[group], "a run file holds its own (a crafted file)", f"{group}/", "dataset")
         for name in f[group]:
             if not isinstance(f[group][name], h5py.Dataset):
                 raise FileError(path, f"{group}/{name}", "is not a dataset (a damaged or crafted file)")
@@ -661,14 +652,7 @@ def _check_returns_objects(f, path):
     """Refuse (:class:`FileError`) return angles whose ``returns/`` is not the file's own or larger than memory
     once read: an external link, a virtual or an external dataset to a FIFO held the reader for ever, and a dataset
     declared 10¹¹ samples long in a file of 650 kB (its chunks never written) ended in a MemoryError."""
-    found = foreign_object(f["returns"], "returns/")
-    if found is not None:
-        where, what = found
-        if what == "datatype":
-            raise FileError(path, where, "is not a dataset (a damaged or crafted file)")
-        raise FileError(path, where, ("is a link, not a dataset of this file" if what == "link" else
-                                      f"is an HDF5 {what} dataset") + ": its values lie elsewhere; return angles hold "
-                                                                       "their own (a crafted file)")
+    check_own_objects(path, f["returns"], "return angles hold their own (a crafted file)", "returns/", "dataset")
     total = 0
     for name, item in f["returns"].items():
         if not isinstance(item, h5py.Dataset):
