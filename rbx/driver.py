@@ -30,7 +30,7 @@ from .locks import LockNotWritable, acquire_lock, lock_holder, lock_path, releas
 from .locks import busy as _busy
 from .progress import plural
 from .paths import (ANY, NO_ROOM, DiskFull, FileError, check_own_file, check_own_kind, check_own_names,
-                    check_replaceable, creation_path, display_path, file_id, format_size, other_commands_file, place,
+                    check_replaceable, copy_to_new, creation_path, display_path, file_id, format_size, other_commands_file, place,
                     temporary_path, what_it_is)
 from .reader import Run
 from .runfile import (H5Sink, _text, close_journal, commit, config_yaml, data_bytes, file_path, fill_returns, is_true,
@@ -643,6 +643,13 @@ def prepare_resume(run_file, output=None, *, force=False, max_size=None, out_key
     check_size(cfg, path, key_file, written=written,
                option=size_key if size_key.startswith("--") else f"{size_key}=",
                hint=f"; free some space, or resume it into a file on another disk with {other}")
+    if (in_place or move) and os.stat(source).st_nlink > 1:
+        # written in place, a file with a second name changes under that name too: a hard link to another run's
+        # live .partial had both runs write one file (the run lock is taken by name), and a backup made with links
+        # would change with it
+        raise FileError(display_path(source), None, "has another name (a hard link): rbx continues a run in place "
+                                                    "only in a file of one name, which no other run can be writing; "
+                                                    "resume a copy of it (cp), or remove the other name")
     notes += [note] if note else []
     for field, chunks in sim.torn_chunks.items():
         notes.append(f"collisions/{field}: {len(chunks)} chunk(s) of the last saved records failed their checksum "
@@ -770,7 +777,7 @@ def resume_to_file(r, *, progress=None, should_stop=None, report=None):
             os.rename(r.source, tmp)
         elif not r.in_place:
             journal.discard(tmp)            # a journal left by a .partial that was removed by hand is not this copy's
-            shutil.copyfile(r.source, tmp)
+            copy_to_new(r.source, tmp)
             if journal.pending(r.source):   # a source that cannot be written (read-only): its journal goes to the copy
                 journal.recover(tmp, journal=journal.journal_path(r.source))
         h5 = open_journaled(tmp)

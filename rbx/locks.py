@@ -14,6 +14,7 @@ import contextlib
 import errno
 import glob
 import os
+import re
 import secrets
 import socket
 import sys
@@ -250,7 +251,12 @@ def _create(lock):
 
 def _take_over(lock, fields, warn):
     """Remove a stale lock, unless another process took it over first (then the loop sees its live lock)."""
-    aside = f"{lock}.stale.{os.getpid()}"
+    # a name nobody can know in advance, and found free: the rename replaces whatever is at its target (a file put at
+    # ``OUT.h5.lock.stale.<pid>``, the pid known from ``exec``, was replaced, then removed)
+    while True:
+        aside = f"{lock}.stale.{os.getpid()}.{secrets.token_hex(4)}"
+        if not os.path.lexists(aside):
+            break
     try:
         os.rename(lock, aside)     # one process wins this; the others find no lock, or a new live one
     except FileNotFoundError:
@@ -265,9 +271,12 @@ def _take_over(lock, fields, warn):
     os.remove(aside)
     if fields.get("pid", "").isdigit():
         # the file a killed run wrote its lock in before linking it (``_create``): its process is gone, so is its use
+        # only names of the form _create makes (``.new.<pid>.<thread>.<8 hex digits>``, before the random part
+        # ``.new.<pid>.<thread>``): a user's file named ``OUT.h5.lock.new.<pid>.notes`` is not one
+        mine = re.compile(re.escape(f"{os.path.basename(lock)}.new.{fields['pid']}.") + r"[0-9]+(\.[0-9a-f]{8})?")
         for left in glob.glob(f"{glob.escape(lock)}.new.{fields['pid']}.*"):
             with contextlib.suppress(OSError):
-                if os.path.isfile(left) and not os.path.islink(left):
+                if mine.fullmatch(os.path.basename(left)) and os.path.isfile(left) and not os.path.islink(left):
                     os.remove(left)
     what = (f"a damaged lock ({fields['damaged']}: no run's)" if "damaged" in fields else
             f"a stale lock ({_holder(fields)}, a process that no longer runs: killed?)" if fields else

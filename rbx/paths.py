@@ -12,6 +12,7 @@ import errno
 import hashlib
 import os
 import secrets
+import shutil
 import stat
 
 #: the largest config (or table, boundary) file rbx reads: a YAML config is a few kB
@@ -405,6 +406,18 @@ def written_whole(path, replace=True):
         raise
     finally:
         os.close(fd)        # releases the lock
+
+
+def copy_to_new(source, target):
+    """Copy the file ``source`` to ``target`` under a new name: whatever is at ``target`` is removed first (the
+    caller may replace it), and the copy is created exclusively, never through a link. A copy written into the file
+    at ``target`` (``shutil.copyfile`` truncates it) wrote into every other name of that file: a hard link there to
+    another run's live ``.partial`` had that run's records replaced."""
+    if os.path.lexists(target):
+        os.remove(target)
+    fd = os.open(target, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o666)
+    with os.fdopen(fd, "wb") as out, open(source, "rb") as src:
+        shutil.copyfileobj(src, out, 8 << 20)
 
 
 def _try_lock(fd):

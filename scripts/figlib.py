@@ -32,11 +32,13 @@ run. Hence, in the figure scripts and here:
   log-spaced samples.
 """
 import argparse
+import contextlib
 import decimal
 import json
 import math
 import operator
 import os
+import secrets
 import sys
 
 import numpy as np
@@ -219,14 +221,23 @@ def _write_record(path, record):
     figure's earlier record is replaced: a link there (it was written through, into the file it pointed to) or a
     file of another kind is refused in one line, exit 2."""
     _check_record(path)
-    scratch = f"{path}.{os.getpid()}.new"
+    # a name nobody knows in advance, created exclusively; removed on failure only once it is this script's own (a
+    # file put at ``<figure>.json.<pid>.new`` was removed when the exclusive open failed on it)
+    while True:
+        scratch = f"{path}.{secrets.token_hex(4)}.new"
+        try:
+            f = open(scratch, "x", encoding="utf-8")
+            break
+        except FileExistsError:
+            continue
     try:
-        with open(scratch, "x", encoding="utf-8") as f:
+        with f:
             json.dump(record, f, indent=1)
         os.replace(scratch, path)
-    finally:
-        if os.path.lexists(scratch):
+    except BaseException:
+        with contextlib.suppress(OSError):
             os.remove(scratch)
+        raise
 
 
 def _config_of(data_path):

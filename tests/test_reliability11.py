@@ -1,0 +1,115 @@
+"""A twenty-first round: a resume's copy written into a file hard-linked at its `.partial` (another run's live
+file), a resume in place of a file with a second name, and files at names rbx uses for a moment (a stale lock set
+aside, a figure's record being written) replaced or removed. Each reproduction runs the real command line (or the
+figure scripts' own function); each test was seen to fail on the code before it."""
+import itertools
+import os
+import subprocess
+import sys
+
+import h5py
+import pytest
+
+from tests.test_reliability8 import HANG, cli
+from tests.test_reliability9 import INTERRUPT
+from tests.test_reliability10 import _config
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+
+
+def _interrupted(tmp_path, conf, name):
+    res = cli(INTERRUPT, "simulate", str(conf), "-o", name, "--quiet", cwd=tmp_path)
+    assert res.returncode == 130, res.stderr
+    with h5py.File(tmp_path / name, "r") as f:
+        assert not f.attrs["complete"]
+
+
+def test_a_resume_never_copies_into_a_file_hard_linked_at_its_partial(tmp_path):
+    """`rbx simulate --resume s2.h5 --force` with `s2.h5.partial` a hard link to another run's file (a live run's
+    `.partial` in the reproduction): the copy of s2.h5 the resume works on was written into that file (shutil's
+    copy truncates the name it is given), and the other run's records were gone. Now the name is removed and the
+    copy made under a new one: the other file keeps every byte, and s2.h5 is resumed to the end."""
+    conf = _config(tmp_path)
+    _interrupted(tmp_path, conf, "s2.h5")
+    res = cli("", "simulate", str(conf), "-o", "other.h5", "--seed", "7", "--quiet", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    theirs = (tmp_path / "other.h5").read_bytes()
+    os.link(tmp_path / "other.h5", tmp_path / "s2.h5.partial")
+    res = cli("", "simulate", "--resume", "s2.h5", "--force", "--quiet", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert (tmp_path / "other.h5").read_bytes() == theirs
+    with h5py.File(tmp_path / "s2.h5", "r") as f:
+        assert f.attrs["complete"] and int(f["final/collisions"][0]) == 2000
+    assert not os.path.lexists(tmp_path / "s2.h5.partial")
+
+
+@pytest.mark.parametrize("given", ["b.h5.partial", "b.h5"])
+def test_a_run_with_a_second_name_is_not_continued_in_place(tmp_path, given):
+    """`rbx simulate --resume b.h5.partial` with b.h5.partial a hard link to another run's file (with HDF5's file
+    locking off, as on NFS, to a live run's `.partial`: both wrote one file, which neither could read after): it
+    was continued in place, so the other name's file changed with it. A file written in place must now have one
+    name: one line, exit 2, the other file untouched. (`--resume b.h5`, a copy, never writes the linked file.)"""
+    conf = _config(tmp_path)
+    _interrupted(tmp_path, conf, "a.h5")
+    theirs = (tmp_path / "a.h5").read_bytes()
+    os.link(tmp_path / "a.h5", tmp_path / given)
+    res = cli("", "simulate", "--resume", given, "--quiet", cwd=tmp_path)
+    if given == "b.h5.partial":
+        assert res.returncode == 2, (res.returncode, res.stderr)
+        assert res.stderr.splitlines() == ["rbx: b.h5.partial: has another name (a hard link): rbx continues a run in "
+                                           "place only in a file of one name, which no other run can be writing; "
+                                           "resume a copy of it (cp), or remove the other name"], res.stderr
+    else:
+        assert res.returncode == 0, res.stderr
+        with h5py.File(tmp_path / "b.h5", "r") as f:
+            assert f.attrs["complete"]
+    assert (tmp_path / "a.h5").read_bytes() == theirs
+
+
+def test_taking_over_a_stale_lock_replaces_and_removes_nothing_but_the_lock(tmp_path):
+    """The stale lock of a killed run was renamed to `OUT.h5.lock.stale.<pid>` (the pid known in advance: a shell
+    that `exec`s rbx), replacing the file there, which was then removed; files named like the killed run's scratch
+    lock (`OUT.h5.lock.new.<its pid>.*`) were removed too. Now the lock is set aside under a name with a random part
+    that is not there, and only scratch names rbx makes are cleared: both files keep their notes."""
+    conf = _config(tmp_path)
+    killed = subprocess.run([sys.executable, "-c", "import os, rbx.locks\nrbx.locks.acquire_lock('st.h5')\n"
+                                                   "print(os.getpid(), flush=True)\nos._exit(9)"],
+                            cwd=tmp_path, capture_output=True, text=True, timeout=HANG)
+    dead = killed.stdout.strip()
+    assert dead.isdigit() and (tmp_path / "st.h5.lock").exists(), killed.stderr
+    (tmp_path / f"st.h5.lock.new.{dead}.notes").write_text("mine\n")
+    plant = "import os\nopen(f'st.h5.lock.stale.{os.getpid()}', 'w').write('notes\\n')\n"
+    res = cli(plant, "simulate", str(conf), "-o", "st.h5", "--quiet", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert "a stale lock" in res.stderr and "was taken over" in res.stderr
+    stale = [p for p in tmp_path.iterdir() if p.name.startswith("st.h5.lock.stale.")]
+    assert len(stale) == 1 and stale[0].read_text() == "notes\n"
+    assert (tmp_path / f"st.h5.lock.new.{dead}.notes").read_text() == "mine\n"
+    assert not (tmp_path / "st.h5.lock").exists()
+
+
+def test_a_figures_record_is_written_under_a_name_of_its_own(tmp_path, monkeypatch):
+    """The paper figures' scripts wrote their JSON record to `<figure>.json.<pid>.new` opened exclusively; a file
+    already there made the open fail, and the clean-up then removed that file (a traceback, exit 1, the notes gone).
+    The scratch name now has a random part, and is removed on a failure only once it is the script's own: a file at
+    the name drawn is passed over for the next, and a record that fails to write leaves nothing."""
+    sys.path.insert(0, os.path.join(ROOT, "scripts"))
+    try:
+        import figlib
+    finally:
+        sys.path.pop(0)
+    monkeypatch.chdir(tmp_path)
+    record = tmp_path / "c.json"
+    old_style = tmp_path / f"c.json.{os.getpid()}.new"
+    drawn = tmp_path / "c.json.deadbeef.new"
+    for planted in (old_style, drawn):
+        planted.write_text("notes\n")
+    tokens = itertools.chain(["deadbeef"], itertools.repeat("0badcafe"))
+    monkeypatch.setattr(figlib.secrets, "token_hex", lambda n: next(tokens))
+    figlib._write_record(str(record), {"label": "c", "checks": [], "value": 1.5})
+    assert record.read_text().startswith("{") and '"value": 1.5' in record.read_text()
+    assert old_style.read_text() == "notes\n" and drawn.read_text() == "notes\n"
+    with pytest.raises(TypeError):
+        figlib._write_record(str(record), {"label": "c", "checks": [object()]})     # not JSON: the write fails midway
+    assert '"value": 1.5' in record.read_text()
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["c.json", old_style.name, drawn.name])
