@@ -92,6 +92,7 @@ def _load(config, overrides=None, *, base=None):
         raise TypeError("rbx.load: base= is for a mapping (a file's paths are relative to its folder, an "
                         "experiment's are resolved already)")
     if isinstance(config, Experiment):
+        config.check_unchanged()        # its resolved config is what a run's file records
         if not changes and not short:
             return config
         if config.resolved is None:       # made by hand, not from a config

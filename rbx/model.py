@@ -249,6 +249,15 @@ class Numerics:
 #: the parts of an experiment that its config gives (``wall_rules``: the ``boundary`` section): a part changed by
 #: hand is validated again, with the rest of the experiment, as a config
 PARTS = ("table", "wall_rules", "ball", "initial", "run", "output", "numerics")
+
+
+def _digest(resolved):
+    """A digest of an experiment's ``resolved`` config (plain data) -> str."""
+    import hashlib
+    import json
+    return hashlib.sha256(json.dumps(resolved, sort_keys=True, default=repr).encode()).hexdigest()
+
+
 #: the parts derived from the others (the table's dimension, kind and walls; the stored config): never set by hand
 DERIVED = ("dimension", "table_kind", "wall_names", "resolved")
 #: what :func:`rbx.config.from_dict` passes as ``checked``: the experiment it makes is validated
@@ -288,7 +297,8 @@ class Experiment:
 
     def __post_init__(self):
         if isinstance(self.checked, str) and self.checked == VALIDATED:    # made by rbx.config
-            object.__setattr__(self, "checked", self._parts())
+            # the parts, and a digest of ``resolved``: a dict, which can be edited in place (check_unchanged)
+            object.__setattr__(self, "checked", self._parts() + (_digest(self.resolved),))
             return
         if self.checked is None:
             self._check_types()
@@ -308,6 +318,18 @@ class Experiment:
 
     def _parts(self):
         return tuple(getattr(self, name) for name in PARTS + DERIVED)
+
+    def check_unchanged(self):
+        """Raise :class:`ConfigError` if ``resolved`` was edited in place since the experiment was made: a run's file
+        stores it as the config that ran (``exp.resolved['ball']['radius'] = 0.05`` ran radius 0.1 and recorded
+        0.05, which ``rbx.open`` and the plots then read)."""
+        made = self.checked
+        if isinstance(made, tuple) and len(made) > len(PARTS + DERIVED) and _digest(self.resolved) != made[-1]:
+            raise ConfigError(self.source, "resolved", "was changed in place after the experiment was made, so it no "
+                                                       "longer says what would run (a run's file stores it as the "
+                                                       "config that ran): edit a copy, exp.to_dict(), and rbx.load "
+                                                       "it; or change a key of an experiment left as made with "
+                                                       "rbx.load(exp, {'ball.radius': 0.05}) or exp.replace(...)")
 
     def _check_types(self):
         """An experiment made by hand: each part of its type, the ball of the table's dimension."""

@@ -46,6 +46,9 @@ class Companion:
     #: study's figure of this companion draws it as a dashed line, with ``expected_label``
     expected: float | None = None
     expected_label: str = ""
+    #: the least value it can take (a length, a rate, a width: 0): a results file holding less at a point marked
+    #: done is refused (rbx.sweeping.value_problem)
+    least: float | None = None
 
 
 @dataclass
@@ -359,7 +362,7 @@ register(Observable(
     companions=(Companion("horizon", "L", "the widest free corridor along the axes measured: above 0 an infinite "
                           "horizon, where the mean-square displacement grows as t·log t and no diffusion coefficient "
                           "exists (the value then depends on the segments' length); 0 a finite horizon; NaN not "
-                          "worked out (a table that is not a periodic gas of round scatterers)",
+                          "worked out (a table that is not a periodic gas of round scatterers)", least=0.0,
                           label="widest free corridor", symbol="w"),),
     label="diffusion coefficient", symbol="D"))
 
@@ -429,7 +432,7 @@ register(Observable(
     final=True, exit=True, options={"fit_from": 0.1}, label="escape rate per unit path in (x, R√κθ)", symbol="γ",
     companions=(Companion("small_hole", "1/L", "the small-hole rate |hole|/(C_d·|table|) (C_d = π for a point "
                           "particle in 2D, 4 for a disc with spin); NaN for a hole larger than a tenth of the "
-                          "boundary, or where survival levels off", reference=True,
+                          "boundary, or where survival levels off", reference=True, least=0.0,
                           label="small-hole rate |hole| / (C·|table|)"),),
     missing="no value where no exponential law follows the survival, or too few orbits exited to fit one (rbx "
             "plot --kind escape of a point's run shows it), or where spinning starts meet only specular walls "
@@ -497,10 +500,10 @@ register(Observable(
     "mean of the others is biased low)", _return_path, final=True, exit=True,
     problem=_on_exit_wall, label="mean return path in (x, R√κθ)", symbol="⟨ℓ⟩",
     missing="no value where some trajectory had not returned by the end of the run (raise collisions)",
-    companions=(Companion("kac", "L", "Kac/Santaló: C_d·|table|/|hole| (4A/ℓ for a disc)", reference=True,
+    companions=(Companion("kac", "L", "Kac/Santaló: C_d·|table|/|hole| (4A/ℓ for a disc)", reference=True, least=0.0,
                           label="Kac's lemma: C·|table| / |hole| (every state returns)"),
                 Companion("ratio", "1", "mean return path / Kac's value",
-                          label="mean return path / Kac's", expected=1.0,
+                          label="mean return path / Kac's", expected=1.0, least=0.0,
                           expected_label="1: Kac's lemma (every state returns)"),
                 Companion("ratio_stderr", "1", "standard error of the ratio",
                           label="standard error of the mean return path / Kac's"),
@@ -537,7 +540,7 @@ register(Observable(
     fields=("position",), every_collision=True, options={"segments": 10}, label="mean free path", symbol="⟨ℓ⟩",
     companions=(Companion("santalo", "L", "Santaló's mean free path of a point in the shrunk table: "
                                           "πA/P in 2D (4V/S in 3D)",
-                          label="Santaló's mean free path", symbol="πA/P", reference=True),)))
+                          label="Santaló's mean free path", symbol="πA/P", reference=True, least=0.0),)))
 
 
 def _wall_share(runs, options):

@@ -48,6 +48,23 @@ def shortened(text, most=80):
     return text if len(text) <= most else f"{text[:most - 1]}…"
 
 
+def shortened_pair(a, b, most=40):
+    """Two texts that differ, each cut to ``most`` characters about where they first differ (an ellipsis where a
+    part is left out) -> (a, b): cut from the start, '["lyapunov", "mean_free_path", "regular_sharf"]' and its
+    study's '…"regular_share"]' were quoted as the same 40 characters."""
+    a, b = str(a), str(b)
+    if len(a) <= most and len(b) <= most:
+        return a, b
+    first = next((i for i, (x, y) in enumerate(zip(a, b)) if x != y), min(len(a), len(b)))
+    start = max(0, first - most // 2)
+
+    def cut(text):
+        part = text[start:]
+        part = part if len(part) <= most else f"{part[:most - 1]}…"
+        return f"…{part}" if start else part
+    return cut(a), cut(b)
+
+
 def one_line(text):
     """``text`` with its control characters written as escapes ('a\\nb'): a file name holding a newline split a
     one-line message in two."""

@@ -34,7 +34,8 @@ from .histogram import return_experiment
 from .locks import LockNotWritable, acquire_lock, release_lock
 from .model import ConfigError
 from .paths import (ANY, DiskFull, FileError, check_own_file, check_own_kind, check_own_names, check_own_objects,
-                    check_replaceable, create_own, display_path, file_id, other_commands_file, place, what_it_is)
+                    check_replaceable, create_own, display_path, file_id, other_commands_file, place, shortened_pair,
+                    what_it_is)
 from .runfile import provenance
 from .simulation import STATE_BYTES, memory_problem, memory_refusal, records_bytes
 from .study import MAX_POINTS, Study, _representatives, load_study, needs
@@ -632,8 +633,8 @@ def _check_resumable(ds, template, path, study=None, points=()):
         # the attributes a figure of the finished file reads, and the study's own text: carried into it by the
         # resume (a file edited by hand then gave tracebacks when plotted, or named another study)
         if key in template.attrs and str(ds.attrs.get(key)) != str(template.attrs[key]):
-            raise FileError(path, key, f"is {str(ds.attrs.get(key))[:40]!r} where this study's is "
-                                       f"{str(template.attrs[key])[:40]!r}; {fix}")
+            theirs, mine = shortened_pair(ds.attrs.get(key), template.attrs[key])
+            raise FileError(path, key, f"is {theirs!r} where this study's is {mine!r}; {fix}")
     for name, var in template.coords.items():
         mine, theirs = np.asarray(var.values), np.asarray(ds[name].values)
         if mine.dtype.kind in "OUS":
@@ -690,9 +691,15 @@ def value_problem(ds, measured, label=lambda index: str(tuple(int(i) for i in in
     for name in measured:
         own = [v for v in ds.data_vars if v == name or v.startswith(f"{name}_")]
         checks += [(v, lambda x: np.isnan(x) | np.isfinite(x), "is infinite") for v in own]
-        if f"{name}_stderr" in ds:
-            checks.append((f"{name}_stderr", lambda x: np.isnan(x) | (np.isfinite(x) & (x >= 0)),
-                           "is not an error (a number ≥ 0, or none)"))
+        # every standard error: the observable's and its companions' (lyapunov_per_collision_stderr = −1 was kept,
+        # then ended the figure in matplotlib's error)
+        checks += [(v, lambda x: np.isnan(x) | (np.isfinite(x) & (x >= 0)), "is not an error (a number ≥ 0, or none)")
+                   for v in own if v.endswith("_stderr")]
+        rec = obs.REGISTRY.get(name)
+        for c in rec.companions if rec is not None else ():
+            if c.least is not None and f"{name}_{c.suffix}" in ds:     # Santaló's mean free path of −1 was drawn
+                checks.append((f"{name}_{c.suffix}", lambda x, least=c.least: np.isnan(x) | (x >= least),
+                               f"is below {c.least:g}, the least its quantity can be"))
         shares = [v for v in own if v in SHARES or (name in SHARES and v in (f"{name}_low", f"{name}_high"))]
         checks += [(v, lambda x: np.isnan(x) | ((x >= 0) & (x <= 1)), "is not a share (a number in [0, 1])")
                    for v in shares]

@@ -4,13 +4,14 @@ aside, a figure's record being written) replaced or removed. Each reproduction r
 figure scripts' own function); each test was seen to fail on the code before it."""
 import itertools
 import os
+import shutil
 import subprocess
 import sys
 
 import h5py
 import pytest
 
-from tests.test_reliability8 import HANG, cli
+from tests.test_reliability8 import HANG, _results, cli
 from tests.test_reliability9 import INTERRUPT
 from tests.test_reliability10 import _config
 
@@ -113,3 +114,80 @@ def test_a_figures_record_is_written_under_a_name_of_its_own(tmp_path, monkeypat
         figlib._write_record(str(record), {"label": "c", "checks": [object()]})     # not JSON: the write fails midway
     assert '"value": 1.5' in record.read_text()
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted(["c.json", old_style.name, drawn.name])
+
+
+def _edited(tmp_path, name, edit):
+    """A copy of a finished study's results (tests/test_reliability8.py) as ``name``, edited with h5py."""
+    out = _results(tmp_path)
+    shutil.copyfile(out, tmp_path / name)
+    with h5py.File(tmp_path / name, "r+") as f:
+        edit(f)
+    return tmp_path / name
+
+
+def test_a_title_of_megabytes_in_study_results_is_drawn_cut(tmp_path):
+    """A results file whose `title` attribute was set to 10 MB: `rbx plot --kind sweep` held matplotlib for minutes,
+    5 GB resident, past SIGTERM (100 MB: 16 GB, SIGKILL). The plot draws the title rbx writes, two lines of a few
+    dozen characters: each line is cut to 200 characters, and the figure is drawn."""
+    from rbx.cli.sweep import TITLE_LINE, sweep_panel
+    from rbx.sweeping import read_results
+
+    def edit(f):
+        f.attrs["title"] = "t" * 10**7
+    path = _edited(tmp_path, "t.nc", edit)
+    _, title = sweep_panel(read_results(str(path)))
+    first = title.split("\n")[0]
+    assert len(first) == TITLE_LINE and first.endswith("…") and len(title) < 3 * TITLE_LINE
+    res = cli("", "plot", "t.nc", "--kind", "sweep", "-o", "t.png", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    assert (tmp_path / "t.png").stat().st_size > 0
+
+
+@pytest.mark.parametrize("name, value, words", [
+    ("mean_free_path_santalo", -1.0, "is below 0, the least its quantity can be at 1 of the points marked done"),
+    ("lyapunov_per_collision_stderr", -1.0, "is not an error (a number ≥ 0, or none) at 1 of the points marked done"),
+])
+def test_an_impossible_companion_value_in_study_results_is_refused(tmp_path, name, value, words):
+    """Santaló's mean free path of −1 at a finished point was drawn (exit 0) and kept by `--resume` ('nothing to
+    do'); a per-collision standard error of −1 ended the figure in matplotlib's 'yerr must not contain negative
+    values'. Every standard error, and every companion with a least value (a length, a rate), is checked as the
+    observables' own values were: one line naming the variable, exit 2, from the plot and the resume."""
+    def edit(f):
+        f[name][0] = value
+    _edited(tmp_path, "c.nc", edit)
+    for args in (["plot", "c.nc", "--kind", "sweep", "-o", "c.png"], ["sweep", "study.yaml", "-o", "c.nc", "--resume"]):
+        res = cli("", *args, cwd=tmp_path)
+        assert res.returncode == 2, (args, res.returncode, res.stderr)
+        lines = res.stderr.splitlines()
+        assert len(lines) == 1 and lines[0].startswith(f"rbx: c.nc: {name}: {words}"), res.stderr
+    assert not (tmp_path / "c.png").exists()
+
+
+def test_two_attributes_that_differ_late_are_quoted_where_they_differ(tmp_path):
+    """`measure` edited at its end ('energy_drifu'): the refusal quoted the first 40 characters of both values,
+    the same in both. Each is now quoted from a little before the first difference."""
+    def edit(f):
+        f.attrs["measure"] = f.attrs["measure"].replace("energy_drift", "energy_drifu")
+    _edited(tmp_path, "m.nc", edit)
+    res = cli("", "sweep", "study.yaml", "-o", "m.nc", "--resume", cwd=tmp_path)
+    assert res.returncode == 2, res.stderr
+    line, = res.stderr.splitlines()
+    assert line.startswith("rbx: m.nc: measure: is '…") and "energy_drifu" in line and "energy_drift" in line, line
+
+
+def test_an_experiments_resolved_config_edited_in_place_is_refused(tmp_path):
+    """`exp.resolved` is a dict: `exp.resolved['ball']['radius'] = 0.05` then `rbx.simulate(exp, output=…)` ran
+    radius 0.1 and stored 0.05 (and `run.seed` 999) as the config that ran, which `rbx.open` and the plots read
+    back. The API now refuses an experiment whose resolved config changed since it was made, naming the ways to
+    change a key; `replace` and `rbx.load` with overrides still work."""
+    import rbx
+    from rbx.model import ConfigError
+    exp = rbx.load(os.path.join(ROOT, "configs", "examples", "strip.yaml"))
+    assert rbx.simulate(exp.replace(ball={"inertia": 0.3}), collisions=20).final["collisions"][0] == 20
+    exp.resolved["ball"]["radius"] = 0.05
+    for call in (lambda: rbx.simulate(exp, collisions=20, output=str(tmp_path / "r.h5")),
+                 lambda: rbx.lyapunov(exp, collisions=20), lambda: rbx.load(exp, {"ball.inertia": 0.2})):
+        with pytest.raises(ConfigError) as err:
+            call()
+        assert err.value.key == "resolved" and "was changed in place" in str(err.value)
+    assert not os.path.exists(tmp_path / "r.h5")

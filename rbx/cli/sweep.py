@@ -301,6 +301,8 @@ def _check_results_attrs(ds, path):
 
 #: at most this many lines get a legend entry each; more are coloured along a colour bar of their key's values
 MAX_LEGEND_LINES = 10
+#: the most characters of a line of the title a results file holds that the study plot draws
+TITLE_LINE = 200
 
 
 def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=None):
@@ -426,7 +428,11 @@ def sweep_panel(ds, y=None, x=None, logx=False, logy=False, path=None, label=Non
     if orbits < M:      # fixed starts, no random numbers: the bars are the spread of copies (rbx sweep warned)
         ensemble += f" (copies of {plural(orbits, 'orbit')})"
     # the axes name what is drawn against what; the title says what was run
-    title = (f"{ds.attrs.get('title', '')}\n{ensemble} × {plural(int(N), 'collision')} per point · "
+    # the file's title as rbx writes it: two lines of a few dozen characters. Cut to that: a crafted title of 10 MB
+    # held matplotlib for minutes, 5 GB resident, past SIGTERM
+    from ..paths import shortened
+    written = "\n".join(shortened(line, TITLE_LINE) for line in str(ds.attrs.get("title", "")).split("\n", 2)[:2])
+    title = (f"{written}\n{ensemble} × {plural(int(N), 'collision')} per point · "
              f"{int(done.values.sum())} of {done.size} points · {duration(seconds)} computing them")
     return panel, title
 
