@@ -5,7 +5,7 @@ PY := $(VENV)/bin/python
 STAMP := $(VENV)/.installed
 WARM := $(VENV)/.warmed-up
 
-.PHONY: test test-numba reproduce-figures warm-up bench stress gallery studies notebook clean
+.PHONY: test test-all test-numba reproduce-figures warm-up bench stress gallery studies notebook clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -21,9 +21,14 @@ $(BYTECODE): $(wildcard rbx/*.py rbx/cli/*.py) | $(STAMP)
 	$(PY) -m compileall -q rbx
 	touch $@
 
-# the tests that take minutes each (the bench, accuracy and stress documents, marked `heavy`) run with `make stress`
+# the tests that take seconds each (fault reproductions and end-to-end runs of the command line, marked `long`) and
+# minutes each (the bench, accuracy and stress documents, marked `heavy`) run with `make stress`; `make test-all`
+# runs every test
 test: $(STAMP) $(BYTECODE)
-	$(PY) -m pytest -q -n 2 -m "not heavy" tests
+	$(PY) -m pytest -q -n 2 -m "not heavy and not long" tests
+
+test-all: $(STAMP) $(BYTECODE)
+	$(PY) -m pytest -q -n 2 tests
 
 # the suite with the oldest and the newest Numba that pyproject.toml declares (a venv each), and with kernels
 # compiled for a generic CPU (NUMBA_CPU_NAME=generic): scripts/test_numba.sh
@@ -77,8 +82,8 @@ bench: $(BENCH_STAMP)
 	$(PY) scripts/accuracy.py
 	$(PY) scripts/bench_cluster.py --collisions 40000000 --output docs/benchmarks-cluster.md
 
-stress: $(STAMP)
-	$(PY) -m pytest -q -n 2 -m heavy tests
+stress: $(STAMP) $(BYTECODE)
+	$(PY) -m pytest -q -n 2 -m "heavy or long" tests
 	$(PY) scripts/stress.py
 
 # the plot kinds each example lists (its first line, `# plots: …`), from the example as it ships cut to 2000

@@ -157,6 +157,7 @@ def test_a_file_that_appeared_meanwhile_is_not_replaced_without_force(tmp_path):
     assert not os.path.exists(tmp) and os.stat(other).st_ino == ours_inode
 
 
+@pytest.mark.long
 def test_a_first_compile_is_announced_before_it_starts_and_a_warm_run_says_nothing(tmp_path):
     """A cold kernel cache: rbx simulate says on a terminal, before compiling, that it compiles (seconds of silence
     otherwise); the next run loads the kernels and says nothing of it; --quiet says nothing either. A stderr that

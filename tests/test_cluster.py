@@ -208,6 +208,7 @@ PAIRS = [("strip-random", cut) for cut in CUTS] + [
     ("wedge-escape", "two-workers-3-slices-many-rounds"), ("rectangle-random-final-only", "one-worker-2-slices")]
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("name, cut", PAIRS, ids=[f"{n}-{c}" for n, c in PAIRS])
 def test_a_cluster_run_is_the_local_run_bit_for_bit(name, cut, local_runs, request, tmp_path):
     which, options = CUTS[cut]
@@ -222,6 +223,7 @@ def test_a_cluster_run_is_the_local_run_bit_for_bit(name, cut, local_runs, reque
         assert not run["final/alive"].any()
 
 
+@pytest.mark.long
 def test_workers_load_the_kernels_from_the_disk_cache(two, tmp_path):
     """A local run compiles the scene's kernel into the disk cache; the workers load it from there (a Numba
     cache hit) and compile nothing."""
@@ -243,6 +245,7 @@ def test_workers_load_the_kernels_from_the_disk_cache(two, tmp_path):
     assert seen and all(hits >= 1 and compiled == 0 for hits, compiled in seen), seen
 
 
+@pytest.mark.long
 def test_the_api_on_a_local_cluster_and_on_an_address(two, tmp_path):
     """rbx.simulate(..., scheduler=): a distributed.Client of a LocalCluster (worker processes), in memory; an
     address, into a file. Both are the local run, bit for bit."""
@@ -265,6 +268,7 @@ def test_the_api_on_a_local_cluster_and_on_an_address(two, tmp_path):
             assert run.final[k].tobytes() == local.final[k].tobytes(), k
 
 
+@pytest.mark.long
 def test_histogram_on_the_cluster_is_the_local_histogram(two, tmp_path):
     cfg = {"table": {"kind": "rectangle", "width": 2.0, "height": 1.0}, "ball": {"radius": 0.1},
            "boundary": {"default": {"rule": "random", "choices": [{"rule": "constant", "rank": 0},
@@ -311,6 +315,7 @@ def start(args, cwd, partial):
     return proc
 
 
+@pytest.mark.long
 def test_sigint_leaves_a_partial_that_resumes_locally_and_on_the_cluster(two, long_local, tmp_path):
     (tmp_path / "exp.yaml").write_text(yaml.safe_dump(LONG, sort_keys=False))
     proc = start(["simulate", "exp.yaml", "-o", "run.h5", "--scheduler", two.address, *LONG_CUT], tmp_path,
@@ -341,6 +346,7 @@ def test_sigint_leaves_a_partial_that_resumes_locally_and_on_the_cluster(two, lo
         assert_same(read_run(tmp_path / f"{label}.h5"), long_local)
 
 
+@pytest.mark.long
 def test_a_worker_killed_mid_run_costs_only_its_task(two, long_local, tmp_path):
     two.wait_for_workers(2)
     (tmp_path / "exp.yaml").write_text(yaml.safe_dump(LONG, sort_keys=False))
@@ -357,6 +363,7 @@ def test_a_worker_killed_mid_run_costs_only_its_task(two, long_local, tmp_path):
     two.wait_for_workers(2)                                 # its nanny starts it again, for the next tests
 
 
+@pytest.mark.long
 def test_ctrl_c_stops_a_run_whose_cluster_lost_every_worker(tmp_path):
     """With its only worker killed mid-run, a result the run was fetching waited for a worker to come back and
     SIGINT or SIGTERM went unheard (45 s and more); the fetch is asked in turns now, and Ctrl-C stops the run with
@@ -390,6 +397,7 @@ def test_ctrl_c_stops_a_run_whose_cluster_lost_every_worker(tmp_path):
     assert not read_run(tmp_path / "run.h5")["attrs"]["complete"]
 
 
+@pytest.mark.long
 def test_a_scheduler_lost_mid_run_is_one_line_exit_1_and_a_resumable_file(tmp_path):
     dask = LocalDask(tmp_path / "dask", 1)
     try:
@@ -431,6 +439,7 @@ def free_port():
         return s.getsockname()[1]
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("address", ["tcp://127.0.0.1:{port}", "127.0.0.1:{port}", "nonsense://where",
                                      "scheduler.json", "tls://127.0.0.1:{port}", "inproc://x", "fifo", "folder",
                                      "number.json", "name.json"])
@@ -468,6 +477,7 @@ def test_an_unreachable_scheduler_is_one_line_and_exit_2(address, tmp_path):
     assert not list(tmp_path.glob("run.h5*"))                # nothing written
 
 
+@pytest.mark.long
 def test_a_port_that_accepts_and_never_answers_or_does_not_exist_is_one_line(tmp_path):
     """``--scheduler`` naming a port where something accepts connections and never answers held ``rbx simulate``
     for over ten minutes with no line (Dask's handshake waited for ever); a port of 99999 was 'Connection
@@ -533,6 +543,7 @@ def tasks_seen(cluster):
         return sum(c.run(lambda: "rbx.dynamics" in sys.modules).values())
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("which, slices", [("one", None), ("two", 2), ("two", 3)])
 def test_lyapunov_on_the_cluster_is_the_local_spectrum_bit_for_bit(which, slices, local_lyapunov, request, tmp_path):
     cluster = request.getfixturevalue(which)
@@ -644,6 +655,7 @@ def test_a_worker_killed_while_the_client_checks_the_workers_is_left_out_not_tak
         assert sorted(f) == ["collisions", "final"]
 
 
+@pytest.mark.long
 def test_a_scheduler_lost_mid_study_is_one_line_exit_1_and_how_to_continue(tmp_path):
     """rbx sweep --scheduler with the scheduler killed after the first point was written: it said "no worker
     answered … the workers were lost; start them again" (exit 2, a user error), after Dask's own ERROR line; as

@@ -323,6 +323,7 @@ def _states_yaml(n, anchored=False):
     return head + "initial:\n" + "".join(rows)
 
 
+@pytest.mark.long
 def test_a_list_of_40000_states_written_out_loads(tmp_path):
     # 40 000 states hold ~440 000 values: refused before as "a bomb of nested aliases?" though no alias was used
     path = tmp_path / "many.yaml"
@@ -359,6 +360,7 @@ def test_alias_count_counts_uses_of_shared_parts_only():
     assert expanded == written == 1 + 3 * 1000
 
 
+@pytest.mark.long
 def test_states_checked_in_bulk_read_as_one_by_one():
     # the bulk path (plain numbers, checked as arrays) and the one-by-one path give the same experiment, and the
     # first bad state is named as before, wherever it is in the list
@@ -413,6 +415,7 @@ def test_libyaml_reads_what_the_python_loader_reads():
             pytest.fail(bad)
 
 
+@pytest.mark.long
 def test_reading_many_explicit_states_sets_off_no_garbage_collection(tmp_path):
     """A list of 10 000 states is ~90 000 YAML values and none of them garbage, yet each few hundred set off a
     collection of the cycle collector (0.62 of the 0.65 s CPU of rbx.load): it is held off while a config is read

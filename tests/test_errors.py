@@ -339,6 +339,7 @@ SUBPROCESS_CASES = ["yaml-syntax", "unknown-top-key", "table-file-negative", "wi
                     "rank1-3d-no-direction"]
 
 
+@pytest.mark.long
 def test_user_errors_in_real_processes(tmp_path):
     jobs = []
     for case in SUBPROCESS_CASES:
@@ -495,6 +496,7 @@ def mostly_wrong_configs(draw):
 FUZZ_EXAMPLES = int(os.environ.get("RBX_FUZZ_EXAMPLES", 300))
 
 
+@pytest.mark.long
 @settings(max_examples=FUZZ_EXAMPLES, deadline=None,
           suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
 @given(text=mostly_wrong_configs())

@@ -62,6 +62,7 @@ def fitted_line(fig):
     return lines[0].get_data() if lines else None
 
 
+@pytest.mark.long
 def test_the_drawn_fit_follows_the_rough_sinai_survival(tmp_path):
     run = str(tmp_path / "esc.h5")
     rbx.simulate(rbx.load(SINAI, {"boundary.default": {"rule": "constant", "rank": 1}}), output=run)
@@ -116,6 +117,7 @@ def legend(fig):
     return [t.get_text() for leg in fig.legends for t in leg.get_texts()]
 
 
+@pytest.mark.long
 def test_a_few_orbits_inside_a_falling_tail_are_no_trapped_share(tmp_path):
     """A specular rectangle open on its whole left wall traps nothing (every orbit leaves by 40 000 collisions),
     but its tail is slow: after 2000 collisions one orbit of 3000 is still inside. That is no trapped share."""
@@ -142,6 +144,7 @@ def test_a_few_orbits_inside_a_falling_tail_are_no_trapped_share(tmp_path):
                                              in said), said
 
 
+@pytest.mark.long
 def test_the_exits_counted_agree_with_the_summary(tmp_path):
     """escape-sinai.yaml with point-particle starts run for 100 collisions: some orbits exit at their 100th
     collision. rbx simulate's summary counts those that ended earlier; the legend gives the exits, and how many of
@@ -180,6 +183,7 @@ def test_the_fit_window_is_checked_where_the_fit_is_asked_for():
     assert fit_escape(path, np.ones(1000, bool), fit_from=0.1).rate == pytest.approx(0.1, rel=0.15)
 
 
+@pytest.mark.long
 def test_spinning_starts_under_specular_walls_have_no_single_rate(tmp_path):
     """A specular wall keeps each disc's spin: an orbit whose share of speed in the plane is c leaves at its own rate
     c·ℓ/(πA), so the survival of billiard-measure starts is a mixture of exponentials (the escape example's, said to

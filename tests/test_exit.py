@@ -169,6 +169,7 @@ def test_an_edge_between_two_collinear_edges_of_a_polygon_is_hit():
     assert np.sum(opened.count < 2001) > 150
 
 
+@pytest.mark.long
 def test_a_run_file_in_which_every_trajectory_has_left_reads_back(tmp_path):
     """A file whose trajectories all ended at the exit (none left running) opens, through the API and
     `rbx plot --kind escape`: its saved state was once refused as damaged, the check of the running trajectories'

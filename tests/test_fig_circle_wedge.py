@@ -226,6 +226,7 @@ def test_wrong_inertia_breaks_the_period_four():
 # ---- end to end ------------------------------------------------------------------------------------------------
 
 
+@pytest.mark.long
 def test_simulate_and_plot_caustics_end_to_end(tmp_path):
     data, png = tmp_path / "caustics.h5", tmp_path / "caustics.png"
     env = dict(os.environ, MPLBACKEND="Agg")

@@ -6,6 +6,7 @@ import sys
 import types
 
 import numpy as np
+import pytest
 from matplotlib.figure import Figure as MplFigure
 
 ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
@@ -65,6 +66,7 @@ def _run(args, cwd):
                           env={**os.environ, "MPLBACKEND": "Agg"})
 
 
+@pytest.mark.long
 def test_a_figure_refuses_data_not_made_with_its_configs_own_run_settings(tmp_path):
     tree = _tree(tmp_path)
     rbx = os.path.join(os.path.dirname(sys.executable), "rbx")

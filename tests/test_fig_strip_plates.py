@@ -229,6 +229,7 @@ def test_histogram_config_writes_into_data_and_returns_follow_the_law():
 # ---- end to end ------------------------------------------------------------------------------------------------
 
 
+@pytest.mark.long
 def test_simulate_then_figure_script(tmp_path):
     rbx = os.path.join(os.path.dirname(sys.executable), "rbx")
     h5 = tmp_path / "plate.h5"
@@ -246,6 +247,7 @@ def test_simulate_then_figure_script(tmp_path):
     assert record["label"] == "plate" and record["checks"] and all(c["ok"] for c in record["checks"])
 
 
+@pytest.mark.long
 def test_roughrank_script_end_to_end(tmp_path):
     # the four runs, shortened: the script must read them and draw (its checks may or may not hold on 4000
     # collisions; a traceback — a run file read the wrong way — is what this catches)

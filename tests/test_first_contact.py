@@ -188,6 +188,7 @@ def test_an_edited_config_mapping_finds_its_includes(tmp_path, monkeypatch):
     assert rbx.load(STRIP).resolved["ball"]["inertia"] == "uniform"      # the copy was edited, not the experiment
 
 
+@pytest.mark.long
 def test_set_on_the_command_line(strip_inertia, tmp_path):
     reference = records(rbx.simulate(rbx.load(strip_inertia), collisions=100))
     res = cli("simulate", STRIP, "-o", "a.h5", "--collisions", 100, "--set", "ball.inertia=0.2",
@@ -218,6 +219,7 @@ def test_set_on_the_command_line(strip_inertia, tmp_path):
 
 # ---- 2. an ensemble of one orbit ---------------------------------------------------------------------------------
 
+@pytest.mark.long
 def test_copies_of_one_orbit_are_warned_about_and_their_diffusion_refused(tmp_path):
     res = cli("simulate", STRIP, "-o", "same.h5", "--collisions", 2000, "--trajectories", 4, "--quiet", cwd=tmp_path)
     assert res.returncode == 0, res.stderr
@@ -235,6 +237,7 @@ def test_copies_of_one_orbit_are_warned_about_and_their_diffusion_refused(tmp_pa
     assert (tmp_path / "random_diffusion.png").stat().st_size > 10_000
 
 
+@pytest.mark.long
 def test_the_api_warns_of_copies_of_one_orbit(tmp_path):
     with pytest.warns(RuntimeWarning, match="the 3 trajectories all start from the same state"):
         rbx.simulate(STRIP, collisions=20, trajectories=3)
@@ -254,6 +257,7 @@ def test_the_api_warns_of_copies_of_one_orbit(tmp_path):
         "run.trajectories" not in res.stderr, res.stderr
 
 
+@pytest.mark.long
 def test_a_seed_that_nothing_uses_is_warned_about(tmp_path):
     """--seed (or --set run.seed) on a run that draws no random numbers (a fixed start, no random rule) changes
     nothing: one warning line, as for copies of one orbit; a run that draws numbers says nothing."""
@@ -294,6 +298,7 @@ def histogram_config(folder):
     return path
 
 
+@pytest.mark.long
 def test_histogram_never_replaces_the_simulation_by_default_and_data_names_its_file(tmp_path):
     conf = histogram_config(tmp_path)
     assert cli("simulate", conf, "--collisions", 30, "--quiet", cwd=tmp_path).returncode == 0
@@ -323,6 +328,7 @@ def test_histogram_never_replaces_the_simulation_by_default_and_data_names_its_f
                     "run's output another name"), line
 
 
+@pytest.mark.long
 def test_lyapunov_of_copies_of_one_orbit_gives_one_orbit_and_no_interval(tmp_path):
     """rbx lyapunov on the circle example's fixed start (a deterministic rule) with 5 trajectories: after the
     warning, the regular share is one orbit's verdict, with no Wilson interval computed from 5 copies of it."""

@@ -38,6 +38,7 @@ def test_every_example_names_the_plot_kinds_it_is_made_for():
         assert all(kind in KINDS for kind, _ in kinds), (name, kinds)
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("name", examples())
 def test_an_example_as_it_ships_runs_and_draws_every_kind_it_lists(name, tmp_path):
     """The real ``rbx simulate`` of the example (fewer collisions) writes a complete file of the records it asks

@@ -229,6 +229,7 @@ def write_config(path, **over):
     return path
 
 
+@pytest.mark.long
 def test_cli_writes_angles_figure_and_ks(tmp_path):
     conf = write_config(tmp_path / "h.yaml")
     r = rbx("histogram", str(conf), "-o", str(tmp_path / "h.png"))
@@ -250,6 +251,7 @@ def test_cli_writes_angles_figure_and_ks(tmp_path):
     assert rbx("histogram", str(conf), "-o", str(tmp_path / "h.png"), "--force").returncode == 0
 
 
+@pytest.mark.long
 def test_cli_user_errors(tmp_path):
     conf = write_config(tmp_path / "explicit.yaml", initial="{position: [1.0, 0.5], velocity: [1.0, 0.3]}")
     r = rbx("histogram", str(conf))
@@ -259,6 +261,7 @@ def test_cli_user_errors(tmp_path):
     assert r.returncode == 2 and "missing.yaml" in r.stderr and "Traceback" not in r.stderr
 
 
+@pytest.mark.long
 def test_cli_writes_only_where_its_files_may_go_and_says_so_before_sampling(tmp_path):
     """The figure as rbx plot's -o: not through a link, not over a file that is not a figure (even with --force),
     not into a missing folder; and a read-only folder for the return angles is found before the samples are drawn
@@ -281,6 +284,7 @@ def test_cli_writes_only_where_its_files_may_go_and_says_so_before_sampling(tmp_
         assert "Traceback" not in r.stderr and not (tmp_path / "h.png").exists()
 
 
+@pytest.mark.long
 def test_cli_reports_trajectories_that_did_not_return(tmp_path):
     conf = write_config(tmp_path / "short.yaml", run="{collisions: 2, trajectories: 500, seed: 2}")
     r = rbx("histogram", str(conf))
@@ -319,6 +323,7 @@ def test_cli_refuses_a_histogram_of_no_return(tmp_path):
     assert not (tmp_path / "none.png").exists() and not (tmp_path / "returns.h5").exists()
 
 
+@pytest.mark.long
 def test_a_figure_that_cannot_be_written_says_the_samples_are_kept(tmp_path):
     """The samples are written first; a figure that then fails (here a .pgf without LaTeX) said only that, exit 2,
     and the user did not know the samples were there."""
@@ -348,6 +353,7 @@ def test_a_killed_runs_partial_under_the_samples_name_is_named_and_kept(tmp_path
     assert (tmp_path / "returns.h5.partial").read_bytes() == (tmp_path / "run.h5").read_bytes()
 
 
+@pytest.mark.long
 def test_the_config_named_as_the_figure_is_refused_as_such(tmp_path):
     """rbx histogram c.yaml -o c.yaml said "exists; use --force to overwrite it", then, with --force, that it is no
     figure: it says at once that it is the config."""
@@ -360,6 +366,7 @@ def test_the_config_named_as_the_figure_is_refused_as_such(tmp_path):
     assert conf.read_text().startswith("table:") and not (tmp_path / "returns.h5").exists()
 
 
+@pytest.mark.long
 def test_returns_to_an_exit_are_refused_not_tested(tmp_path):
     """A contact with an exit wall is the arriving state, no map applied (its angle to the normal above 90°): sampled
     on the escape example's gate, rbx histogram reported KS D = 1, p = 0 against the billiard measure, exit 0, with

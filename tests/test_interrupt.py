@@ -121,6 +121,7 @@ def start_and_signal(args, partial, sig, cwd, delay):
     return subprocess.CompletedProcess(args, proc.returncode, out, err)
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM], ids=["SIGINT", "SIGTERM"])
 def test_a_signal_stops_a_real_run_quickly_and_leaves_a_valid_file(sig, tmp_path):
     # 10⁹ collisions: hours of work, so the signal always lands mid-run
@@ -189,6 +190,7 @@ def wait_until_open(proc, path, closed=False, timeout=900):
         time.sleep(0.001)
 
 
+@pytest.mark.long
 def test_real_interrupt_then_real_resume_equals_an_uninterrupted_run(tmp_path):
     """Interrupt a real process running with tiny blocks, resume it with a real process and the normal block
     size (so the block boundaries differ too), and compare with an uninterrupted run."""
@@ -446,6 +448,7 @@ def wait_until_loaded(proc, library, timeout=300):
         time.sleep(0.005)
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("delay, sig", [(0.0, signal.SIGINT), (0.0, signal.SIGTERM), (1.5, signal.SIGINT),
                                         pytest.param(1.5, signal.SIGTERM, marks=pytest.mark.heavy)])
 def test_ctrl_c_in_histogram_and_while_starting_is_one_line_and_130(tmp_path, delay, sig):

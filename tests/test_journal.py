@@ -249,6 +249,7 @@ def test_a_torn_file_without_its_journal_is_refused_not_read(tmp_path):
         assert f.attrs["version"] == 2
 
 
+@pytest.mark.long
 def test_a_new_run_over_a_journal_left_without_its_file_is_forced_and_never_takes_it(tmp_path):
     """A killed run's journal whose .partial was removed (or moved away) by hand: a new run keeps it and says so
     (it may be the only thing that finishes the file elsewhere); with --force it is removed, and never applied to
@@ -342,6 +343,7 @@ def test_room_reserved_by_a_killed_run_is_not_taken_for_the_committed_file(tmp_p
 
 # ---- a real run killed inside a commit ----------------------------------------------------------------------------
 
+@pytest.mark.long
 def test_a_run_killed_inside_a_commit_is_read_and_resumed_exactly(tmp_path):
     """`rbx simulate` killed halfway through copying its third checkpoint's journal into the file: the .partial
     reads (the API applies the journal), and `rbx simulate --resume` ends with the uninterrupted run's records."""
@@ -403,6 +405,7 @@ EIO_WRITER = textwrap.dedent("""
 """)
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("instants", [pytest.param("all", marks=pytest.mark.heavy), "quick"])
 def test_an_io_error_at_any_write_is_one_line_and_the_file_resumes_exactly(tmp_path, instants):
     """Every write of the run file goes through os.pwrite or os.pwritev (the journal's); each is made to fail

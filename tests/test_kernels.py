@@ -33,7 +33,16 @@ def test_the_mode_picks_the_compiled_bits(monkeypatch):
     assert engine.compiled_spec(engine.make_spec(2, slab=True)) == engine.S_GENERAL
 
 
-@pytest.mark.parametrize("example", EXAMPLES, ids=[os.path.basename(e)[:-5] for e in EXAMPLES])
+#: compared by make test; the others (each a specialised compile of 5–15 s) by make stress
+QUICK = ("strip", "lyapunov-sinai")
+
+
+def _examples(names, path=lambda name: name):
+    return [pytest.param(path(n), id=n, marks=() if n in QUICK else pytest.mark.long) for n in names]
+
+
+@pytest.mark.parametrize("example", _examples([os.path.basename(e)[:-5] for e in EXAMPLES],
+                                              lambda n: os.path.join(ROOT, "configs", "examples", n + ".yaml")))
 def test_the_general_loop_is_the_specialised_loop_bit_for_bit(example, monkeypatch):
     exp = rbx.load(example)
     final, fields = run(monkeypatch, "specialised", exp, 1500)
@@ -47,7 +56,7 @@ def test_the_general_loop_is_the_specialised_loop_bit_for_bit(example, monkeypat
     assert np.any(final["collisions"] > 0)
 
 
-@pytest.mark.parametrize("example", ["lyapunov-sinai", "sinai3d", "plates"])
+@pytest.mark.parametrize("example", _examples(["lyapunov-sinai", "sinai3d", "plates"]))
 def test_the_general_tangent_loop_is_the_specialised_one_bit_for_bit(example, monkeypatch):
     exp = rbx.load(os.path.join(ROOT, "configs", "examples", example + ".yaml"))
     spectra = []

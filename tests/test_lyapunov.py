@@ -403,6 +403,7 @@ def test_lyapunov_command_prints_json(tmp_path):
         assert bad.exit_code == 2 and "--threshold" in bad.output and bad.output.count("\n") == 1, bad.output
 
 
+@pytest.mark.long
 def test_no_measurement_is_refused_not_reported_as_zero_or_nan(tmp_path):
     """Nothing to measure is said in one line, exit 2: every trajectory leaving at its first contact (the spectrum
     was 0 ± 0 with exit 0), and one trajectory in one segment (the error was NaN, and --json wrote NaN, not JSON)."""
@@ -497,6 +498,7 @@ def test_an_ensemble_too_large_for_memory_is_refused_before_it_is_set_up():
         lyapunov(_scene(SINAI, SMOOTH, 100), trajectories=10**12)
 
 
+@pytest.mark.long
 def test_lyapunov_command_follows_k_vectors(tmp_path):
     import subprocess
     import sys
@@ -518,6 +520,7 @@ def test_lyapunov_command_follows_k_vectors(tmp_path):
         assert r.returncode == 2 and len(lines) == 1 and "--exponents" in lines[0] and "from 1 to 6" in lines[0], r.stderr
 
 
+@pytest.mark.long
 def test_trajectories_that_left_during_their_warm_up_are_said_apart_from_those_measured():
     """The escape example, a few trajectories: some leave by its gate during their warm-up and measure nothing;
     the output said '4 trajectories, 147 collisions measured' and 'regular orbits: 0 of 1', which did not add up.

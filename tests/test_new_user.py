@@ -67,6 +67,7 @@ def trap(tmp_path_factory):
     return folder
 
 
+@pytest.mark.long
 def test_a_table_that_traps_gets_its_trapped_share_with_its_interval(trap):
     res = cli("plot", "trap.h5", "--kind", "escape", "-o", "escape.png", "--quiet", cwd=trap)
     assert res.returncode == 0, res.stderr
@@ -100,6 +101,7 @@ def test_a_table_that_traps_gets_its_trapped_share_with_its_interval(trap):
         assert np.all(y > low)
 
 
+@pytest.mark.long
 def test_a_small_gate_gets_the_small_hole_rate_and_no_trapped_share(tmp_path):
     config = os.path.join(EXAMPLES, "escape-sinai.yaml")
     # point-particle starts: one rate (billiard-measure starts of a disc keep their spins under these specular
@@ -113,6 +115,7 @@ def test_a_small_gate_gets_the_small_hole_rate_and_no_trapped_share(tmp_path):
     assert not any("trapped" in t for t in texts), texts
 
 
+@pytest.mark.long
 def test_the_small_hole_rate_follows_the_velocity_space_the_orbits_fill():
     """|hole|/(C_d·|table|) with d the velocity dimension the orbits fill: a point particle under specular walls
     keeps no spin (d = 2, C = π: the classic small-hole rate), a disc with spin d = 3 (C = 4); point-particle starts
@@ -139,6 +142,7 @@ def test_the_small_hole_rate_follows_the_velocity_space_the_orbits_fill():
 # ---- the one-time compile -------------------------------------------------------------------------------------
 
 
+@pytest.mark.long
 def test_the_warm_up_fills_the_cache(tmp_path):
     """A fresh kernel cache warmed by scripts/warm_up.py: the example's first run loads (nothing compiled). (That a
     first run in a cold cache says it compiled, once, and the next loads: tests/test_cli_simulate.py.) Seconds are
@@ -164,6 +168,7 @@ def lorentz(tmp_path_factory):
     return folder / "gas.h5"
 
 
+@pytest.mark.long
 def test_diffusion_is_given_per_unit_time_as_well_as_per_collision(lorentz):
     fig = make_figure(str(lorentz), "diffusion")
     text = " ".join(legend(fig))
@@ -183,6 +188,7 @@ def test_diffusion_is_given_per_unit_time_as_well_as_per_collision(lorentz):
     assert per_time == pytest.approx(direct, rel=0.5)
 
 
+@pytest.mark.long
 def test_the_diffusion_of_the_orientation_is_in_radians_and_its_options_are_checked(tmp_path):
     """theta was labelled in L, L² and 1/L; --coordinate z of a 2D run said the table was bounded along z; --fit-from
     −1 was taken and NaN said the window held too few records; a window whose interval reaches 0 gave a negative D,
@@ -210,6 +216,7 @@ def test_the_diffusion_of_the_orientation_is_in_radians_and_its_options_are_chec
     assert "its interval reaches" not in make_figure(out, "diffusion").rbx_result
 
 
+@pytest.mark.long
 def test_an_option_the_kind_does_not_use_is_refused(lorentz):
     line = one_line(cli("plot", lorentz, "--kind", "orbit", "--coordinate", "vx", cwd=lorentz.parent))
     assert line == "rbx: --coordinate: is for --kind series and --kind diffusion only; --kind orbit does not use it"
@@ -226,6 +233,7 @@ def test_an_option_the_kind_does_not_use_is_refused(lorentz):
         assert line == f"rbx: {option}: --kind sweep does not use it", line
 
 
+@pytest.mark.long
 def test_the_3d_kinds_name_every_3d_table(lorentz):
     for kind in ("orbit3d", "poincare"):
         line = one_line(cli("plot", lorentz, "--kind", kind, cwd=lorentz.parent))
@@ -242,6 +250,7 @@ def test_plot_help_describes_every_kind_and_dpi_without_a_development_note():
     assert "memory" not in dpi and "100 000" not in dpi, dpi
 
 
+@pytest.mark.long
 def test_one_trajectory_is_singular(tmp_path):
     """A hole nobody reaches: one trajectory flying between the side walls of a rectangle whose floor is a hole."""
     config = dict(TRAP, boundary={"default": {"rule": "constant", "rank": 0}, "walls": {"bottom": {"rule": "exit"}}},
@@ -275,6 +284,7 @@ def test_a_bare_rbx_shows_the_help_and_exits_0():
     assert res.stdout.startswith("Usage: rbx") and "simulate" in res.stdout and res.stderr == ""
 
 
+@pytest.mark.long
 def test_the_birkhoff_map_of_the_strips_unbounded_wall(tmp_path):
     res = cli("simulate", os.path.join(EXAMPLES, "strip.yaml"), "-o", "strip.h5", "--collisions", "500", "--quiet",
               cwd=tmp_path)
@@ -293,6 +303,7 @@ def test_the_birkhoff_map_of_the_strips_unbounded_wall(tmp_path):
     assert line.endswith("the table is unbounded: choose one wall with --wall"), line
 
 
+@pytest.mark.long
 def test_a_complete_run_that_recorded_nothing_is_said_so_and_its_escape_drawn(tmp_path):
     """A run with output.record: [] was refused by every --kind as 'holds no records yet … resume it', while its
     resume said it was complete. Its escape plot reads the final states; the other kinds say what it lacks."""

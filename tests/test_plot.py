@@ -116,6 +116,7 @@ def test_every_kind_renders_with_labelled_axes(runs, kind, run, options):
         assert ends[0] < ends[1] < ends[2]            # 1/100, 1/10 and all of the run
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("kind,run", [("orbit", "lshape"), ("orbit3d", "plates"), ("phase", "lshape"),
                                       ("series", "strip"), ("diffusion", "random")])
 def test_cli_writes_a_png(runs, tmp_path, kind, run):
@@ -236,6 +237,7 @@ def test_diffusion_fit_skips_trajectories_that_ended_early():
         analysis.fit_diffusion(np.arange(101.0), x[3:4])
 
 
+@pytest.mark.long
 def test_diffusion_figure_reports_the_fit(runs):
     fig = make_figure(runs["random"], "diffusion")
     left, right = labelled(fig)
@@ -411,6 +413,7 @@ def readable(fig):
     return problems
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("scene", SCENES)
 def test_every_kind_on_every_scene_is_readable(scenes, scene):
     """Every kind that applies to the scene renders readably; one that does not says why (a UserError)."""
@@ -489,6 +492,7 @@ def test_long_orbits_are_thinned(scenes):
     assert 0 < flights <= plotting.ORBIT3D_SEGMENTS / np.sqrt(len(paths)) + len(paths)
 
 
+@pytest.mark.long
 def test_poincare_axes_are_named_with_their_sign(scenes):
     """The in-plane axes of a section by y = c are x and e₂ = e_y × e_x = −e_z: the vertical axis shows −z and is
     named so (it was named z, and the cylinder's z from 0.1 to 1.4 ran from −1.4 to −0.1); by z = c: x and y."""
@@ -570,6 +574,7 @@ def rbx_fails(*args):
     return lines[0]
 
 
+@pytest.mark.long
 def test_a_figure_is_written_only_where_a_careful_user_expects(runs, tmp_path):
     """rbx plot -o makes no folder (a typo in the folder made a new tree without a word), writes through no
     symbolic link, and replaces a figure but no other file (a run, a config, notes named as the figure)."""
@@ -616,6 +621,7 @@ def test_a_mistyped_kind_and_a_config_given_for_a_run_say_what_to_do(runs):
     assert line.endswith("circle.yaml -o OUT.h5, then rbx plot OUT.h5 --kind orbit"), line
 
 
+@pytest.mark.long
 def test_meaningless_selections_and_analyses_are_refused(runs, scenes):
     line = rbx_fails("plot", runs["lshape"], "--kind", "orbit", "--records", "100:50")
     assert ": --records: 100:50 selects no records" in line
@@ -775,6 +781,7 @@ def test_the_box_phase_portrait_says_what_each_panel_shows_and_leaves_its_struct
     assert readable(fig) == []
 
 
+@pytest.mark.long
 def test_an_orbit_of_one_trajectory_is_not_called_each_trajectory(tmp_path):
     # the subtitle said "the first … collisions of each trajectory" of a run of one trajectory
     exe = os.path.join(os.path.dirname(sys.executable), "rbx")

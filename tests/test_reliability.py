@@ -45,6 +45,7 @@ def rbx(*args, cwd, env=None, **kw):
 
 # ---- the run lock ------------------------------------------------------------------------------------------------
 
+@pytest.mark.long
 def test_a_second_run_or_resume_while_a_run_writes_is_refused_naming_it(tmp_path):
     """While a run writes run.h5.partial it holds run.h5.lock (host, pid, start). A second run on the same output
     (with --force too: it used to remove the running run's .partial), a resume of the .partial (with HDF5's own
@@ -77,6 +78,7 @@ def test_a_second_run_or_resume_while_a_run_writes_is_refused_naming_it(tmp_path
     check_valid_partial(tmp_path / "run.h5", every=1000)    # the first run's file, untouched by the others
 
 
+@pytest.mark.long
 def test_a_stale_lock_of_a_killed_run_is_taken_over_and_the_resume_is_exact(tmp_path):
     """SIGKILL (here after the 4th checkpoint) leaves run.h5.lock behind. Its pid no longer runs on this host:
     the resume says so in one warning line, takes the lock over and writes the uninterrupted run's records."""
@@ -141,6 +143,7 @@ def test_which_locks_are_stale(tmp_path, monkeypatch):
 
 # ---- a disk that fills up after the room check ----------------------------------------------------------------------
 
+@pytest.mark.long
 def test_a_write_that_meets_a_full_file_system_stops_cleanly_and_resumes_exactly(tmp_path):
     """Another program fills the disk between rbx's check of the room for a block and its write: simulated by a
     file size limit (RLIMIT_FSIZE, SIGXFSZ ignored, so a write fails with EFBIG as with ENOSPC) that the free-space
@@ -173,6 +176,7 @@ def test_a_write_that_meets_a_full_file_system_stops_cleanly_and_resumes_exactly
 
 
 
+@pytest.mark.long
 def test_a_killed_run_resumed_in_place_on_a_disk_still_full_stops_cleanly_and_resumes_later(tmp_path):
     """A SIGKILLed run leaves OUT.h5.partial; --resume continues it in place. On a disk still full (a file size
     limit a little above the file's size) the resume cuts the records back to the saved state and stops before
@@ -245,6 +249,7 @@ def test_a_compensated_run_saved_without_its_error_terms_is_refused(tmp_path, ti
 
 # ---- resuming into another file; a run killed just before its rename ----------------------------------------------
 
+@pytest.mark.long
 def test_two_resumes_into_one_other_file_the_second_is_refused_naming_the_first(tmp_path):
     """--resume RUN.h5 -o OTHER.h5 takes OTHER's lock (as a new run takes its output's) before writing: a second
     resume (of another file) into the same OTHER, with --force too, is one line naming the first, exit 2, and the
@@ -290,6 +295,7 @@ KILL_BEFORE_RENAME = ("import os, sys, rbx.driver as f; p = f.publish\n"
                       "from rbx.cli.main import main; sys.argv[0] = 'rbx'; main()")
 
 
+@pytest.mark.long
 def test_a_run_killed_between_marking_it_complete_and_its_rename_is_finished_by_resume(tmp_path):
     """SIGKILL after the .partial was marked complete and closed, before its rename (1 of 100 random kills in
     scripts/stress.py): a new run on that output says to resume the .partial; resuming it renames it (the same

@@ -75,6 +75,7 @@ def returns_file(tmp_path_factory):
     return folder / "a.h5"
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("how", ["external link", "virtual dataset", "external storage", "declared 1e11 long",
                                  "group link"])
 def test_return_angles_that_lie_elsewhere_or_exceed_memory_are_refused(tmp_path, returns_file, how):
@@ -153,6 +154,7 @@ def test_a_journal_larger_than_memory_is_refused_not_read(tmp_path):
     assert not (tmp_path / "j.png").exists()
 
 
+@pytest.mark.long
 def test_a_committed_datatype_in_a_results_file_is_named(tmp_path):
     """A committed HDF5 datatype added to a study's results: `rbx plot --kind sweep` and `rbx sweep --resume` quoted
     Python's "'Datatype' object has no attribute 'is_virtual'". Now a line naming it, exit 2."""

@@ -25,6 +25,7 @@ def _interrupted(tmp_path, conf, name):
         assert not f.attrs["complete"]
 
 
+@pytest.mark.long
 def test_a_resume_never_copies_into_a_file_hard_linked_at_its_partial(tmp_path):
     """`rbx simulate --resume s2.h5 --force` with `s2.h5.partial` a hard link to another run's file (a live run's
     `.partial` in the reproduction): the copy of s2.h5 the resume works on was written into that file (shutil's
@@ -44,6 +45,7 @@ def test_a_resume_never_copies_into_a_file_hard_linked_at_its_partial(tmp_path):
     assert not os.path.lexists(tmp_path / "s2.h5.partial")
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("given", ["b.h5.partial", "b.h5"])
 def test_a_run_with_a_second_name_is_not_continued_in_place(tmp_path, given):
     """`rbx simulate --resume b.h5.partial` with b.h5.partial a hard link to another run's file (with HDF5's file
@@ -67,6 +69,7 @@ def test_a_run_with_a_second_name_is_not_continued_in_place(tmp_path, given):
     assert (tmp_path / "a.h5").read_bytes() == theirs
 
 
+@pytest.mark.long
 def test_taking_over_a_stale_lock_replaces_and_removes_nothing_but_the_lock(tmp_path):
     """The stale lock of a killed run was renamed to `OUT.h5.lock.stale.<pid>` (the pid known in advance: a shell
     that `exec`s rbx), replacing the file there, which was then removed; files named like the killed run's scratch
@@ -125,6 +128,7 @@ def _edited(tmp_path, name, edit):
     return tmp_path / name
 
 
+@pytest.mark.long
 def test_a_title_of_megabytes_in_study_results_is_drawn_cut(tmp_path):
     """A results file whose `title` attribute was set to 10 MB: `rbx plot --kind sweep` held matplotlib for minutes,
     5 GB resident, past SIGTERM (100 MB: 16 GB, SIGKILL). The plot draws the title rbx writes, two lines of a few
@@ -143,6 +147,7 @@ def test_a_title_of_megabytes_in_study_results_is_drawn_cut(tmp_path):
     assert (tmp_path / "t.png").stat().st_size > 0
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("name, value, words", [
     ("mean_free_path_santalo", -1.0, "is below 0, the least its quantity can be at 1 of the points marked done"),
     ("lyapunov_per_collision_stderr", -1.0, "is not an error (a number ≥ 0, or none) at 1 of the points marked done"),
@@ -163,6 +168,7 @@ def test_an_impossible_companion_value_in_study_results_is_refused(tmp_path, nam
     assert not (tmp_path / "c.png").exists()
 
 
+@pytest.mark.long
 def test_two_attributes_that_differ_late_are_quoted_where_they_differ(tmp_path):
     """`measure` edited at its end ('energy_drifu'): the refusal quoted the first 40 characters of both values,
     the same in both. Each is now quoted from a little before the first difference."""

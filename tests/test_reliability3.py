@@ -111,6 +111,7 @@ def test_two_api_runs_with_force_on_one_file_in_two_threads_the_second_is_refuse
 
 # ---- limits on every path into a run -----------------------------------------------------------------------------
 
+@pytest.mark.long
 def test_a_resume_keeps_the_size_limit(tmp_path):
     """``--resume X.partial --max-size 1KB`` was accepted and the limit ignored; a .partial whose stored config
     asks more than output.max_size resumed without an estimate (20 GB in 120 s). The resumed run's file is
@@ -138,6 +139,7 @@ def test_a_resume_keeps_the_size_limit(tmp_path):
 
 # ---- locks nothing clears -----------------------------------------------------------------------------------------
 
+@pytest.mark.long
 def test_a_lock_a_full_disk_left_empty_blocks_nothing(tmp_path):
     """Under ``ulimit -f 0`` the run's lock was created but could not be written: the command said
     ``cannot write: File too large`` with exit 2 and left an empty OUT.h5.lock, which every later run took for
@@ -184,6 +186,7 @@ def test_a_tiny_run_fits_a_small_disk(tmp_path):
 
 # ---- what a file is ------------------------------------------------------------------------------------------------
 
+@pytest.mark.long
 def test_force_replaces_only_regular_files(tmp_path):
     """``--force`` turned a device node (``mknod mynull c 1 3``) into an HDF5 file (as root, ``-o /dev/null
     --force`` would have replaced the system's). A device, a FIFO or a link is refused in one line before any
@@ -222,6 +225,7 @@ def test_a_dangling_link_as_output_is_refused_before_the_run(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["exp.yaml", "out.h5"]      # nothing was run
 
 
+@pytest.mark.long
 def test_a_config_that_is_a_device_a_fifo_or_huge_is_refused_in_one_line(tmp_path):
     """``rbx simulate /dev/zero`` read without bound (2.7 GB, then a MemoryError traceback); a FIFO as the config
     waited for ever. A config must be a regular file of at most 64 MiB."""
@@ -284,6 +288,7 @@ def test_a_crafted_run_file_is_refused_on_open_and_by_plot(case, tmp_path):
 
 # ---- resuming -----------------------------------------------------------------------------------------------------
 
+@pytest.mark.long
 def test_a_resume_checks_the_saved_state_against_its_config(tmp_path):
     """With the stored radius changed from 0.1 to 0.2 the resume exited 0 and marked the file complete with
     centres at y = 0.1, outside the shrunk table. The stored config must agree with the root attributes written
@@ -322,6 +327,7 @@ KILL_AFTER_LINK = ("import os, sys\n"
                    "from rbx.cli.main import main; sys.argv[0] = 'rbx'; main()")
 
 
+@pytest.mark.long
 def test_a_kill_between_the_final_link_and_the_remove_is_cleaned_up(tmp_path):
     """Killed between linking OUT.h5.partial to OUT.h5 and removing the .partial, the two names were one inode;
     ``--resume OUT.h5.partial`` then always said ``OUT.h5: exists; use --force``. The second name is removed
@@ -347,6 +353,7 @@ def test_a_kill_between_the_final_link_and_the_remove_is_cleaned_up(tmp_path):
         assert_same_records(read_run(tmp_path / "run.h5"), read_run(tmp_path / "ref.h5"))
 
 
+@pytest.mark.long
 def test_resuming_the_output_name_of_a_killed_run_resumes_its_partial(tmp_path):
     """After a kill only OUT.h5.partial exists: ``--resume OUT.h5`` said ``file not found`` without naming it
     (24 of 24 tries). It resumes OUT.h5.partial; so does ``rbx.resume('OUT.h5')``, the same code."""
@@ -361,6 +368,7 @@ def test_resuming_the_output_name_of_a_killed_run_resumes_its_partial(tmp_path):
     assert_same_records(read_run(tmp_path / "copy.h5"), reference)
 
 
+@pytest.mark.long
 def test_a_run_on_a_file_system_made_read_only_resumes_into_a_writable_folder(tmp_path):
     """A killed run whose folder became read-only, resumed into a writable ``-o``: the stale lock could not be
     taken over (``OSError: [Errno 30] … 'e.h5.lock' -> 'e.h5.lock.stale.N'``, a traceback). Nothing can write
@@ -395,6 +403,7 @@ def test_a_complete_file_has_one_layout_however_many_checkpoints_its_run_took(tm
     assert_same_records(read_run(tmp_path / "once.h5"), read_run(tmp_path / "often.h5"))
 
 
+@pytest.mark.long
 def test_a_run_file_that_is_a_fifo_or_a_device_is_refused_saying_what_it_is(tmp_path):
     """A run file must be a regular file, checked before anything opens it (a FIFO opened for reading waits for a
     writer): one line saying what it is, exit 2, without waiting. (Before, h5py's signature check refused a FIFO as
@@ -431,6 +440,7 @@ def test_resuming_into_a_symbolic_link_is_refused_before_any_work(tmp_path):
     assert victim.read_bytes() == before
 
 
+@pytest.mark.long
 def test_a_figure_that_cannot_be_written_whole_leaves_the_one_it_would_replace(tmp_path):
     """rbx plot -o good.png on a full disk (here a size limit) wrote in place: the good figure was left truncated
     (exit 2), a new name a 0-byte file. A figure and an animation are written beside their name and renamed to it:

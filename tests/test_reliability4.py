@@ -21,6 +21,7 @@ ALL = ("time", "position", "velocity", "angular_velocity", "orientation", "wall"
 
 # ---- the room a block asks for -------------------------------------------------------------------------------------
 
+@pytest.mark.long
 def test_runs_that_fit_a_small_disk_finish_and_resume_there(tmp_path):
     """On a 3 MB disk, runs of 6000–10 000 collisions passed the up-front size check, then every block asked
     3.3–4.3 MB (two chunks per dataset, doubled for the journal: the whole file's chunks, twice) and the run never
@@ -79,6 +80,7 @@ def interrupted_then_killed_resume(folder):
     return (folder / "k.h5").read_bytes()
 
 
+@pytest.mark.long
 def test_a_resume_killed_while_continuing_the_run_in_its_own_file_is_resumed(tmp_path):
     """SIGKILL during ``rbx simulate --resume k.h5`` (k.h5 interrupted: the resume works on a copy, k.h5.partial)
     left k.h5 and k.h5.partial; the next ``--resume k.h5`` said "exists: another run may be writing it" though no
@@ -140,6 +142,7 @@ def test_a_resume_killed_while_continuing_the_run_in_its_own_file_is_resumed(tmp
 
 # ---- the API's arguments -------------------------------------------------------------------------------------------
 
+@pytest.mark.long
 def test_the_api_says_what_a_path_argument_must_be_and_names_its_own_keywords(tmp_path):
     """``rbx.resume(None)``, ``rbx.resume(5)`` gave os.fspath's TypeError from deep inside, ``rbx.resume(b"…")``
     'endswith first arg must be bytes'; a size limit met through the API was to be raised with ``--max-size``.
@@ -231,6 +234,7 @@ BAD_VALUES = {
 }
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("case", list(BAD_VALUES))
 def test_a_run_file_holding_values_no_run_writes_is_refused_in_one_line(case, tmp_path):
     """Run files with positions at inf, a wall index 99 (the table has 2 walls), a NaN time, or records held in
@@ -253,6 +257,7 @@ def test_a_run_file_holding_values_no_run_writes_is_refused_in_one_line(case, tm
     assert not (tmp_path / "x.png").exists()
 
 
+@pytest.mark.long
 def test_a_resume_refuses_records_held_elsewhere_and_a_state_naming_a_wall_the_table_lacks(tmp_path):
     """A killed run's file whose ``collisions/time`` is an HDF5 virtual or external dataset (its values, the run's
     own, lying in another file) gave a TypeError traceback from the resume ('Only chunked datasets can be
@@ -285,6 +290,7 @@ def test_a_resume_refuses_records_held_elsewhere_and_a_state_naming_a_wall_the_t
         assert bad.read_bytes() == before and not (tmp_path / "bad.h5").exists()
 
 
+@pytest.mark.long
 def test_a_run_file_whose_wall_names_disagree_with_its_config_is_refused_in_one_line(tmp_path):
     """A run file whose root attribute ``wall_names`` lists 3 walls for the strip's 2: ``rbx plot --kind phase``
     gave an IndexError traceback (the records' wall index read against the config's table). Reading the file's

@@ -23,6 +23,7 @@ def _refused(res, name, *words):
     return line
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("how", ["in place", "into -o"])
 def test_a_resume_with_force_never_writes_through_a_partial_that_is_a_link(how, tmp_path):
     """``--resume OUT.h5 --force`` (or ``--resume SRC -o OUT.h5 --force``) with ``OUT.h5.partial`` a symbolic
@@ -49,6 +50,7 @@ def test_a_resume_with_force_never_writes_through_a_partial_that_is_a_link(how, 
     assert_same_records(read_run(tmp_path / "out.h5"), ref)
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("name", ["run.h5.partial.new", "run.h5.partial.journal", "run.h5.lock"])
 def test_a_resume_refuses_a_link_under_its_own_names(name, tmp_path):
     killed_run(tmp_path)
@@ -62,6 +64,7 @@ def test_a_resume_refuses_a_link_under_its_own_names(name, tmp_path):
     assert victim.read_text() == "precious data\n"
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("name", ["run.h5.partial.journal", "run.h5.lock"])
 @pytest.mark.parametrize("command", ["resume", "fresh"])
 def test_a_fifo_under_a_journal_or_lock_name_is_refused_not_opened(name, command, tmp_path):
@@ -78,6 +81,7 @@ def test_a_fifo_under_a_journal_or_lock_name_is_refused_not_opened(name, command
     assert (tmp_path / name).is_fifo()
 
 
+@pytest.mark.long
 def test_a_fifo_or_directory_named_as_a_files_journal_is_named_when_the_file_is_opened(tmp_path):
     """``rbx.open`` reads a file's journal first: a FIFO there blocked, a directory was reported as the file
     needing a write."""
@@ -96,6 +100,7 @@ def test_a_fifo_or_directory_named_as_a_files_journal_is_named_when_the_file_is_
     assert "needs to write" not in line
 
 
+@pytest.mark.long
 def test_a_lock_that_is_not_text_is_taken_over_as_damaged(tmp_path):
     """A lock of bytes that are not UTF-8 was a UnicodeDecodeError traceback on every run of its output."""
     killed_run(tmp_path)
@@ -112,6 +117,7 @@ def test_a_lock_that_is_not_text_is_taken_over_as_damaged(tmp_path):
     assert res.returncode == 0 and "a damaged lock" in res.stderr and "Traceback" not in res.stderr, res.stderr
 
 
+@pytest.mark.long
 def test_a_run_file_under_a_lock_name_is_neither_a_traceback_nor_removed(tmp_path):
     """``rbx simulate c.yaml -o i.h5.lock --force`` wrote a run file under i.h5's lock name: every later run of
     i.h5 was a traceback. The file is not a lock: it is named, and kept."""
@@ -130,6 +136,7 @@ def test_a_run_file_under_a_lock_name_is_neither_a_traceback_nor_removed(tmp_pat
     assert (tmp_path / "i.h5.lock").read_bytes() == before
 
 
+@pytest.mark.long
 def test_an_unrelated_file_named_as_a_journal_is_named_with_what_to_do(tmp_path):
     """``-o x.h5.journal`` beside a complete x.h5 made ``rbx.open('x.h5')`` refuse it as 'is not an rbx journal
     (or is cut short)'."""
@@ -167,6 +174,7 @@ main()
 """
 
 
+@pytest.mark.long
 def test_a_journal_of_a_copied_folder_finishes_the_copy_and_a_torn_file_is_refused_everywhere(tmp_path):
     """A run killed while its checkpoint's journal was copied in, its folder then copied (new inodes, as a move to
     another disk or a backup restore makes): the journal was refused as written for another file, with the advice
@@ -202,6 +210,7 @@ def test_a_journal_of_a_copied_folder_finishes_the_copy_and_a_torn_file_is_refus
     assert not (torn / "other.h5.partial").exists() and not (torn / "other.h5").exists()
 
 
+@pytest.mark.long
 def test_the_stale_lock_of_a_killed_run_is_taken_over_with_the_file_it_was_written_in(tmp_path):
     """A run killed right after it linked its lock left ``OUT.h5.lock.new.PID.TID`` for ever: the next runs took
     the stale lock over but never removed it."""
@@ -216,6 +225,7 @@ def test_the_stale_lock_of_a_killed_run_is_taken_over_with_the_file_it_was_writt
     assert not left.exists() and other.exists()
 
 
+@pytest.mark.long
 def test_a_new_run_beside_a_killed_runs_partial_says_it_was_killed(tmp_path):
     """``rbx simulate c.yaml -o o.h5`` beside a killed run's ``o.h5.partial`` (its lock stale) said 'another run
     may be writing it, or an earlier one was killed': the lock tells which."""

@@ -19,6 +19,7 @@ from tests.test_reliability5 import KILL_MID_APPLY, _refused
 HANG = 600
 
 
+@pytest.mark.long
 def test_a_pending_journal_on_a_read_only_disk_is_read_and_resumed_into_a_writable_folder(tmp_path):
     """A run killed while copying its checkpoint's journal in, on a file system then made read-only: ``rbx.open``,
     ``rbx plot`` and ``--resume … -o`` each said 'finishing that needs to write the file: Read-only file system'.
@@ -48,6 +49,7 @@ def test_a_pending_journal_on_a_read_only_disk_is_read_and_resumed_into_a_writab
         assert res.returncode == 2 and res.stderr.endswith("none.h5.partial: file not found\n"), res.stderr
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("name", ["o.h5.partial", "o.h5"])
 def test_a_killed_run_that_fits_a_small_disk_is_finished_there(name, tmp_path):
     """On a 3 MB disk a run whose file takes 1.8 MB, killed at 1.5 MB: its resume in place stopped at once ('the
@@ -90,6 +92,7 @@ def _edit_stored_config(path, edit):
         f.attrs["config"] = yaml.safe_dump(cfg, sort_keys=False)
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("key, edit", [("run.seed", lambda c: c["run"].update(seed=99)),
                                        ("boundary", lambda c: c["boundary"]["default"].update(probabilities=[0.4, 0.6]))])
 def test_a_resume_of_a_file_whose_stored_config_was_changed_is_refused(key, edit, tmp_path):
@@ -118,6 +121,7 @@ def test_a_resume_of_a_file_whose_stored_config_was_changed_is_refused(key, edit
     assert_same_records(resumed, reference)
 
 
+@pytest.mark.long
 def test_a_complete_attribute_that_is_not_a_boolean_is_refused(tmp_path):
     """``complete = "false"`` (text) was taken as complete: 'nothing to resume', and read as a finished run."""
     import h5py
@@ -140,6 +144,7 @@ def test_the_api_resume_names_its_own_keyword_for_a_bad_max_size(tmp_path):
         assert info.value.key == "max_size" and "--max-size" not in str(info.value), info.value
 
 
+@pytest.mark.long
 def test_a_resume_never_writes_over_a_file_that_is_not_a_run_file(tmp_path):
     """``--resume r.h5 -o c.yaml --force`` (and ``rbx.resume(…, output="c.yaml", force=True)``) wrote HDF5 over
     the YAML config; ``rbx simulate`` refuses its own config even with --force, a resume now any ``-o`` that exists
@@ -156,6 +161,7 @@ def test_a_resume_never_writes_over_a_file_that_is_not_a_run_file(tmp_path):
     assert not (tmp_path / "exp.yaml.partial").exists()
 
 
+@pytest.mark.long
 def test_force_never_writes_a_new_run_over_a_file_rbx_did_not_write(tmp_path):
     """A new run with --force (``rbx simulate``, ``rbx.simulate(force=True)``, ``rbx histogram --data``, ``rbx
     sweep -o``) wrote HDF5 over any regular file: notes, another experiment's config, another study. It replaces
@@ -185,6 +191,7 @@ def test_force_never_writes_a_new_run_over_a_file_rbx_did_not_write(tmp_path):
         assert res.returncode == 0, res.stderr
 
 
+@pytest.mark.long
 def test_a_complete_output_beside_a_killed_newer_partial_says_how_to_continue_it(tmp_path):
     """``rbx simulate c.yaml -o o.h5 --force`` over a complete o.h5, SIGKILLed: ``--resume o.h5`` said only that
     o.h5 is complete, not that o.h5.partial holds a killed run and how to continue it."""
@@ -198,6 +205,7 @@ def test_a_complete_output_beside_a_killed_newer_partial_says_how_to_continue_it
     assert (tmp_path / "run.h5.partial").exists()
 
 
+@pytest.mark.long
 def test_a_size_limit_met_by_a_resumes_copy_is_named_as_such(tmp_path):
     """``ulimit -f`` below the size of an interrupted OUT.h5: the resume's copy failed with 'the disk is full'
     though the disk had room; it is the file size limit, and the line says so."""
@@ -214,6 +222,7 @@ def test_a_size_limit_met_by_a_resumes_copy_is_named_as_such(tmp_path):
     assert (tmp_path / "run.h5").read_bytes() == before and not (tmp_path / "run.h5.partial").exists()
 
 
+@pytest.mark.long
 def test_a_run_under_a_size_limit_just_above_its_file_finishes(tmp_path):
     """``ulimit -f`` a little above the size of a run's finished file (1759 KiB for a 1753 KiB file): the run
     stopped, 'not allowed to grow by 820 kB for the next block', and so did its resumes up to 2000 KiB. The room
@@ -230,6 +239,7 @@ def test_a_run_under_a_size_limit_just_above_its_file_finishes(tmp_path):
     assert_same_records(read_run(tmp_path / "o.h5"), read_run(tmp_path / "ref.h5"))
 
 
+@pytest.mark.long
 def test_a_new_run_keeps_the_journal_of_a_partial_that_was_moved_away(tmp_path):
     """A killed run's ``.partial`` moved away (to keep it, inspect it, free the name) left its journal, the only
     thing that can finish it if the kill tore it; a new run on that output deleted the journal without a word. It
@@ -247,6 +257,7 @@ def test_a_new_run_keeps_the_journal_of_a_partial_that_was_moved_away(tmp_path):
     assert res.returncode == 0 and (tmp_path / "o.h5").exists() and not orphan.exists(), res.stderr
 
 
+@pytest.mark.long
 def test_a_studys_unfinished_results_in_a_read_only_folder_say_how_to_go_on(tmp_path):
     """rbx sweep --resume of a study whose .partial lies in a read-only folder said only "cannot create the run's
     lock file: Read-only file system"; it says to copy the file to a writable folder, which resumes there."""

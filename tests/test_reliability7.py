@@ -31,6 +31,7 @@ def _killed_inside_a_commit(folder, at=5):
     return read_run(folder / "ref.h5")
 
 
+@pytest.mark.long
 def test_a_reader_finishing_a_journal_holds_the_run_lock_so_a_resume_cannot_finish_under_it(tmp_path, monkeypatch):
     """A reader (``rbx.open``, ``rbx plot``) finished a killed run's pending journal without the run's lock: a
     resume started while the reader copied the pages in (a reader stalled by Ctrl-Z or a loaded machine) applied
@@ -106,6 +107,7 @@ def _small_disk_reference(tmp_path):
     return cfg, read_run(tmp_path / "ref.h5")
 
 
+@pytest.mark.long
 def test_a_run_interrupted_at_its_first_checkpoint_on_a_small_disk_is_finished_there(tmp_path):
     """On a 3 MB disk a run interrupted at its first checkpoint (1.23 MB): every resume in place failed with
     'writing failed: No space left on device', and left the file 1.46 MB longer. The resume cut the records back,
@@ -124,6 +126,7 @@ def test_a_run_interrupted_at_its_first_checkpoint_on_a_small_disk_is_finished_t
         assert sorted(p.name for p in disk.iterdir()) == ["exp.yaml", "o.h5"]
 
 
+@pytest.mark.long
 def test_a_run_whose_checkpoints_span_many_blocks_finishes_on_a_small_disk(tmp_path, monkeypatch):
     """On a 3 MB disk a run of 1.8 MB with small blocks and a checkpoint only at its end stopped 'the disk is
     full … the checkpoint's journal 1.81 MB': the journal a block asks room for summed each block's pages, though
@@ -141,6 +144,7 @@ def test_a_run_whose_checkpoints_span_many_blocks_finishes_on_a_small_disk(tmp_p
 
 # ---- rbx histogram keeps the limits every run keeps ------------------------------------------------------------------
 
+@pytest.mark.long
 def test_histogram_keeps_the_size_limit_and_a_write_that_finds_no_room_leaves_nothing(tmp_path):
     """`rbx histogram` wrote its return angles with neither output.max_size nor the free space checked (10 kB
     given, 9.6 MB written), and a write that met a full disk left its `.partial.new` filling the disk. The size is
@@ -318,6 +322,7 @@ def test_a_resume_into_itself_in_a_read_only_folder_says_the_folder_cannot_be_wr
     assert bool(read_run(tmp_path / "out.h5")["attrs"]["complete"])
 
 
+@pytest.mark.long
 def test_a_figure_writers_remains_after_sigkill_are_removed_by_the_next_write_of_that_figure(tmp_path):
     """A writer killed mid-write (SIGKILL runs no clean-up) left its hidden new name (.rbx-XXXX.png) beside the
     figure for ever. The next write of the same figure removes such remains that no live writer holds; those of
@@ -402,6 +407,7 @@ def test_reading_a_run_still_being_written_says_so(tmp_path):
         rbx.open(str(tmp_path / "k.h5"))
 
 
+@pytest.mark.long
 def test_a_file_name_holding_a_newline_is_said_on_one_line(tmp_path):
     """A file name holding a newline (or a tab, a carriage return) split the one line of an error or of the
     summary in two: each is now written with its control characters as escapes."""
@@ -420,6 +426,7 @@ def test_a_file_name_holding_a_newline_is_said_on_one_line(tmp_path):
     assert again.stderr.startswith("rbx: a\\nb\\r.h5: exists"), again.stderr
 
 
+@pytest.mark.long
 def test_records_past_a_trajectorys_count_in_a_finished_run_are_a_damaged_file(tmp_path):
     """``collisions/count`` set to 0 in a finished run: every plot kind drew all its rows as records. The slots
     past a trajectory's count hold the fill (NaN, −1) in every file rbx finishes: a value there is refused as
@@ -448,6 +455,7 @@ def test_records_past_a_trajectorys_count_in_a_finished_run_are_a_damaged_file(t
         assert not (tmp_path / "o.png").exists()
 
 
+@pytest.mark.long
 def test_numpys_floating_point_warnings_on_crafted_values_do_not_reach_stderr(tmp_path):
     """Positions multiplied by 1e300 in a finished run: ``rbx plot`` printed NumPy's overflow warnings, seven lines
     with the source lines that raised them, before its own. Its stderr is its one line now."""
@@ -466,6 +474,7 @@ def test_numpys_floating_point_warnings_on_crafted_values_do_not_reach_stderr(tm
     assert any("wrote" in line[0] for line in lines)
 
 
+@pytest.mark.long
 def test_a_signal_after_the_figure_is_written_leaves_exit_0(tmp_path):
     """A Ctrl-C (or SIGTERM) that came just after ``rbx plot`` printed 'wrote fig.png' ended it with 'interrupted by
     SIGINT; nothing written' and exit 130, the figure replaced (4 of 30 tries). The signal is sent here from inside
@@ -515,6 +524,7 @@ def test_an_orientation_too_large_to_hold_a_turn_is_refused(example, orientation
     assert np.isfinite(run.orientation).all() and run.complete
 
 
+@pytest.mark.long
 def test_an_animation_whose_frames_do_not_fit_in_memory_is_refused_before_it_is_drawn(tmp_path):
     """``rbx animate --frames 400 --dpi 600`` (both within their ranges) under ``ulimit -v`` 3 GB ended in a
     MemoryError traceback after drawing for a while: a GIF keeps every frame, about 24 MB each at dpi 600. The
@@ -538,6 +548,7 @@ def test_an_animation_whose_frames_do_not_fit_in_memory_is_refused_before_it_is_
     assert res.returncode == 0 and (tmp_path / "small.gif").is_file(), res.stderr
 
 
+@pytest.mark.long
 def test_a_stored_config_larger_than_a_config_may_be_is_refused_before_it_is_parsed(tmp_path):
     """A run file whose root ``config`` attribute held 80 MB of text (a comment) took 44 s to open or plot, exit 0:
     a config file is bounded (64 MiB), the stored one was not."""
@@ -592,6 +603,7 @@ def test_a_rank_1_direction_of_any_size_is_the_direction_it_names(tmp_path):
         rbx.load(path, {"boundary": {"default": {"rule": "constant", "rank": 1, "direction": [0.0, 0.0, 1e200]}}})
 
 
+@pytest.mark.long
 def test_an_output_name_too_long_for_the_files_beside_it_is_refused_as_such(tmp_path):
     """An output of 249 characters (a legal name) was refused with 'OUT.partial: is unreadable, not a regular file:
     remove it', of a file that was not there (the names rbx makes beside it are longer than the file system
@@ -616,6 +628,7 @@ def test_an_output_name_too_long_for_the_files_beside_it_is_refused_as_such(tmp_
     assert res.returncode == 0 and rbx.open(tmp_path / name).complete, res.stderr
 
 
+@pytest.mark.long
 def test_a_link_or_fifo_at_a_scratch_name_is_never_written_through(tmp_path):
     """A symbolic link named ``RESULTS.nc.partial.tmp`` (a study's results before they replace its ``.partial``)
     was written through: the file it named, in any folder, overwritten with netCDF, exit 0. A FIFO there held the
@@ -646,6 +659,7 @@ def test_a_link_or_fifo_at_a_scratch_name_is_never_written_through(tmp_path):
     assert victim.read_text() == "mine\n"
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("when", ["sampling", "drawing"])
 def test_a_signal_late_in_rbx_histogram_says_what_was_written(when, tmp_path):
     """A SIGINT in the last block of the sampling was noted and not acted on: both files written, exit 0. One that

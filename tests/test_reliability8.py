@@ -63,6 +63,7 @@ def a_run(tmp_path_factory):
     return folder / "run.h5"
 
 
+@pytest.mark.long
 def test_return_angles_never_replace_a_run_that_finished_while_they_were_drawn(tmp_path, a_run):
     """`rbx histogram --data r.h5` without --force, and a run of rbx simulate finished as r.h5 meanwhile: the run
     was replaced by the return angles, exit 0. Now one line, exit 2, the run as it was."""
@@ -85,6 +86,7 @@ def test_return_angles_never_replace_a_run_that_finished_while_they_were_drawn(t
     assert target.read_bytes() == a_run.read_bytes()
 
 
+@pytest.mark.long
 def test_a_histograms_figure_never_replaces_a_file_that_appeared_without_force(tmp_path):
     conf = histogram_config(tmp_path / "h.yaml", run="{collisions: 300, trajectories: 400, seed: 2}")
     fig = tmp_path / "h.png"
@@ -97,6 +99,7 @@ def test_a_histograms_figure_never_replaces_a_file_that_appeared_without_force(t
         assert f["returns/angle"].size > 0
 
 
+@pytest.mark.long
 def test_a_studys_results_never_replace_a_file_that_appeared_while_it_ran(tmp_path, a_run):
     """`rbx sweep STUDY -o out.nc` without --force, and a file put at out.nc while the points ran: it was replaced
     by the results, exit 0. Now one line, exit 2, the file as it was, the results kept in out.nc.partial."""
@@ -126,6 +129,7 @@ def test_a_studys_results_never_replace_a_file_that_appeared_while_it_ran(tmp_pa
     assert os.readlink(out) == str(a_run)
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("command", ["plot", "animate"])
 def test_a_figure_never_replaces_a_file_that_is_not_one_put_there_while_it_was_drawn(tmp_path, a_run, command):
     """`rbx plot RUN -o f.png` (or animate -o f.gif) while notes were saved as f.png: the notes were replaced by
@@ -144,6 +148,7 @@ def test_a_figure_never_replaces_a_file_that_is_not_one_put_there_while_it_was_d
     assert sorted(p.name for p in tmp_path.iterdir()) == sorted([run.name, fig.name])
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("command", ["plot", "sweep", "histogram"])
 def test_a_signal_once_the_output_is_in_place_does_not_say_nothing_written(tmp_path, a_run, command):
     """SIGINT sent by the command to itself right after its last output was put in place (the rename returned),
@@ -171,6 +176,7 @@ def test_a_signal_once_the_output_is_in_place_does_not_say_nothing_written(tmp_p
     assert out.exists() and "Traceback" not in res.stderr
 
 
+@pytest.mark.long
 def test_a_signal_while_the_samples_are_put_in_place_says_they_were_written(tmp_path):
     """A signal while rbx histogram's samples were renamed into place: acted on once they are there, and the
     line says so (not 'nothing written'); exit 130, no figure."""
@@ -193,6 +199,7 @@ def _results(tmp_path):
     return tmp_path / "out.nc"
 
 
+@pytest.mark.long
 def test_a_fifo_named_as_a_studys_results_is_refused_not_opened(tmp_path):
     """`rbx sweep --resume` and `rbx plot --kind sweep` of a FIFO named out.nc waited in open() for ever (the first
     SIGTERM did not end the sweep). Now one line, exit 2, at once."""
@@ -205,6 +212,7 @@ def test_a_fifo_named_as_a_studys_results_is_refused_not_opened(tmp_path):
             res.stderr
 
 
+@pytest.mark.long
 def test_a_dataset_added_to_a_results_file_is_named_not_a_traceback(tmp_path):
     """A results file with one more dataset, without dimension scales: `rbx plot --kind sweep` printed xarray's
     warning and an IndexError traceback (or, here, drew it, the reader taking it along the walls' dimension);
@@ -222,6 +230,7 @@ def test_a_dataset_added_to_a_results_file_is_named_not_a_traceback(tmp_path):
         assert "junk: is a variable rbx sweep does not write" in res.stderr, res.stderr
 
 
+@pytest.mark.long
 def test_a_study_whose_folder_is_removed_while_it_runs_ends_in_one_line(tmp_path):
     """The output folder removed while the points ran: a 40-line FileNotFoundError traceback, exit 1. Now one line,
     exit 1, saying that nothing is kept."""
@@ -234,6 +243,7 @@ def test_a_study_whose_folder_is_removed_while_it_runs_ends_in_one_line(tmp_path
     assert "cannot write the study's results" in res.stderr and "is gone" in res.stderr, res.stderr
 
 
+@pytest.mark.long
 def test_a_signal_while_python_exits_after_the_summary_does_not_kill_the_command(tmp_path, a_run):
     """SIGINT late in Python's exit, after its signal handlers are gone (here sent from a finaliser): a finished
     command was killed by SIGINT just after 'rbx: wrote …'. Now exit 0."""
@@ -272,6 +282,7 @@ def test_a_run_with_force_never_replaces_another_kind_of_file_that_appeared_whil
         assert bool(f.attrs["complete"]) and f["collisions/time"].shape[-1] > 1
 
 
+@pytest.mark.long
 def test_a_run_whose_folder_is_removed_while_it_runs_ends_in_one_line(tmp_path):
     """`rbx simulate -o out/r.h5` and the folder out removed while the run wrote: two lines that contradicted each
     other ('the records are in out/r.h5.partial', then 'nothing was saved (the run stopped before its file was
@@ -294,6 +305,7 @@ def test_a_run_whose_folder_is_removed_while_it_runs_ends_in_one_line(tmp_path):
     assert not (tmp_path / "out").exists()
 
 
+@pytest.mark.long
 def test_a_read_only_disk_is_called_read_only_not_full(tmp_path):
     """`rbx simulate -o ro/r.h5` (and `rbx histogram --data ro/r.h5`) on a read-only disk with less free space than
     the run needs: 'the disk has 1.05 MB free', as if freeing space would help. Now one line saying the disk is
@@ -314,6 +326,7 @@ def test_a_read_only_disk_is_called_read_only_not_full(tmp_path):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["h.yaml", "ro"]
 
 
+@pytest.mark.long
 def test_return_angles_never_remake_a_folder_removed_while_they_were_drawn(tmp_path):
     """`rbx histogram --data out/r.h5` (rbx makes no folders for it) and out removed while the samples were drawn:
     the folder was made again and the files written into it. Now one line saying it is gone, exit 1."""

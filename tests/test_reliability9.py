@@ -30,6 +30,7 @@ def _plant(out, variable, how, target):
             f.create_virtual_dataset(variable, layout)
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("how", ["external link", "virtual dataset"])
 def test_a_results_variable_that_lies_in_another_file_is_refused_not_followed(tmp_path, how):
     """A results variable made an external link (or a virtual dataset) to a FIFO: `rbx plot --kind sweep`, `rbx
@@ -65,6 +66,7 @@ INTERRUPT = ("import os, signal\nimport rbx.simulation as _s\nimport rbx.cli.com
              "_c.Progress.__call__ = _p\n")
 
 
+@pytest.mark.long
 def test_a_resume_never_replaces_another_file_moved_to_its_output_while_it_ran(tmp_path):
     """`rbx simulate --resume rr.h5` and a complete run moved to rr.h5 while it ran: replaced by the resumed run,
     exit 0, nothing said (the resume was allowed to replace rr.h5, its own earlier file, and replaced whatever was
@@ -100,6 +102,7 @@ def test_a_resume_never_replaces_another_file_moved_to_its_output_while_it_ran(t
     assert not (tmp_path / "ok.h5.partial").exists()
 
 
+@pytest.mark.long
 def test_a_study_resume_never_replaces_other_results_moved_to_its_output_while_it_ran(tmp_path):
     """`rbx sweep STUDY -o C.nc --resume` and another study's results moved to C.nc while the points ran: replaced,
     exit 0. Now they are kept, one line, exit 2, the resumed results in C.nc.partial."""
@@ -124,6 +127,7 @@ def test_a_study_resume_never_replaces_other_results_moved_to_its_output_while_i
         assert int(ds["done"].values.min()) == 1 and ds.attrs["complete"] == 1
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("given", ["hl.h5", "hl.h5.partial"])
 def test_a_partial_that_is_the_run_under_a_second_name_resumes(tmp_path, given):
     """hl.h5.partial a hard link to an interrupted hl.h5 (what a kill between the final link and the remove
@@ -142,6 +146,7 @@ def test_a_partial_that_is_the_run_under_a_second_name_resumes(tmp_path, given):
     assert sorted(p.name for p in tmp_path.iterdir()) == ["h.yaml", "hl.h5"]
 
 
+@pytest.mark.long
 def test_inputs_nested_too_deeply_are_one_line(tmp_path):
     """A study file nested 5000 deep, a results file whose `measure` is '[' 100 000 times, an interrupted run whose
     saved state's `orbit` digests are '{"a":' 100 000 times: each a RecursionError traceback, exit 1. Now one line
@@ -169,6 +174,7 @@ def test_inputs_nested_too_deeply_are_one_line(tmp_path):
     assert "final.orbit: damaged" in res.stderr and "Traceback" not in res.stderr, res.stderr
 
 
+@pytest.mark.long
 def test_a_resume_beside_another_studys_partial_says_the_results_are_there(tmp_path):
     """`rbx sweep A -o r.nc --resume`, r.nc holding every point of A and r.nc.partial another study's (a killed
     --force run of it): the line said only that the study changed, as if A's results were lost. Now it also says
@@ -186,6 +192,7 @@ def test_a_resume_beside_another_studys_partial_says_the_results_are_there(tmp_p
     assert out.read_bytes() == before
 
 
+@pytest.mark.long
 def test_a_crafted_attribute_is_quoted_short(tmp_path):
     """An interrupted run whose root attribute wall_names was made '[' 100 000 times: the resume's refusal quoted it
     whole, a 'line' of 300 kB. Now the line is short and says what changed."""
@@ -202,6 +209,7 @@ def test_a_crafted_attribute_is_quoted_short(tmp_path):
         res.stderr
 
 
+@pytest.mark.long
 def test_a_results_file_declaring_more_points_than_a_study_has_is_refused_before_it_is_read(tmp_path):
     """A 7 kB results file declaring 2·10⁹ points (chunks never written): `rbx plot --kind sweep` allocated 14.9 GiB
     for its coordinate (a MemoryError under a memory limit, the machine's memory without one). Now one line, exit 2,

@@ -117,6 +117,7 @@ def test_the_stored_config_names_the_file_written(tmp_path):
     assert not (tmp_path / "default.h5").exists()
 
 
+@pytest.mark.long
 def test_resume_keeps_the_scales_and_names_its_own_file(tmp_path, tiny_blocks):  # noqa: F811
     """An interrupted run resumed into another file (-o): xarray opens it with the same dimensions as an
     uninterrupted run, the same numbers, and its config names the new file."""
@@ -230,6 +231,7 @@ def kill_while_creating(where, out):
     assert res.returncode == 9, res.stderr
 
 
+@pytest.mark.long
 def test_a_kill_while_the_structure_is_written_leaves_no_partial(tmp_path):
     """The old way (the .partial created first, its structure written into it) left a .partial that a new run
     refuses and whose structure may be torn; now only a .partial.new is left, and the next run (no --force)
@@ -246,6 +248,7 @@ def test_a_kill_while_the_structure_is_written_leaves_no_partial(tmp_path):
     assert rbx.open(out).complete
 
 
+@pytest.mark.long
 def test_a_partial_is_whole_from_the_instant_it_exists(tmp_path):
     """Killed right after the rename: the .partial opens, with its structure and dimension scales, no records
     yet, and resumes to the end."""

@@ -169,6 +169,7 @@ def same(a, b):
             np.testing.assert_array_equal(a[name].values, b[name].values, err_msg=name)
 
 
+@pytest.mark.long
 def test_a_killed_study_resumes_to_the_uninterrupted_result(tmp_path):
     import xarray as xr
     study = {"base": SINAI, "vary": {"ball.inertia": {"from": 0.1, "to": 1.0, "num": 10}},
@@ -217,6 +218,7 @@ def test_a_killed_study_resumes_to_the_uninterrupted_result(tmp_path):
     assert res.returncode == 2 and len(res.stderr.splitlines()) == 1 and "--force" in res.stderr
 
 
+@pytest.mark.long
 def test_a_study_stopped_by_ctrl_c_says_what_it_kept_and_how_to_continue(tmp_path):
     import xarray as xr
     study = {"base": SINAI, "vary": {"ball.inertia": {"from": 0.1, "to": 1.0, "num": 10}},
@@ -245,6 +247,7 @@ def test_a_study_stopped_by_ctrl_c_says_what_it_kept_and_how_to_continue(tmp_pat
     assert res.returncode == 0 and res.stderr == "rbx: nothing to do: out.nc holds all 10 points of the study\n"
 
 
+@pytest.mark.long
 def test_a_dask_cluster_gives_the_local_numbers(tmp_path):
     pytest.importorskip("distributed")
     from tests.test_cluster import LocalDask
@@ -318,6 +321,7 @@ def test_a_bad_study_is_one_line_naming_the_key(name, tmp_path):
     assert not (tmp_path / "out.nc").exists() and not (tmp_path / "out.nc.partial").exists()
 
 
+@pytest.mark.long
 def test_plot_sweep_writes_a_figure(specular, tmp_path):
     _, path = specular
     res = rbx_cli("plot", path, "--kind", "sweep", "--y", "mean_free_path", "-o", "mfp.png", cwd=tmp_path)
@@ -344,6 +348,7 @@ def test_the_title_says_what_the_whole_study_varies(specular):
                          "0.2–0.4")
 
 
+@pytest.mark.long
 def test_a_study_file_is_checked_for_what_it_is_and_its_output_replaces_only_regular_files(tmp_path):
     """A study file that is a device or a FIFO was read without bound (22 GB of /dev/zero) or waited on for ever, a
     bomb of aliases hung the duplicate-key walk, and ``-o X --force`` replaced a device or a link by a file."""
@@ -362,6 +367,7 @@ def test_a_study_file_is_checked_for_what_it_is_and_its_output_replaces_only_reg
     assert os.path.islink(tmp_path / "dangling.nc")
 
 
+@pytest.mark.long
 def test_an_ensemble_too_large_for_memory_is_one_line(tmp_path):
     study = specular_study(trajectories=10**12, collisions=100)
     study["vary"] = {"table.radius": [0.3]}
@@ -415,6 +421,7 @@ def test_a_huge_grid_is_refused_before_it_is_built(vary, key, words, tmp_path):
         assert err.value.key == "vary.table.radius"
 
 
+@pytest.mark.long
 def test_a_base_that_is_not_a_regular_file_is_named_as_such(tmp_path):
     # base: /dev/zero was "no such config"; a device, a FIFO, a directory are said as rbx simulate says them
     os.mkfifo(tmp_path / "fifo.yaml")
@@ -429,6 +436,7 @@ def test_a_base_that_is_not_a_regular_file_is_named_as_such(tmp_path):
         assert res.stderr.startswith("rbx: s.yaml: base: ") and words in res.stderr, res.stderr
 
 
+@pytest.mark.long
 def test_the_sweep_plot_names_its_axes_as_a_physicist_would(specular, tmp_path):
     # the axes said "table.radius [L]" and "lyapunov [1/T]": config keys and registry names, not symbols
     from rbx import observables
@@ -484,6 +492,7 @@ def test_a_short_study_writes_its_results_once_and_they_read_back_identical(tmp_
         assert back["wall"].values.tolist() == list(ds["wall"].values) and back["wall_share"].dims[-1] == "wall"
 
 
+@pytest.mark.long
 def test_the_lyapunov_sweep_plot_says_it_pools_regular_and_chaotic_orbits(specular, tmp_path):
     # rbx lyapunov says that its λ₁ pools the regular orbits with the chaotic ones; the sweep plot said nothing
     import xarray as xr
@@ -568,6 +577,7 @@ def test_a_table_file_the_study_names_anywhere_is_in_its_digest(tmp_path, form):
     assert load_study(str(tmp_path / "study.yaml")).digest != before
 
 
+@pytest.mark.long
 def test_the_results_never_replace_the_study_or_a_file_it_reads(tmp_path):
     """`-o` naming the study file, or a table file its base includes, is refused even with --force, in one line,
     and the file is left as it was (it was overwritten with NetCDF)."""
@@ -584,6 +594,7 @@ def test_the_results_never_replace_the_study_or_a_file_it_reads(tmp_path):
         assert (tmp_path / target).read_bytes() == before
 
 
+@pytest.mark.long
 def test_a_results_file_another_run_is_writing_is_refused(tmp_path):
     """A sweep takes the run lock of its results file, as `rbx simulate` does: with another process holding it
     (a second sweep, or a run writing that name), `rbx sweep --force` is refused in one line naming the holder
@@ -607,6 +618,7 @@ def test_a_results_file_another_run_is_writing_is_refused(tmp_path):
     assert not (tmp_path / "out.nc.lock").exists()
 
 
+@pytest.mark.long
 def test_a_study_that_cannot_write_its_results_stops_in_one_line(tmp_path):
     """A full disk or a file-size limit (ulimit -f) when the results are written: one line, exit 1, no traceback
     and no half-written file (it was an h5py traceback, then a segmentation fault); with room again, --resume
@@ -657,6 +669,7 @@ def test_a_large_grid_checks_each_value_of_each_key_once(monkeypatch):
     assert "κ = 0.2–0.79" in title and "radius 0.1–0.336" in title, title
 
 
+@pytest.mark.long
 def test_a_study_of_copies_of_one_orbit_is_warned_about(tmp_path):
     """``rbx sweep`` ran ensembles of identical starts without a word (the circle example's fixed start, 4
     trajectories: a regular share of 1.0 ± 0.1 from 4 copies), where rbx simulate and rbx lyapunov warn. It says so
@@ -695,6 +708,7 @@ def test_a_studys_set_can_give_a_fixed_start_for_a_sampled_one():
     assert st.fixed["initial"]["position"] == [0.5, 0.0]
 
 
+@pytest.mark.long
 def test_sweep_set_and_ensemble_options_change_every_point(tmp_path):
     """``rbx sweep --set KEY=VALUE --trajectories M --collisions N`` shrinks or changes a shipped study without
     copying it: the same numbers as the study with those values written in it. A --set is checked as rbx
@@ -768,6 +782,7 @@ def test_a_mapping_study_says_where_its_relative_base_is_resolved_from(tmp_path,
     assert "a mapping's relative paths are resolved from the working folder" in str(info.value), str(info.value)
 
 
+@pytest.mark.long
 def test_a_results_file_to_resume_without_the_studys_variables_is_one_line(tmp_path):
     """A results file with the study's digest but its ``done`` deleted, of another shape or of text (damaged, or
     made by hand): --resume gave a traceback (KeyError, IndexError), or took text for finished points."""
@@ -792,6 +807,7 @@ def test_a_results_file_to_resume_without_the_studys_variables_is_one_line(tmp_p
         assert not (tmp_path / "c.nc").exists()
 
 
+@pytest.mark.long
 def test_a_results_file_to_resume_with_other_coordinates_or_impossible_done_values_is_one_line(tmp_path):
     """A results file with the study's digest whose coordinates are not the study's values, or whose points marked
     done hold a NaN mean free path or another seed (made by hand): --resume continued it, the points computed now
@@ -988,6 +1004,7 @@ def test_a_ratio_to_a_closed_form_is_drawn_with_its_expected_value_and_a_rank_ax
     assert ticks and all(float(t).is_integer() for t in ticks), ticks
 
 
+@pytest.mark.long
 def test_a_point_with_too_few_exits_is_nan_and_a_refused_point_is_named_with_what_is_kept(tmp_path):
     """escape_rate where too few orbits exit to fit a rate is NaN, as documented (it stopped the study: 'fewer
     than 20 exits in any window', and every --resume stopped there again); a point whose values the config
@@ -1040,6 +1057,7 @@ def test_a_studys_copies_of_one_orbit_do_not_shrink_its_error_bars():
     assert eight.attrs["ensemble_orbits"] == 1 and eight.attrs["ensemble_trajectories"] == 8
 
 
+@pytest.mark.long
 def test_points_without_an_error_bar_are_said_once_per_observable(tmp_path):
     """One trajectory in one segment gives no standard error: the study stored NaN and drew the points without a bar
     and without a word (rbx lyapunov refuses the same case). rbx sweep warns once per observable, naming it."""
@@ -1132,6 +1150,7 @@ def test_many_lines_are_coloured_along_a_colour_bar_not_each_in_the_legend():
     assert [s["label"] for s in few["series"]] == ["κ = 0.3", "κ = 0.6"]
 
 
+@pytest.mark.long
 def test_a_hole_is_swept_by_naming_its_corners_list_items():
     """Varying the escape example's gate: `table.boundary.3.to: [[0, 0.8], …]` said only 'expected a finite number',
     and `table.boundary.3.to.1` that table.boundary has no key '3'. A list's items are named in brackets, and zip
@@ -1224,6 +1243,7 @@ def test_a_colour_bar_of_a_log_scaled_key_is_logarithmic():
     assert bar and any(isinstance(getattr(c, "norm", None), LogNorm) for c in bar[0].get_children())
 
 
+@pytest.mark.long
 def test_a_point_whose_orbits_all_leave_during_the_warm_up_is_nan_and_said(tmp_path):
     """A λ₁ point where every orbit left through the exit during the warm-up stopped the whole study; it holds no
     value now (NaN, no orbit measured), the others are computed, a warning names the first such point, and the
@@ -1252,6 +1272,7 @@ def test_a_point_whose_orbits_all_leave_during_the_warm_up_is_nan_and_said(tmp_p
     assert list(again["collisions"].values) == list(ds["collisions"].values)
 
 
+@pytest.mark.long
 def test_an_escape_rate_study_draws_the_small_hole_rate_where_the_hole_is_small():
     """A hole-size sweep had no small-hole line to compare with (the single-run escape plot has one): the
     companion small_hole is |hole|/(π·|table|) for a point particle, worked out here by hand for the escape
@@ -1334,6 +1355,7 @@ def test_impossible_numbers_in_a_results_file_are_refused_by_resume_and_plot(lya
         sweep(str(study), str(tmp_path / "r2.nc"), resume=True)
 
 
+@pytest.mark.long
 def test_a_results_file_with_a_point_no_study_makes_is_refused_by_its_figure(specular, tmp_path):
     """Edited by hand, a study's varied values NaN or twice, and more orbits at a point than its trajectories, were
     drawn with exit 0 (the resume refused the first two already). Each is one line naming the variable."""
@@ -1371,6 +1393,7 @@ def test_a_study_whose_orbits_all_left_says_it_measured_nothing(specular):
     assert "(at 2 of 2 points only 3: the others left the table first)" in pooled_note(ds, "λ₁", 4)
 
 
+@pytest.mark.long
 def test_a_results_file_with_no_point_done_or_rounded_values_is_refused(specular, tmp_path):
     """No point marked done: `rbx plot --kind sweep` drew empty axes, exit 0. An observable stored as float32
     (its values rounded) was kept by `--resume` as 'nothing to do'."""
@@ -1402,6 +1425,7 @@ def test_a_study_seed_beyond_a_runs_seed_is_refused_before_any_point_runs():
     assert load_study({**base, "ensemble": {**base["ensemble"], "seed": 2 ** 63 - 1}}).ensemble["seed"] == 2 ** 63 - 1
 
 
+@pytest.mark.long
 def test_a_results_file_with_a_zip_flag_or_values_no_study_writes_is_one_line(specular, tmp_path):
     """Edited by hand: `zip` as 'maybe' ended `rbx plot --kind sweep` in a ValueError traceback, and `--resume` kept
     it (and a zip changed from 0 to 1); a numeric varied key holding text ended the figure in a traceback too."""

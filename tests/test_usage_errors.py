@@ -108,6 +108,7 @@ def test_every_command_is_in_the_table():
     assert set(MISTAKES) == {"rbx", *cli.commands}
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("args, first", CASES)
 def test_a_usage_mistake_is_one_line_and_exit_2(args, first, tmp_path):
     (tmp_path / "folder").mkdir()
@@ -150,6 +151,7 @@ def progress_config(folder):
     write_config(folder, strip_random(20_000, trajectories=3, every=7, record=("time", "position")))
 
 
+@pytest.mark.long
 def test_a_redirected_run_logs_no_progress_bar_and_one_summary_line(tmp_path):
     """stderr to a file (a batch job's log): no progress bar at all (it wrote a \\r line per update: the run here
     updates it dozens of times), and the run ends with its one summary line; --quiet leaves that out too."""
@@ -167,6 +169,7 @@ def test_a_redirected_run_logs_no_progress_bar_and_one_summary_line(tmp_path):
     assert res.returncode == 0 and res.stderr == "" and res.stdout == "", res.stderr
 
 
+@pytest.mark.long
 def test_on_a_terminal_the_progress_bar_shows_rate_and_time_left(tmp_path):
     """stderr a terminal (a pseudo-terminal here): the bar, redrawn in place, with the collisions per second and
     the time left, then the summary on its own line."""

@@ -1099,6 +1099,7 @@ def test_a_table_far_from_the_origin_is_the_same_table():
         np.testing.assert_array_equal(away.wall, near.wall)
 
 
+@pytest.mark.long
 def test_a_table_file_s_own_problems_are_reported_in_that_file(tmp_path):
     """A table in a file of its own: a problem of its keys found once the table is built (an obstacle that does
     not fit, a preset's size) names that file and the key in it, not the experiment's file and table.<key>."""
