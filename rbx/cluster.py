@@ -28,6 +28,7 @@ continues here or locally. A failed task, or a lost scheduler, raises :class:`Cl
 every checkpointed round).
 """
 import asyncio
+import contextlib
 import json
 import logging
 import os
@@ -35,6 +36,7 @@ import platform
 import queue
 import socket
 import sys
+import threading
 import time
 
 import llvmlite
@@ -63,6 +65,11 @@ SLICE_BYTES = 4_000_000
 SLICES_PER_THREAD = 4
 #: seconds between two looks at ``should_stop`` while waiting for a task (one that finishes is seen at once)
 POLL = 0.1
+#: while no task finishes, the scheduler is asked every HEARTBEAT seconds whether it still answers; a run stops when
+#: it has not answered for SILENCE seconds. A frozen scheduler (SIGSTOP, a hung host) keeps its connections open and
+#: sends nothing: the run waited for ever, without a line. Long tasks are fine: the scheduler answers meanwhile
+HEARTBEAT = 30.0
+SILENCE = 60.0
 class _AbandonedGather(logging.Filter):
     """Drops asyncio's report of the gather task that a fetch cut short by its timeout leaves behind in Dask's
     client ('Task exception was never retrieved … AllExit'): a result given up on, not an error of the run."""
@@ -293,6 +300,8 @@ class Cluster:
 
     def __init__(self, client, own=False, key="--scheduler", slices=None, task_collisions=None):
         self.client, self.own, self.key = client, own, key
+        self._heard = time.monotonic()      # when the scheduler last answered, or a task finished
+        self._silent_since = None           # the first unanswered heartbeat since then
         self.slices = None if slices is None else int(slices)
         self.task_collisions = None if task_collisions is None else int(task_collisions)
         self.tasks_run = 0
@@ -403,6 +412,7 @@ class Cluster:
                 if not future.done():
                     if should_stop is not None and should_stop():
                         return STOPPED
+                    self._watch()
                     time.sleep(POLL)
                     continue
                 try:
@@ -412,6 +422,8 @@ class Cluster:
                     if should_stop is not None and should_stop():
                         return STOPPED
                     continue
+        except ClusterError:
+            raise
         except (CancelledError, CommClosedError):
             # the scheduler killed: the futures are cancelled, or (1 in ~10 runs of the test) the client's gather
             # from it finds its connection closed first
@@ -420,6 +432,41 @@ class Cluster:
         except Exception as exc:   # noqa: BLE001 - a task that failed, a worker lost too often
             raise ClusterError(self.key, f"a task failed ({what}): {type(exc).__name__}: {_first_line(exc)}") \
                 from None
+
+    def _watch(self):
+        """Called while waiting for a task: every :data:`HEARTBEAT` seconds without news, ask the scheduler who it
+        is (:func:`_probe`); raise :class:`ClusterError` once it has not answered for :data:`SILENCE` seconds. Only a
+        scheduler reached over TCP is asked (another kind of address, an in-process one, cannot freeze alone)."""
+        now = time.monotonic()
+        if now - self._heard < HEARTBEAT:
+            return
+        address = getattr(getattr(self.client, "scheduler", None), "address", None) or ""
+        if not address.startswith("tcp://"):
+            self._heard = now
+            return
+        answered = []
+        # on a thread of its own: the probe runs an event loop, which a thread that has one running (a notebook's)
+        # cannot; whatever goes wrong (no answer in time, refused, reset) is silence all the same
+        def ask():
+            with contextlib.suppress(Exception):
+                answered.append(_probe(address, CONNECT_TIMEOUT))
+        asking = threading.Thread(target=ask, daemon=True)
+        asking.start()
+        asking.join(CONNECT_TIMEOUT + 1.0)
+        if answered:
+            self._silent_since = None
+        else:
+            if self._silent_since is None:
+                self._silent_since = now
+            elif time.monotonic() - self._silent_since >= SILENCE:
+                raise ClusterError(self.key, f"the scheduler stopped answering (no reply for "
+                                             f"{time.monotonic() - self._silent_since:.0f} s: frozen, overloaded, or "
+                                             f"the network to it lost)") from None
+        self._heard = time.monotonic()
+
+    def _heard_from(self):
+        """A task finished: the scheduler is alive."""
+        self._heard, self._silent_since = time.monotonic(), None
 
     def _submit(self, function, *args, **options):
         """``client.submit``; a client closed meanwhile (its scheduler killed: Dask closes the client, and the next
@@ -453,7 +500,9 @@ class Cluster:
                 try:
                     future = finished.get(timeout=POLL)
                 except queue.Empty:
+                    self._watch()
                     continue
+                self._heard_from()
                 result = self._outcome(future, f"{what} slice {running[future]}", should_stop)
                 if result is STOPPED:
                     return None
@@ -550,7 +599,9 @@ class Cluster:
                 try:
                     ready = [finished.get(timeout=POLL)]
                 except queue.Empty:
+                    self._watch()
                     continue
+                self._heard_from()
                 for future in ready:
                     s, r = running[future]
                     result = self._outcome(future, f"slice {s}, round {r}", should_stop)

@@ -431,6 +431,46 @@ def test_a_scheduler_lost_mid_run_is_one_line_exit_1_and_a_resumable_file(tmp_pa
     assert len(run["collisions/step"]) == run["collisions/count"].max()
 
 
+@pytest.mark.long
+@pytest.mark.parametrize("command", ["simulate", "lyapunov"])
+def test_a_scheduler_that_stops_answering_mid_run_is_one_line_exit_1(command, tmp_path):
+    """A scheduler frozen mid-run (SIGSTOP: its connections stay open, nothing comes back) held `rbx simulate
+    --scheduler` and `rbx lyapunov --scheduler` for ever, without a line. While no task finishes, the run now asks
+    the scheduler every HEARTBEAT seconds whether it answers, and stops once it has not for SILENCE seconds (here
+    made 1 and 3 s): one line, exit 1, and `simulate` leaves a file that resumes."""
+    dask = LocalDask(tmp_path / "dask", 1)
+    prelude = "import rbx.cluster as _c\n_c.HEARTBEAT = 1.0\n_c.SILENCE = 3.0\n"
+    if command == "simulate":
+        cfg = scene("strip-random", 10**9, 2, every=10**6, record=["time", "position"])
+        args = ["simulate", "exp.yaml", "-o", "run.h5", "--quiet", "--task-collisions", "4000000"]
+    else:
+        cfg = dict(LYAPUNOV, run={"collisions": 10**9, "trajectories": 2, "seed": 1})
+        args = ["lyapunov", "exp.yaml", "--quiet", "--slices", "2"]
+    (tmp_path / "exp.yaml").write_text(yaml.safe_dump(cfg, sort_keys=False))
+    code = f"import sys\n{prelude}from rbx.cli.main import main\nsys.argv[0] = 'rbx'\nmain()\n"
+    try:
+        proc = subprocess.Popen([sys.executable, "-c", code, *args, "--scheduler", dask.address], cwd=tmp_path,
+                                env=ENV, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+        with dask.client() as c:           # the run's tasks are on the worker: the run is under way
+            deadline = time.monotonic() + 300
+            while not any(c.processing().values()):
+                assert proc.poll() is None, proc.communicate()
+                assert time.monotonic() < deadline, "no task ever ran"
+                time.sleep(0.05)
+        os.killpg(dask.procs[0].pid, signal.SIGSTOP)
+        out, err = proc.communicate(timeout=300)
+    finally:
+        os.killpg(dask.procs[0].pid, signal.SIGCONT)
+        dask.stop()
+    assert proc.returncode == 1, err
+    line, = err.strip().splitlines()
+    assert "--scheduler: the scheduler stopped answering (no reply for " in line, line
+    if command == "simulate":
+        assert line.startswith("rbx: run.h5: ") and "rbx simulate --resume run.h5" in line, line
+        with h5py.File(tmp_path / "run.h5", "r") as f:
+            assert not f.attrs["complete"]
+
+
 # ---- errors ---------------------------------------------------------------------------------------------------
 
 def free_port():
