@@ -555,7 +555,9 @@ def config_file_problem(path, limit=MAX_CONFIG_BYTES):
     if stat.S_ISDIR(st.st_mode):
         raise IsADirectoryError(errno.EISDIR, os.strerror(errno.EISDIR), path)
     if not stat.S_ISREG(st.st_mode):
-        what = what_it_is(os.path.realpath(path)) or "not a regular file"
+        what = what_it_is(os.path.realpath(path))
+        if what in (None, "a regular file", "not a regular file"):     # /dev/stdin: a pipe with no name to look at
+            return "is not a regular file: give a YAML file"
         return f"is {what}, not a regular file: give a YAML file"
     if st.st_size > limit:
         return (f"is {format_size(st.st_size)}, larger than a config can be ({limit >> 20} MiB): give a YAML "

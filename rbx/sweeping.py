@@ -397,6 +397,8 @@ def sweep(study, output=None, *, scheduler=None, resume=False, force=False, prog
     if study is None or not isinstance(study, (str, bytes, os.PathLike, Mapping, Study)):
         raise TypeError(f"rbx.sweep: study is a study file's path, a mapping or a loaded Study, not "
                         f"{type(study).__name__}")
+    if isinstance(study, bytes):         # a path in bytes, as rbx.open and rbx.simulate take one
+        study = os.fsdecode(study)
     if isinstance(study, Study) and (sets or trajectories is not None or collisions is not None):
         raise TypeError("rbx.sweep: trajectories, collisions and sets change a study file or mapping, not a loaded "
                         "Study (give them to load_study)")

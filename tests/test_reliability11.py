@@ -197,3 +197,27 @@ def test_an_experiments_resolved_config_edited_in_place_is_refused(tmp_path):
             call()
         assert err.value.key == "resolved" and "was changed in place" in str(err.value)
     assert not os.path.exists(tmp_path / "r.h5")
+
+
+def test_a_pipe_given_as_a_config_is_named_once():
+    """`base: /dev/stdin` in a study said 'is not a regular file, not a regular file': the pipe behind it has no
+    name to look at. Now 'is not a regular file: give a YAML file'."""
+    from rbx.paths import config_file_problem
+    r, w = os.pipe()
+    try:
+        assert config_file_problem(f"/dev/fd/{r}") == "is not a regular file: give a YAML file"
+    finally:
+        os.close(r)
+        os.close(w)
+
+
+def test_a_study_path_in_bytes_is_a_path(tmp_path):
+    """`rbx.sweep(b"st.yaml")` ended in os.path's 'Can't mix strings and bytes in path components'; a path in bytes
+    is a path, as rbx.open and rbx.simulate take one (here a study whose missing section is then named in its file)."""
+    import rbx
+    from rbx.model import ConfigError
+    (tmp_path / "st.yaml").write_text("base: configs/examples/strip.yaml\nvary: {ball.inertia: [0.1, 0.2]}\n"
+                                      "measure: [mean_free_path]\n")
+    with pytest.raises(ConfigError) as err:
+        rbx.sweep(os.fsencode(tmp_path / "st.yaml"))
+    assert str(err.value.file).endswith("st.yaml") and err.value.key == "ensemble", err.value
