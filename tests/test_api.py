@@ -318,6 +318,7 @@ def test_readme_names_the_error_of_a_script_beside_the_clone(tmp_path):
     assert res.returncode == 1 and res.stderr.strip().splitlines()[-1] == error, res.stderr
 
 
+@pytest.mark.long
 def test_example_notebook_runs(tmp_path, monkeypatch):
     """examples/api.ipynb, every code cell in order in one namespace (what 'Run all' does)."""
     import matplotlib

@@ -8,6 +8,7 @@ import sys
 
 import h5py
 import numpy as np
+import pytest
 
 from rbx import _jit
 from tests.test_interrupt import wait_until_open
@@ -47,6 +48,7 @@ def test_the_cache_key_follows_the_record_bits_not_the_rest_of_the_model(monkeyp
     assert _jit.kernel_source_hash() == key
 
 
+@pytest.mark.long
 def test_an_unwritable_cache_falls_back_to_a_private_folder(tmp_path):
     blocker = tmp_path / "not-a-folder"
     blocker.write_text("a file where the cache folder should be")
