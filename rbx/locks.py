@@ -21,7 +21,7 @@ import sys
 import threading
 import time
 
-from .paths import NO_ROOM, DiskFull, FileError, display_path, format_size, lock_path, open_regular
+from .paths import NO_ROOM, DiskFull, FileError, create_new, display_path, format_size, lock_path, open_regular
 
 __all__ = ["lock_path", "acquire_lock", "release_lock", "lock_holder", "release_held_locks", "busy",
            "LockNotWritable", "taken_fresh"]
@@ -214,15 +214,7 @@ def _create(lock):
     # a name of its own, created exclusively: whatever is at the name already (a link, a FIFO, a file) is never
     # opened. The random part makes it unknown in advance (a link put at a name known from the pid and the thread
     # had the lock written through it into a file outside the run, and a FIFO held the open past SIGTERM)
-    for _ in range(16):
-        aside = f"{lock}.new.{os.getpid()}.{threading.get_ident()}.{secrets.token_hex(4)}"
-        try:
-            fd = os.open(aside, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), 0o644)
-            break
-        except FileExistsError:
-            continue
-    else:
-        raise FileExistsError(errno.EEXIST, "every scratch name tried exists", aside)
+    aside, fd = create_new(lambda token: f"{lock}.new.{os.getpid()}.{threading.get_ident()}.{token}", 0o644)
     try:
         try:
             os.write(fd, _lock_text().encode())

@@ -390,6 +390,21 @@ def check_figure_file(path):
                                     "another name")
 
 
+def create_new(name_of, mode=0o666, tries=16):
+    """A new file under a name no one can know in advance -> (its name, a descriptor open for writing).
+    ``name_of(token)`` gives the name for a random token of 8 hex digits. Each name is created exclusively and never
+    through a link (``O_EXCL``, ``O_NOFOLLOW``), so whatever is at a name already (a link, a FIFO, a file planted
+    there) is never opened nor removed: a taken name is passed over for the next. The permissions are ``mode``
+    less the umask, as for any new file. Raises FileExistsError after ``tries`` taken names."""
+    for _ in range(tries):
+        name = name_of(secrets.token_hex(4))
+        try:
+            return name, os.open(name, os.O_WRONLY | os.O_CREAT | os.O_EXCL | getattr(os, "O_NOFOLLOW", 0), mode)
+        except FileExistsError:
+            continue
+    raise FileExistsError(errno.EEXIST, "every new name tried exists", name)
+
+
 @contextlib.contextmanager
 def written_whole(path, replace=True):
     """A new name beside ``path`` (its folder, its extension last, so that a writer that reads the format off the
@@ -405,13 +420,7 @@ def written_whole(path, replace=True):
     # the new names that a killed writer left behind (SIGKILL runs no clean-up) and removes them
     prefix = f".rbx-{hashlib.sha1(name.encode('utf-8', 'surrogateescape')).hexdigest()[:8]}-"
     _remove_abandoned(folder, prefix, ext)
-    while True:
-        tmp = os.path.join(folder, f"{prefix}{secrets.token_hex(4)}{ext}")
-        try:        # created as any new file is (the umask's permissions), and never one already there
-            fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-            break
-        except FileExistsError:
-            continue
+    tmp, fd = create_new(lambda token: os.path.join(folder, f"{prefix}{token}{ext}"))
     try:
         # held while the file is written: a name whose lock can be taken belongs to no live writer
         _try_lock(fd)

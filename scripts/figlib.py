@@ -38,14 +38,13 @@ import json
 import math
 import operator
 import os
-import secrets
 import sys
 
 import numpy as np
 from matplotlib import scale as mscale
 from matplotlib import ticker as mticker
 
-from rbx.paths import FileError, display_path, written_whole
+from rbx.paths import FileError, create_new, display_path, written_whole
 from rbx.plotting import letter_panels
 
 OPS = {"<": operator.lt, "<=": operator.le, ">": operator.gt, ">=": operator.ge}
@@ -223,15 +222,9 @@ def _write_record(path, record):
     _check_record(path)
     # a name nobody knows in advance, created exclusively; removed on failure only once it is this script's own (a
     # file put at ``<figure>.json.<pid>.new`` was removed when the exclusive open failed on it)
-    while True:
-        scratch = f"{path}.{secrets.token_hex(4)}.new"
-        try:
-            f = open(scratch, "x", encoding="utf-8")
-            break
-        except FileExistsError:
-            continue
+    scratch, fd = create_new(lambda token: f"{path}.{token}.new")
     try:
-        with f:
+        with open(fd, "w", encoding="utf-8") as f:
             json.dump(record, f, indent=1)
         os.replace(scratch, path)
     except BaseException:

@@ -4,6 +4,7 @@ aside, a figure's record being written) replaced or removed. Each reproduction r
 figure scripts' own function); each test was seen to fail on the code before it."""
 import itertools
 import os
+import secrets
 import shutil
 import subprocess
 import sys
@@ -109,7 +110,7 @@ def test_a_figures_record_is_written_under_a_name_of_its_own(tmp_path, monkeypat
     for planted in (old_style, drawn):
         planted.write_text("notes\n")
     tokens = itertools.chain(["deadbeef"], itertools.repeat("0badcafe"))
-    monkeypatch.setattr(figlib.secrets, "token_hex", lambda n: next(tokens))
+    monkeypatch.setattr(secrets, "token_hex", lambda n: next(tokens))
     figlib._write_record(str(record), {"label": "c", "checks": [], "value": 1.5})
     assert record.read_text().startswith("{") and '"value": 1.5' in record.read_text()
     assert old_style.read_text() == "notes\n" and drawn.read_text() == "notes\n"
