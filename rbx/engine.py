@@ -295,7 +295,7 @@ S_ROUND_HEMI = 8192  # 2D: a hemisphere rule on a wall without one normal: cos �
 S_TANGENT = 16384   # carry tangent vectors (Tangent) along the orbit: the Lyapunov spectrum, the flow's Jacobian
 S_BLEND = 32768     # the rank is drawn at random: the map computed without a branch on it (rbx.physics.rough_factor)
 S_PAIRS = 65536     # every wall's rule is a random choice between two constant rules: picked without the walk
-S_GENERAL = 131072  # the general loop (compiled_spec): every bit but the dimension and S_TANGENT read at run time
+S_GENERAL = 131072  # the general loop (compiled_spec): every bit but the dimension read at run time
 #: the bits compiled into the kernel; the others are tested at run time (a predictable branch). Each compiled
 #: combination in use costs a compile of 5–15 s the first time (then it is on disk), so the bits compiled are the
 #: ones that pay: the dimension (loops of constant length, state in registers), spin arithmetic, the slab's closed
@@ -316,8 +316,8 @@ RUNTIME_BITS = ~COMPILED_BITS
 
 #: which loops are compiled. ``"specialised"`` (the default): one per combination of :data:`COMPILED_BITS` in use,
 #: each with the code its scene needs and nothing else (the fastest per collision, 5–15 s to compile each).
-#: ``"general"`` (the environment variable ``RBX_KERNELS=general``): one per dimension (and with or without
-#: ``S_TANGENT``), every other bit read at run time like the run-time bits. Its numbers are the specialised loop's bit
+#: ``"general"`` (the environment variable ``RBX_KERNELS=general``): one per dimension, every other bit (the
+#: tangent vectors' too) read at run time like the run-time bits. Its numbers are the specialised loop's bit
 #: for bit: both do the same floating-point operations in the same order (no fast-math, so no contraction or
 #: reassociation); only whether a branch is decided when compiling or when running differs. It is slower per
 #: collision and compiles once for every scene: the test suite uses it (tests/conftest.py), and the tests compare
@@ -339,9 +339,9 @@ KERNELS = _kernel_mode_from_environment()
 
 def compiled_spec(flags):
     """The bits of ``flags`` compiled into the loop that runs them (:data:`KERNELS`): ``flags & COMPILED_BITS``, or
-    for the general loop the dimension, ``S_TANGENT`` and :data:`S_GENERAL`."""
+    for the general loop the dimension and :data:`S_GENERAL`."""
     if KERNELS == "general":
-        return (int(flags) & (S_DIM3 | S_TANGENT)) | S_GENERAL
+        return (int(flags) & S_DIM3) | S_GENERAL
     return int(flags) & COMPILED_BITS
 
 
@@ -436,7 +436,8 @@ def _make_kernel(spec):
         loc = stack_array(3, (n,))             # … its position relative to the image of the cell hit, …
         off = stack_array(3, (n,))             # … and that image's shift (loc = a − off); …
         ahead = stack_array(3, (n,))           # … and where the flight is looked at from
-        if TANGENT:                            # what the tangent step reads besides the state
+        if TANGENT or (GENERAL and (on & S_TANGENT) != 0):
+            # what the tangent step reads besides the state
             vm = stack_array(3, (n,))          # (v, W) before the collision map
             Wm = stack_array(9, (n, n))
             Jn = stack_array(9, (n, n))        # the normal's derivative along the wall
@@ -467,7 +468,7 @@ def _make_kernel(spec):
             count = 0
             until_record = every - c % every           # collisions to the next record
             until_renorm = renorm_every - c % renorm_every if renorm_every > 0 else 0
-            if TANGENT:
+            if TANGENT or (GENERAL and (on & S_TANGENT) != 0):
                 Yj = tangent.Y[j]
                 t_end = tangent.t_end[j]
                 since = 0                       # collisions since the vectors were last re-orthonormalised
@@ -482,7 +483,7 @@ def _make_kernel(spec):
                     tau, p = box_collision(codes, params, a, v, tol, n, table.box, table.others,
                                            AXES or (GENERAL and (on & S_AXES) != 0), first_hit)
                 in_flight = False               # the tangent loop's stop at t_end, in flight
-                if TANGENT:
+                if TANGENT or (GENERAL and (on & S_TANGENT) != 0):
                     if t + tau > t_end:
                         tau = t_end - t
                         in_flight = True
@@ -503,7 +504,7 @@ def _make_kernel(spec):
                         th += tau * Wj[1, 0]
                     else:
                         rotate(Aj, Wj, tau)
-                if TANGENT:
+                if TANGENT or (GENERAL and (on & S_TANGENT) != 0):
                     # the flight's tangent step is taken with the collision's (one call); a flight that ends
                     # without one (stopped at t_end, or at an exit below) takes it alone, after the vectors'
                     # stretches up to the last collision are added
@@ -550,7 +551,7 @@ def _make_kernel(spec):
                 rk = rules.rank[node]
                 if EXIT_ or (GENERAL and (on & S_EXIT) != 0):
                     if rules.kind[node] == EXIT:          # a hole: the contact is the trajectory's last record
-                        if TANGENT:
+                        if TANGENT or (GENERAL and (on & S_TANGENT) != 0):
                             since = last_flight(Yj, tangent.sums, j, since, tau, v, Wj, nu, Jn, R, kappa, rules.basis,
                                                 n)
                         c += 1
@@ -561,7 +562,8 @@ def _make_kernel(spec):
                                 count += 1
                         state.alive[j] = False
                         break
-                if TANGENT:                # the state before the map, and the normal's derivative at the contact
+                if TANGENT or (GENERAL and (on & S_TANGENT) != 0):
+                    # the state before the map, and the normal's derivative at the contact
                     for i in range(n):
                         vm[i] = v[i]
                         for k in range(n):
@@ -619,7 +621,7 @@ def _make_kernel(spec):
                     else:
                         for i in range(n):
                             v[i] *= f
-                if TANGENT:
+                if TANGENT or (GENERAL and (on & S_TANGENT) != 0):
                     g = step(Yj, tau, True, vm, Wm, v, Wj, nu, Jn, curved, R, kappa, map_rank, rules.basis, node, w, n)
                     if period > 0:
                         since += 1
@@ -638,7 +640,7 @@ def _make_kernel(spec):
                     if w == settings.stop_wall:
                         state.alive[j] = False
                         break
-            if TANGENT:
+            if TANGENT or (GENERAL and (on & S_TANGENT) != 0):
                 if since > 0:                  # the stretches up to the last collision, before the next call
                     orthonormalise(Yj, tangent.sums, j, n)
             for i in range(n):

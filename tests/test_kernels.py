@@ -29,7 +29,7 @@ def test_the_mode_picks_the_compiled_bits(monkeypatch):
     assert engine.compiled_spec(flags) == flags & engine.COMPILED_BITS
     assert engine.compiled_spec(flags) & engine.S_SLAB
     monkeypatch.setattr(engine, "KERNELS", "general")
-    assert engine.compiled_spec(flags) == engine.S_DIM3 | engine.S_TANGENT | engine.S_GENERAL
+    assert engine.compiled_spec(flags) == engine.S_DIM3 | engine.S_GENERAL       # the tangent vectors: run time too
     assert engine.compiled_spec(engine.make_spec(2, slab=True)) == engine.S_GENERAL
 
 
