@@ -30,8 +30,9 @@ test: $(STAMP) $(BYTECODE)
 test-all: $(STAMP) $(BYTECODE)
 	$(PY) -m pytest -q -n 2 tests
 
-# the suite with the oldest and the newest Numba that pyproject.toml declares (a venv each), and with kernels
-# compiled for a generic CPU (NUMBA_CPU_NAME=generic): scripts/test_numba.sh
+# make test's suite with the oldest and the newest Numba that pyproject.toml declares (a venv each), and with
+# kernels compiled for a generic CPU (NUMBA_CPU_NAME=generic): scripts/test_numba.sh (MARKS="not heavy" adds the
+# long tier)
 test-numba:
 	PYTHON=$(PYTHON) scripts/test_numba.sh
 

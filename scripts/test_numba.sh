@@ -3,10 +3,12 @@
 # (.venv-numba-oldest, .venv-numba-newest; NumPy pinned to what that Numba supports), and once more with kernels
 # compiled for a generic x86-64/arm64 CPU instead of this machine's (NUMBA_CPU_NAME=generic), with the BLAS and
 # NumPy's vectorised loops of another processor where they can be chosen (OPENBLAS_CORETYPE, NPY_DISABLE_CPU_FEATURES).
+# Each runs `make test`'s selection; MARKS="not heavy" adds the `long` tier (about 15 minutes more each).
 # Usage: scripts/test_numba.sh [oldest|newest|generic ...]   (default: all three)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PYTHON=${PYTHON:-python3}
+MARKS=${MARKS:-not heavy and not long}
 # the bounds of pyproject.toml's numba requirement, and the NumPy each supports
 OLDEST="numba==0.59.1 numpy==1.26.4"
 NEWEST="numba==0.68.1"
@@ -29,7 +31,7 @@ run() {   # label, python, extra env
     local label=$1 py=$2; shift 2
     echo "== $label: $("$py" -c 'import numba, numpy; print("numba", numba.__version__, "numpy", numpy.__version__)') $*"
     # a cache folder of its own: kernels compiled for another CPU or by another Numba are kept apart
-    env "$@" NUMBA_CACHE_DIR="$PWD/.cache-numba-$label" "$py" -m pytest -q -n 2 -m "not heavy" -p no:cacheprovider tests
+    env "$@" NUMBA_CACHE_DIR="$PWD/.cache-numba-$label" "$py" -m pytest -q -n 2 -m "$MARKS" -p no:cacheprovider tests
 }
 
 for what in "${@:-oldest newest generic}"; do
