@@ -67,7 +67,10 @@ SLICES_PER_THREAD = 4
 POLL = 0.1
 #: while no task finishes, the scheduler is asked every HEARTBEAT seconds whether it still answers; a run stops when
 #: it has not answered for SILENCE seconds. A frozen scheduler (SIGSTOP, a hung host) keeps its connections open and
-#: sends nothing: the run waited for ever, without a line. Long tasks are fine: the scheduler answers meanwhile
+#: sends nothing: the run waited for ever, without a line. Long tasks are fine: the scheduler answers meanwhile.
+#: Its answer also says when it last heard from each worker (a worker's heartbeat, every second or so, goes on while
+#: it runs a task): a run stops too when no worker has been heard from for SILENCE seconds (every worker frozen, or
+#: none left), where it waited for ever
 HEARTBEAT = 30.0
 SILENCE = 60.0
 class _AbandonedGather(logging.Filter):
@@ -302,6 +305,8 @@ class Cluster:
         self.client, self.own, self.key = client, own, key
         self._heard = time.monotonic()      # when the scheduler last answered, or a task finished
         self._silent_since = None           # the first unanswered heartbeat since then
+        self._workers_seen = {}             # each worker's last heartbeat, as the scheduler last told it
+        self._workers_quiet_since = None    # the first answer since then in which no worker had news
         self.slices = None if slices is None else int(slices)
         self.task_collisions = None if task_collisions is None else int(task_collisions)
         self.tasks_run = 0
@@ -324,9 +329,9 @@ class Cluster:
     def threads(self):
         """Worker threads in the cluster now (0 when it has no workers)."""
         try:
-            info = self.client.scheduler_info(n_workers=-1)    # recent Dask lists only 5 workers by default
+            info = self._bounded(lambda: self.client.scheduler_info(n_workers=-1))   # recent Dask lists only 5
         except TypeError:
-            info = self.client.scheduler_info()
+            info = self._bounded(self.client.scheduler_info)
         workers = info.get("workers", {})
         return sum(int(w.get("nthreads", 1)) for w in workers.values())
 
@@ -359,12 +364,16 @@ class Cluster:
         lost = None
         for _ in range(tries):
             try:
-                answers = self.client.run(_worker_identity, on_error="return")
+                answers = self._bounded(lambda: self.client.run(_worker_identity, on_error="return"))
             except TypeError:          # a Dask without on_error: all or nothing
                 try:
-                    answers = self.client.run(_worker_identity)
+                    answers = self._bounded(lambda: self.client.run(_worker_identity))
+                except ClusterError:
+                    raise
                 except Exception as exc:   # noqa: BLE001 - sorted below
                     answers = {"?": exc}
+            except ClusterError:
+                raise
             except Exception as exc:   # noqa: BLE001 - the scheduler's own connection to a worker, lost
                 lost = exc
                 continue
@@ -433,9 +442,34 @@ class Cluster:
             raise ClusterError(self.key, f"a task failed ({what}): {type(exc).__name__}: {_first_line(exc)}") \
                 from None
 
-    def _watch(self):
+    def _bounded(self, call):
+        """``call()`` (a request to the scheduler, which Dask would wait for without end) on a thread of its own,
+        waited for as a task is (:meth:`_watch`): its result, its exception, or :class:`ClusterError` once the
+        scheduler has not answered for :data:`SILENCE` seconds (the thread is left to its wait; it holds nothing of
+        the run's)."""
+        outcome = []
+
+        def run():
+            try:
+                outcome.append((True, call()))
+            except BaseException as exc:   # noqa: BLE001 - handed to the caller
+                outcome.append((False, exc))
+        asking = threading.Thread(target=run, daemon=True, name="rbx-scheduler-call")
+        self._heard, self._silent_since = time.monotonic(), None
+        asking.start()
+        while True:
+            asking.join(POLL)
+            if outcome:
+                ok, value = outcome[0]
+                if ok:
+                    return value
+                raise value
+            self._watch(workers=False)
+
+    def _watch(self, workers=True):
         """Called while waiting for a task: every :data:`HEARTBEAT` seconds without news, ask the scheduler who it
-        is (:func:`_probe`); raise :class:`ClusterError` once it has not answered for :data:`SILENCE` seconds. Only a
+        is (:func:`_probe`); raise :class:`ClusterError` once it has not answered for :data:`SILENCE` seconds, or
+        (``workers``) once its answers have said for that long that no worker sent it a heartbeat. Only a
         scheduler reached over TCP is asked (another kind of address, an in-process one, cannot freeze alone)."""
         now = time.monotonic()
         if now - self._heard < HEARTBEAT:
@@ -455,6 +489,8 @@ class Cluster:
         asking.join(CONNECT_TIMEOUT + 1.0)
         if answered:
             self._silent_since = None
+            if workers:
+                self._check_worker_news(answered[0], now)
         else:
             if self._silent_since is None:
                 self._silent_since = now
@@ -464,9 +500,29 @@ class Cluster:
                                              f"the network to it lost)") from None
         self._heard = time.monotonic()
 
+    def _check_worker_news(self, identity, now):
+        """Raise :class:`ClusterError` when the scheduler's answers (its ``identity``, at ``now``) have said for
+        :data:`SILENCE` seconds that no worker has sent it a heartbeat: each worker's ``last_seen`` is compared with
+        the previous answer's, not with a clock (the scheduler's host keeps its own time)."""
+        listed = (identity.get("workers") or {}) if isinstance(identity, dict) else {}
+        seen = {worker: (info or {}).get("last_seen") for worker, info in listed.items()}
+        news = any(when is not None and when != self._workers_seen.get(worker) for worker, when in seen.items())
+        self._workers_seen = seen
+        if news:
+            self._workers_quiet_since = None
+        elif self._workers_quiet_since is None:
+            self._workers_quiet_since = now
+        elif time.monotonic() - self._workers_quiet_since >= SILENCE:
+            quiet = time.monotonic() - self._workers_quiet_since
+            what = (f"none of its {len(seen)} worker(s) has sent the scheduler a heartbeat for {quiet:.0f} s "
+                    "(frozen, or their host hung)" if seen else
+                    f"the scheduler has had no worker for {quiet:.0f} s (start them again)")
+            raise ClusterError(self.key, what) from None
+
     def _heard_from(self):
-        """A task finished: the scheduler is alive."""
+        """A task finished: the scheduler and a worker are alive."""
         self._heard, self._silent_since = time.monotonic(), None
+        self._workers_quiet_since = None
 
     def _submit(self, function, *args, **options):
         """``client.submit``; a client closed meanwhile (its scheduler killed: Dask closes the client, and the next

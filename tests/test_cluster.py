@@ -433,12 +433,15 @@ def test_a_scheduler_lost_mid_run_is_one_line_exit_1_and_a_resumable_file(tmp_pa
 
 @pytest.mark.long
 @pytest.mark.parametrize("command", ["simulate", "lyapunov"])
-def test_a_scheduler_that_stops_answering_mid_run_is_one_line_exit_1(command, tmp_path):
+@pytest.mark.parametrize("frozen", ["scheduler", "worker"])
+def test_a_scheduler_or_worker_that_stops_answering_mid_run_is_one_line_exit_1(command, frozen, tmp_path):
     """A scheduler frozen mid-run (SIGSTOP: its connections stay open, nothing comes back) held `rbx simulate
-    --scheduler` and `rbx lyapunov --scheduler` for ever, without a line. While no task finishes, the run now asks
-    the scheduler every HEARTBEAT seconds whether it answers, and stops once it has not for SILENCE seconds (here
-    made 1 and 3 s): one line, exit 1, and `simulate` leaves a file that resumes."""
+    --scheduler` and `rbx lyapunov --scheduler` for ever, without a line; so did a frozen worker, the scheduler
+    answering. While no task finishes, the run now asks the scheduler every HEARTBEAT seconds whether it answers,
+    and stops once it has not for SILENCE seconds (here made 1 and 3 s), or once its answers have said for that
+    long that no worker sent it a heartbeat: one line, exit 1, and `simulate` leaves a file that resumes."""
     dask = LocalDask(tmp_path / "dask", 1)
+    target = dask.procs[0 if frozen == "scheduler" else 1]
     prelude = "import rbx.cluster as _c\n_c.HEARTBEAT = 1.0\n_c.SILENCE = 3.0\n"
     if command == "simulate":
         cfg = scene("strip-random", 10**9, 2, every=10**6, record=["time", "position"])
@@ -457,18 +460,83 @@ def test_a_scheduler_that_stops_answering_mid_run_is_one_line_exit_1(command, tm
                 assert proc.poll() is None, proc.communicate()
                 assert time.monotonic() < deadline, "no task ever ran"
                 time.sleep(0.05)
-        os.killpg(dask.procs[0].pid, signal.SIGSTOP)
+        os.killpg(target.pid, signal.SIGSTOP)
         out, err = proc.communicate(timeout=300)
+    finally:
+        os.killpg(target.pid, signal.SIGCONT)
+        dask.stop()
+    assert proc.returncode == 1, err
+    line, = err.strip().splitlines()
+    said = ("--scheduler: the scheduler stopped answering (no reply for " if frozen == "scheduler" else
+            "--scheduler: none of its 1 worker(s) has sent the scheduler a heartbeat for ")
+    assert said in line, line
+    if command == "simulate":
+        assert line.startswith("rbx: run.h5: ") and "rbx simulate --resume run.h5" in line, line
+        with h5py.File(tmp_path / "run.h5", "r") as f:
+            assert not f.attrs["complete"]
+
+
+@pytest.mark.long
+def test_a_scheduler_frozen_while_a_study_measures_return_paths_is_one_line_exit_1(tmp_path):
+    """`rbx sweep --scheduler` of a study measuring return paths waited without a line when the scheduler froze:
+    each point's connection asks the workers who they are, a request Dask waits for without end. It is now waited
+    for as a task is (HEARTBEAT, SILENCE: here 1 and 3 s): one line, exit 1, and the finished points are kept."""
+    dask = LocalDask(tmp_path / "dask", 1)
+    (tmp_path / "table.yaml").write_text(yaml.safe_dump(
+        {"table": {"kind": "rectangle", "width": 2.0, "height": 1.0},
+         "boundary": {"default": {"rule": "constant", "rank": 1}, "walls": {"left": {"rule": "exit"}}},
+         "ball": {"radius": 0.1, "inertia": 0.5}, "initial": {"sample": "billiard", "wall": "left"},
+         "run": {"collisions": 100, "trajectories": 10}, "output": {"record": []}}, sort_keys=False))
+    (tmp_path / "study.yaml").write_text(yaml.safe_dump(
+        {"base": "table.yaml", "vary": {"ball.inertia": [0.1, 0.2, 0.3, 0.4, 0.5, 0.6]},
+         "measure": ["return_path"], "ensemble": {"trajectories": 4000, "collisions": 10_000, "seed": 3}},
+        sort_keys=False))
+    prelude = "import rbx.cluster as _c\n_c.HEARTBEAT = 1.0\n_c.SILENCE = 3.0\n"
+    code = f"import sys\n{prelude}from rbx.cli.main import main\nsys.argv[0] = 'rbx'\nmain()\n"
+    try:
+        proc = subprocess.Popen([sys.executable, "-c", code, "sweep", "study.yaml", "-o", "study.nc", "--quiet",
+                                 "--scheduler", dask.address], cwd=tmp_path, env=ENV, stdout=subprocess.PIPE,
+                                stderr=subprocess.PIPE, text=True)
+        with dask.client() as c:           # the study's first task has reached the scheduler
+            deadline = time.monotonic() + 300
+            while c.run_on_scheduler(lambda dask_scheduler: dask_scheduler.transition_counter) == 0:
+                assert proc.poll() is None, proc.communicate()
+                assert time.monotonic() < deadline, "no task ever ran"
+                time.sleep(0.05)
+        os.killpg(dask.procs[0].pid, signal.SIGSTOP)
+        out, err = proc.communicate(timeout=120)
     finally:
         os.killpg(dask.procs[0].pid, signal.SIGCONT)
         dask.stop()
     assert proc.returncode == 1, err
     line, = err.strip().splitlines()
-    assert "--scheduler: the scheduler stopped answering (no reply for " in line, line
-    if command == "simulate":
-        assert line.startswith("rbx: run.h5: ") and "rbx simulate --resume run.h5" in line, line
-        with h5py.File(tmp_path / "run.h5", "r") as f:
-            assert not f.attrs["complete"]
+    assert "scheduler: the scheduler stopped answering (no reply for " in line, line
+
+
+@pytest.mark.long
+def test_asking_a_frozen_scheduler_who_the_workers_are_is_bounded(tmp_path, monkeypatch):
+    """Each point of a study connects again (`connect(client)`), which asks the workers who they are, and a run
+    asks how many threads they have: requests that Dask waits for without end, which held `rbx sweep --scheduler`
+    silent when the scheduler froze between two points. They are waited for as a task is now."""
+    import rbx.cluster as cluster
+    monkeypatch.setattr(cluster, "HEARTBEAT", 1.0)
+    monkeypatch.setattr(cluster, "SILENCE", 3.0)
+    dask = LocalDask(tmp_path / "dask", 1)
+    try:
+        with dask.client() as client:
+            on = cluster.connect(client)           # answered: the scheduler runs
+            assert on.threads() == 1
+            os.killpg(dask.procs[0].pid, signal.SIGSTOP)
+            began = time.monotonic()
+            with pytest.raises(cluster.ClusterError, match="the scheduler stopped answering"):
+                on.check_workers()
+            with pytest.raises(cluster.ClusterError, match="the scheduler stopped answering"):
+                on.threads()
+            assert time.monotonic() - began < 60
+            os.killpg(dask.procs[0].pid, signal.SIGCONT)
+    finally:
+        os.killpg(dask.procs[0].pid, signal.SIGCONT)
+        dask.stop()
 
 
 # ---- errors ---------------------------------------------------------------------------------------------------
