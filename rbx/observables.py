@@ -96,6 +96,10 @@ class Observable:
     symbol: str = ""                # its symbol ("λ₁"), beside the words on an axis
     #: where a point has no value (NaN) though it ran: why, for a study's figure ("" where it always has one)
     missing: str = ""
+    #: where a results file's own numbers say a point has a value: ``(where, said)``, ``where(get)`` -> True where
+    #: the point must have one (``get(suffix)``: the companion's values); ``said``: what the file then says. A NaN
+    #: there (a hand edit) is refused when a study is resumed or drawn
+    has_value: tuple = ()
 
     @property
     def simulate(self):
@@ -500,6 +504,7 @@ register(Observable(
     "mean of the others is biased low)", _return_path, final=True, exit=True,
     problem=_on_exit_wall, label="mean return path in (x, R√κθ)", symbol="⟨ℓ⟩",
     missing="no value where some trajectory had not returned by the end of the run (raise collisions)",
+    has_value=(lambda get: get("unreturned") == 0, "every trajectory returned"),
     companions=(Companion("kac", "L", "Kac/Santaló: C_d·|table|/|hole| (4A/ℓ for a disc)", reference=True, least=0.0,
                           label="Kac's lemma: C·|table| / |hole| (every state returns)"),
                 Companion("ratio", "1", "mean return path / Kac's value",
@@ -583,6 +588,7 @@ register(Observable(
     "slow returns missing, the test would test the truncation)", _return_angle_ks, returns=True, problem=_on_a_wall,
     label="KS p-value of the return angles", symbol="p",
     missing="no p-value where some sample had not returned by the end of the run (raise collisions)",
+    has_value=(lambda get: get("returned") == 1, "every sample returned"),
     companions=(Companion("statistic", "1", "the KS statistic", label="KS statistic of the return angles"),
                 Companion("returned", "1", "share of the samples that returned within the run",
                           label="share returned within the run")),

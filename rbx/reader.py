@@ -233,12 +233,21 @@ def check_layout(f, path):
         raise FileError(path, "config", f"the root attribute holds {len(config) / 2**20:.3g} MiB of text, more than "
                                         f"the {MAX_CONFIG_BYTES >> 20} MiB a config may have (a damaged or crafted "
                                         "file)")
+    requested = f.attrs.get("collisions_requested")
     try:
-        wanted = int((yaml.safe_load(_text(f.attrs["config"])) or {}).get("run", {}).get("trajectories", T))
+        run = (yaml.safe_load(_text(f.attrs["config"])) or {}).get("run", {})
+        wanted = int(run.get("trajectories", T))
+        length = run.get("collisions", requested)
     except Exception:   # noqa: BLE001 - an unreadable config is said by the reader, with its own key
-        wanted = T
+        wanted, length = T, requested
     if T != wanted:
         fail("count", f"has {T} trajectories, the stored config {wanted}")
+    # the run's length as asked, which a resume never changes: the stored config's run.collisions (an edited value
+    # was kept, and shown as the run's)
+    if requested is not None and not (np.ndim(requested) == 0 and np.asarray(requested).dtype.kind in "iu"
+                                      and requested == length):
+        raise FileError(path, "collisions_requested", f"is {_attr(requested)!r}, where the stored config's "
+                                                      f"run.collisions is {length!r} (a damaged or crafted file)")
     for name in RECORD_FIELDS:
         if name not in g:
             continue

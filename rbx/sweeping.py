@@ -719,6 +719,23 @@ def value_problem(ds, measured, label=lambda index: str(tuple(int(i) for i in in
         if bad.any():
             return name, f"{what} at {int(bad.sum())} of the points marked done (the first: " \
                          f"{label(np.argwhere(bad)[0])})"
+    for name in measured:
+        # a NaN where the file's own numbers say the point has a value (a value removed by hand) was kept by a
+        # resume, with a warning that named a cause the file contradicts
+        rec = obs.REGISTRY.get(name)
+        if rec is None or not rec.has_value or name not in ds:
+            continue
+        where, said = rec.has_value
+        try:
+            expected = finished & np.all(where(lambda suffix: values(f"{name}_{suffix}")), axis=-1)
+        except KeyError:        # a companion not in the file: nothing says
+            continue
+        for v in (name, f"{name}_stderr") if not rec.error.startswith("none") else (name,):
+            if v in ds:
+                bad = expected & np.any(np.isnan(values(v)), axis=-1)
+                if bad.any():
+                    return v, f"is NaN at {int(bad.sum())} of the points marked done where the file says " \
+                              f"{said} (the first: {label(np.argwhere(bad)[0])})"
     orders = [(f"{n}_low", n) for n in measured if f"{n}_low" in ds] + \
              [(n, f"{n}_high") for n in measured if f"{n}_high" in ds]
     if "lyapunov_regular" in ds and "lyapunov_orbits" in ds:

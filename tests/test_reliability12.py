@@ -1,0 +1,105 @@
+"""A twenty-second round: values edited by hand into files rbx wrote and kept as if rbx had written them (a return
+path removed from a finished point of a study, a run's requested length changed). Each is refused now, in one line
+naming the variable; each test was seen to fail on the code before it."""
+import math
+import os
+import shutil
+
+import h5py
+import numpy as np
+import pytest
+import yaml
+
+import rbx
+from tests.test_reliability8 import cli
+from tests.test_reliability9 import INTERRUPT
+from tests.test_reliability10 import _config
+
+RETURNS = {"table": {"kind": "rectangle", "width": 2.0, "height": 1.0},
+           "boundary": {"default": {"rule": "constant", "rank": 1}, "walls": {"left": {"rule": "exit"}}},
+           "ball": {"radius": 0.1, "inertia": 0.5}, "initial": {"sample": "billiard", "wall": "left"},
+           "run": {"collisions": 100, "trajectories": 10}, "output": {"record": []}}
+
+
+def _return_study(folder, collisions, measure="return_path"):
+    """A study of the rough rectangle's returns to its left wall (a hole for the return path; a wall for the return
+    angles) at two inertias -> (study file, results file)."""
+    table = dict(RETURNS) if measure == "return_path" else {**RETURNS, "boundary": {"default": RETURNS["boundary"][
+        "default"]}}
+    (folder / "table.yaml").write_text(yaml.safe_dump(table, sort_keys=False))
+    (folder / "study.yaml").write_text(yaml.safe_dump(
+        {"base": "table.yaml", "vary": {"ball.inertia": [0.2, 0.5]}, "measure": [measure],
+         "ensemble": {"trajectories": 200, "collisions": collisions, "seed": 3}}, sort_keys=False))
+    rbx.sweep(str(folder / "study.yaml"), str(folder / "r.nc"))
+    return folder / "study.yaml", folder / "r.nc"
+
+
+@pytest.mark.parametrize("variable", ["return_path", "return_path_stderr", "return_angle_ks"])
+def test_a_return_value_removed_by_hand_where_every_orbit_returned_is_refused(tmp_path, variable):
+    """A NaN written into a finished point's `return_path` (or its error) was kept by `rbx sweep --resume` and
+    drawn as a point without a value, with a warning that blamed orbits that had not returned, where the file
+    itself said every one had (`return_path_unreturned` 0). The figure and the resume refuse it now."""
+    from rbx.cli.common import UserError
+    from rbx.cli.sweep import open_results
+    study, good = _return_study(tmp_path, 20_000, variable.removesuffix("_stderr"))
+    with h5py.File(good, "r") as f:
+        if variable == "return_angle_ks":
+            assert f["return_angle_ks_returned"][()].tolist() == [1.0, 1.0]
+        else:
+            assert f["return_path_unreturned"][()].tolist() == [0.0, 0.0]
+    open_results(str(good))                          # as written: read
+    with h5py.File(good, "r+") as f:
+        a = f[variable][()]
+        a[1] = math.nan
+        f[variable][...] = a
+    said = "every sample returned" if variable == "return_angle_ks" else "every trajectory returned"
+    words = f"{variable}: is NaN at 1 of the points marked done where the file says {said} (the first: " \
+            "ball.inertia = 0.5)"
+    with pytest.raises(UserError) as info:
+        open_results(str(good))
+    assert words in str(info.value)
+    res = cli("", "plot", "r.nc", "--kind", "sweep", "-o", "f.png", cwd=tmp_path)
+    assert res.returncode == 2 and res.stderr.count("\n") == 1 and words in res.stderr, res.stderr
+    assert not (tmp_path / "f.png").exists()
+    with h5py.File(good, "r+") as f:                 # a point still to run: the study resumes the file
+        f.attrs["complete"] = 0
+        d = f["done"][()]
+        d[0] = 0
+        f["done"][...] = d
+    os.replace(good, tmp_path / "r.nc.partial")
+    res = cli("", "sweep", "study.yaml", "-o", "r.nc", "--resume", "--quiet", cwd=tmp_path)
+    assert res.returncode == 2 and res.stderr.count("\n") == 1 and words in res.stderr, res.stderr
+
+
+def test_a_return_path_without_a_value_where_orbits_had_not_returned_is_read(tmp_path):
+    """The legitimate NaN: a run too short for every orbit to return has no return path, and says why."""
+    from rbx.cli.sweep import open_results
+    _, path = _return_study(tmp_path, 2)
+    ds = open_results(str(path))
+    assert np.all(np.isnan(ds["return_path"].values)) and np.all(ds["return_path_unreturned"].values > 0)
+
+
+@pytest.mark.parametrize("value", [10**12, -1, 2.5])
+def test_a_requested_length_edited_by_hand_is_refused(tmp_path, value):
+    """A run file's `collisions_requested` was never checked: edited, it was shown as the run's, and a resume left
+    it as it was. It is the stored config's `run.collisions` (a resume never changes it): a file where it is not is
+    refused by the reader, the plots and the resume in one line."""
+    conf = _config(tmp_path)
+    res = cli(INTERRUPT, "simulate", str(conf), "-o", "s.h5", "--quiet", cwd=tmp_path)
+    assert res.returncode == 130, res.stderr
+    shutil.copy(tmp_path / "s.h5", tmp_path / "kept.h5")
+    rbx.open(str(tmp_path / "s.h5"))                 # as written: read
+    with h5py.File(tmp_path / "s.h5", "r+") as f:
+        requested = int(f.attrs["collisions_requested"])
+        f.attrs["collisions_requested"] = value
+    assert requested != value
+    words = f"s.h5: collisions_requested: is {value!r}, where the stored config's run.collisions is {requested}"
+    with pytest.raises(rbx.FileError, match="collisions_requested: is "):
+        rbx.open(str(tmp_path / "s.h5"))
+    for args in (("plot", "s.h5", "--kind", "orbit", "-o", "o.png"), ("simulate", "--resume", "s.h5", "--quiet")):
+        res = cli("", *args, cwd=tmp_path)
+        assert res.returncode == 2 and res.stderr.count("\n") == 1 and words in res.stderr, (args, res.stderr)
+    res = cli("", "simulate", "--resume", "kept.h5", "--quiet", cwd=tmp_path)     # the file as rbx wrote it
+    assert res.returncode == 0, res.stderr
+    with h5py.File(tmp_path / "kept.h5", "r") as f:
+        assert f.attrs["complete"] and int(f.attrs["collisions_requested"]) == requested
