@@ -34,6 +34,7 @@ def _return_study(folder, collisions, measure="return_path"):
     return folder / "study.yaml", folder / "r.nc"
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("variable", ["return_path", "return_path_stderr", "return_angle_ks"])
 def test_a_return_value_removed_by_hand_where_every_orbit_returned_is_refused(tmp_path, variable):
     """A NaN written into a finished point's `return_path` (or its error) was kept by `rbx sweep --resume` and
@@ -71,6 +72,7 @@ def test_a_return_value_removed_by_hand_where_every_orbit_returned_is_refused(tm
     assert res.returncode == 2 and res.stderr.count("\n") == 1 and words in res.stderr, res.stderr
 
 
+@pytest.mark.long
 def test_a_return_path_without_a_value_where_orbits_had_not_returned_is_read(tmp_path):
     """The legitimate NaN: a run too short for every orbit to return has no return path, and says why."""
     from rbx.cli.sweep import open_results
@@ -79,6 +81,7 @@ def test_a_return_path_without_a_value_where_orbits_had_not_returned_is_read(tmp
     assert np.all(np.isnan(ds["return_path"].values)) and np.all(ds["return_path_unreturned"].values > 0)
 
 
+@pytest.mark.long
 @pytest.mark.parametrize("value", [10**12, -1, 2.5])
 def test_a_requested_length_edited_by_hand_is_refused(tmp_path, value):
     """A run file's `collisions_requested` was never checked: edited, it was shown as the run's, and a resume left
