@@ -23,7 +23,7 @@ import yaml
 import rbx
 from catalog import scene
 from rbx.model import FIELD
-from rbx.runfile import PROVENANCE_ATTRS, SCALES
+from rbx.runfile import PROVENANCE_ATTRS, SCALES, STATE_GROUPS
 from tests.test_interrupt import without_path
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -80,9 +80,12 @@ def read_file(path):
 
 
 def comparable(content):
-    """What two files of one run share: all but their provenance (when, where, by which command each was written)
-    and their config's output.path (each file names itself there)."""
+    """What two files of one run share: all but their provenance (when, where, by which command each was written),
+    their config's output.path (each file names itself there) and the saved state's ``sequence`` (how many
+    checkpoints were taken: one per CHECKPOINT_SECONDS of running, so a loaded machine takes more)."""
     content["attrs"] = {k: v for k, v in content["attrs"].items() if k not in PROVENANCE_ATTRS}
+    for group in STATE_GROUPS:
+        content.get(f"{group}@attrs", {}).pop("sequence", None)
     content["attrs"]["config"] = without_path(content["attrs"]["config"])
     return content
 
