@@ -240,6 +240,12 @@ def connect(scheduler, key="--scheduler", slices=None, task_collisions=None):
     cluster = Cluster(client, own, key=key, slices=slices, task_collisions=task_collisions)
     try:
         cluster.check_workers()
+    except SchedulerUnreachable:
+        cluster.close()
+        raise
+    except ClusterError as exc:     # it stopped answering, or its workers did, while asked: it cannot be used
+        cluster.close()
+        raise SchedulerUnreachable(key, exc.problem) from None
     except BaseException:
         cluster.close()
         raise
@@ -446,7 +452,8 @@ class Cluster:
         """``call()`` (a request to the scheduler, which Dask would wait for without end) on a thread of its own,
         waited for as a task is (:meth:`_watch`): its result, its exception, or :class:`ClusterError` once the
         scheduler has not answered for :data:`SILENCE` seconds (the thread is left to its wait; it holds nothing of
-        the run's)."""
+        the run's). Asking the workers who they are waits for each of them: a frozen one is noticed as in a run,
+        by its heartbeats."""
         outcome = []
 
         def run():
@@ -464,7 +471,7 @@ class Cluster:
                 if ok:
                     return value
                 raise value
-            self._watch(workers=False)
+            self._watch()
 
     def _watch(self, workers=True):
         """Called while waiting for a task: every :data:`HEARTBEAT` seconds without news, ask the scheduler who it

@@ -24,7 +24,6 @@ import numpy as np
 from . import __version__, runfile
 from .locks import acquire_lock, release_lock
 from .model import ConfigError
-from .paths import shortened
 from .runfile import STATE_GROUPS, latest_state
 from .simulation import Simulation
 
@@ -163,17 +162,11 @@ FIT_TOLERANCE = 1e-9
 
 
 def _check_state_fits(run, cfg, state, slot, damaged):
-    """The saved state must be a state of the stored config before the run goes on: the root attributes written
-    with the run (radius, κ, table kind, walls) equal to the config's, every running trajectory's state finite
-    and its centre inside the table shrunk by the ball's radius. A config changed in the file (the radius 0.1
-    made 0.2) had continued the old orbits outside the new table and marked the file complete."""
-    for key, stored, expected in (("radius", run.radius, cfg.ball.radius), ("kappa", run.kappa, cfg.ball.kappa),
-                                  ("table_kind", run.table_kind, cfg.table_kind),
-                                  ("wall_names", list(run.wall_names), list(cfg.wall_names))):
-        if stored != expected:
-            raise damaged(f"config: {key}", f"is {shortened(repr(expected))} but the run was made with "
-                                            f"{shortened(repr(stored))} (root attribute '{key}'): the stored config "
-                                            "was changed")
+    """The saved state must be a state of the stored config before the run goes on: every running trajectory's
+    state finite and its centre inside the table shrunk by the ball's radius (the root attributes written with the
+    run, radius, κ, table kind and walls, were checked against the config when the file was opened:
+    :attr:`rbx.reader.Run.experiment`). A config changed in the file (the radius 0.1 made 0.2) had continued the
+    old orbits outside the new table and marked the file complete."""
     alive = np.asarray(state["alive"]).astype(bool)
     for k in ("time", "position", "velocity", "angular_velocity", "orientation"):
         values = np.asarray(state[k])[alive]

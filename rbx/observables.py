@@ -96,9 +96,10 @@ class Observable:
     symbol: str = ""                # its symbol ("λ₁"), beside the words on an axis
     #: where a point has no value (NaN) though it ran: why, for a study's figure ("" where it always has one)
     missing: str = ""
-    #: where a results file's own numbers say a point has a value: ``(where, said)``, ``where(get)`` -> True where
-    #: the point must have one (``get(suffix)``: the companion's values); ``said``: what the file then says. A NaN
-    #: there (a hand edit) is refused when a study is resumed or drawn
+    #: where a results file's own numbers say a point has a value: ``(where, said, unsaid)``, ``where(get)`` ->
+    #: True where the point has one, False where it has none (``get(suffix)``: the companion's values); ``said`` and
+    #: ``unsaid``: what the file says in each case. A NaN where it says there is a value, or a number where it says
+    #: there is none (a hand edit), is refused when a study is resumed or drawn
     has_value: tuple = ()
 
     @property
@@ -504,7 +505,7 @@ register(Observable(
     "mean of the others is biased low)", _return_path, final=True, exit=True,
     problem=_on_exit_wall, label="mean return path in (x, R√κθ)", symbol="⟨ℓ⟩",
     missing="no value where some trajectory had not returned by the end of the run (raise collisions)",
-    has_value=(lambda get: get("unreturned") == 0, "every trajectory returned"),
+    has_value=(lambda get: get("unreturned") == 0, "every trajectory returned", "some trajectory had not returned"),
     companions=(Companion("kac", "L", "Kac/Santaló: C_d·|table|/|hole| (4A/ℓ for a disc)", reference=True, least=0.0,
                           label="Kac's lemma: C·|table| / |hole| (every state returns)"),
                 Companion("ratio", "1", "mean return path / Kac's value",
@@ -588,7 +589,7 @@ register(Observable(
     "slow returns missing, the test would test the truncation)", _return_angle_ks, returns=True, problem=_on_a_wall,
     label="KS p-value of the return angles", symbol="p",
     missing="no p-value where some sample had not returned by the end of the run (raise collisions)",
-    has_value=(lambda get: get("returned") == 1, "every sample returned"),
+    has_value=(lambda get: get("returned") == 1, "every sample returned", "some sample had not returned"),
     companions=(Companion("statistic", "1", "the KS statistic", label="KS statistic of the return angles"),
                 Companion("returned", "1", "share of the samples that returned within the run",
                           label="share returned within the run")),

@@ -725,17 +725,20 @@ def value_problem(ds, measured, label=lambda index: str(tuple(int(i) for i in in
         rec = obs.REGISTRY.get(name)
         if rec is None or not rec.has_value or name not in ds:
             continue
-        where, said = rec.has_value
+        where, said, unsaid = rec.has_value
         try:
-            expected = finished & np.all(where(lambda suffix: values(f"{name}_{suffix}")), axis=-1)
+            has = where(lambda suffix: values(f"{name}_{suffix}"))
         except KeyError:        # a companion not in the file: nothing says
             continue
+        expected, none = finished & np.all(has, axis=-1), finished & ~np.any(has, axis=-1)
         for v in (name, f"{name}_stderr") if not rec.error.startswith("none") else (name,):
             if v in ds:
-                bad = expected & np.any(np.isnan(values(v)), axis=-1)
-                if bad.any():
-                    return v, f"is NaN at {int(bad.sum())} of the points marked done where the file says " \
-                              f"{said} (the first: {label(np.argwhere(bad)[0])})"
+                nan = np.isnan(values(v))
+                for bad, what, says in ((expected & np.any(nan, axis=-1), "NaN", said),
+                                        (none & ~np.all(nan, axis=-1), "a number", unsaid)):
+                    if bad.any():
+                        return v, f"is {what} at {int(bad.sum())} of the points marked done where the file says " \
+                                  f"{says} (the first: {label(np.argwhere(bad)[0])})"
     orders = [(f"{n}_low", n) for n in measured if f"{n}_low" in ds] + \
              [(n, f"{n}_high") for n in measured if f"{n}_high" in ds]
     if "lyapunov_regular" in ds and "lyapunov_orbits" in ds:

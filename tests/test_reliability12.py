@@ -106,3 +106,78 @@ def test_a_requested_length_edited_by_hand_is_refused(tmp_path, value):
     assert res.returncode == 0, res.stderr
     with h5py.File(tmp_path / "kept.h5", "r") as f:
         assert f.attrs["complete"] and int(f.attrs["collisions_requested"]) == requested
+
+
+@pytest.mark.long
+@pytest.mark.parametrize("key,value", [("kappa", 9.0), ("radius", 0.3), ("table_kind", "stadium")])
+def test_an_attribute_written_with_the_run_that_its_config_contradicts_is_refused(tmp_path, key, value):
+    """`kappa` set to 9 in a run file whose stored config gives 0.5: `rbx plot --kind birkhoff` coloured the spin
+    share with κ = 9 under a title saying κ = 0.5 (exit 0), and `rbx.open` returned 9. The reader checks the
+    radius, κ and table kind written with the run against its stored config, as the resume did."""
+    conf = _config(tmp_path)
+    res = cli("", "simulate", str(conf), "-o", "s.h5", "--quiet", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    with h5py.File(tmp_path / "s.h5", "r+") as f:
+        f.attrs[key] = value
+    with pytest.raises(rbx.FileError, match=f"config: {key}: is .* but the run was made with {value!r}"):
+        rbx.open(str(tmp_path / "s.h5"))
+    res = cli("", "plot", "s.h5", "--kind", "birkhoff", "-o", "b.png", cwd=tmp_path)
+    assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
+    assert f"s.h5: config: {key}: is " in res.stderr and not (tmp_path / "b.png").exists(), res.stderr
+
+
+@pytest.fixture(scope="module")
+def returns_file(tmp_path_factory):
+    """A return-angle file as `rbx histogram --data` writes it."""
+    folder = tmp_path_factory.mktemp("returns")
+    conf = _config(folder)
+    res = cli("", "histogram", str(conf), "-o", "h.png", "--data", "h.h5", "--quiet", cwd=folder)
+    assert res.returncode == 0, res.stderr
+    return folder / "h.h5"
+
+
+@pytest.mark.long
+@pytest.mark.parametrize("where,value,words", [
+    ("returns@samples", 10**6, "returns@samples: is 1000000, not returned + not_returned"),
+    ("returns@velocity_dimension", 2, "returns@velocity_dimension: is 2; in 2D it is 3"),
+    ("returns@wall", "top", "returns@wall: is 'top', where the stored config samples on "),
+    ("returns/angle", 3.0, "returns/angle: holds angles outside [0, π/2]"),
+    ("returns/collisions", 10**9, "returns/collisions: holds counts outside 1 … "),
+    ("@kappa", 0.9, "config: kappa: is 0.5 but the run was made with 0.9")])
+def test_a_return_angle_file_whose_numbers_contradict_each_other_is_refused(returns_file, tmp_path, where, value,
+                                                                            words):
+    """Return-angle files edited by hand were read whole: 5000 samples of which 2000 had angles passed the figure's
+    'every sample returned', angles of 3 rad were drawn, and a velocity dimension of 2 failed the KS test against
+    the wrong law. Each number is now checked against the others and the stored config when the file is read."""
+    from rbx.reader import read_returns
+    read_returns(returns_file)                      # as written: read
+    bad = tmp_path / "bad.h5"
+    shutil.copy(returns_file, bad)
+    group, _, name = where.rpartition("@") if "@" in where else (where.rpartition("/")[0], "", where)
+    with h5py.File(bad, "r+") as f:
+        if "@" in where:
+            (f[group] if group else f).attrs[name] = value
+        else:
+            a = f[where][()]
+            a[0] = value
+            f[where][...] = a
+    with pytest.raises(rbx.FileError) as info:
+        read_returns(bad)
+    assert words in str(info.value), str(info.value)
+
+
+@pytest.mark.long
+def test_a_return_path_where_the_file_says_orbits_had_not_returned_is_refused(tmp_path):
+    """The converse hand edit: `return_path_unreturned` set to 0.5 at a point with a value (every orbit had
+    returned) was kept by the resume and drawn."""
+    from rbx.cli.common import UserError
+    from rbx.cli.sweep import open_results
+    _, path = _return_study(tmp_path, 20_000)
+    with h5py.File(path, "r+") as f:
+        a = f["return_path_unreturned"][()]
+        a[1] = 0.5
+        f["return_path_unreturned"][...] = a
+    with pytest.raises(UserError) as info:
+        open_results(str(path))
+    assert "return_path: is a number at 1 of the points marked done where the file says some trajectory had not " \
+           "returned (the first: ball.inertia = 0.5)" in str(info.value)

@@ -131,6 +131,7 @@ def test_a_resume_keeps_the_size_limit(tmp_path):
         cfg = yaml.safe_load(f.attrs["config"])
         cfg["run"]["collisions"] = 10**12
         f.attrs["config"] = yaml.safe_dump(cfg, sort_keys=False)
+        f.attrs["collisions_requested"] = 10**12        # written with the config: the file stays self-consistent
     res = rbx_cli("simulate", "--resume", "run.h5.partial", cwd=tmp_path, timeout=300)
     assert res.returncode == 2, res.stderr
     line = one_line(res)
