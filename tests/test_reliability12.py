@@ -2,7 +2,6 @@
 path removed from a finished point of a study, a run's requested length changed). Each is refused now, in one line
 naming the variable; each test was seen to fail on the code before it."""
 import math
-import os
 import shutil
 
 import h5py
@@ -14,6 +13,7 @@ import rbx
 from tests.test_reliability8 import cli
 from tests.test_reliability9 import INTERRUPT
 from tests.test_reliability10 import _config
+from tests.test_sweep import as_unfinished
 
 RETURNS = {"table": {"kind": "rectangle", "width": 2.0, "height": 1.0},
            "boundary": {"default": {"rule": "constant", "rank": 1}, "walls": {"left": {"rule": "exit"}}},
@@ -62,12 +62,7 @@ def test_a_return_value_removed_by_hand_where_every_orbit_returned_is_refused(tm
     res = cli("", "plot", "r.nc", "--kind", "sweep", "-o", "f.png", cwd=tmp_path)
     assert res.returncode == 2 and res.stderr.count("\n") == 1 and words in res.stderr, res.stderr
     assert not (tmp_path / "f.png").exists()
-    with h5py.File(good, "r+") as f:                 # a point still to run: the study resumes the file
-        f.attrs["complete"] = 0
-        d = f["done"][()]
-        d[0] = 0
-        f["done"][...] = d
-    os.replace(good, tmp_path / "r.nc.partial")
+    as_unfinished(good, tmp_path / "r.nc.partial")
     res = cli("", "sweep", "study.yaml", "-o", "r.nc", "--resume", "--quiet", cwd=tmp_path)
     assert res.returncode == 2 and res.stderr.count("\n") == 1 and words in res.stderr, res.stderr
 

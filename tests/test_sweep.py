@@ -1309,6 +1309,18 @@ def lyapunov_results(tmp_path_factory):
     return folder, folder / "s.yaml", folder / "r.nc"
 
 
+def as_unfinished(results, partial):
+    """Make the study results file ``results`` one with its first point still to run, at ``partial`` (what a
+    resume continues)."""
+    import h5py
+    with h5py.File(results, "r+") as f:
+        f.attrs["complete"] = 0
+        d = f["done"][()]
+        d[0] = 0
+        f["done"][...] = d
+    os.replace(results, partial)
+
+
 @pytest.mark.parametrize("variable,value,words", [
     ("regular_share", 5.0, "regular_share: is not a share (a number in [0, 1])"),
     ("regular_share_low", 0.99, "regular_share_low: is above regular_share"),
@@ -1344,12 +1356,7 @@ def test_impossible_numbers_in_a_results_file_are_refused_by_resume_and_plot(lya
     with pytest.raises(UserError) as info:
         open_results(str(bad))
     assert f"{words} at 1 of the points marked done (the first: ball.inertia = 0.5)" in str(info.value)
-    with h5py.File(bad, "r+") as f:                 # a point still to run: the study resumes the file
-        f.attrs["complete"] = 0
-        d = f["done"][()]
-        d[0] = 0
-        f["done"][...] = d
-    os.replace(bad, tmp_path / "r2.nc.partial")
+    as_unfinished(bad, tmp_path / "r2.nc.partial")
     with pytest.raises(rbx.FileError, match=words.replace("[", r"\[").replace("]", r"\]").replace("(", r"\(")
                        .replace(")", r"\)")):
         sweep(str(study), str(tmp_path / "r2.nc"), resume=True)
