@@ -121,11 +121,12 @@ def test_exact_inputs_and_escapes():
                          "ball": {"radius": 0.1}, "initial": {"sample": "billiard"}})
 
 
-ZOO_STEPS = 15      # collisions per table, each checked at 30 digits (the custom tables: ~0.5 s each)
+ZOO_STEPS = 15      # collisions per table, each checked at 30 digits (the custom tables, in the long tier: ~0.6 s each)
 
 
-@pytest.mark.parametrize("name", ["stadium", "mushroom", "custom", "custom-bulb", "circle-obstacles", "lorentz-2d",
-                                  "sinai-3d", "lorentz-3d", "sphere", "cylinder"])
+@pytest.mark.parametrize("name", ["stadium", "mushroom", pytest.param("custom", marks=pytest.mark.long),
+                                  pytest.param("custom-bulb", marks=pytest.mark.long), "circle-obstacles",
+                                  "lorentz-2d", "sinai-3d", "lorentz-3d", "sphere", "cylinder"])
 def test_precise_loop_follows_the_zoo_one_collision_at_a_time(name):
     """The zoo's tables (docs/reference.md §8) in the precise loop: from each of the engine's first states, one
     collision at 30 digits lands where the engine's next record is (the orbits themselves are chaotic: compared whole,
