@@ -36,6 +36,7 @@ the orbit ``rbx simulate`` records, by construction — the same search, snappin
 bookkeeping.
 """
 import os
+import types
 import warnings
 from concurrent.futures import ThreadPoolExecutor
 from typing import NamedTuple
@@ -43,7 +44,7 @@ from typing import NamedTuple
 import numba
 import numpy as np
 
-from ._jit import compile_lock, hooks, jit_hot, jit_loop, stack_array
+from ._jit import compile_lock, hooks, jit_call, jit_hot, jit_loop, stack_array
 from .geometry import (HALFSPACE, SEGMENT, box_collision, contact_normal, normal_jacobian, periodic_flight,
                        periodic_images, slab_collision, snap)
 from .model import FIELD, FIELDS
@@ -400,7 +401,6 @@ def _make_kernel(spec):
     GENERAL = bool(spec & S_GENERAL)
     BLEND = SPIN and TREE   # a rank chosen per collision: S_BLEND can apply
 
-    @jit_loop
     def advance_all(j0, j1, stop, table, rules, settings, state, out, tangent, nrec):
         """Run each live trajectory j0 ≤ j < j1 until it has made ``stop[j]`` collisions in all -> records written
         to row j of ``out``, their number in ``nrec[j]``.
@@ -660,7 +660,35 @@ def _make_kernel(spec):
             state.last_rank[j] = rk
             nrec[j] = count
 
-    return advance_all
+    return jit_loop(_calling(advance_all) if GENERAL else advance_all)
+
+
+#: the helpers the general loop calls where a specialised loop inlines them (:func:`_calling`)
+CALLED_IN_GENERAL = ("slab_collision", "periodic_flight", "box_collision", "rotate", "contact_normal", "snap",
+                     "choose", "normal_jacobian", "energy_factor", "speed_factor", "collide_axis", "collide",
+                     "scale_state", "write_record")
+_TWINS = {}
+
+
+def _calling(loop):
+    """``loop`` (the Python function of the general loop) with each helper of :data:`CALLED_IN_GENERAL` called, not
+    inlined: a function of the same code whose globals name, for each of them, a twin compiled on its own
+    (:data:`rbx._jit.jit_call`, no runtime, on disk too).
+
+    Why: Numba inlines a ``jit_hot`` helper into its caller's intermediate code at each call site, and the general
+    loop, which keeps every branch, holds a dozen of them, some several times (the collision map once per axis):
+    its compile grew with that code in Numba's own passes, not LLVM's: 50 s in 2D, 62 s in 3D (measured side by side
+    on a cold cache), 28 s and 32 s with them called. Called, each helper is compiled once. The arithmetic is the same: the same operations in the same order, without fast-math (LLVM
+    may still inline a twin, which changes no result); tests/test_kernels.py compares the general loop with the
+    specialised ones bit for bit. The specialised loops keep the helpers inlined: there a constant argument (the
+    axis, the dimension) prunes their branches before Numba types them, and the call would cost per collision."""
+    names = dict(loop.__globals__)
+    for name in CALLED_IN_GENERAL:
+        helper = names[name]
+        if helper not in _TWINS:
+            _TWINS[helper] = jit_call(helper.py_func)
+        names[name] = _TWINS[helper]
+    return types.FunctionType(loop.__code__, names, loop.__name__, loop.__defaults__, loop.__closure__)
 
 
 

@@ -10,7 +10,7 @@ os.environ.setdefault("RBX_KERNELS", "general")
 
 def pytest_sessionstart(session):
     """On a cold kernel cache, each of two test workers compiles one of the two general loops before its first test
-    (gw0 the 2D one, gw1 the 3D one, 40-55 s each), both cores at once: the tests' order had the second worker wait
+    (gw0 the 2D one, gw1 the 3D one, 30 s each), both cores at once: the tests' order had the second worker wait
     idle on the compile lock (rbx._jit.compile_lock) for the loop the first was compiling. With a warm cache this
     loads the two loops in under a second; a run without workers compiles each loop when a test first needs it."""
     worker = os.environ.get("PYTEST_XDIST_WORKER", "")
