@@ -1013,9 +1013,7 @@ def section_hand(args, rates):
             t0 = time.perf_counter()
             fn(N)
             return time.perf_counter() - t0, N
-        runs = [rbx_run(scene_dict(scene, r)), hand]
-        if r != "specular":
-            runs.append(rbx_run(scene_dict(scene, r), renormalize=0))
+        runs = [rbx_run(scene_dict(scene, r)), hand, rbx_run(scene_dict(scene, r), renormalize=0)]
         if (scene, r) in HAND_KEEPING_A:
             def keeping_a(N, fn=HAND_KEEPING_A[scene, r]):
                 t0 = time.perf_counter()
@@ -1023,7 +1021,7 @@ def section_hand(args, rates):
                 return time.perf_counter() - t0, N
             runs.append(keeping_a)
         got = interleaved(runs, args)
-        dflt, h, off = got[0], got[1], (got[2] if r != "specular" else None)
+        dflt, h, off = got[0], got[1], got[2]
         res[scene, r] = (dflt, off, h, got[-1] if (scene, r) in HAND_KEEPING_A else None)
         log(f"hand     {scene:10s} {r:10s} hand {h.rate:10.3e}/s  rbx / hand {dflt.rate / h.rate:.2f}")
     return res
@@ -1468,8 +1466,9 @@ def write_document(args, cmd, results, wall):
           "reads: a hemisphere loop the sign of cos θ (from ⌊θ/π + ½⌋, 2D) or the body axis A·e_z (3D, not the "
           "whole matrix A); a random loop draws from rbx's own stream (`rbx.rng`, the trajectory's key), the 2D "
           "choice read off the draw's top bit. `rbx` is the default engine (energy projected back "
-          f"every {RENORMALIZE_EVERY} collisions in rough scenes); `rbx, renormalize 0` turns that off, which "
-          "is the like-for-like comparison. The three are timed in turn, run by run (median of "
+          f"every {RENORMALIZE_EVERY} collisions; in a specular scene the speed alone, which a reflection off a "
+          "flat wall of normal ±e_i keeps exactly); `rbx, renormalize 0` turns that off: the like-for-like "
+          "comparison, and the hand loop's orbit. The three are timed in turn, run by run (median of "
           f"{args.repeats} each), so that a change of load on the machine hits them alike.", ""]
     rows = []
     for (s, r), (dflt, off, h, _) in hand.items():
@@ -1809,21 +1808,29 @@ def tangent_rows(args, tables=("sinai", "lorentz", "box", "sinai3d")):
     return rows
 
 
-def yardstick_rows(args):
-    """The specular Sinai table from one start: rbx's tangent loop (the whole spectrum, 6 vectors, and λ₁ alone)
-    against :func:`sinai_tangent_loop` (the 4 × 4 reduced map, QR after every collision), CPU time, interleaved,
-    median; the same orbit, and λ₁ checked equal -> (hand s, rbx whole s, rbx K=1 s, λ₁ hand, λ₁ rbx)."""
-    from rbx.dynamics import _Tangent
-    N = 2_000 if args.quick else 100_000
+def yardstick():
+    """The specular Sinai table from one start, as rbx's experiment and as :func:`sinai_tangent_loop` -> (experiment,
+    hand(N) -> (sum of the first vector's log-stretches, time)). The same orbit (tests/test_bench_smoke.py)."""
     v = np.array([0.83, 0.31]) / np.hypot(0.83, 0.31)
     d = {"table": {"kind": "sinai", "size": [2.0, 1.5], "radius": 0.4},
          "boundary": {"default": {"rule": "constant", "rank": 0}}, "ball": {"radius": R, "inertia": KAPPA},
          "initial": {"position": [0.3, 0.3], "velocity": [float(v[0]), float(v[1])]},
-         "run": {"collisions": 10 ** 12, "trajectories": 1, "seed": 1}, "output": {"record": []}}
-    exp = config.from_dict(d, "<bench>")
+         "run": {"collisions": 10 ** 12, "trajectories": 1, "seed": 1}, "output": {"record": []},
+         "numerics": {"renormalize": 0}}      # the hand loop's orbit: no speed put back every 16 collisions
+    return (config.from_dict(d, "<bench>"),
+            lambda n: sinai_tangent_loop(0.3, 0.3, v[0], v[1], 2.0, 1.5, 1.0, 0.75, 0.4 + R, n))
+
+
+def yardstick_rows(args):
+    """:func:`yardstick`: rbx's tangent loop (the whole spectrum, 6 vectors, and λ₁ alone) against the hand loop
+    (the 4 × 4 reduced map, QR after every collision), CPU time, interleaved, median; λ₁ of both on the same orbit
+    -> (hand s, rbx whole s, rbx K=1 s, λ₁ hand, λ₁ rbx)."""
+    from rbx.dynamics import _Tangent
+    N = 2_000 if args.quick else 100_000
+    exp, loop = yardstick()
 
     def hand():
-        return lambda n: sinai_tangent_loop(0.3, 0.3, v[0], v[1], 2.0, 1.5, 1.0, 0.75, 0.4 + R, n)
+        return loop
 
     def rbx(K):
         return lambda: _Tangent(exp, vectors=K).advance
@@ -1834,7 +1841,7 @@ def yardstick_rows(args):
     for _ in range(max(3, args.repeats)):
         for k, make in enumerate(runs):
             times[k].append(_cpu_per(make(), N))
-    ls, T = sinai_tangent_loop(0.3, 0.3, v[0], v[1], 2.0, 1.5, 1.0, 0.75, 0.4 + R, N)
+    ls, T = loop(N)
     tan = _Tangent(exp)
     tan.advance(N, ortho=1)
     lam = tan.sums[0, 0] / tan.state.time[0]

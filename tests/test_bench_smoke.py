@@ -200,3 +200,17 @@ def test_a_section_run_again_replaces_its_table_in_the_document(tmp_path):
     assert text.count("## Studies and explicit states") == 1 and "\nnew\n" in text and "\nold\n" not in text
     assert "## 1. Collisions per second\n\n| a |" in text and "old tangent" in text
     assert text.index("old tangent") < text.index("\nnew\n")      # the section moved to the end
+
+
+def test_the_tangent_yardstick_follows_rbxs_orbit():
+    # the bench's hand-written tangent loop and rbx's, on the same orbit: λ₁ after every collision's QR agrees
+    # (rbx's default puts the speed back every 16 collisions of a specular table: the yardstick turns that off)
+    from rbx.dynamics import _Tangent
+    exp, hand = bench.yardstick()
+    N = 400
+    ls, T = hand(N)
+    tan = _Tangent(exp)
+    tan.advance(N, ortho=1)
+    assert tan.state.time[0] == pytest.approx(T, rel=1e-12)
+    assert tan.sums[0, 0] / tan.state.time[0] == pytest.approx(ls / T, rel=1e-9)
+    assert ls / T > 0.5                     # a chaotic table: the exponent is not a trivial zero
