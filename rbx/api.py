@@ -10,7 +10,7 @@ and the CLI write the same file bit for bit.
     >>> run = rbx.simulate(exp, output="strip.h5")        # streamed to HDF5 (OUT.h5.partial, renamed at the end)
     >>> run = rbx.open("strip.h5")                        # the same rbx.Run, read back
 
-The running part also lives here because the CLI shares it: :class:`StopFlag` (SIGINT/SIGTERM stop a run between
+The running part also lives here because the CLI shares it: :class:`StopFlag` (SIGINT/SIGTERM/SIGHUP stop a run between
 blocks, so the file is checkpointed and closed cleanly), :func:`run_to_file`.
 """
 import contextlib
@@ -32,7 +32,7 @@ from .driver import check_size, prepare_resume, resume_to_file
 from .model import ConfigError, Experiment
 from .progress import Progress
 from .reader import Run
-from .paths import renaming, work_written
+from .paths import after_hangup, renaming, stop_signals, work_written
 from .simulation import MemorySink, Simulation, memory_refusal, records_bytes
 
 # nothing heavy at import: the CLI takes StopFlag from here before it installs its signal handlers
@@ -316,8 +316,9 @@ def run_to_file(sim, path, *, progress=None, should_stop=None, report=None, forc
 
 
 class StopFlag:
-    """SIGINT/SIGTERM while setting up: KeyboardInterrupt at once (nothing is written yet). While running: a flag
-    that the run polls between blocks, so the file is checkpointed and closed cleanly.
+    """SIGINT, SIGTERM or SIGHUP (:func:`rbx.paths.stop_signals`) while setting up: KeyboardInterrupt at once
+    (nothing is written yet). While running: a flag that the run polls between blocks, so the file is checkpointed
+    and closed cleanly.
 
     A second signal while running does not abort harder: the kernels hand back control only between blocks
     (well under a second each), and aborting in the middle of an HDF5 write could damage the file."""
@@ -345,6 +346,7 @@ class StopFlag:
         return self()
 
     def _handler(self, signum, frame):
+        after_hangup(signum)
         if work_written():          # the command's last output is in place: too late to stop it
             return
         self.signum = self.signum or signum
@@ -356,7 +358,7 @@ class StopFlag:
         if threading.current_thread() is not threading.main_thread():   # signal handlers live in the main thread
             yield
             return
-        old = {s: signal.signal(s, self._handler) for s in (signal.SIGINT, signal.SIGTERM)}
+        old = {s: signal.signal(s, self._handler) for s in stop_signals()}
         hook = sys.unraisablehook
 
         def quiet(unraisable):

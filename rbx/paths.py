@@ -13,6 +13,7 @@ import hashlib
 import os
 import secrets
 import shutil
+import signal
 import stat
 
 #: the largest config (or table, boundary) file rbx reads: a YAML config is a few kB
@@ -175,6 +176,38 @@ def forget_placed():
     """Start afresh (a command's start and end): :func:`work_written` speaks of one command's outputs."""
     PLACED.clear()
     LAST.clear()
+
+
+def stop_signals():
+    """The signals that stop a run between blocks (its file saved, resumable) and abort a command's set-up: SIGINT
+    (Ctrl-C), SIGTERM (``kill``'s default) and SIGHUP (the terminal closed, an ssh session lost), the last only
+    where it is not ignored: under ``nohup`` it stays ignored and the run goes on."""
+    names = ["SIGINT", "SIGTERM"]
+    hup = getattr(signal, "SIGHUP", None)
+    if hup is not None and signal.getsignal(hup) is not signal.SIG_IGN:
+        names.append("SIGHUP")
+    return tuple(getattr(signal, name) for name in names)
+
+
+def after_hangup(signum):
+    """Called by the handlers of :func:`stop_signals`: after SIGHUP the terminal is gone, and a line written to it
+    fails (EIO), which would end the command in a traceback before its exit code. Standard output and error that
+    are terminals (character devices) are sent to the null device from here; a file or a pipe keeps them."""
+    if signum != getattr(signal, "SIGHUP", None):
+        return
+    try:
+        null = os.open(os.devnull, os.O_WRONLY)
+        try:
+            for fd in (1, 2):
+                try:
+                    if stat.S_ISCHR(os.fstat(fd).st_mode):
+                        os.dup2(null, fd)
+                except OSError:      # closed
+                    pass
+        finally:
+            os.close(null)
+    except OSError:
+        pass
 
 
 def work_written():

@@ -35,7 +35,7 @@ from .locks import LockNotWritable, acquire_lock, release_lock
 from .model import ConfigError
 from .paths import (ANY, DiskFull, FileError, check_own_file, check_own_kind, check_own_names, check_own_objects,
                     check_replaceable, create_own, display_path, file_id, other_commands_file, place, shortened_pair,
-                    what_it_is)
+                    stop_signals, what_it_is)
 from .runfile import provenance
 from .simulation import STATE_BYTES, memory_problem, memory_refusal, records_bytes
 from .study import MAX_POINTS, Study, _representatives, load_study, needs
@@ -857,10 +857,10 @@ def kept_points(path, digest=None):
 
 
 def _write_held(ds, path):
-    """:func:`_write`, with SIGINT and SIGTERM held off meanwhile (a second Ctrl-C would cut the write short) and a
-    failure let pass: the file on disk then stays as it was (the write replaces it whole or not at all)."""
+    """:func:`_write`, with SIGINT, SIGTERM and SIGHUP held off meanwhile (a second Ctrl-C would cut the write short)
+    and a failure let pass: the file on disk then stays as it was (the write replaces it whole or not at all)."""
     main = threading.current_thread() is threading.main_thread()
-    old = {s: signal.signal(s, signal.SIG_IGN) for s in (signal.SIGINT, signal.SIGTERM)} if main else {}
+    old = {s: signal.signal(s, signal.SIG_IGN) for s in stop_signals()} if main else {}
     try:
         _write(ds, path)
     except Exception:

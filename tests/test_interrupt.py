@@ -749,3 +749,72 @@ def test_a_ctrl_c_whose_keyboardinterrupt_was_lost_still_stops_the_command(comma
     line, = done.stderr.strip().splitlines()
     assert line.startswith("rbx: interrupted by SIGINT") and "Traceback" not in done.stderr, done.stderr
     assert not list(tmp_path.glob("*.h5*")) and not (tmp_path / "h.png").exists()
+
+
+def test_the_terminal_closing_stops_a_run_and_leaves_a_file_to_resume(tmp_path):
+    """The terminal a run was started in closes (a window closed, an ssh session lost): the kernel sends SIGHUP. The
+    run stops between blocks as after Ctrl-C: its file saved (complete = false), its lock removed, exit 129. The
+    child runs in a session of its own on a pseudo-terminal (pty.fork); closing the terminal's other end hangs it
+    up, as a closed window does, and the line rbx then writes goes nowhere."""
+    import pty
+    cfg = strip_random(10**9, trajectories=2, every=1000, record=("time", "position", "wall"))
+    write_config(tmp_path, cfg)
+    out = tmp_path / "run.h5"
+    pid, fd = pty.fork()
+    if pid == 0:                                    # the child: rbx on the terminal
+        try:
+            os.chdir(tmp_path)
+            os.execv(RBX, [RBX, "simulate", "exp.yaml", "-o", "run.h5"])
+        finally:
+            os._exit(127)
+    said = b""
+    deadline = time.monotonic() + 900       # a guard against a hang, not a bound: a first compile on a busy machine
+    os.set_blocking(fd, False)
+    while not Path(f"{out}.partial").exists():
+        assert time.monotonic() < deadline, said
+        assert os.waitpid(pid, os.WNOHANG) == (0, 0), said
+        try:
+            said += os.read(fd, 65536)          # the progress bar: read, or the terminal's buffer fills
+        except (BlockingIOError, OSError):
+            time.sleep(0.01)
+    time.sleep(1.0)
+    os.close(fd)                                # the terminal goes away
+    for _ in range(6000):                       # a guard of 60 s: the run stops at its next block
+        done, status = os.waitpid(pid, os.WNOHANG)
+        if done:
+            break
+        time.sleep(0.01)
+    else:
+        os.kill(pid, signal.SIGKILL)
+        os.waitpid(pid, 0)
+        pytest.fail("the run went on after its terminal closed")
+    assert os.WIFEXITED(status), f"ended by signal {os.WTERMSIG(status)}: rbx did not handle SIGHUP"
+    assert os.WEXITSTATUS(status) == 128 + signal.SIGHUP
+    assert out.exists() and not Path(f"{out}.partial").exists()
+    assert not Path(f"{out}.lock").exists()
+    run = check_valid_partial(out, every=1000)
+    assert 0 < run["final/collisions"].min() < 10**9
+
+
+@pytest.mark.long
+def test_under_nohup_the_hangup_is_ignored_and_the_run_goes_on(tmp_path):
+    """Started with SIGHUP ignored (``nohup rbx simulate …``), rbx leaves it ignored: a hang-up stops nothing. Sent
+    SIGHUP and then SIGTERM, the run is stopped by the SIGTERM and says so (handled, the SIGHUP, the lower number,
+    would be acted on first)."""
+    cfg = strip_random(10**9, trajectories=2, every=1000, record=("time", "position", "wall"))
+    write_config(tmp_path, cfg)
+    out = tmp_path / "run.h5"
+    proc = subprocess.Popen(["nohup", RBX, "simulate", "exp.yaml", "-o", "run.h5"], cwd=tmp_path,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 900
+    while not Path(f"{out}.partial").exists():
+        assert proc.poll() is None, proc.communicate()
+        assert time.monotonic() < deadline, "the run never started writing"
+        time.sleep(0.01)
+    time.sleep(1.0)                         # past its first blocks
+    proc.send_signal(signal.SIGHUP)
+    proc.send_signal(signal.SIGTERM)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    assert "interrupted by SIGTERM" in err and "SIGHUP" not in err
+    check_valid_partial(out, every=1000)

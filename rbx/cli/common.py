@@ -131,13 +131,15 @@ _DONE = []
 
 
 def note_interrupt(signum, frame):
-    """SIGINT's and SIGTERM's handler from :func:`rbx.cli.main.main` until a command installs its own:
+    """The handler of SIGINT, SIGTERM and SIGHUP from :func:`rbx.cli.main.main` until a command installs its own:
     KeyboardInterrupt, and a note of the signal (:func:`pending_signal`, which each command's
     :class:`rbx.api.StopFlag` reads). The KeyboardInterrupt alone can be lost: raised inside a callback (a ctypes
     callback of LLVM's, a finaliser) it is printed as "Exception ignored" and dropped, and the command then ran as
     if nothing had come. Once the command said its work is written, the signal is ignored: it ended in 'interrupted
     …; nothing written' and exit 130 just after 'rbx: wrote fig.png', the figure replaced."""
     paths = sys.modules.get("rbx.paths")       # not imported here: a handler that imports can meet a half-made module
+    if paths is not None:
+        paths.after_hangup(signum)
     if _DONE or (paths is not None and paths.work_written()):
         return
     _PENDING.append(signum)
@@ -421,12 +423,13 @@ OWN_PROCESS = []
 
 def summary(quiet, message):
     """The one line a command ends with on stderr (``rbx: wrote run.h5: …``), unless ``--quiet``. Its work is
-    written: from here a signal changes nothing (:func:`note_interrupt`); in rbx's own process SIGINT and SIGTERM
-    are ignored from here on, so that one during Python's exit, after its handlers are gone, does not kill the
+    written: from here a signal changes nothing (:func:`note_interrupt`); in rbx's own process SIGINT, SIGTERM and
+    SIGHUP are ignored from here on, so that one during Python's exit, after its handlers are gone, does not kill the
     process (a finished study's command killed by SIGINT just after 'rbx: wrote …')."""
     _DONE.append(True)
     if OWN_PROCESS and threading.current_thread() is threading.main_thread():
-        for s in (signal.SIGINT, signal.SIGTERM):
+        from ..paths import stop_signals
+        for s in stop_signals():
             signal.signal(s, signal.SIG_IGN)
     if not quiet:
         from ..paths import one_line

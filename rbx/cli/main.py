@@ -9,6 +9,7 @@ import warnings
 import click
 
 from .. import __version__
+from ..paths import stop_signals
 from .common import OWN_PROCESS, Group, Interrupted, note_interrupt, pending_signal, quiet_noted_interrupts
 from .simulate import simulate
 from . import histogram, lyapunov, plot, sweep
@@ -33,8 +34,10 @@ def main():
     quiet_noted_interrupts()
     OWN_PROCESS.append(True)
     signal.signal(signal.SIGINT, note_interrupt)
-    if signal.getsignal(signal.SIGTERM) is not signal.SIG_IGN:      # SIGTERM too, until a command installs its own
-        signal.signal(signal.SIGTERM, note_interrupt)
+    # SIGTERM and SIGHUP too, until a command installs its own; one ignored by whoever started rbx (nohup) stays so
+    for s in stop_signals()[1:]:
+        if signal.getsignal(s) is not signal.SIG_IGN:
+            signal.signal(s, note_interrupt)
     try:
         os.getcwd()
     except OSError:   # deleted under us: relative paths mean nothing, and Numba's compiler needs it too

@@ -1,8 +1,8 @@
 """``rbx simulate CONFIG`` and ``rbx simulate --resume RUN.h5``: run an experiment into HDF5 (docs/reference.md
 §4–5).
 
-Two phases. *Setting up* (validate, allocate, compile the kernels: no file written yet): SIGINT/SIGTERM abort at
-once, with nothing to save. *Running*: the run writes ``OUT.h5.partial`` and SIGINT/SIGTERM only set a flag that
+Two phases. *Setting up* (validate, allocate, compile the kernels: no file written yet): SIGINT, SIGTERM and SIGHUP
+abort at once, with nothing to save. *Running*: the run writes ``OUT.h5.partial`` and these signals only set a flag that
 the run polls between blocks (each well under a second of work, and the kernels hold no GIL), so the file is
 checkpointed and closed cleanly. Either way the run ends by renaming ``OUT.h5.partial`` to ``OUT.h5``, marked
 ``complete = false`` unless it finished, and an interrupted command exits with 128 + the signal number (130,
