@@ -28,7 +28,6 @@ continues here or locally. A failed task, or a lost scheduler, raises :class:`Cl
 every checkpointed round).
 """
 import asyncio
-import contextlib
 import json
 import logging
 import os
@@ -140,6 +139,22 @@ def _address(address):
     """``host:port`` -> ``tcp://host:port`` (Dask's default protocol), other addresses as given."""
     address = str(address).strip()
     return address if "://" in address else f"tcp://{address}"
+
+
+def _in_background(call, name):
+    """``call()`` on a daemon thread of its own, started -> (the thread, a list that receives ``(True, result)`` or
+    ``(False, exception)`` when it ends). For requests to the scheduler that Dask would wait for without end: the
+    caller waits as long as it chooses, and a thread still waiting holds nothing of the run's."""
+    outcome = []
+
+    def run():
+        try:
+            outcome.append((True, call()))
+        except BaseException as exc:   # noqa: BLE001 - handed to the caller
+            outcome.append((False, exc))
+    thread = threading.Thread(target=run, daemon=True, name=name)
+    thread.start()
+    return thread, outcome
 
 
 def _probe(address, timeout):
@@ -454,16 +469,8 @@ class Cluster:
         scheduler has not answered for :data:`SILENCE` seconds (the thread is left to its wait; it holds nothing of
         the run's). Asking the workers who they are waits for each of them: a frozen one is noticed as in a run,
         by its heartbeats."""
-        outcome = []
-
-        def run():
-            try:
-                outcome.append((True, call()))
-            except BaseException as exc:   # noqa: BLE001 - handed to the caller
-                outcome.append((False, exc))
-        asking = threading.Thread(target=run, daemon=True, name="rbx-scheduler-call")
         self._heard, self._silent_since = time.monotonic(), None
-        asking.start()
+        asking, outcome = _in_background(call, "rbx-scheduler-call")
         while True:
             asking.join(POLL)
             if outcome:
@@ -485,15 +492,11 @@ class Cluster:
         if not address.startswith("tcp://"):
             self._heard = now
             return
-        answered = []
         # on a thread of its own: the probe runs an event loop, which a thread that has one running (a notebook's)
         # cannot; whatever goes wrong (no answer in time, refused, reset) is silence all the same
-        def ask():
-            with contextlib.suppress(Exception):
-                answered.append(_probe(address, CONNECT_TIMEOUT))
-        asking = threading.Thread(target=ask, daemon=True)
-        asking.start()
+        asking, outcome = _in_background(lambda: _probe(address, CONNECT_TIMEOUT), "rbx-scheduler-probe")
         asking.join(CONNECT_TIMEOUT + 1.0)
+        answered = [value for ok, value in list(outcome) if ok]
         if answered:
             self._silent_since = None
             if workers:
