@@ -96,10 +96,12 @@ class Observable:
     symbol: str = ""                # its symbol ("λ₁"), beside the words on an axis
     #: where a point has no value (NaN) though it ran: why, for a study's figure ("" where it always has one)
     missing: str = ""
-    #: where a results file's own numbers say a point has a value: ``(where, said, unsaid)``, ``where(get)`` ->
-    #: True where the point has one, False where it has none (``get(suffix)``: the companion's values); ``said`` and
-    #: ``unsaid``: what the file says in each case. A NaN where it says there is a value, or a number where it says
-    #: there is none (a hand edit), is refused when a study is resumed or drawn
+    #: where a results file's own numbers say a point has a value: ``(where, said, unsaid[, error_too])``,
+    #: ``where(get)`` -> True where the point has one, False where it has none (``get(key)``: the companion
+    #: ``<name>_<key>``'s values, else the variable ``key``'s, else the study's attribute ``key``); ``said`` and
+    #: ``unsaid``: what the file says in each case; ``error_too`` (default: it has an error): its standard error
+    #: follows the value. A NaN where it says there is a value, or a number where it says there is none (a hand
+    #: edit), is refused when a study is resumed or drawn (rbx.sweeping.value_problem)
     has_value: tuple = ()
 
     @property
@@ -315,7 +317,9 @@ register(Observable(
                           label="Lyapunov exponents", symbol="λᵢ"),
                 Companion("spectrum_stderr", "1/T", "standard errors of the spectrum", dim="exponent",
                           label="standard error of", symbol="λᵢ")),
-    coords=lambda exp: {"exponent": _exponent_coords(exp)}, missing=NOTHING_MEASURED))
+    coords=lambda exp: {"exponent": _exponent_coords(exp)}, missing=NOTHING_MEASURED,
+    # λ₁ is measured wherever one orbit was (its error needs more segments or orbits: it may be missing)
+    has_value=(lambda get: get("lyapunov_orbits") >= 1, "its orbits were measured", "no orbit was measured", False)))
 
 
 def _regular_share(runs, options):
@@ -328,7 +332,8 @@ register(Observable(
     label="share of regular orbits",
     companions=(Companion("low", "1", "Wilson interval, lower bound (z = 1)"),
                 Companion("high", "1", "Wilson interval, upper bound (z = 1)")),
-    error="half-width of the Wilson interval (z = 1)", missing=NOTHING_MEASURED))
+    error="half-width of the Wilson interval (z = 1)", missing=NOTHING_MEASURED,
+    has_value=(lambda get: get("lyapunov_orbits") >= 1, "its orbits were measured", "no orbit was measured")))
 
 
 def _diffusion(runs, options):
@@ -505,7 +510,8 @@ register(Observable(
     "mean of the others is biased low)", _return_path, final=True, exit=True,
     problem=_on_exit_wall, label="mean return path in (x, R√κθ)", symbol="⟨ℓ⟩",
     missing="no value where some trajectory had not returned by the end of the run (raise collisions)",
-    has_value=(lambda get: get("unreturned") == 0, "every trajectory returned", "some trajectory had not returned"),
+    has_value=(lambda get: (get("unreturned") == 0) & (get("ensemble_trajectories") >= 2),
+               "every trajectory returned", "some trajectory had not returned (or a point has one trajectory)"),
     companions=(Companion("kac", "L", "Kac/Santaló: C_d·|table|/|hole| (4A/ℓ for a disc)", reference=True, least=0.0,
                           label="Kac's lemma: C·|table| / |hole| (every state returns)"),
                 Companion("ratio", "1", "mean return path / Kac's value",

@@ -651,12 +651,6 @@ def _check_resumable(ds, template, path, study=None, points=()):
     if study is None:
         return
     finished = done.astype(bool)
-    for name in [n for n, _ in study.measure if n in NEVER_NAN] + ["wall_time"]:
-        values = np.asarray(ds[name].values, float)
-        bad = finished & ~np.all(np.isfinite(values.reshape(done.shape + (-1,))), axis=-1)
-        if bad.any():
-            raise FileError(path, name, f"is not a number at {int(bad.sum())} of the points marked done (the "
-                                        f"first: {_point_label(study, np.argwhere(bad)[0])}); {fix}")
     problem = value_problem(ds, [n for n, _ in study.measure], lambda i: _point_label(study, i))
     if problem is not None:
         raise FileError(path, problem[0], f"{problem[1]}; {fix}")
@@ -679,7 +673,9 @@ def value_problem(ds, measured, label=lambda index: str(tuple(int(i) for i in in
     a figure draws them (a share of 5, a negative error bar, λ₁ = inf, −2 orbits were kept, or drawn, or ended the
     figure in a traceback): every observable's value, error and companions are NaN (no value) or finite; errors are
     ≥ 0; shares and interval bounds lie in [0, 1] with low ≤ value ≤ high; collisions and orbit counts are whole
-    numbers ≥ 0, with no more regular orbits than orbits; a wall time is finite and ≥ 0; ``done`` is 0 or 1."""
+    numbers ≥ 0, with no more regular orbits than orbits; a wall time is finite and ≥ 0; ``done`` is 0 or 1; an
+    observable of :data:`NEVER_NAN` is a number; and each value is there or not as the file's own numbers say
+    (``Observable.has_value``)."""
     done = np.asarray(ds["done"].values, float)
     if not np.all((done == 0) | (done == 1)):
         bad = ~((done == 0) | (done == 1))
@@ -689,7 +685,7 @@ def value_problem(ds, measured, label=lambda index: str(tuple(int(i) for i in in
     def values(name):
         return np.asarray(ds[name].values, float).reshape(done.shape + (-1,))
 
-    checks = []
+    checks = [(name, np.isfinite, "is not a number") for name in measured if name in NEVER_NAN and name in ds]
     for name in measured:
         own = [v for v in ds.data_vars if v == name or v.startswith(f"{name}_")]
         checks += [(v, lambda x: np.isnan(x) | np.isfinite(x), "is infinite") for v in own]
@@ -725,13 +721,25 @@ def value_problem(ds, measured, label=lambda index: str(tuple(int(i) for i in in
         rec = obs.REGISTRY.get(name)
         if rec is None or not rec.has_value or name not in ds:
             continue
-        where, said, unsaid = rec.has_value
+        where, said, unsaid, *error_too = rec.has_value
+        error_too = error_too[0] if error_too else not rec.error.startswith("none")
+
+        def get(key):
+            """A companion's values (``get("unreturned")``), another variable's (``lyapunov_orbits``) or an
+            attribute of the study (``ensemble_trajectories``)."""
+            if f"{name}_{key}" in ds:
+                return values(f"{name}_{key}")
+            if key in ds:
+                return values(key)
+            return float(ds.attrs[key])
         try:
-            has = where(lambda suffix: values(f"{name}_{suffix}"))
-        except KeyError:        # a companion not in the file: nothing says
+            has = np.asarray(where(get), bool)
+        except (KeyError, TypeError, ValueError):        # not in the file, or not a number: nothing says
             continue
+        if has.ndim < len(done.shape) + 1:
+            has = np.broadcast_to(has, done.shape + (1,))
         expected, none = finished & np.all(has, axis=-1), finished & ~np.any(has, axis=-1)
-        for v in (name, f"{name}_stderr") if not rec.error.startswith("none") else (name,):
+        for v in (name, f"{name}_stderr") if error_too else (name,):
             if v in ds:
                 nan = np.isnan(values(v))
                 for bad, what, says in ((expected & np.any(nan, axis=-1), "NaN", said),

@@ -176,3 +176,22 @@ def test_a_return_path_where_the_file_says_orbits_had_not_returned_is_refused(tm
         open_results(str(path))
     assert "return_path: is a number at 1 of the points marked done where the file says some trajectory had not " \
            "returned (the first: ball.inertia = 0.5)" in str(info.value)
+
+
+def test_a_return_path_study_of_one_trajectory_a_point_is_read(tmp_path):
+    """One trajectory a point that returned: no mean with an error, so no value, though every trajectory returned.
+    The check that a value is where the file says there is one took that NaN for a value removed by hand and
+    refused the study's own results: the file says one trajectory a point, and the NaN is read."""
+    from rbx.cli.sweep import open_results
+    (tmp_path / "table.yaml").write_text(yaml.safe_dump(RETURNS, sort_keys=False))
+    (tmp_path / "study.yaml").write_text(yaml.safe_dump(
+        {"base": "table.yaml", "vary": {"ball.inertia": [0.2, 0.5]}, "measure": ["return_path"],
+         "ensemble": {"trajectories": 1, "collisions": 20_000, "seed": 3}}, sort_keys=False))
+    with pytest.warns(Warning):
+        rbx.sweep(str(tmp_path / "study.yaml"), str(tmp_path / "r.nc"))
+    with h5py.File(tmp_path / "r.nc", "r") as f:
+        assert f["return_path_unreturned"][()].tolist() == [0.0, 0.0]
+        assert np.isnan(f["return_path"][()]).all()
+    open_results(str(tmp_path / "r.nc"))
+    res = cli("", "plot", "r.nc", "--kind", "sweep", "-o", "f.png", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr

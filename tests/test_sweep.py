@@ -1470,3 +1470,67 @@ def test_results_named_as_a_folder_are_refused_before_any_point(tmp_path, monkey
         rbx.sweep(specular_study(trajectories=2, collisions=100), output=output, force=True)
     assert sorted(p.name for p in tmp_path.iterdir()) == ["sub"] and not list((tmp_path / "sub").iterdir())
     assert not os.path.exists("/.partial") and not os.path.exists("/.lock")
+
+
+@pytest.mark.parametrize("variable,words", [
+    ("lyapunov", "lyapunov: is NaN at 1 of the points marked done where the file says its orbits were measured"),
+    ("mean_free_path", "mean_free_path: is not a number at 1 of the points marked done"),
+    ("energy_drift", "energy_drift: is not a number at 1 of the points marked done")])
+def test_a_value_removed_where_the_file_says_there_is_one_is_refused_by_the_figure_too(specular, tmp_path, variable,
+                                                                                      words):
+    """A NaN written into a finished point's λ₁ (its orbits measured: `lyapunov_orbits` 4), mean free path or
+    energy drift (numbers every run gives): the figure drew the point as one without a value, its legend blaming
+    orbits that left the table, exit 0; for the last two only the resume refused it. The figure and the resume
+    both refuse it now, one line naming the variable (the figure in a real process for λ₁)."""
+    import shutil
+
+    import h5py
+
+    from rbx.cli.common import UserError
+    from rbx.cli.sweep import open_results
+    _, good = specular
+    with h5py.File(good, "r") as f:
+        assert f["lyapunov_orbits"][()].tolist() == [4, 4]
+    bad = tmp_path / "bad.nc"
+    shutil.copy(good, bad)
+    with h5py.File(bad, "r+") as f:
+        a = f[variable][()]
+        a[1] = np.nan
+        f[variable][...] = a
+    if variable == "lyapunov":
+        res = rbx_cli("plot", "bad.nc", "--kind", "sweep", "-o", "f.png", cwd=tmp_path)
+        assert res.returncode == 2 and res.stderr.count("\n") == 1 and words in res.stderr, res.stderr
+        assert not (tmp_path / "f.png").exists()
+    with pytest.raises(UserError) as info:
+        open_results(str(bad))
+    assert words in str(info.value) and "(the first: table.radius = 0.35)" in str(info.value)
+    as_unfinished(bad, tmp_path / "r.nc.partial")
+    with pytest.raises(rbx.FileError) as info:
+        sweep(specular_study(), str(tmp_path / "r.nc"), resume=True)
+    assert words in str(info.value)
+
+
+def test_the_error_of_a_lyapunov_exponent_may_be_missing_where_its_value_is_not(specular, tmp_path):
+    # λ₁'s error needs several segments or orbits; a point without one is read (and one with λ₁ and no orbit is not)
+    import shutil
+
+    import h5py
+
+    from rbx.cli.common import UserError
+    from rbx.cli.sweep import open_results
+    _, good = specular
+    bad = tmp_path / "bad.nc"
+    shutil.copy(good, bad)
+    with h5py.File(bad, "r+") as f:
+        a = f["lyapunov_stderr"][()]
+        a[1] = np.nan
+        f["lyapunov_stderr"][...] = a
+    open_results(str(bad))
+    with h5py.File(bad, "r+") as f:
+        a = f["lyapunov_orbits"][()]
+        a[1] = 0
+        f["lyapunov_orbits"][...] = a
+    with pytest.raises(UserError) as info:
+        open_results(str(bad))
+    assert "lyapunov: is a number at 1 of the points marked done where the file says no orbit was measured" in \
+        str(info.value)
