@@ -32,7 +32,7 @@ from .driver import check_size, prepare_resume, resume_to_file
 from .model import ConfigError, Experiment
 from .progress import Progress
 from .reader import Run
-from .paths import after_hangup, renaming, stop_signals, work_written
+from .paths import after_hangup, check_path_text, renaming, stop_signals, work_written
 from .simulation import MemorySink, Simulation, memory_refusal, records_bytes
 
 # nothing heavy at import: the CLI takes StopFlag from here before it installs its signal handlers
@@ -191,7 +191,8 @@ def simulate(experiment, *, collisions=None, trajectories=None, seed=None, outpu
                 sink = MemorySink()
                 complete = sim.run(sink, progress=bar)
             return Run.from_memory(exp, sink, complete)
-        path = os.path.abspath(os.fspath(output))
+        path = os.path.abspath(os.fsdecode(os.fspath(output)))
+        check_path_text(path, "output")
         check_target(path, force, exp)
         sim = Simulation(exp)
         stop = StopFlag()
@@ -237,6 +238,7 @@ def resume(path, *, output=None, force=False, max_size=None, progress=False, sch
             raise TypeError(f"rbx.resume: {name} is the path of a run file (a str or os.PathLike), not "
                             f"{type(value).__name__}")
         named[name] = os.fsdecode(os.fspath(value))     # a bytes path as the str the rest of rbx reads
+        check_path_text(named[name], name)
         if not named[name].strip():
             raise ValueError(f"rbx.resume: {name} is empty: give the path of a run file")
     path, output = named["path"], named.get("output")
@@ -268,7 +270,9 @@ def open(path):   # noqa: A001 - the name docs/reference.md §9 gives it
     """A run file read back -> :class:`Run`. Raises :class:`FileError` if ``path`` is not an rbx run file."""
     if not isinstance(path, (str, bytes, os.PathLike)):
         raise TypeError(f"rbx.open: path is the path of a run file (a str or os.PathLike), not {type(path).__name__}")
-    return Run.open(os.fsdecode(os.fspath(path)))       # a bytes path is the path it names
+    path = os.fsdecode(os.fspath(path))                 # a bytes path is the path it names
+    check_path_text(path, "path")
+    return Run.open(path)
 
 
 def flag(name, value):

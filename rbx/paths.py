@@ -120,6 +120,17 @@ def lock_path(path):
     return f"{path}.lock"
 
 
+#: what is wrong with a path that holds a NUL character: the system's calls take none (Python raises ValueError)
+NUL_PROBLEM = "holds a NUL character (\\0), which no file name can"
+
+
+def check_path_text(path, key, file=None):
+    """Raise :class:`FileError` (``file``, ``key``) where the path ``path`` (a str) holds a NUL character: it was
+    a traceback from the first system call given it."""
+    if "\0" in path:
+        raise FileError(file, key, f"{shortened(repr(path))} {NUL_PROBLEM}")
+
+
 def what_it_is(path):
     """What ``path`` names, by its own entry (a link is not followed) -> None (nothing there), 'a regular file',
     'a directory', 'a symbolic link to X' ('…, which does not exist'), 'a character device', 'a block device',

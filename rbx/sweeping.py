@@ -35,7 +35,7 @@ from .locks import LockNotWritable, acquire_lock, release_lock
 from .model import ConfigError
 from .paths import (ANY, DiskFull, FileError, check_own_file, check_own_kind, check_own_names, check_own_objects,
                     check_replaceable, create_own, display_path, file_id, other_commands_file, place, shortened_pair,
-                    stop_signals, what_it_is)
+                    check_path_text, stop_signals, what_it_is)
 from .runfile import provenance
 from .simulation import STATE_BYTES, memory_problem, memory_refusal, records_bytes
 from .study import MAX_POINTS, Study, _representatives, load_study, needs
@@ -413,6 +413,7 @@ def sweep(study, output=None, *, scheduler=None, resume=False, force=False, prog
     if not isinstance(output, (str, bytes, os.PathLike)):
         raise TypeError(f"rbx.sweep: output is a file path (a str or os.PathLike), not {type(output).__name__}")
     given = os.fsdecode(os.fspath(output))
+    check_path_text(given, "output")
     if not given.strip() or given.endswith(os.sep) or os.path.isdir(given):
         # '' and a folder were taken as the folder's own name: every point ran, then the results and the lock went
         # beside it, in the folder above ('/' as output: '/.partial'), and the end said the disk was full

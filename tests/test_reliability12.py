@@ -3,6 +3,7 @@ path removed from a finished point of a study, a run's requested length changed)
 naming the variable; each test was seen to fail on the code before it."""
 import math
 import shutil
+from pathlib import Path
 
 import h5py
 import numpy as np
@@ -14,6 +15,8 @@ from tests.test_reliability8 import cli
 from tests.test_reliability9 import INTERRUPT
 from tests.test_reliability10 import _config
 from tests.test_sweep import as_unfinished
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "configs" / "examples"
 
 RETURNS = {"table": {"kind": "rectangle", "width": 2.0, "height": 1.0},
            "boundary": {"default": {"rule": "constant", "rank": 1}, "walls": {"left": {"rule": "exit"}}},
@@ -195,3 +198,33 @@ def test_a_return_path_study_of_one_trajectory_a_point_is_read(tmp_path):
     open_results(str(tmp_path / "r.nc"))
     res = cli("", "plot", "r.nc", "--kind", "sweep", "-o", "f.png", cwd=tmp_path)
     assert res.returncode == 0, res.stderr
+
+
+def test_a_path_with_a_nul_character_is_one_line_not_a_traceback(tmp_path):
+    """A NUL character in an output path (YAML, ``--set``) ended `rbx simulate` and `rbx histogram` in a traceback
+    from the first system call (``ValueError: embedded null byte``), exit 1, and the API's calls raised that bare
+    ValueError: no file name can hold one. One line naming the key, exit 2; rbx's own errors from the API."""
+    from rbx.model import ConfigError
+    from rbx.paths import FileError
+    strip = str(EXAMPLES / "strip.yaml")
+    for command in (["simulate", strip], ["histogram", strip, "-o", "h.png"]):
+        res = cli("", *command, "--set", 'output.path="a\\0b.h5"', cwd=tmp_path)
+        assert res.returncode == 2 and res.stderr.count("\n") == 1 and "Traceback" not in res.stderr, res.stderr
+        assert "output.path: holds a NUL character" in res.stderr, res.stderr
+    exp = rbx.load(strip)
+    study = tmp_path / "s.yaml"
+    study.write_text(yaml.safe_dump({"base": strip, "vary": {"ball.inertia": [0.2, 0.5]},
+                                     "measure": ["mean_free_path"], "ensemble": {"trajectories": 2, "collisions": 10}}))
+    for key, call in (("output", lambda: rbx.simulate(exp, output=str(tmp_path / "a\0b.h5"))),
+                      ("output", lambda: rbx.simulate(exp, output=b"a\0b.h5")),
+                      ("path", lambda: rbx.open("a\0b.h5")),
+                      ("path", lambda: rbx.resume("a\0b.h5")),
+                      ("output", lambda: rbx.sweep(str(study), output=str(tmp_path / "r\0.nc")))):
+        with pytest.raises(FileError, match=f"{key}: .* holds a NUL character"):
+            call()
+    for key, call in (("output.path", lambda: rbx.load({**exp.to_dict(), "output": {"path": "a\0b.h5"}})),
+                      ("table", lambda: rbx.load({**exp.to_dict(), "table": "t\0.yaml"})),
+                      (None, lambda: rbx.load("a\0b.yaml"))):
+        with pytest.raises(ConfigError, match="holds a NUL character"):
+            call()
+    assert not list(tmp_path.glob("*.h5*")) and not list(tmp_path.glob("*.nc*"))
