@@ -305,6 +305,7 @@ class JournaledFile:
         parts.append(CRC.pack(crc))
         final = journal_path(self.path)
         tmp = f"{final}.tmp"
+        written = False
         try:
             _write_all(self.fd, [mark], mark_at)
             try:
@@ -316,11 +317,13 @@ class JournaledFile:
                 # went elsewhere (chunks put in room freed inside the file), and try once more
                 os.ftruncate(self.fd, mark_at + len(mark))
                 _write_journal(tmp, parts)
+            written = True
             os.replace(tmp, final)           # the commit point
         except OSError as exc:               # not committed: the file is as it was
             self.failure = self.failure or exc
-            with contextlib.suppress(OSError):
-                os.remove(tmp)
+            if written:                      # only the journal this commit wrote (not a file found at its name)
+                with contextlib.suppress(OSError):
+                    os.remove(tmp)
             raise
         try:
             _copy_in(self.fd, pages, self.overlay)
@@ -357,6 +360,8 @@ class JournaledFile:
 
 
 def _write_journal(tmp, parts):
+    """Write the journal ``parts`` to ``tmp``, a name created here (a failed write removes it); whatever is found at
+    that name is left alone, and the commit fails."""
     try:
         fd = create_own(tmp)        # never through a link or into a FIFO someone put at this name
     except FileError as exc:        # the commit fails as any I/O error does: the run stops at its last checkpoint
@@ -366,8 +371,12 @@ def _write_journal(tmp, parts):
                                     "it: remove it, then resume") from None
     try:
         _write_all(fd, parts, 0)
-    finally:
+    except BaseException:
         os.close(fd)
+        with contextlib.suppress(OSError):
+            os.remove(tmp)
+        raise
+    os.close(fd)
 
 
 def _lock(fd, shared=False):

@@ -503,3 +503,26 @@ def test_a_view_refused_by_a_live_writers_lock_closes_its_file_once(tmp_path):
             assert (tmp_path / "mylog.txt").read_text() == "my line\n"
     finally:
         os.close(writer)
+
+
+def test_a_link_found_at_the_journals_scratch_name_is_left_alone(tmp_path):
+    """A link put at ``FILE.journal.tmp`` while a run writes: the commit fails, as an I/O error does (the run stops
+    at its last commit, resumable), and the error's line says to remove it. The failed commit removed the link
+    itself, while its line asked the user to. (A regular file there is a killed writer's scratch file, replaced as
+    every scratch name of rbx's is: ``paths.create_own``.)"""
+    path = str(tmp_path / "f.bin")
+    jf = JournaledFile(path, create=True)
+    jf.write(b"first")
+    jf.commit()
+    scratch = tmp_path / "f.bin.journal.tmp"
+    victim = tmp_path / "notes.txt"
+    victim.write_text("mine\n")
+    scratch.symlink_to(victim)
+    jf.seek(0)
+    jf.write(b"second")
+    with pytest.raises(OSError, match="remove it"):
+        jf.commit()
+    jf.close(commit=False)
+    assert scratch.is_symlink() and victim.read_text() == "mine\n"
+    with open(path, "rb") as f:
+        assert f.read() == b"first"                  # the last commit
