@@ -678,8 +678,9 @@ def _calling(loop):
     Why: Numba inlines a ``jit_hot`` helper into its caller's intermediate code at each call site, and the general
     loop, which keeps every branch, holds a dozen of them, some several times (the collision map once per axis):
     its compile grew with that code in Numba's own passes, not LLVM's: 50 s in 2D, 62 s in 3D (measured side by side
-    on a cold cache), 28 s and 32 s with them called. Called, each helper is compiled once. The arithmetic is the same: the same operations in the same order, without fast-math (LLVM
-    may still inline a twin, which changes no result); tests/test_kernels.py compares the general loop with the
+    on a cold cache), 28 s and 32 s with them called. Called, each helper is compiled once. The arithmetic is the
+    same: the same operations in the same order, without fast-math (LLVM may still inline a twin, which changes no
+    result); tests/test_kernels.py compares the general loop with the
     specialised ones bit for bit. The specialised loops keep the helpers inlined: there a constant argument (the
     axis, the dimension) prunes their branches before Numba types them, and the call would cost per collision."""
     names = dict(loop.__globals__)

@@ -360,8 +360,9 @@ class JournaledFile:
 
 
 def _write_journal(tmp, parts):
-    """Write the journal ``parts`` to ``tmp``, a name created here (a failed write removes it); whatever is found at
-    that name is left alone, and the commit fails."""
+    """Write the journal ``parts`` to ``tmp``, a name created here (a failed write removes it). A regular file found
+    there is a killed writer's and is replaced (:func:`rbx.paths.create_own`); anything else is left alone, and
+    the commit fails."""
     try:
         fd = create_own(tmp)        # never through a link or into a FIFO someone put at this name
     except FileError as exc:        # the commit fails as any I/O error does: the run stops at its last checkpoint
