@@ -511,7 +511,7 @@ register(Observable(
     problem=_on_exit_wall, label="mean return path in (x, R√κθ)", symbol="⟨ℓ⟩",
     missing="no value where some trajectory had not returned by the end of the run (raise collisions)",
     has_value=(lambda get: (get("unreturned") == 0) & (get("ensemble_trajectories") >= 2),
-               "every trajectory returned", "some trajectory had not returned (or a point has one trajectory)"),
+               "every trajectory returned", "some trajectory had not returned or the ensemble has one trajectory"),
     companions=(Companion("kac", "L", "Kac/Santaló: C_d·|table|/|hole| (4A/ℓ for a disc)", reference=True, least=0.0,
                           label="Kac's lemma: C·|table| / |hole| (every state returns)"),
                 Companion("ratio", "1", "mean return path / Kac's value",
