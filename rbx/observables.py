@@ -509,7 +509,8 @@ register(Observable(
     "wall until they return to it; NaN when some did not return within the run (the longest returns missing, the "
     "mean of the others is biased low)", _return_path, final=True, exit=True,
     problem=_on_exit_wall, label="mean return path in (x, R√κθ)", symbol="⟨ℓ⟩",
-    missing="no value where some trajectory had not returned by the end of the run (raise collisions)",
+    missing="no value where some trajectory had not returned by the end of the run (raise collisions), or with "
+            "one trajectory (no mean with an error)",
     has_value=(lambda get: (get("unreturned") == 0) & (get("ensemble_trajectories") >= 2),
                "every trajectory returned", "some trajectory had not returned or the ensemble has one trajectory"),
     companions=(Companion("kac", "L", "Kac/Santaló: C_d·|table|/|hole| (4A/ℓ for a disc)", reference=True, least=0.0,
