@@ -14,7 +14,7 @@ import rbx
 from tests.test_reliability8 import cli
 from tests.test_reliability9 import INTERRUPT
 from tests.test_reliability10 import _config
-from tests.test_sweep import as_unfinished
+from tests.test_sweep import as_unfinished, edit_point
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "configs" / "examples"
 
@@ -171,10 +171,7 @@ def test_a_return_path_where_the_file_says_orbits_had_not_returned_is_refused(tm
     from rbx.cli.common import UserError
     from rbx.cli.sweep import open_results
     _, path = _return_study(tmp_path, 20_000)
-    with h5py.File(path, "r+") as f:
-        a = f["return_path_unreturned"][()]
-        a[1] = 0.5
-        f["return_path_unreturned"][...] = a
+    edit_point(path, "return_path_unreturned", 0.5)
     with pytest.raises(UserError) as info:
         open_results(str(path))
     assert "return_path: is a number at 1 of the points marked done where the file says some trajectory had not " \

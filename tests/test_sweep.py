@@ -1309,6 +1309,15 @@ def lyapunov_results(tmp_path_factory):
     return folder, folder / "s.yaml", folder / "r.nc"
 
 
+def edit_point(path, variable, value, index=1):
+    """Write ``value`` by hand into point ``index`` of ``variable`` in the study results file ``path``."""
+    import h5py
+    with h5py.File(path, "r+") as f:
+        a = f[variable][()]
+        a[index] = value
+        f[variable][...] = a
+
+
 def as_unfinished(results, partial):
     """Make the study results file ``results`` one with its first point still to run, at ``partial`` (what a
     resume continues)."""
@@ -1493,10 +1502,7 @@ def test_a_value_removed_where_the_file_says_there_is_one_is_refused_by_the_figu
         assert f["lyapunov_orbits"][()].tolist() == [4, 4]
     bad = tmp_path / "bad.nc"
     shutil.copy(good, bad)
-    with h5py.File(bad, "r+") as f:
-        a = f[variable][()]
-        a[1] = np.nan
-        f[variable][...] = a
+    edit_point(bad, variable, np.nan)
     if variable == "lyapunov":
         res = rbx_cli("plot", "bad.nc", "--kind", "sweep", "-o", "f.png", cwd=tmp_path)
         assert res.returncode == 2 and res.stderr.count("\n") == 1 and words in res.stderr, res.stderr
@@ -1521,15 +1527,9 @@ def test_the_error_of_a_lyapunov_exponent_may_be_missing_where_its_value_is_not(
     _, good = specular
     bad = tmp_path / "bad.nc"
     shutil.copy(good, bad)
-    with h5py.File(bad, "r+") as f:
-        a = f["lyapunov_stderr"][()]
-        a[1] = np.nan
-        f["lyapunov_stderr"][...] = a
+    edit_point(bad, "lyapunov_stderr", np.nan)
     open_results(str(bad))
-    with h5py.File(bad, "r+") as f:
-        a = f["lyapunov_orbits"][()]
-        a[1] = 0
-        f["lyapunov_orbits"][...] = a
+    edit_point(bad, "lyapunov_orbits", 0)
     with pytest.raises(UserError) as info:
         open_results(str(bad))
     assert "lyapunov: is a number at 1 of the points marked done where the file says no orbit was measured" in \
