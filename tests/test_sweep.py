@@ -1520,8 +1520,6 @@ def test_the_error_of_a_lyapunov_exponent_may_be_missing_where_its_value_is_not(
     # λ₁'s error needs several segments or orbits; a point without one is read (and one with λ₁ and no orbit is not)
     import shutil
 
-    import h5py
-
     from rbx.cli.common import UserError
     from rbx.cli.sweep import open_results
     _, good = specular
