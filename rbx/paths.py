@@ -317,10 +317,12 @@ def foreign_object(group, prefix=""):
     """The first group or dataset under the open HDF5 ``group`` that is not the file's own -> ``(name, what)``, its
     name (after ``prefix``) and what it is: 'datatype' (a committed HDF5 datatype, no values), 'link' (soft or external: an external link is opened by the mere lookup,
     and one to a FIFO held the reader for ever, deaf to SIGTERM), 'virtual' or 'external' (a dataset whose values
-    are read from other files); None when every one is its own. Nothing is followed: each name is looked at as a
-    link first."""
+    are read from other files), 'second name' (an object reached under another name already: a group hard-linked
+    into itself made the walk, and every reader, loop for ever); None when every one is its own. Nothing is
+    followed: each name is looked at as a link first."""
     import h5py
     todo = [(prefix, group)]
+    seen = {group.id}
     while todo:
         prefix, group = todo.pop()
         for name in group:
@@ -328,6 +330,9 @@ def foreign_object(group, prefix=""):
             if not isinstance(group.get(name, getlink=True), h5py.HardLink):
                 return where, "link"
             item = group[name]
+            if item.id in seen:                  # rbx gives each group and dataset one name
+                return where, "second name"
+            seen.add(item.id)
             if isinstance(item, h5py.Group):
                 todo.append((f"{where}/", item))
             elif not isinstance(item, h5py.Dataset):
@@ -350,6 +355,9 @@ def check_own_objects(path, group, fix, prefix="", noun="variable"):
         raise FileError(path, where, f"is a link, not a {noun} of this file: its values lie elsewhere; {fix}")
     if what == "datatype":
         raise FileError(path, where, f"is an HDF5 committed datatype, not a {noun}; {fix}")
+    if what == "second name":
+        raise FileError(path, where, f"is a second name (a hard link) of a group or dataset the file holds under "
+                                     f"another name, not a {noun} of its own; {fix}")
     raise FileError(path, where, f"is an HDF5 {what} dataset: its values lie in other files; {fix}")
 
 

@@ -225,3 +225,30 @@ def test_a_path_with_a_nul_character_is_one_line_not_a_traceback(tmp_path):
         with pytest.raises(ConfigError, match="holds a NUL character"):
             call()
     assert not list(tmp_path.glob("*.h5*")) and not list(tmp_path.glob("*.nc*"))
+
+
+def test_a_group_linked_into_itself_is_refused_not_walked_for_ever(tmp_path):
+    """A crafted run file whose `collisions` group holds a hard link to itself (`f['collisions/loop'] =
+    f['collisions']`, 19 kB): `rbx plot` and `rbx.open` walked it for ever at full CPU, and a study's results file so
+    edited held `rbx sweep --resume` past SIGTERM. rbx gives each group and dataset one name: a second name is
+    refused in one line, exit 2. A dataset under two names (a diamond, not a loop) too."""
+    from rbx.cli.common import UserError
+    from rbx.cli.sweep import open_results
+    run = tmp_path / "q.h5"
+    rbx.simulate(rbx.load(str(EXAMPLES / "circle.yaml")), output=str(run)).close()
+    for what, edit in (("collisions/loop", lambda f: f.__setitem__("collisions/loop", f["collisions"])),
+                       ("collisions/again", lambda f: f.__setitem__("collisions/again", f["collisions/time"]))):
+        bad = tmp_path / "bad.h5"
+        shutil.copy(run, bad)
+        with h5py.File(bad, "r+") as f:
+            edit(f)
+        with pytest.raises(rbx.FileError, match=r"collisions/\w+: is a second name") as info:
+            rbx.open(str(bad))
+        assert what in str(info.value) or what == "collisions/again"    # the walk may meet either name first
+    res = cli("", "plot", "bad.h5", "--kind", "orbit", "-o", "o.png", cwd=tmp_path)
+    assert res.returncode == 2 and res.stderr.count("\n") == 1 and "is a second name" in res.stderr, res.stderr
+    _, results = _return_study(tmp_path, 2_000)
+    with h5py.File(results, "r+") as f:
+        f["g"] = f["/"]
+    with pytest.raises(UserError, match="is a second name"):
+        open_results(str(results))
