@@ -31,7 +31,7 @@ import numpy as np
 from . import rules, tables
 from .model import (COMPRESSIONS, DEFAULT_MAX_SIZE, RECORD_FIELDS, SERVICES, VALIDATED, Ball, ConfigError, Experiment,
                     INERTIA_NAMES, Numerics, Output, RunSettings, kappa_of, unknown_inertia)
-from .paths import NUL_PROBLEM
+from .paths import path_text_problem
 from .yamlfile import check_size, copied, gc_paused, parse_yaml, read_yaml
 from .rules import PROBABILITY_SUM_TOLERANCE, parse_rule  # noqa: F401 - the tolerance: read by the rules' checks
 
@@ -348,8 +348,8 @@ def _include(value, key, base, c):
     if isinstance(value, str):
         if not value.strip():
             c.fail(key, "expected a file name or a mapping, got an empty text")
-        if "\0" in value:
-            c.fail(key, NUL_PROBLEM)
+        if path_text_problem(value):
+            c.fail(key, path_text_problem(value))
         path = os.path.normpath(os.path.join(base, os.path.expanduser(value)))
         if not os.path.exists(path):
             c.fail(key, f"file not found: {path}{c.not_found_hint}")
@@ -449,8 +449,8 @@ def _output(out, base, c, overrides):
     if opath is not None:
         if not isinstance(opath, str) or not opath.strip():
             c.fail("output.path", f"expected a file name, got {_kind(opath)}")
-        if "\0" in opath:
-            c.fail("output.path", NUL_PROBLEM)
+        if path_text_problem(opath):
+            c.fail("output.path", path_text_problem(opath))
         if opath.endswith(("/", os.sep)):
             c.fail("output.path", f"'{opath}' names a folder; give a file name such as {opath.rstrip('/')}/run.h5")
         # ~ is the home folder, as in a shell (it used to create a folder named '~')

@@ -68,8 +68,8 @@ def shortened_pair(a, b, most=40):
 
 def one_line(text):
     """``text`` with its control characters written as escapes ('a\\nb'): a file name holding a newline split a
-    one-line message in two."""
-    text = str(text)
+    one-line message in two; bytes of a name that are not UTF-8 as ``\\xff`` (:func:`stored_text`)."""
+    text = stored_text(str(text))
     if not any(c < " " or c == "\x7f" for c in text):
         return text
     return "".join(repr(c)[1:-1] if c < " " or c == "\x7f" else c for c in text)
@@ -124,11 +124,36 @@ def lock_path(path):
 NUL_PROBLEM = "holds a NUL character (\\0), which no file name can"
 
 
+def path_text_problem(path):
+    """What is wrong with ``path`` (a str) as a file name -> None, :data:`NUL_PROBLEM` (a NUL character), or a
+    character that is no byte of a name (a lone surrogate such as ``'\\ud800'``: only ``'\\udc80'`` …
+    ``'\\udcff'`` stand for bytes, those of a name that is not UTF-8)."""
+    if "\0" in path:
+        return NUL_PROBLEM
+    try:
+        os.fsencode(path)
+    except UnicodeEncodeError as e:
+        return f"holds {e.object[e.start:e.end]!r}, a character that no file name can"
+    return None
+
+
 def check_path_text(path, key, file=None):
     """Raise :class:`FileError` (``file``, ``key``) where the path ``path`` (a str) holds a NUL character: it was
     a traceback from the first system call given it."""
-    if "\0" in path:
-        raise FileError(file, key, f"{shortened(repr(path))} {NUL_PROBLEM}")
+    problem = path_text_problem(path)
+    if problem:
+        raise FileError(file, key, f"{shortened(repr(path))} {problem}")
+
+
+def stored_text(text):
+    """``text`` as rbx stores it in its files (a config's names, the command line): the same str, or, where it
+    holds bytes that are not UTF-8 (a file name such as ``b'\\xff.h5'``, which Python reads as the lone surrogate
+    ``'\\udcff'``), those bytes written as ``\\xff`` escapes. HDF5 and YAML store UTF-8 text only; the name
+    stored is a record of what was run, the file itself keeps its real name."""
+    try:
+        return text.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+    except UnicodeEncodeError:                     # a surrogate that stands for no byte
+        return text.encode("utf-8", "backslashreplace").decode("utf-8")
 
 
 def what_it_is(path):

@@ -53,7 +53,7 @@ import yaml
 from . import __version__
 from . import journal
 from .model import FIELD
-from .paths import DiskFull, FileError, format_size
+from .paths import DiskFull, FileError, format_size, stored_text
 
 SCHEMA_VERSION = 1
 CHUNK_BYTES = 1 << 18
@@ -134,6 +134,8 @@ def _plain(x):
         return x.tolist()
     if isinstance(x, np.generic):
         return x.item()
+    if isinstance(x, str):
+        return stored_text(x)
     return x
 
 
@@ -183,7 +185,7 @@ def provenance():
     values = {"created": datetime.datetime.now(datetime.timezone.utc).isoformat(timespec="seconds"),
               "numba_version": _version("numba"), "numpy_version": np.__version__, "h5py_version": h5py.__version__,
               "hdf5_version": h5py.version.hdf5_version, "python_version": platform.python_version(),
-              "command": shlex.join(sys.argv), "host": socket.gethostname(), "resumed": ""}
+              "command": shlex.join(map(stored_text, sys.argv)), "host": socket.gethostname(), "resumed": ""}
     assert tuple(values) == tuple(PROVENANCE_ATTRS)
     return values
 

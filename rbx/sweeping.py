@@ -13,9 +13,7 @@ import io
 import json
 import math
 import os
-import shlex
 import signal
-import sys
 import threading
 import time
 import warnings
@@ -35,7 +33,7 @@ from .locks import LockNotWritable, acquire_lock, release_lock
 from .model import ConfigError
 from .paths import (ANY, DiskFull, FileError, check_own_file, check_own_kind, check_own_names, check_own_objects,
                     check_replaceable, create_own, display_path, file_id, other_commands_file, place, shortened_pair,
-                    check_path_text, stop_signals, what_it_is)
+                    check_path_text, stop_signals, stored_text, what_it_is)
 from .runfile import provenance
 from .simulation import STATE_BYTES, memory_problem, memory_refusal, records_bytes
 from .study import MAX_POINTS, Study, _representatives, load_study, needs
@@ -194,14 +192,15 @@ def _attrs(study, exp0):
     p = provenance()
     groups = start_groups(exp0)
     orbits = study.ensemble["trajectories"] if groups is None else int(len(np.unique(groups)))
-    return {"rbx_study": 1, "study": study.source, "study_canonical": study.text, "study_digest": study.digest,
+    values = {"rbx_study": 1, "study": study.source, "study_canonical": study.text, "study_digest": study.digest,
             "study_file": study.file or "", "title": study_title(study, exp0), "varied": json.dumps(study.keys),
             "zip": int(study.zip), "measure": json.dumps([n for n, _ in study.measure]),
             "ensemble_trajectories": study.ensemble["trajectories"], "ensemble_orbits": orbits,
             "ensemble_collisions": study.ensemble["collisions"], "ensemble_seed": study.ensemble["seed"],
             "rbx_version": __version__, "numba_version": p["numba_version"], "numpy_version": p["numpy_version"],
             "python_version": p["python_version"], "created": p["created"], "host": p["host"],
-            "command": shlex.join(sys.argv), "complete": 0}
+            "command": p["command"], "complete": 0}
+    return {k: stored_text(v) if isinstance(v, str) else v for k, v in values.items()}
 
 
 def _store(ds, index, study, values, collisions, seconds, seed):

@@ -18,7 +18,7 @@ import re
 import yaml
 
 from .model import ConfigError
-from .paths import NUL_PROBLEM, config_file_problem, rbx_kind
+from .paths import config_file_problem, path_text_problem, rbx_kind
 
 class _Loader(yaml.SafeLoader):
     """Safe YAML with numbers read by the rules of YAML 1.2 (its core schema), not PyYAML's YAML 1.1: ``1e6`` is
@@ -340,8 +340,8 @@ def read_text(path, key=None):
     """The text of the YAML file at ``path`` (a config or a study), or :class:`ConfigError`: a device, a FIFO or a
     huge file is refused before it is read (:func:`rbx.paths.config_file_problem`), and every failure to read is
     one line naming the file."""
-    if "\0" in path:
-        raise ConfigError(repr(path), key, NUL_PROBLEM)
+    if path_text_problem(path):
+        raise ConfigError(repr(path), key, path_text_problem(path))
     try:
         problem = config_file_problem(path)     # a device, a FIFO, a huge file: refused before it is read
         if problem:

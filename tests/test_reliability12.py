@@ -2,6 +2,7 @@
 path removed from a finished point of a study, a run's requested length changed). Each is refused now, in one line
 naming the variable; each test was seen to fail on the code before it."""
 import math
+import os
 import shutil
 from pathlib import Path
 
@@ -225,6 +226,48 @@ def test_a_path_with_a_nul_character_is_one_line_not_a_traceback(tmp_path):
         with pytest.raises(ConfigError, match="holds a NUL character"):
             call()
     assert not list(tmp_path.glob("*.h5*")) and not list(tmp_path.glob("*.nc*"))
+
+
+def test_names_that_are_not_utf8_are_written_and_read(tmp_path):
+    """A byte such as 0xff in a file name (Latin-1 names, where the system takes any bytes): Python reads it as a
+    lone surrogate, which no HDF5 or YAML text holds, so `-o`, a config's name, `--set output.path`, `rbx histogram
+    --data`/`-o` and `rbx sweep -o` ended in a UnicodeEncodeError traceback, exit 1, with nothing written. The
+    files are now written under their real names, the names stored in them as ``\\xff`` escapes, and every
+    message shows them so."""
+    strip = EXAMPLES / "strip.yaml"
+    odd = tmp_path / "c\udcf3.yaml"                 # the bytes b"c\xf3.yaml"
+    odd.write_text(strip.read_text().replace("../", f"{EXAMPLES.parent}/"))
+    for args, written in (([str(strip), "-o", "\udcff.h5"], b"\xff.h5"),
+                          ([str(odd), "-o", "a.h5"], b"a.h5"),
+                          ([str(strip), "--set", f"output.path={tmp_path}/\udcfe.h5"], b"\xfe.h5")):
+        res = cli("", "simulate", *args, "--collisions", "50", cwd=tmp_path)
+        assert res.returncode == 0, res.stderr
+        assert "Traceback" not in res.stderr and "\\udc" not in res.stderr, res.stderr
+        with h5py.File(os.path.join(os.fsencode(tmp_path), written), "r") as f:
+            assert "\\x" in f.attrs["command"], f.attrs["command"]
+            stored = yaml.safe_load(f.attrs["config"])["output"]["path"]
+            assert stored.endswith(os.fsdecode(written).encode("utf-8", "surrogateescape")
+                                   .decode("utf-8", "backslashreplace")), stored
+            assert f["collisions/time"].shape == (1, 51)
+    res = cli("", "plot", "\udcff.h5", "--kind", "orbit", "-o", "\udcfd.png", cwd=tmp_path)
+    assert res.returncode == 0 and "wrote \\xfd.png" in res.stderr, res.stderr
+    res = cli("", "histogram", str(EXAMPLES / "rectangle.yaml"), "--data", "\udcfc.h5", "-o", "\udcfb.png",
+              "--set", "run.trajectories=20", "--set", "initial={sample: billiard, wall: left}", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    study = tmp_path / "s.yaml"
+    study.write_text(yaml.safe_dump({"base": str(strip), "vary": {"ball.inertia": [0.2, 0.5]},
+                                     "measure": ["mean_free_path"], "ensemble": {"trajectories": 2, "collisions": 100}}))
+    res = cli("", "sweep", "s.yaml", "-o", "\udcfa.nc", cwd=tmp_path)
+    assert res.returncode == 0 and "wrote \\xfa.nc" in res.stderr, res.stderr
+    res = cli("", "sweep", "s.yaml", "-o", "\udcfa.nc", "--resume", cwd=tmp_path)
+    assert res.returncode == 0 and "nothing to do" in res.stderr, res.stderr
+    assert {b"\xff.h5", b"a.h5", b"\xfe.h5", b"\xfd.png", b"\xfc.h5", b"\xfb.png", b"\xfa.nc"} <= set(
+        os.listdir(os.fsencode(tmp_path)))
+    run = rbx.simulate(rbx.load(str(strip)), collisions=10, output=os.fsencode(tmp_path) + b"/\xf9.h5")
+    run.close()
+    assert rbx.open(os.fsencode(tmp_path) + b"/\xf9.h5").time.shape == (1, 11)
+    with pytest.raises(rbx.FileError, match=r"output: .*'\\ud800', a character that no file name can"):
+        rbx.simulate(rbx.load(str(strip)), collisions=10, output=str(tmp_path / "\ud800.h5"))
 
 
 def test_a_group_linked_into_itself_is_refused_not_walked_for_ever(tmp_path):

@@ -75,6 +75,7 @@ def parse_sets(sets):
     """The ``--set KEY=VALUE`` options -> ``{key: value}`` in order, each VALUE read as YAML (as in a config file:
     ``0.2`` a number, ``[0, 0.5]`` a list, ``{rule: exit}`` a mapping, nothing after ``=`` null). A KEY given twice
     is refused."""
+    from ..paths import stored_text
     from ..yamlfile import parse_yaml
     out = {}
     for item in sets:
@@ -84,6 +85,9 @@ def parse_sets(sets):
             raise UserError(None, "--set", f"expected KEY=VALUE (such as ball.inertia=0.2), got '{item}'")
         if key in out:
             raise UserError(None, "--set", f"{key} is set twice")
+        if stored_text(text) != text:       # bytes that are not UTF-8 (a file name): no YAML holds them, a name
+            out[key] = text                 # is what they can be
+            continue
         with user_errors():
             out[key] = parse_yaml(text, None, f"--set {key}")
     return out
