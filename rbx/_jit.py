@@ -24,6 +24,10 @@ import numba
 
 from . import _numba_hooks as hooks
 from . import model
+from .environment import disable_jit
+
+if disable_jit():       # every kernel would be plain Python, and rbx reads compiled entry points (py_func)
+    raise ImportError(f"NUMBA_DISABLE_JIT: {disable_jit()}")
 
 #: every module that defines kernels (tests/test_jit.py checks that each module under rbx/ importing this one is
 #: listed)

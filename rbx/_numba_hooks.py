@@ -39,23 +39,19 @@ import sys
 
 import numba
 
+from .environment import NUMBA_HOOKS, fallback_hooks
+
 #: the hooks, in the order of the table above
-HOOKS = ("fingerprint", "nrt", "stack", "inline", "blas", "cache")
+HOOKS = NUMBA_HOOKS
 
 
 def _forced():
     """The hooks ``RBX_NUMBA_FALLBACK`` turns off (``all``, or names from :data:`HOOKS`); an unknown name is an
     error, not a silent no-op."""
-    text = os.environ.get("RBX_NUMBA_FALLBACK", "").strip()
-    if not text:
-        return frozenset()
-    names = {w.strip() for w in text.split(",") if w.strip()}
-    if "all" in names:
-        return frozenset(HOOKS)
-    unknown = names - set(HOOKS)
-    if unknown:
-        raise ImportError(f"RBX_NUMBA_FALLBACK: unknown hook(s) {sorted(unknown)}; known: all, {', '.join(HOOKS)}")
-    return frozenset(names)
+    forced, problem = fallback_hooks()
+    if problem:
+        raise ImportError(f"RBX_NUMBA_FALLBACK: {problem}")
+    return forced
 
 
 FORCED = _forced()

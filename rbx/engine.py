@@ -45,6 +45,7 @@ import numba
 import numpy as np
 
 from ._jit import compile_lock, hooks, jit_call, jit_hot, jit_loop, stack_array
+from .environment import KERNEL_MODES as _MODES, kernel_mode
 from .geometry import (HALFSPACE, SEGMENT, box_collision, contact_normal, normal_jacobian, periodic_flight,
                        periodic_images, slab_collision, snap)
 from .model import FIELD, FIELDS
@@ -322,16 +323,14 @@ RUNTIME_BITS = ~COMPILED_BITS
 #: for bit: both do the same floating-point operations in the same order (no fast-math, so no contraction or
 #: reassociation); only whether a branch is decided when compiling or when running differs. It is slower per
 #: collision and compiles once for every scene: the test suite uses it (tests/conftest.py), and the tests compare
-#: both on every example (tests/test_kernels.py).
-KERNEL_MODES = ("specialised", "general")
+#: both on every example (tests/test_kernels.py). Read from the environment by :mod:`rbx.environment`.
+KERNEL_MODES = _MODES
 
 
 def _kernel_mode_from_environment():
-    mode = os.environ.get("RBX_KERNELS", "").strip() or "specialised"
-    if mode not in KERNEL_MODES:
-        warnings.warn(f"RBX_KERNELS={mode!r} is not one of {', '.join(KERNEL_MODES)}: the specialised loops are used",
-                      stacklevel=2)
-        mode = "specialised"
+    mode, problem = kernel_mode()
+    if problem:
+        warnings.warn(f"RBX_KERNELS={problem}: the specialised loops are used", stacklevel=2)
     return mode
 
 

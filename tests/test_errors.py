@@ -26,6 +26,7 @@ from rbx.reader import Run
 from rbx.cli.main import cli
 
 RBX = str(Path(sys.executable).with_name("rbx"))
+STRIP = Path(__file__).resolve().parents[1] / "configs" / "examples" / "strip.yaml"
 SENTINEL = b"\x89HDF\r\n\x1a\n" + b"an existing result that must survive"     # what rbx writes: HDF5
 
 TABLE = {"kind": "strip", "width": 1.0}
@@ -558,6 +559,31 @@ def test_usage_mistakes_of_every_command_are_one_line(tmp_path, args, key, probl
     assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
     assert not (tmp_path / "newdir").exists()
     assert (res.stderr.startswith(f"rbx: {key}: ") or f": {key}: " in res.stderr) and problem in res.stderr
+
+
+@pytest.mark.parametrize("variable, value, said", [
+    ("RBX_KERNELS", "Generalx", "'Generalx' is not one of specialised, general"),
+    ("RBX_NUMBA_FALLBACK", "bogus", "unknown hook(s) ['bogus']; known: all, fingerprint"),
+    ("NUMBA_DISABLE_JIT", "1", "is '1': rbx's loops run only as Numba compiles them; unset it"),
+    ("NUMBA_THREADING_LAYER", "bogus", "Numba cannot load the threading layer 'bogus' (The threading layer"),
+])
+def test_an_environment_variable_that_stops_rbx_is_one_line(tmp_path, variable, value, said):
+    """An unknown hook in RBX_NUMBA_FALLBACK, Numba's compiler turned off, a threading layer Numba cannot load
+    ended a command in a traceback, and an unknown RBX_KERNELS warned in Python's two lines and ran on: each is
+    now one line naming the variable, exit 2, before any work."""
+    res = subprocess.run([RBX, "simulate", str(STRIP), "-o", "a.h5"], capture_output=True, text=True, timeout=120,
+                         cwd=tmp_path, env=dict(os.environ, **{variable: value}))
+    assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr
+    assert res.stderr.startswith(f"rbx: {variable}: {said}"), res.stderr
+    assert os.listdir(tmp_path) == []
+
+
+def test_the_library_refuses_to_run_with_numbas_compiler_turned_off():
+    res = subprocess.run([sys.executable, "-c", "import rbx; rbx.simulate(rbx.load(%r), collisions=5)"
+                          % str(STRIP)], capture_output=True, text=True, timeout=120,
+                         env=dict(os.environ, NUMBA_DISABLE_JIT="1"))
+    assert res.returncode == 1 and res.stderr.splitlines()[-1] == (
+        "ImportError: NUMBA_DISABLE_JIT: is '1': rbx's loops run only as Numba compiles them; unset it"), res.stderr
 
 
 def test_a_bad_numba_num_threads_is_one_line(tmp_path):

@@ -9,7 +9,8 @@ import warnings
 import click
 
 from .. import __version__
-from ..paths import stop_signals
+from .. import environment
+from ..paths import one_line, stop_signals
 from .common import OWN_PROCESS, Group, Interrupted, note_interrupt, pending_signal, quiet_noted_interrupts
 from .simulate import simulate
 from . import histogram, lyapunov, plot, sweep
@@ -43,10 +44,9 @@ def main():
     except OSError:   # deleted under us: relative paths mean nothing, and Numba's compiler needs it too
         sys.stderr.write("rbx: the working directory no longer exists; change to an existing folder\n")
         sys.exit(2)
-    threads = os.environ.get("NUMBA_NUM_THREADS")
-    if threads is not None and not (threads.strip().isdigit() and int(threads) >= 1):
-        # Numba itself fails with a traceback when it reads this at import
-        sys.stderr.write(f"rbx: NUMBA_NUM_THREADS: must be a positive integer, got '{threads}'\n")
+    problem = environment.problem()     # rbx's variables and Numba's that stop it: before any work, one line
+    if problem:
+        sys.stderr.write(f"rbx: {problem[0]}: {one_line(problem[1])}\n")
         sys.exit(2)
     # Numba's thread pool asks for a semaphore when it starts and, where none can be made (a full or size-limited
     # disk, no /dev/shm), warns in five lines that its start-up is then not safe across processes. rbx runs its
