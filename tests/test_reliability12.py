@@ -295,3 +295,16 @@ def test_a_group_linked_into_itself_is_refused_not_walked_for_ever(tmp_path):
         f["g"] = f["/"]
     with pytest.raises(UserError, match="is a second name"):
         open_results(str(results))
+
+
+def test_a_stopped_resume_does_not_walk_its_results_file_again(tmp_path):
+    """SIGTERM while `rbx sweep --resume` checked a results file holding 200 000 groups (edited in): the walk
+    stopped, then the line saying what the file keeps read the whole file again (33 s; a hang for ever while a group
+    linked into itself was walked). That line now reads only the `done` variable: no second walk after the signal."""
+    _, results = _return_study(tmp_path, 2_000)
+    prelude = ("import os, signal, rbx.paths as _p\n_real = _p.foreign_object\n"
+               "def _walk(*a, **k):\n    import sys\n    sys.stderr.write('WALK\\n')\n"
+               "    os.kill(os.getpid(), signal.SIGTERM)\n    return _real(*a, **k)\n_p.foreign_object = _walk\n")
+    res = cli(prelude, "sweep", "study.yaml", "-o", results.name, "--resume", cwd=tmp_path)
+    assert res.returncode == 143, res.stderr
+    assert res.stderr.count("WALK") == 1 and "interrupted by SIGTERM; the file holds all" in res.stderr, res.stderr
