@@ -852,7 +852,7 @@ class StudyInterrupted(KeyboardInterrupt):
 def kept_points(path, digest=None):
     """The finished points a results file holds -> (path, number, points of its study), or (None, 0, 0) when
     there is no such file (or it is another study's, or unreadable)."""
-    if not os.path.exists(path):
+    if not os.path.isfile(path):         # nothing there, or a FIFO or a device, which would hold the open
         return None, 0, 0
     try:
         import h5py
