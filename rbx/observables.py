@@ -103,6 +103,9 @@ class Observable:
     #: follows the value. A NaN where it says there is a value, or a number where it says there is none (a hand
     #: edit), is refused when a study is resumed or drawn (rbx.sweeping.value_problem)
     has_value: tuple = ()
+    #: a number at every computed point (no NaN whatever the run): a NaN there at a point marked done is not a
+    #: result, and is refused when a study is resumed or drawn (rbx.sweeping.value_problem)
+    never_nan: bool = False
 
     @property
     def simulate(self):
@@ -551,6 +554,7 @@ def _mean_free_path(runs, options):
 register(Observable(
     "mean_free_path", "L", "the centre's mean distance between consecutive collisions", _mean_free_path,
     fields=("position",), every_collision=True, options={"segments": 10}, label="mean free path", symbol="⟨ℓ⟩",
+    never_nan=True,     # it counts at least the flight to the first collision
     companions=(Companion("santalo", "L", "Santaló's mean free path of a point in the shrunk table: "
                                           "πA/P in 2D (4V/S in 3D)",
                           label="Santaló's mean free path", symbol="πA/P", reference=True, least=0.0),)))
@@ -624,5 +628,6 @@ def _energy_drift(runs, options):
 register(Observable(
     "energy_drift", "1", "health check: mean relative change of the kinetic energy over the run", _energy_drift,
     fields=("velocity", "angular_velocity"), label="energy drift", symbol="|ΔE|/E",
+    never_nan=True,     # a run whose energy went non-finite stops
     companions=(Companion("max", "1", "largest relative change", label="largest energy drift",
                           symbol="max |ΔE|/E", reference=True),)))

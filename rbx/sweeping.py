@@ -602,12 +602,6 @@ def _sweep(study, output, scheduler, resume, force, progress, base, changes):
     return ds
 
 
-#: the observables whose value is a number at every computed point (the energy of a run that went non-finite stops
-#: it; a mean free path counts at least the flight to the first collision): a NaN there in a point marked done is
-#: not a result
-NEVER_NAN = frozenset({"energy_drift", "mean_free_path"})
-
-
 def _check_resumable(ds, template, path, study=None, points=()):
     """Refuse (:class:`FileError` naming the variable) a results file to resume whose variables are not those this
     study writes, of their shapes: a file with the study's digest but ``done`` missing, of another shape or not
@@ -674,7 +668,7 @@ def value_problem(ds, measured, label=lambda index: str(tuple(int(i) for i in in
     figure in a traceback): every observable's value, error and companions are NaN (no value) or finite; errors are
     ≥ 0; shares and interval bounds lie in [0, 1] with low ≤ value ≤ high; collisions and orbit counts are whole
     numbers ≥ 0, with no more regular orbits than orbits; a wall time is finite and ≥ 0; ``done`` is 0 or 1; an
-    observable of :data:`NEVER_NAN` is a number; and each value is there or not as the file's own numbers say
+    observable that is never NaN (``Observable.never_nan``) is a number; and each value is there or not as the file's own numbers say
     (``Observable.has_value``)."""
     done = np.asarray(ds["done"].values, float)
     if not np.all((done == 0) | (done == 1)):
@@ -685,7 +679,8 @@ def value_problem(ds, measured, label=lambda index: str(tuple(int(i) for i in in
     def values(name):
         return np.asarray(ds[name].values, float).reshape(done.shape + (-1,))
 
-    checks = [(name, np.isfinite, "is not a number") for name in measured if name in NEVER_NAN and name in ds]
+    checks = [(name, np.isfinite, "is not a number") for name in measured
+              if name in ds and name in obs.REGISTRY and obs.REGISTRY[name].never_nan]
     for name in measured:
         own = [v for v in ds.data_vars if v == name or v.startswith(f"{name}_")]
         checks += [(v, lambda x: np.isnan(x) | np.isfinite(x), "is infinite") for v in own]
