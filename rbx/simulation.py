@@ -271,6 +271,7 @@ class Simulation:
         The blocks come from this machine's thread pool, or, with ``self.cluster`` set (a
         :class:`rbx.cluster.Cluster`), from the workers of a Dask cluster: the same blocks, the same sink."""
         self.check_finite()
+        moving = self.alive.copy()      # the trajectories a block can change: only theirs are checked after it
         if write_initial is None:
             write_initial = bool(np.all(self.ncoll == 0))
         if self.record and write_initial:
@@ -280,7 +281,12 @@ class Simulation:
         last, unsaved = time.monotonic(), False
         try:
             for block, nrec, at_end in blocks:          # at_end: the state at the block's end
-                at_end.check_finite()         # before anything of the block is written: the file stays valid
+                # before anything of the block is written: the file stays valid. Only the trajectories alive when
+                # the block began (a NaN ends one as an escape would): checking all M after every block made a
+                # return loop of 2·10⁶ samples, whose blocks are short while a few trajectories are still out, take
+                # time that grew as M × blocks
+                at_end.check_finite(np.flatnonzero(moving))
+                moving = at_end.alive.copy()
                 if block is not None:
                     sink.write(block, nrec)
                 unsaved = True
@@ -296,16 +302,18 @@ class Simulation:
         sink.checkpoint(self)
         return True
 
-    def check_finite(self):
+    def check_finite(self, rows=None):
         """Raise :class:`NonFiniteState` if a trajectory's state is no longer finite (in the kernel, a NaN
-        position finds no wall ahead and would end like an escape: a shortened trajectory, silently)."""
+        position finds no wall ahead and would end like an escape: a shortened trajectory, silently). ``rows``:
+        the trajectories to check (default: all)."""
         # the orientation too: a NaN there (a 3D start whose rotation vector overflowed) was recorded at every
         # collision of a run that ended complete, exit 0
-        bad = ~(np.isfinite(self.pos).all(axis=1) & np.isfinite(self.vel).all(axis=1)
-                & np.isfinite(self.W).all(axis=(1, 2)) & np.isfinite(self.time) & np.isfinite(self.theta)
-                & np.isfinite(self.A).all(axis=(1, 2)))
+        rows = np.arange(self.M) if rows is None else np.asarray(rows)
+        bad = ~(np.isfinite(self.pos[rows]).all(axis=1) & np.isfinite(self.vel[rows]).all(axis=1)
+                & np.isfinite(self.W[rows]).all(axis=(1, 2)) & np.isfinite(self.time[rows])
+                & np.isfinite(self.theta[rows]) & np.isfinite(self.A[rows]).all(axis=(1, 2)))
         if bad.any():
-            j = int(np.argmax(bad))
+            j = int(rows[np.argmax(bad)])
             orientation = (f", orientation {self.theta[j]}" if self.n == 2 else
                            f", orientation {self.A[j].tolist()}") if not (np.isfinite(self.theta[j])
                                                                        and np.isfinite(self.A[j]).all()) else ""
@@ -331,11 +339,16 @@ class Simulation:
             per = self.records_per_block()
             step = per * every
         else:
-            step = max(1, block_work(self.geom) // self.M)
+            work = block_work(self.geom)
         done = int(self.ncoll[self.alive].min()) if self.alive.any() else total
 
         def stop_of(done):
-            return min(total, (done // step + 1) * step) if self.record else min(total, done + step)
+            if self.record:
+                return min(total, (done // step + 1) * step)
+            # nothing recorded: the block's work shared among the trajectories still running, so that a return
+            # loop whose last few trajectories are still out takes long blocks, not one collision a block each
+            # (every block costs a pass over all M: 2·10⁶ samples took minutes)
+            return min(total, done + max(1, work // max(1, int(np.count_nonzero(self.alive)))))
 
         if not (self.record and AHEAD and self._state_bytes() * 4 <= per * self.M * 8 *
                 (1 + sum(FIELD[f].size(self.n) for f in self.record))):
