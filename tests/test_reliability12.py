@@ -308,3 +308,24 @@ def test_a_stopped_resume_does_not_walk_its_results_file_again(tmp_path):
     res = cli(prelude, "sweep", "study.yaml", "-o", results.name, "--resume", cwd=tmp_path)
     assert res.returncode == 143, res.stderr
     assert res.stderr.count("WALK") == 1 and "interrupted by SIGTERM; the file holds all" in res.stderr, res.stderr
+
+
+def test_a_histogram_killed_while_its_figure_is_drawn_leaves_both_files_as_they_were(tmp_path):
+    """`rbx histogram --force` put the new samples in place, then drew the figure (seconds): a SIGKILL meanwhile
+    left the new samples beside the previous run's figure, and nothing said so. The figure is now drawn first,
+    beside its name; the samples are put in place once it is drawn, then the figure, one rename after the other."""
+    import hashlib
+    from tests.test_first_contact import histogram_config
+    conf = histogram_config(tmp_path)
+    args = ["histogram", str(conf), "--data", "r.h5", "-o", "h.png"]
+    res = cli("", *args, cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    digest = {name: hashlib.sha256((tmp_path / name).read_bytes()).hexdigest() for name in ("r.h5", "h.png")}
+    killer = ("import os, signal, matplotlib.figure as _f\n"
+              "def _killed(*a, **k):\n    os.kill(os.getpid(), signal.SIGKILL)\n_f.Figure.savefig = _killed\n")
+    res = cli(killer, *args, "--force", "--seed", "7", cwd=tmp_path)
+    assert res.returncode == -9, res.stderr
+    assert {name: hashlib.sha256((tmp_path / name).read_bytes()).hexdigest() for name in digest} == digest
+    res = cli("", *args, "--force", "--seed", "7", cwd=tmp_path)     # and the next run replaces both
+    assert res.returncode == 0, res.stderr
+    assert all(hashlib.sha256((tmp_path / name).read_bytes()).hexdigest() != digest[name] for name in digest)

@@ -150,29 +150,44 @@ def _histogram(config, out, data, trajectories, seed, sets, force, quiet, cluste
         click.echo(f"rbx: {display_path(h5_path)}: its folder {display_path(os.path.dirname(h5_path))} is gone "
                    "(removed while the samples were drawn?): nothing was saved", err=True)
         raise SystemExit(1)
-    try:
-        with user_errors():     # a lock that cannot be made, a file of another kind: one line
-            write_returns(h5_path, cfg, result, replace=force)
-        written(f"{display_path(h5_path)} (the samples), not the figure")
-        stop.check()        # a signal while the samples were put in place, acted on now that they are there
-    except OSError as exc:
-        if exc.errno in NO_ROOM:     # not the user's input: the disk filled meanwhile (or a size limit), exit 1
-            why = exc.strerror if isinstance(exc, DiskFull) else (     # rbx's own says it already
-                f"{exc.strerror}: no room on the disk (or a size limit, ulimit -f?)")
-            click.echo(f"rbx: {display_path(h5_path)}: cannot write: {why}; nothing was saved", err=True)
-            raise SystemExit(1) from None
-        raise UserError(h5_path, None, f"cannot write: {exc.strerror or exc}") from None
-
     names = cfg.wall_names
     wall = "the whole boundary (next collision)" if result.wall is None else f"wall '{names[result.wall]}'"
     title = scene_title(cfg)
     fig = plotting.histogram_figure(result.angle, result.d, result.ks_statistic, result.ks_pvalue,
                                     f"{title}\nreturn angles to {wall}: {len(result.angle)} of {result.samples} "
                                     f"billiard-measure samples", not_returned=result.not_returned)
+
+    def save_samples():
+        try:
+            with user_errors():     # a lock that cannot be made, a file of another kind: one line
+                write_returns(h5_path, cfg, result, replace=force)
+            written(f"{display_path(h5_path)} (the samples), not the figure")
+        except OSError as exc:
+            if exc.errno in NO_ROOM:     # not the user's input: the disk filled meanwhile (or a size limit), exit 1
+                why = exc.strerror if isinstance(exc, DiskFull) else (     # rbx's own says it already
+                    f"{exc.strerror}: no room on the disk (or a size limit, ulimit -f?)")
+                click.echo(f"rbx: {display_path(h5_path)}: cannot write: {why}; nothing was saved", err=True)
+                raise SystemExit(1) from None
+            raise UserError(h5_path, None, f"cannot write: {exc.strerror or exc}") from None
+
+    # The figure is drawn beside its name first; the samples are put in place once it is drawn, then the figure:
+    # the two renames follow each other. Put in place before the figure was drawn (seconds), the samples of a run
+    # killed meanwhile stood beside the figure of the run before (--force), and nothing said so.
+    saved = False
     try:
         with written_whole(fig_path, replace=force) as tmp:
-            fig.savefig(tmp, dpi=150)
-    except (OSError, ValueError, RuntimeError, FileError) as exc:     # RuntimeError: a format's tool missing (pgf: LaTeX)
+            try:
+                fig.savefig(tmp, dpi=150)
+            except (OSError, ValueError, RuntimeError) as exc:  # RuntimeError: a format's tool missing (pgf: LaTeX)
+                save_samples()
+                saved = True
+                raise exc from None     # the figure's new name is removed; the samples are kept
+            save_samples()
+            saved = True
+            stop.check()    # a signal while the samples were put in place, acted on now that they are there
+    except (OSError, ValueError, RuntimeError, FileError) as exc:
+        if not saved:           # the figure's name could not be made: the samples are saved all the same
+            save_samples()
         # where they are kept, and what reads them (no plot kind draws return angles)
         cannot_write(fig_path, exc, kept=f"the samples are kept in {display_path(h5_path)} (returns/angle; "
                                          "rbx.reader.read_returns reads them)")
