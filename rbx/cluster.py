@@ -327,7 +327,8 @@ class Cluster:
         self._heard = time.monotonic()      # when the scheduler last answered, or a task finished
         self._silent_since = None           # the first unanswered heartbeat since then
         self._workers_seen = {}             # each worker's last heartbeat, as the scheduler last told it
-        self._workers_quiet_since = None    # the first answer since then in which no worker had news
+        self._workers_quiet_since = None    # since when no worker had news, by the scheduler's answers
+        self._workers_answered_at = None    # when the scheduler last answered (no task finished since)
         self.slices = None if slices is None else int(slices)
         self.task_collisions = None if task_collisions is None else int(task_collisions)
         self.tasks_run = 0
@@ -518,11 +519,15 @@ class Cluster:
         seen = {worker: (info or {}).get("last_seen") for worker, info in listed.items()}
         news = any(when is not None and when != self._workers_seen.get(worker) for worker, when in seen.items())
         self._workers_seen = seen
+        previous, self._workers_answered_at = self._workers_answered_at, now
         if news:
             self._workers_quiet_since = None
-        elif self._workers_quiet_since is None:
-            self._workers_quiet_since = now
-        elif time.monotonic() - self._workers_quiet_since >= SILENCE:
+            return
+        if self._workers_quiet_since is None:
+            # no heartbeat since the previous answer: quiet since then at least. Counted from this answer, a worker
+            # frozen just after one was said about SILENCE + 2 HEARTBEAT later (124 s, where 90 was written)
+            self._workers_quiet_since = previous if previous is not None else now
+        if time.monotonic() - self._workers_quiet_since >= SILENCE:
             quiet = time.monotonic() - self._workers_quiet_since
             what = (f"none of its {len(seen)} worker(s) has sent the scheduler a heartbeat for {quiet:.0f} s "
                     "(frozen, or their host hung)" if seen else
@@ -532,7 +537,7 @@ class Cluster:
     def _heard_from(self):
         """A task finished: the scheduler and a worker are alive."""
         self._heard, self._silent_since = time.monotonic(), None
-        self._workers_quiet_since = None
+        self._workers_quiet_since = self._workers_answered_at = None
 
     def _submit(self, function, *args, **options):
         """``client.submit``; a client closed meanwhile (its scheduler killed: Dask closes the client, and the next
