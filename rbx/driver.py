@@ -31,10 +31,10 @@ from .locks import busy as _busy
 from .progress import plural
 from .paths import (ANY, NO_ROOM, DiskFull, FileError, check_own_file, check_own_kind, check_own_names,
                     check_replaceable, copy_to_new, creation_path, display_path, file_id, format_size, other_commands_file, place,
-                    temporary_path, what_it_is)
+                    shortened, temporary_path, what_it_is)
 from .reader import Run
-from .runfile import (H5Sink, _text, close_journal, commit, config_yaml, data_bytes, file_path, fill_returns, is_true,
-                      journal_of, open_journaled)
+from .runfile import (PROVENANCE_ATTRS, ROOT_ATTRS, H5Sink, _text, close_journal, commit, config_yaml, data_bytes,
+                      file_path, fill_returns, is_true, journal_of, open_journaled)
 
 # ---- the .partial lifecycle --------------------------------------------------------------------------------------
 
@@ -525,6 +525,10 @@ class Resumption:
     replaces: object = None
 
 
+#: root attributes a resumed run file may hold beside rbx's own (notes a user added); a file with more is refused
+MAX_EXTRA_ATTRS = 64
+
+
 def resumed_source(run_file):
     """The file ``--resume RUN`` reads -> absolute path: RUN itself, or ``RUN.partial`` when RUN does not exist
     and its run was interrupted (killed: only ``OUT.h5.partial`` is left; ``--resume OUT.h5`` said "file not
@@ -598,6 +602,13 @@ def prepare_resume(run_file, output=None, *, force=False, max_size=None, out_key
             raise _not_in_place(source, unlocked, out_key)
         note = continuation.version_note(run)
         with run:
+            extra = [a for a in run.h5.attrs if a not in ROOT_ATTRS and a not in PROVENANCE_ATTRS]
+            if len(extra) > MAX_EXTRA_ATTRS:
+                # a resume changes root attributes, and each change rewrites an object header of that many: 5 000
+                # took minutes inside HDF5, where no signal is seen (it was killed with SIGKILL, its locks left)
+                raise FileError(source, None, f"holds {len(extra)} root attributes that rbx does not write (the "
+                                              f"first: {shortened(extra[0], 40)}), more than the {MAX_EXTRA_ATTRS} a "
+                                              "resume takes: remove them (h5py: del f.attrs[name]) and resume again")
             try:
                 sim, write_initial, done = continuation.load(run, source, lock=locked)
             except MemoryError:

@@ -22,7 +22,7 @@ from .config import loads
 from .locks import acquire_lock, lock_holder, release_lock
 from .locks import busy as _busy
 from .model import FIELD, RECORD_FIELDS, ConfigError
-from .paths import (MAX_CONFIG_BYTES, FileError, check_own_objects, display_path, file_id, shortened,
+from .paths import (MAX_CONFIG_BYTES, FileError, check_own_objects, display_path, file_id, shortened, stored_text,
                     what_it_is)
 from .progress import plural
 from .runfile import (INDEX_DATASETS, REQUIRED_ATTRS, ROOT_ATTRS, SCHEMA_VERSION, STATE_GROUPS, _plain, _text,
@@ -168,6 +168,9 @@ def _check_rbx_file(f, path, group):
     if is_true(f.attrs["complete"]) is None:
         raise FileError(path, "complete", f"is {_attr(f.attrs['complete'])!r}, not true or false (a boolean): the "
                                           "attribute was changed since rbx wrote it")
+    problem = root_attribute_problem(f.attrs)
+    if problem:
+        raise FileError(path, *problem)
     schema = int(f.attrs.get("schema_version", 1))
     if schema > SCHEMA_VERSION:
         raise FileError(path, "schema_version", f"is {schema}: written by a newer rbx (this one reads up to "
@@ -186,6 +189,43 @@ def _check_rbx_file(f, path, group):
         for k in INDEX_DATASETS:
             if k not in f["collisions"]:
                 raise FileError(path, f"collisions/{k}", "not in this file (a damaged run?)")
+
+
+def _is_text(v):
+    """UTF-8 text (h5py hands bytes that are not UTF-8 back as lone surrogates)."""
+    try:
+        if isinstance(v, str):
+            v.encode("utf-8")
+        elif isinstance(v, bytes):
+            v.decode("utf-8")
+        else:
+            return False
+        return True
+    except UnicodeError:
+        return False
+
+
+def root_attribute_problem(attrs):
+    """The first root attribute of an rbx file that is not of the kind rbx writes -> (name, what is wrong), or
+    None: ``config`` UTF-8 text, ``schema_version`` a whole number, ``wall_names`` a non-empty list of names.
+    Edited by hand, they were read as 'damaged?' in Python's words (``object of type 'numpy.int64' has no
+    len()``, ``invalid literal for int()``), or blamed on another part of the file."""
+    def kind(v):
+        x = _attr(v)
+        return f"{type(v).__name__} " + (f"'{shortened(stored_text(x), 40)}'" if isinstance(x, str) else
+                                         shortened(repr(x), 40))
+    config = attrs.get("config")
+    if config is not None and not _is_text(config):
+        return "config", (f"is {kind(config)}, not YAML text (UTF-8): the attribute was changed since rbx wrote "
+                          "it")
+    schema = attrs.get("schema_version")
+    if schema is not None and not (np.ndim(schema) == 0 and np.asarray(schema).dtype.kind in "iu"):
+        return "schema_version", f"is {kind(schema)}, not a whole number: the attribute was changed since rbx wrote it"
+    names = attrs.get("wall_names")
+    if names is not None and not (np.ndim(names) == 1 and len(names) > 0 and all(_is_text(x) for x in names)):
+        return "wall_names", (f"is {kind(names)}, not the list of the table's wall names: the attribute was changed "
+                              "since rbx wrote it")
+    return None
 
 
 def check_layout(f, path):

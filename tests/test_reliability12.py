@@ -329,3 +329,63 @@ def test_a_histogram_killed_while_its_figure_is_drawn_leaves_both_files_as_they_
     res = cli("", *args, "--force", "--seed", "7", cwd=tmp_path)     # and the next run replaces both
     assert res.returncode == 0, res.stderr
     assert all(hashlib.sha256((tmp_path / name).read_bytes()).hexdigest() != digest[name] for name in digest)
+
+
+@pytest.mark.parametrize("key, value, said", [
+    ("config", 5, "config: is int64 5, not YAML text (UTF-8)"),
+    ("config", ["a", "b"], "config: is ndarray ['a', 'b'], not YAML text (UTF-8)"),
+    ("config", b"\xff\xfe", "config: is str '\\xff\\xfe', not YAML text (UTF-8)"),
+    ("schema_version", "one", "schema_version: is str 'one', not a whole number"),
+    ("wall_names", [], "wall_names: is ndarray [], not the list of the table's wall names"),
+])
+def test_a_root_attribute_of_another_kind_is_named_not_called_damage(tmp_path, key, value, said):
+    """A root attribute edited to another kind was 'cannot read the HDF5 file (damaged?)' in Python's words
+    ("object of type 'numpy.int64' has no len()", "invalid literal for int()"), or blamed on another part of the
+    file (an empty `wall_names`: "final/last_wall: names no wall of the table (0 … -1…)"). Each is now named."""
+    run = tmp_path / "a.h5"
+    rbx.simulate(rbx.load(str(EXAMPLES / "circle.yaml")), collisions=20, output=str(run)).close()
+    with h5py.File(run, "r+") as f:
+        del f.attrs[key]
+        if isinstance(value, bytes):
+            f.attrs.create(key, value)          # fixed-length bytes, not UTF-8: h5py hands back lone surrogates
+        elif isinstance(value, list) and not value:
+            f.attrs[key] = np.array([], dtype=h5py.string_dtype())
+        else:
+            f.attrs[key] = value
+    with pytest.raises(rbx.FileError) as info:
+        rbx.open(str(run))
+    assert said in str(info.value), str(info.value)
+    for args in (["plot", "a.h5", "--kind", "orbit", "-o", "o.png"], ["simulate", "--resume", "a.h5", "-o", "b.h5"]):
+        res = cli("", *args, cwd=tmp_path)
+        assert res.returncode == 2 and res.stderr == f"rbx: a.h5: {said}: the attribute was changed since rbx " \
+                                                     "wrote it\n", res.stderr
+
+
+def test_a_resume_refuses_a_run_file_with_thousands_of_root_attributes_added(tmp_path):
+    """5 000 root attributes added to an interrupted run file (a 0.4 MB edit): `rbx simulate --resume` ran for
+    minutes inside HDF5 (each root attribute it changes rewrote a header of them all), deaf to SIGTERM and SIGINT,
+    and a SIGKILL left its locks. A resume now takes at most MAX_EXTRA_ATTRS attributes of the user's beside rbx's
+    own, and refuses more in one line before anything is written; 64 notes resume as before, and are kept."""
+    from rbx.driver import MAX_EXTRA_ATTRS
+    conf = _config(tmp_path)
+    res = cli(INTERRUPT, "simulate", str(conf), "-o", "s.h5", "--quiet", cwd=tmp_path)
+    assert res.returncode == 130, res.stderr
+    shutil.copy(tmp_path / "s.h5", tmp_path / "t.h5")
+    with h5py.File(tmp_path / "s.h5", "r+") as f:
+        for i in range(MAX_EXTRA_ATTRS + 1):
+            f.attrs[f"note{i}"] = i
+    before = (tmp_path / "s.h5").read_bytes()
+    res = cli("", "simulate", "--resume", "s.h5", "-o", "r.h5", cwd=tmp_path)
+    assert res.returncode == 2 and res.stderr == (
+        f"rbx: s.h5: holds {MAX_EXTRA_ATTRS + 1} root attributes that rbx does not write (the first: note0), more "
+        f"than the {MAX_EXTRA_ATTRS} a resume takes: remove them (h5py: del f.attrs[name]) and resume again\n"), \
+        res.stderr
+    assert (tmp_path / "s.h5").read_bytes() == before and not list(tmp_path.glob("r.h5*"))
+    assert not list(tmp_path.glob("*.lock"))
+    with h5py.File(tmp_path / "t.h5", "r+") as f:
+        for i in range(MAX_EXTRA_ATTRS):
+            f.attrs[f"note{i}"] = i
+    res = cli("", "simulate", "--resume", "t.h5", "-o", "u.h5", "--quiet", cwd=tmp_path)
+    assert res.returncode == 0, res.stderr
+    with h5py.File(tmp_path / "u.h5", "r") as f:
+        assert f.attrs["complete"] and f.attrs[f"note{MAX_EXTRA_ATTRS - 1}"] == MAX_EXTRA_ATTRS - 1
