@@ -168,13 +168,16 @@ def _check_rbx_file(f, path, group):
     if is_true(f.attrs["complete"]) is None:
         raise FileError(path, "complete", f"is {_attr(f.attrs['complete'])!r}, not true or false (a boolean): the "
                                           "attribute was changed since rbx wrote it")
+    schema = f.attrs.get("schema_version", 1)
+    if not (np.ndim(schema) == 0 and np.asarray(schema).dtype.kind in "iu"):
+        raise FileError(path, "schema_version", f"is {_kind(schema)}, not a whole number: the attribute was changed "
+                                                "since rbx wrote it")
+    if int(schema) > SCHEMA_VERSION:        # before the rest: a newer rbx may write them otherwise
+        raise FileError(path, "schema_version", f"is {int(schema)}: written by a newer rbx (this one reads up to "
+                                                f"{SCHEMA_VERSION}); upgrade rbx")
     problem = root_attribute_problem(f.attrs)
     if problem:
         raise FileError(path, *problem)
-    schema = int(f.attrs.get("schema_version", 1))
-    if schema > SCHEMA_VERSION:
-        raise FileError(path, "schema_version", f"is {schema}: written by a newer rbx (this one reads up to "
-                                                f"{SCHEMA_VERSION}); upgrade rbx")
     missing = [a for a in ROOT_ATTRS if a not in f.attrs and a != "schema_version"]
     if missing:
         raise FileError(path, None, f"not an rbx run file (no root attribute '{missing[0]}')")
@@ -205,26 +208,26 @@ def _is_text(v):
         return False
 
 
+def _kind(v):
+    """An attribute's value for a message: its type and its value, cut short."""
+    x = _attr(v)
+    return f"{type(v).__name__} " + (f"'{shortened(stored_text(x), 40)}'" if isinstance(x, str) else
+                                     shortened(repr(x), 40))
+
+
 def root_attribute_problem(attrs):
     """The first root attribute of an rbx file that is not of the kind rbx writes -> (name, what is wrong), or
-    None: ``config`` UTF-8 text, ``schema_version`` a whole number, ``wall_names`` a non-empty list of names.
-    Edited by hand, they were read as 'damaged?' in Python's words (``object of type 'numpy.int64' has no
-    len()``, ``invalid literal for int()``), or blamed on another part of the file."""
-    def kind(v):
-        x = _attr(v)
-        return f"{type(v).__name__} " + (f"'{shortened(stored_text(x), 40)}'" if isinstance(x, str) else
-                                         shortened(repr(x), 40))
+    None: ``config`` UTF-8 text, ``wall_names`` a non-empty list of names (``schema_version``, a whole number, is
+    checked before: :func:`_check_rbx_file`). Edited by hand, they were read as 'damaged?' in Python's words
+    (``object of type 'numpy.int64' has no len()``), or blamed on another part of the file."""
     config = attrs.get("config")
     if config is not None and not _is_text(config):
-        return "config", (f"is {kind(config)}, not YAML text (UTF-8): the attribute was changed since rbx wrote "
+        return "config", (f"is {_kind(config)}, not YAML text (UTF-8): the attribute was changed since rbx wrote "
                           "it")
-    schema = attrs.get("schema_version")
-    if schema is not None and not (np.ndim(schema) == 0 and np.asarray(schema).dtype.kind in "iu"):
-        return "schema_version", f"is {kind(schema)}, not a whole number: the attribute was changed since rbx wrote it"
     names = attrs.get("wall_names")
     if names is not None and not (np.ndim(names) == 1 and len(names) > 0 and all(_is_text(x) for x in names)):
-        return "wall_names", (f"is {kind(names)}, not the list of the table's wall names: the attribute was changed "
-                              "since rbx wrote it")
+        return "wall_names", (f"is {_kind(names)}, not the list of the table's wall names: the attribute was "
+                              "changed since rbx wrote it")
     return None
 
 
