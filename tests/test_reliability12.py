@@ -389,3 +389,22 @@ def test_a_resume_refuses_a_run_file_with_thousands_of_root_attributes_added(tmp
     assert res.returncode == 0, res.stderr
     with h5py.File(tmp_path / "u.h5", "r") as f:
         assert f.attrs["complete"] and f.attrs[f"note{MAX_EXTRA_ATTRS - 1}"] == MAX_EXTRA_ATTRS - 1
+
+
+def test_a_signal_whose_keyboardinterrupt_was_lost_still_stops_a_study(tmp_path):
+    """Ctrl-C during `rbx sweep --resume` of a results file with 20 000 attributes added: its KeyboardInterrupt was
+    raised inside a finaliser (xarray and h5netcdf reading the attributes), where Python drops it, and the study
+    ran to the end, exit 0, 4 of 4 times. The signal is on the command's flag: it is now acted on after the next
+    point. Here the handler is made to lose every KeyboardInterrupt, and SIGINT sent as the first point is stored."""
+    study = tmp_path / "s.yaml"
+    study.write_text(yaml.safe_dump({"base": str(EXAMPLES / "strip.yaml"), "vary": {"ball.inertia": [0.2, 0.3, 0.5]},
+                                     "measure": ["mean_free_path"], "ensemble": {"trajectories": 2, "collisions": 100}}))
+    prelude = ("import os, signal, rbx.api as _a, rbx.sweeping as _s\n"
+               "def _lost(self, signum, frame):\n    self.signum = self.signum or signum\n"
+               "_a.StopFlag._handler = _lost\n_real = _s._store\n_sent = []\n"
+               "def _store(*a, **k):\n    _real(*a, **k)\n    if not _sent:\n        _sent.append(1)\n"
+               "        os.kill(os.getpid(), signal.SIGINT)\n_s._store = _store\n")
+    res = cli(prelude, "sweep", "s.yaml", "-o", "r.nc", cwd=tmp_path)
+    assert res.returncode == 130, res.stderr
+    assert "interrupted by SIGINT after 1 of 3 points" in res.stderr, res.stderr
+    assert (tmp_path / "r.nc.partial").exists() and not (tmp_path / "r.nc").exists()
