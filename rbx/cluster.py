@@ -325,6 +325,7 @@ class Cluster:
     def __init__(self, client, own=False, key="--scheduler", slices=None, task_collisions=None):
         self.client, self.own, self.key = client, own, key
         self._heard = time.monotonic()      # when the scheduler last answered, or a task finished
+        self._answered_at = self._heard     # when it last answered, or a task finished (not a failed question)
         self._silent_since = None           # the first unanswered heartbeat since then
         self._workers_seen = {}             # each worker's last heartbeat, as the scheduler last told it
         self._workers_quiet_since = None    # since when no worker had news, by the scheduler's answers
@@ -452,6 +453,9 @@ class Cluster:
                     _hide_abandoned_gathers()
                     if should_stop is not None and should_stop():
                         return STOPPED
+                    # or the scheduler frozen: the fetch asks it where the result is. Not watched here, a frozen
+                    # scheduler held rbx histogram --scheduler for ever, without a line
+                    self._watch()
                     continue
         except ClusterError:
             raise
@@ -500,12 +504,15 @@ class Cluster:
         answered = [value for ok, value in list(outcome) if ok]
         if answered:
             self._silent_since = None
+            self._answered_at = now
             if workers:
                 self._check_worker_news(answered[0], now)
         else:
             if self._silent_since is None:
-                self._silent_since = now
-            elif time.monotonic() - self._silent_since >= SILENCE:
+                # silent since its last answer (or the last task that finished), not since this first unanswered
+                # question: counted from here, a freeze was said up to SILENCE + HEARTBEAT after it, and as 30 s shorter
+                self._silent_since = self._answered_at
+            if time.monotonic() - self._silent_since >= SILENCE:
                 raise ClusterError(self.key, f"the scheduler stopped answering (no reply for "
                                              f"{time.monotonic() - self._silent_since:.0f} s: frozen, overloaded, or "
                                              f"the network to it lost)") from None
@@ -537,6 +544,7 @@ class Cluster:
     def _heard_from(self):
         """A task finished: the scheduler and a worker are alive."""
         self._heard, self._silent_since = time.monotonic(), None
+        self._answered_at = self._heard
         self._workers_quiet_since = self._workers_answered_at = None
 
     def _submit(self, function, *args, **options):

@@ -848,3 +848,34 @@ def test_a_frozen_worker_is_said_silence_after_the_last_answer_that_had_news(mon
     answer(150.0, 1030.0)
     with pytest.raises(cluster.ClusterError):
         answer(180.0, 1030.0)
+
+
+def test_a_result_whose_fetch_times_out_watches_the_scheduler(monkeypatch):
+    """A task finished, its result fetched while the scheduler was frozen: each fetch timed out and was tried again
+    without asking whether the scheduler still answers, and `rbx histogram --scheduler` gave no line for 150–200 s
+    (then SIGTERM). The retry now watches the scheduler as a wait for a task does: silence for SILENCE seconds,
+    counted from its last answer, is one ClusterError. A clock of the test's; no Dask."""
+    import types
+    from rbx import cluster
+    clock = [0.0]
+    monkeypatch.setattr(cluster, "time", types.SimpleNamespace(monotonic=lambda: clock[0], sleep=lambda s: None))
+    monkeypatch.setattr(cluster, "_probe", lambda address, timeout: (_ for _ in ()).throw(OSError("frozen")))
+    monkeypatch.setattr(cluster, "_in_background", lambda call, name: (types.SimpleNamespace(
+        join=lambda timeout: None), [(False, None)]))
+    client = types.SimpleNamespace(scheduler=types.SimpleNamespace(address="tcp://127.0.0.1:1"))
+    c = cluster.Cluster(client)
+    fetches = []
+
+    class Finished:
+        def done(self):
+            return True
+
+        def result(self, timeout):
+            fetches.append(clock[0])
+            clock[0] += timeout             # each fetch waits its timeout out
+            if len(fetches) > 1000:
+                return "the result"         # the old loop: it would have gone on for ever
+            raise TimeoutError
+    with pytest.raises(cluster.ClusterError, match=r"the scheduler stopped answering \(no reply for 6\d s"):
+        c._outcome(Finished(), "a task")
+    assert clock[0] <= cluster.SILENCE + cluster.HEARTBEAT + cluster.FETCH_TIMEOUT, clock[0]
