@@ -236,6 +236,13 @@ def load_study(study, base=None, progress=None, sets=None, ensemble=None):
                                     + [("--set ", k, v) for k, v in sets.items()]):
             if _sets_varied(given, value, str(key)):
                 fail(f"{where}{given}", f"the study varies {key} (vary.{key}): a value set for it would not be used")
+            if str(key).startswith(f"{given}.") and isinstance(value, Mapping):
+                # a mapping for a section that holds the varied key (and not the key itself): each point would name
+                # the key twice, which was said as 'vary.ball.inertia: set twice, as ball and ball.inertia'
+                inner = str(key)[len(given) + 1:].partition(".")[0]
+                other = next((str(k) for k in value if str(k) != inner), "NAME")
+                fail(f"{where}{given}", f"gives the section {given} whole, and the study varies {key} inside it "
+                                        f"(vary.{key}): give its keys one by one ({given}.{other}=…)")
     _check_size(vary, zipped, fail)         # before any value is made: 10⁷ points took 4.3 GB to build
     keys, values = [], []
     for key, spec in vary.items():

@@ -408,3 +408,20 @@ def test_a_signal_whose_keyboardinterrupt_was_lost_still_stops_a_study(tmp_path)
     assert res.returncode == 130, res.stderr
     assert "interrupted by SIGINT after 1 of 3 points" in res.stderr, res.stderr
     assert (tmp_path / "r.nc.partial").exists() and not (tmp_path / "r.nc").exists()
+
+
+def test_a_section_set_whole_around_a_varied_key_is_named(tmp_path):
+    """`rbx.sweep(study, sets={"ball": {"radius": 0.05}})` of a study varying ball.inertia was refused as
+    "vary.ball.inertia: set twice, as ball and ball.inertia": the line named the study's key, not the one given.
+    It now names the --set and says how to give it."""
+    study = tmp_path / "s.yaml"
+    study.write_text(yaml.safe_dump({"base": str(EXAMPLES / "strip.yaml"), "vary": {"ball.inertia": [0.2, 0.5]},
+                                     "measure": ["mean_free_path"], "ensemble": {"trajectories": 2, "collisions": 100}}))
+    from rbx.model import ConfigError
+    with pytest.raises(ConfigError, match=r"--set ball: gives the section ball whole, and the study varies "
+                                          r"ball\.inertia inside it \(vary\.ball\.inertia\): give its keys one by one "
+                                          r"\(ball\.radius=…\)"):
+        rbx.sweep(str(study), sets={"ball": {"radius": 0.05}})
+    res = cli("", "sweep", "s.yaml", "-o", "r.nc", "--set", "ball={radius: 0.05}", cwd=tmp_path)
+    assert res.returncode == 2 and res.stderr.count("\n") == 1 and "--set ball: gives the section" in res.stderr
+    assert rbx.sweep(str(study), sets={"ball.radius": 0.05})["mean_free_path"].size == 2
