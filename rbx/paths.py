@@ -352,19 +352,32 @@ def foreign_object(group, prefix=""):
         prefix, group = todo.pop()
         for name in group:
             where = f"{prefix}{name}"
-            if not isinstance(group.get(name, getlink=True), h5py.HardLink):
-                return where, "link"
-            item = group[name]
+            item, what = own_item(group, name)
+            if what:
+                return where, what
             if item.id in seen:                  # rbx gives each group and dataset one name
                 return where, "second name"
             seen.add(item.id)
             if isinstance(item, h5py.Group):
                 todo.append((f"{where}/", item))
-            elif not isinstance(item, h5py.Dataset):
-                return where, "datatype"         # a committed datatype: no values at all
-            elif item.is_virtual or item.external:
-                return where, "virtual" if item.is_virtual else "external"
     return None
+
+
+def own_item(group, name):
+    """The member ``name`` of the open HDF5 ``group``, looked at as a link first -> (item, None) for a group or a
+    dataset of the file's own, or (None, 'link' | 'datatype' | 'virtual' | 'external') (see
+    :func:`foreign_object`, which asks it of every member; a reader of one dataset asks it alone)."""
+    import h5py
+    if not isinstance(group.get(name, getlink=True), h5py.HardLink):
+        return None, "link"
+    item = group[name]
+    if isinstance(item, h5py.Group):
+        return item, None
+    if not isinstance(item, h5py.Dataset):
+        return None, "datatype"         # a committed datatype: no values at all
+    if item.is_virtual or item.external:
+        return None, "virtual" if item.is_virtual else "external"
+    return item, None
 
 
 def check_own_objects(path, group, fix, prefix="", noun="variable"):

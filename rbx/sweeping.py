@@ -33,7 +33,7 @@ from .locks import LockNotWritable, acquire_lock, release_lock
 from .model import ConfigError
 from .paths import (ANY, DiskFull, FileError, check_own_file, check_own_kind, check_own_names, check_own_objects,
                     check_replaceable, create_own, display_path, file_id, other_commands_file, place, shortened_pair,
-                    check_path_text, stop_signals, stored_text, what_it_is)
+                    check_path_text, own_item, stop_signals, stored_text, what_it_is)
 from .runfile import provenance
 from .simulation import STATE_BYTES, memory_problem, memory_refusal, records_bytes
 from .study import MAX_POINTS, Study, _representatives, load_study, needs
@@ -855,10 +855,8 @@ def kept_points(path, digest=None):
         # whole file read as a resume does: that walk of a file of 200 000 objects (edited in) took 33 s after a
         # signal had stopped the study, and was a hang to whoever sent it
         with h5py.File(path, "r") as f:
-            if not isinstance(f.get("done", getlink=True), h5py.HardLink):
-                return None, 0, 0
-            item = f["done"]
-            if not isinstance(item, h5py.Dataset) or item.is_virtual or item.external or item.size > MAX_POINTS:
+            item, foreign = own_item(f, "done")          # missing: no link either
+            if foreign or not isinstance(item, h5py.Dataset) or item.size > MAX_POINTS:
                 return None, 0, 0
             if digest is not None and f.attrs.get("study_digest") != digest:
                 return None, 0, 0
