@@ -670,6 +670,18 @@ def value_problem(ds, measured, label=lambda index: str(tuple(int(i) for i in in
     numbers ≥ 0, with no more regular orbits than orbits; a wall time is finite and ≥ 0; ``done`` is 0 or 1; an
     observable that is never NaN (``Observable.never_nan``) is a number; and each value is there or not as the file's own numbers say
     (``Observable.has_value``)."""
+    # the layout first: every variable per point (the points' dimensions, those of done, first), of numbers; a
+    # variable on another dimension, an empty one, or a done of one value ended a figure in a traceback, or named
+    # another variable
+    points = ds["done"].sizes
+    if not points or 0 in points.values():
+        return "done", f"holds {'no value per point' if not points else 'no point'} (dimensions {dict(points)})"
+    for name, var in ds.data_vars.items():
+        if tuple(var.dims[:len(points)]) != tuple(points) or any(var.sizes[k] != n for k, n in points.items()):
+            return name, (f"has dimensions {dict(var.sizes)}, where each variable has the points' "
+                          f"{dict(points)} first")
+        if var.dtype.kind not in "iufb":
+            return name, f"holds {var.dtype} values, not numbers"
     done = np.asarray(ds["done"].values, float)
     if not np.all((done == 0) | (done == 1)):
         bad = ~((done == 0) | (done == 1))
