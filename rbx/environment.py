@@ -4,11 +4,12 @@ rbx's own: ``RBX_KERNELS`` (which compiled loops run: :data:`KERNEL_MODES`, :mod
 ``RBX_NUMBA_FALLBACK`` (the uses of Numba's private parts to leave out: :data:`NUMBA_HOOKS`,
 :mod:`rbx._numba_hooks`). Numba's, that stop rbx before it runs: ``NUMBA_NUM_THREADS`` (a count Numba cannot read
 is a traceback at its import), ``NUMBA_DISABLE_JIT`` (rbx's loops exist only compiled) and
-``NUMBA_THREADING_LAYER`` (a layer that cannot be loaded fails the first run).
+``NUMBA_THREADING_LAYER`` (a layer that cannot be loaded fails the first run), and any ``NUMBA_*`` whose value
+Numba cannot parse (it warns with a traceback, then ignores it).
 
 The command line calls :func:`problem` before any command and refuses in one line, exit 2; the library reads the
 same functions where it uses each variable (an unknown ``RBX_KERNELS`` warns, an unknown hook is an ImportError).
-Imports nothing of rbx, and Numba only to try a threading layer someone asked for.
+Imports nothing of rbx, and Numba only when one of its variables is set.
 """
 import os
 
@@ -79,4 +80,25 @@ def problem():
         said = check()
         if said:
             return name, said
+    return _unread_numba_setting()
+
+
+def _unread_numba_setting():
+    """A ``NUMBA_*`` variable whose value Numba cannot read -> (name, what is wrong), or None. Numba reads its
+    variables when it is imported and warns about one it cannot parse with its parser's whole traceback (twelve
+    lines for ``NUMBA_OPT=abc``), then goes on without it. Numba is imported here only if such a variable is set."""
+    if not any(key.startswith("NUMBA_") for key in os.environ):
+        return None
+    import re
+    import warnings
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        import numba.core.config  # noqa: F401 - its import reads the variables
+    for w in caught:
+        found = re.match(r"Environment variable '(\w+)' is defined but its associated value '(.*)' could not be "
+                         r"parsed", str(w.message))
+        if found:
+            lines = [line.strip() for line in str(w.message).splitlines() if line.strip()]
+            why = lines[-1].split(": ", 1)[-1] if len(lines) > 1 else "not a value it takes"
+            return found.group(1), f"Numba cannot read the value {found.group(2)!r} ({why}); unset it or fix it"
     return None

@@ -268,9 +268,14 @@ def _write(ds, path):
                 os.remove(tmp)
         size = _bytes_text(len(image.getbuffer()))
         folder = os.path.dirname(os.path.abspath(path))
+        denied = exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS)
         if not os.path.isdir(folder):
             kept = (f"its folder {display_path(folder)} is gone (removed while the study ran?): nothing of the "
                     "study is kept")
+        elif denied:                            # not the room: the folder (made read-only while the study ran?)
+            kept = (f"its folder {display_path(folder)} cannot be written; "
+                    + (f"{display_path(path)} is as it was: once the folder can be written, continue with --resume"
+                       if os.path.exists(path) else "nothing of the study was on disk yet, so no point is kept"))
         elif os.path.exists(path):
             kept = (f"{display_path(path)} is as it was (a write makes a whole new copy, {size}, beside it before "
                     "replacing it, so it needs that much free): free some room and continue with --resume")

@@ -566,11 +566,14 @@ def test_usage_mistakes_of_every_command_are_one_line(tmp_path, args, key, probl
     ("RBX_NUMBA_FALLBACK", "bogus", "unknown hook(s) ['bogus']; known: all, fingerprint"),
     ("NUMBA_DISABLE_JIT", "1", "is '1': rbx's loops run only as Numba compiles them; unset it"),
     ("NUMBA_THREADING_LAYER", "bogus", "Numba cannot load the threading layer 'bogus' (The threading layer"),
+    ("NUMBA_OPT", "abc", "Numba cannot read the value 'abc' (Environment variable `NUMBA_OPT` is set to an "
+                         "unsupported value 'abc', supported values are 0, 1, 2, 3, and 'max'); unset it or fix it"),
 ])
 def test_an_environment_variable_that_stops_rbx_is_one_line(tmp_path, variable, value, said):
     """An unknown hook in RBX_NUMBA_FALLBACK, Numba's compiler turned off, a threading layer Numba cannot load
-    ended a command in a traceback, and an unknown RBX_KERNELS warned in Python's two lines and ran on: each is
-    now one line naming the variable, exit 2, before any work."""
+    ended a command in a traceback, and an unknown RBX_KERNELS warned in Python's two lines and ran on, as did
+    a value of NUMBA_OPT that Numba cannot read (its parser's traceback in a warning): each is now one line
+    naming the variable, exit 2, before any work."""
     res = subprocess.run([RBX, "simulate", str(STRIP), "-o", "a.h5"], capture_output=True, text=True, timeout=120,
                          cwd=tmp_path, env=dict(os.environ, **{variable: value}))
     assert res.returncode == 2 and res.stderr.count("\n") == 1, res.stderr

@@ -9,6 +9,7 @@ checkpointed and closed cleanly. Either way the run ends by renaming ``OUT.h5.pa
 143). An existing ``OUT.h5`` is replaced only with ``--force``. ``--resume`` continues such a file to its
 requested length and writes the same records as an uninterrupted run.
 """
+import errno
 import os
 import signal
 import time
@@ -175,12 +176,18 @@ def _execute(sim, path, stop, quiet, done, start, began):
     progress = Progress("simulate", quiet=quiet, start=done, trajectories=sim.M)
     complete = False
     failure = None
+    notes = []
     try:
-        complete = start(progress=progress, should_stop=stop, report=lambda m: click.echo(f"rbx: {m}", err=True))
+        # the notes of the run's last steps (where its records are kept) are said after the run; a run that failed
+        # says where its records are in its own line, and a note of that failure's consequence (the rename of its
+        # unfinished file, refused by the same read-only folder) would come first and name no cause
+        complete = start(progress=progress, should_stop=stop, report=notes.append)
     except (OSError, ClusterError, NonFiniteState) as exc:   # disk full, file system gone, cluster lost, NaN
         failure = exc
     finally:
         progress.close()
+    for note in notes if failure is None else ():
+        click.echo(f"rbx: {note}", err=True)
     if failure is not None:
         where = temporary_path(path) if os.path.exists(temporary_path(path)) else path
         if isinstance(failure, ClusterError):
@@ -205,9 +212,12 @@ def _execute(sim, path, stop, quiet, done, start, began):
             click.echo(f"rbx: {display_path(where)}: writing failed: {failure.strerror or failure}; nothing was "
                        "saved (the run stopped before its file was made)", err=True)
         else:
-            click.echo(f"rbx: {display_path(where)}: writing failed: {failure.strerror or failure}; the file holds "
-                       "every record up to its last checkpoint (complete = false). Continue with: "
-                       f"rbx simulate --resume {display_path(where)}", err=True)
+            denied = getattr(failure, "errno", None) in (errno.EACCES, errno.EPERM, errno.EROFS)
+            click.echo(f"rbx: {display_path(where)}: writing failed: {failure.strerror or failure}"
+                       + (" (its folder can no longer be written?)" if denied else "")
+                       + "; the file holds every record up to its last checkpoint (complete = false). "
+                       + ("Once it can be written, continue" if denied else "Continue")
+                       + f" with: rbx simulate --resume {display_path(where)}", err=True)
         return 1
     if not complete:
         made = int(sim.ncoll[sim.alive].min()) if sim.alive.any() else sim.cfg.run.collisions
