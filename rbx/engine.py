@@ -53,7 +53,7 @@ from .primitives import P_NORMAL, P_POINT
 from .physics import collide, collide_axis
 from .rng import draw53
 from .rules import EXIT, Rules, choose  # noqa: F401 - Rules: a group of the kernels, defined with the rules
-from .tangent import last_flight, orthonormalise, step
+from .tangent import STATE_SHAPE, fold, last_flight, orthonormalise, state_after, state_before, step
 from .trig import sincos
 
 # bits of the record mask (rbx.model.FIELDS), as module constants so that Numba compiles them in
@@ -431,15 +431,15 @@ def _make_kernel(spec):
         Aj = stack_array(9, (3, 3))
         nu = stack_array(3, (n,))
         work = stack_array(9, (3, n))
+        prod = stack_array(12, (12,))          # the tangent vectors' stretches since their logs were last added
         base = stack_array(3, (n,))            # periodic tables: the centre's cell, …
         loc = stack_array(3, (n,))             # … its position relative to the image of the cell hit, …
         off = stack_array(3, (n,))             # … and that image's shift (loc = a − off); …
         ahead = stack_array(3, (n,))           # … and where the flight is looked at from
         if TANGENT or (GENERAL and (on & S_TANGENT) != 0):
             # what the tangent step reads besides the state
-            vm = stack_array(3, (n,))          # (v, W) before the collision map
-            Wm = stack_array(9, (n, n))
-            Jn = stack_array(9, (n, n))        # the normal's derivative along the wall
+            Ts = stack_array(45, STATE_SHAPE)  # the state around the collision, as the step reads it (tangent._step)
+            Jn = Ts[2]                         # the normal's derivative along the wall
             period = tangent.ortho             # re-orthonormalise every so many collisions (0: never)
         alive = state.alive
         for j in range(j0, j1):
@@ -471,6 +471,8 @@ def _make_kernel(spec):
                 Yj = tangent.Y[j]
                 t_end = tangent.t_end[j]
                 since = 0                       # collisions since the vectors were last re-orthonormalised
+                for k in range(Yj.shape[0]):
+                    prod[k] = 1.0
             while c < stop[j]:
                 # 1. next collision: the flight time and the primitive hit
                 if SLAB or (GENERAL and (on & S_SLAB) != 0):
@@ -508,7 +510,7 @@ def _make_kernel(spec):
                     # without one (stopped at t_end, or at an exit below) takes it alone, after the vectors'
                     # stretches up to the last collision are added
                     if in_flight:
-                        since = last_flight(Yj, tangent.sums, j, since, tau, v, Wj, nu, Jn, R, kappa, rules.basis, n)
+                        since = last_flight(Yj, tangent.sums, prod, j, since, tau, Ts, Wj, R, kappa, n)
                         t = t_end
                         if on & S_COMPENSATED:
                             comp[j, n] = 0.0
@@ -551,8 +553,7 @@ def _make_kernel(spec):
                 if EXIT_ or (GENERAL and (on & S_EXIT) != 0):
                     if rules.kind[node] == EXIT:          # a hole: the contact is the trajectory's last record
                         if TANGENT or (GENERAL and (on & S_TANGENT) != 0):
-                            since = last_flight(Yj, tangent.sums, j, since, tau, v, Wj, nu, Jn, R, kappa, rules.basis,
-                                                n)
+                            since = last_flight(Yj, tangent.sums, prod, j, since, tau, Ts, Wj, R, kappa, n)
                         c += 1
                         if on & S_RECORD:
                             until_record -= 1
@@ -563,10 +564,7 @@ def _make_kernel(spec):
                         break
                 if TANGENT or (GENERAL and (on & S_TANGENT) != 0):
                     # the state before the map, and the normal's derivative at the contact
-                    for i in range(n):
-                        vm[i] = v[i]
-                        for k in range(n):
-                            Wm[i, k] = Wj[i, k]
+                    state_before(Ts, v, Wj, n)
                     curved = False              # a flat wall: J = 0, not read
                     if not (SLAB or (GENERAL and (on & S_SLAB) != 0)):
                         code = codes[p]
@@ -621,12 +619,13 @@ def _make_kernel(spec):
                         for i in range(n):
                             v[i] *= f
                 if TANGENT or (GENERAL and (on & S_TANGENT) != 0):
-                    g = step(Yj, tau, True, vm, Wm, v, Wj, nu, Jn, curved, R, kappa, map_rank, rules.basis, node, w, n)
+                    state_after(Ts, v, Wj, nu, map_rank, rules.basis, node, w, n)
+                    g = step(Yj, tau, True, Ts, curved, R, kappa, map_rank, n)
                     if period > 0:
                         since += 1
                         if since == period or g > tangent.grow:
                             since = 0
-                            orthonormalise(Yj, tangent.sums, j, n)
+                            orthonormalise(Yj, tangent.sums, prod, j, n)
                 c += 1
                 # 6. record
                 if on & S_RECORD:
@@ -641,7 +640,8 @@ def _make_kernel(spec):
                         break
             if TANGENT or (GENERAL and (on & S_TANGENT) != 0):
                 if since > 0:                  # the stretches up to the last collision, before the next call
-                    orthonormalise(Yj, tangent.sums, j, n)
+                    orthonormalise(Yj, tangent.sums, prod, j, n)
+                fold(tangent.sums, prod, j, Yj.shape[0])
             for i in range(n):
                 state.pos[j, i] = a[i]
                 state.vel[j, i] = v[i]

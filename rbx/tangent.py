@@ -14,13 +14,13 @@ orientation and spin scaled by c = R√κ (2D: x₀ = R√κ θ, v₀ = R√κ �
 vector δφ with δA = [δφ]×A, and ω) so that the kinetic energy is ½|(v, ω̂)|² and the collision map is orthogonal
 on (v, ω̂). The tangent vectors are the rows of ``Y`` (each contiguous); :func:`step2`/:func:`step3` take them through
 a flight and the collision at its end in one call. With ``orthonormalise2``/``3`` they are re-orthonormalised
-(Gram–Schmidt, twice) every few collisions (the engine decides when: ``engine.Tangent.ortho``, ``grow``) and the
-logarithms of the stretches are added to ``sums``: their growth per unit time is the Lyapunov spectrum.
+(Gram–Schmidt, a second pass where the first cancelled much) every few collisions (the engine decides when:
+``engine.Tangent.ortho``, ``grow``) and the logarithms of the stretches are added to ``sums`` (through the
+products ``prod``, :func:`fold`): their growth per unit time is the Lyapunov spectrum.
 """
 import numpy as np
 
 from ._jit import jit_call, jit_hot, stack_array
-from .physics import project_roughness
 from .trig import sincos
 
 
@@ -97,7 +97,7 @@ def flight_rotation(W, tau, Rot, K):
 
 
 @jit_hot
-def _step(Y, tau, collide_too, vm, Wm, vp, Wp, nu, J, curved, R, kappa, rank, basis, node, wall, n):
+def _step(Y, tau, collide_too, T, curved, R, kappa, rank, n):
     """Carry the tangent vectors (the rows of Y) through a free flight of duration τ and then, if
     ``collide_too``, through the collision at its end (docs/tangent-map.md):
 
@@ -107,13 +107,24 @@ def _step(Y, tau, collide_too, vm, Wm, vp, Wp, nu, J, curved, R, kappa, rank, ba
         z   = δx⁻ + f(x⁻) δt                                 the perturbation at the perturbed contact
         δx⁺ = DM·z − f(x⁺) δt,   DM = ∂M/∂(v, W) + ∂M/∂ν · ∂ν/∂a
 
-    ``vm``, ``Wm``: the state before the map (and during the flight); ``vp``, ``Wp``: after it; ``nu``, ``J``: the
-    normal and its derivative ∂ν_i/∂a_j at the contact (``curved`` False: a flat wall, J = 0 and not read);
-    ``rank``, ``basis[node, wall]``: the rule applied there (as in :func:`rbx.physics.collide`). ``n`` a literal
+    ``T`` (:data:`STATE_SHAPE`, filled by the caller, :func:`state_before` and :func:`state_after`): the state
+    before the map (and during the flight) ``T[3, 0]`` = v⁻, ``T[0]`` = W⁻; after it ``T[3, 1]``, ``T[1]``; the
+    normal ``T[3, 2]`` and its derivative ∂ν_i/∂a_j at the contact ``T[2]`` (``curved`` False: a flat wall, J = 0
+    and not read); the roughness direction ``T[4, 0]`` of a rank-1 rule in 3D (the rank below n − 1 whose map
+    projects: as :func:`rbx.physics.project_roughness` with that one row). One array, not seven: on an Intel Xeon
+    the call with the seven (about ninety words of arguments, most on the stack) cost 23 ns, half of a 3D Sinai
+    collision. ``rank``: the rule applied there (as in :func:`rbx.physics.collide`). ``n`` a literal
     (the 2D and 3D steps are compiled apart): every index into the step's own arrays is then a constant and they
     live in registers, each vector is loaded once, taken through the flight and the collision, and stored once.
     The arithmetic is the one of the per-coordinate formulas in docs/tangent-map.md, in the same order; what a
     flat wall's J = 0 multiplies is left out (adding ±0 changes no bit but the sign of a zero)."""
+    vm = T[3, 0]
+    vp = T[3, 1]
+    nu = T[3, 2]
+    Wm = T[0]
+    Wp = T[1]
+    J = T[2]
+    b = T[4, 0]
     m = n * (n - 1) // 2
     d = 2 * (n + m)
     K = Y.shape[0]
@@ -153,7 +164,7 @@ def _step(Y, tau, collide_too, vm, Wm, vp, Wp, nu, J, curved, R, kappa, rank, ba
                     s += Wm[i, q] * nu[q]
                 work[1, i] = (vm[i] - vn * nu[i]) - R * s
             if rank < n - 1:
-                project_roughness(work, rank, basis, node, wall, n)
+                project_one(work, b, n)
             for i in range(n):
                 p[i] = work[1, i]
     for k in range(K):
@@ -219,7 +230,7 @@ def _step(Y, tau, collide_too, vm, Wm, vp, Wp, nu, J, curved, R, kappa, rank, ba
                             s += dW[i, q] * nu[q]
                         work[1, i] = y[n + m + i] - dvn * nu[i] - R * s
                 if rank < n - 1:
-                    project_roughness(work, rank, basis, node, wall, n)
+                    project_one(work, b, n)
                 for i in range(n):
                     dvp[i] -= alpha2 * work[1, i]
                 # δW' = δW + s(δp νᵀ + p δνᵀ − δν pᵀ − ν δpᵀ)
@@ -248,28 +259,36 @@ def _step(Y, tau, collide_too, vm, Wm, vp, Wp, nu, J, curved, R, kappa, rank, ba
 
 
 @jit_call
-def step2(Y, tau, collide_too, vm, Wm, vp, Wp, nu, J, curved, R, kappa, rank, basis, node, wall):
+def step2(Y, tau, collide_too, T, curved, R, kappa, rank):
     """:func:`_step` in 2D (6 tangent coordinates), compiled once and called by every 2D loop."""
-    return _step(Y, tau, collide_too, vm, Wm, vp, Wp, nu, J, curved, R, kappa, rank, basis, node, wall, 2)
+    return _step(Y, tau, collide_too, T, curved, R, kappa, rank, 2)
 
 
 @jit_call
-def step3(Y, tau, collide_too, vm, Wm, vp, Wp, nu, J, curved, R, kappa, rank, basis, node, wall):
+def step3(Y, tau, collide_too, T, curved, R, kappa, rank):
     """:func:`_step` in 3D (12 tangent coordinates), compiled once and called by every 3D loop."""
-    return _step(Y, tau, collide_too, vm, Wm, vp, Wp, nu, J, curved, R, kappa, rank, basis, node, wall, 3)
+    return _step(Y, tau, collide_too, T, curved, R, kappa, rank, 3)
 
 
 @jit_hot
-def _orthonormalise(Y, sums, j, d):
-    """Gram–Schmidt twice on the rows of Y (K vectors of ``d`` coordinates, ``d`` a literal) and
-    sums[j, k] += log of row k's stretch (QR of Yᵀ: Yᵀ = QR, Yᵀ ← Q, sums += log R_kk)."""
+def _orthonormalise(Y, sums, prod, j, d):
+    """Gram–Schmidt on the rows of Y (K vectors of ``d`` coordinates, ``d`` a literal); row k's stretch (QR of Yᵀ:
+    Yᵀ = QR, Yᵀ ← Q, the stretch R_kk) is multiplied into ``prod[k]``, whose logarithm is added to sums[j, k] only
+    when it leaves [1e-150, 1e150] and by :func:`fold` (a call of libm's ``log`` per vector per QR was an eighth of
+    the loop). Each row is projected off the ones before it, and a second time only if the first pass cancelled
+    more than half of its squared length (the criterion of Daniel, Gragg, Kaufman and Stewart, η = 1/√2: "twice is
+    enough", and once is enough when little cancels)."""
     K = Y.shape[0]
     y = stack_array(12, (d,))
     tmp = stack_array(12, (12,))
     for k in range(K):
         for i in range(d):
             y[i] = Y[k, i]
-        for _ in range(2):                              # "twice is enough" (Giraud et al.)
+        before = 0.0
+        if k > 0:
+            for i in range(d):
+                before += y[i] * y[i]
+        for _ in range(2):
             for q in range(k):
                 s = 0.0
                 for i in range(d):
@@ -278,51 +297,108 @@ def _orthonormalise(Y, sums, j, d):
             for q in range(k):
                 for i in range(d):
                     y[i] -= tmp[q] * Y[q, i]
-        s = 0.0
-        for i in range(d):
-            s += y[i] * y[i]
+            s = 0.0
+            for i in range(d):
+                s += y[i] * y[i]
+            if s >= 0.5 * before:
+                break
+            before = s
         s = np.sqrt(s)
-        sums[j, k] += np.log(s)
+        g = prod[k] * s
+        if g > 1e150 or g < 1e-150:
+            sums[j, k] += np.log(g)
+            g = 1.0
+        prod[k] = g
         for i in range(d):
             Y[k, i] = y[i] / s
 
 
 @jit_call
-def orthonormalise2(Y, sums, j):
+def orthonormalise2(Y, sums, prod, j):
     """:func:`_orthonormalise` of 2D tangent vectors."""
-    _orthonormalise(Y, sums, j, 6)
+    _orthonormalise(Y, sums, prod, j, 6)
 
 
 @jit_call
-def orthonormalise3(Y, sums, j):
+def orthonormalise3(Y, sums, prod, j):
     """:func:`_orthonormalise` of 3D tangent vectors."""
-    _orthonormalise(Y, sums, j, 12)
+    _orthonormalise(Y, sums, prod, j, 12)
 
 
 @jit_hot
-def step(Y, tau, collide_too, vm, Wm, vp, Wp, nu, J, curved, R, kappa, rank, basis, node, wall, n):
+def fold(sums, prod, j, K):
+    """sums[j, k] += log prod[k], prod[k] ← 1 (k < K): the stretches multiplied since the last fold, added to the
+    sums before a trajectory leaves the loop (the sums are complete at every stop)."""
+    for k in range(K):
+        sums[j, k] += np.log(prod[k])
+        prod[k] = 1.0
+
+
+@jit_hot
+def step(Y, tau, collide_too, T, curved, R, kappa, rank, n):
     """:func:`step2` or :func:`step3`, for the dimension ``n`` (a constant of the calling loop)."""
     if n == 2:
-        return step2(Y, tau, collide_too, vm, Wm, vp, Wp, nu, J, curved, R, kappa, rank, basis, node, wall)
-    return step3(Y, tau, collide_too, vm, Wm, vp, Wp, nu, J, curved, R, kappa, rank, basis, node, wall)
+        return step2(Y, tau, collide_too, T, curved, R, kappa, rank)
+    return step3(Y, tau, collide_too, T, curved, R, kappa, rank)
 
 
 @jit_hot
-def orthonormalise(Y, sums, j, n):
+def orthonormalise(Y, sums, prod, j, n):
     """:func:`orthonormalise2` or :func:`orthonormalise3`, for the dimension ``n``."""
     if n == 2:
-        orthonormalise2(Y, sums, j)
+        orthonormalise2(Y, sums, prod, j)
     else:
-        orthonormalise3(Y, sums, j)
+        orthonormalise3(Y, sums, prod, j)
 
 
 @jit_hot
-def last_flight(Y, sums, j, since, tau, v, W, nu, J, R, kappa, basis, n):
+def last_flight(Y, sums, prod, j, since, tau, T, W, R, kappa, n):
     """The tangent step of a flight that ends without a collision map (the stop at the end time, or an exit): the
     stretches of the ``since`` collisions taken since the last re-orthonormalisation are added first (so that
-    they are not mixed with the flight's), then the flight alone -> 0, the collisions since."""
+    they are not mixed with the flight's), then the flight alone (``W`` the spin during it) -> 0, the collisions
+    since."""
     if since > 0:
-        orthonormalise(Y, sums, j, n)
-    step(Y, tau, False, v, W, v, W, nu, J, False, R, kappa, 0, basis, 0, 0, n)
+        orthonormalise(Y, sums, prod, j, n)
+    for i in range(n):
+        for q in range(n):
+            T[0, i, q] = W[i, q]
+    step(Y, tau, False, T, False, R, kappa, 0, n)
     return 0
 
+
+#: the shape of the array ``T`` that hands the step the state around a collision (:func:`_step`)
+STATE_SHAPE = (5, 3, 3)
+
+
+@jit_hot
+def state_before(T, v, W, n):
+    """T ← the state before the collision map: v⁻ and W⁻ (the spin during the flight)."""
+    for i in range(n):
+        T[3, 0, i] = v[i]
+        for q in range(n):
+            T[0, i, q] = W[i, q]
+
+
+@jit_hot
+def state_after(T, v, W, nu, rank, basis, node, wall, n):
+    """T ← the state after the map, the normal, and where the rule is rank 1 in 3D its roughness direction
+    (the normal's derivative is written into ``T[2]`` by the caller, on a curved wall)."""
+    for i in range(n):
+        T[3, 1, i] = v[i]
+        T[3, 2, i] = nu[i]
+        for q in range(n):
+            T[1, i, q] = W[i, q]
+    if rank != 0 and rank < n - 1:
+        for i in range(n):
+            T[4, 0, i] = basis[node, wall, 0, i]
+
+
+@jit_hot
+def project_one(work, b, n):
+    """work[1] ← (work[1]·b) b: :func:`rbx.physics.project_roughness` onto one direction b, in its order of
+    operations (the same bits)."""
+    c = 0.0
+    for i in range(n):
+        c += work[1, i] * b[i]
+    for i in range(n):
+        work[1, i] = 0.0 + c * b[i]
