@@ -152,9 +152,9 @@ jit_hot = _cached(numba.njit(inline="always", **hooks.NO_RUNTIME, **_POLICY))
 jit_loop = _cached(numba.njit(**hooks.NO_RUNTIME, **_POLICY))
 
 #: a helper the kernels call rather than inline: compiled once (one type signature, the dimension an argument) and
-#: shared by every kernel that calls it, on disk too. For the tangent steps (rbx.tangent): inlined, each of the
-#: kernels that carry tangent vectors compiled them afresh; called, they add a call per collision to work of a few
-#: hundred floating-point operations. No runtime, like the loop that calls them.
+#: shared by every kernel that calls it, on disk too. For the tangent loop's re-orthonormalisation (rbx.tangent),
+#: taken every few collisions, and for the general loop's helpers (rbx.engine.CALLED_IN_GENERAL). No runtime, like
+#: the loop that calls them.
 jit_call = _cached(numba.njit(**hooks.NO_RUNTIME, **_POLICY))
 
 #: a float64 array in the calling kernel's stack frame: ``stack_array(capacity, shape)`` (see

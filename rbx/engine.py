@@ -53,7 +53,8 @@ from .primitives import P_NORMAL, P_POINT
 from .physics import collide, collide_axis
 from .rng import draw53
 from .rules import EXIT, Rules, choose  # noqa: F401 - Rules: a group of the kernels, defined with the rules
-from .tangent import STATE_SHAPE, fold, last_flight, orthonormalise, state_after, state_before, step
+from .tangent import (STATE_SHAPE, fold, last_flight, orthonormalise, state_after, state_before, step,
+                      step_inline)
 from .trig import sincos
 
 # bits of the record mask (rbx.model.FIELDS), as module constants so that Numba compiles them in
@@ -620,7 +621,10 @@ def _make_kernel(spec):
                             v[i] *= f
                 if TANGENT or (GENERAL and (on & S_TANGENT) != 0):
                     state_after(Ts, v, Wj, nu, map_rank, rules.basis, node, w, n)
-                    g = step(Yj, tau, True, Ts, curved, R, kappa, map_rank, n)
+                    if GENERAL:
+                        g = step(Yj, tau, True, Ts, curved, R, kappa, map_rank, n)
+                    else:
+                        g = step_inline(Yj, tau, True, Ts, curved, R, kappa, map_rank, n)
                     if period > 0:
                         since += 1
                         if since == period or g > tangent.grow:
