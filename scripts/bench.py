@@ -1894,8 +1894,9 @@ def section_tangent(args):
     short = short_orbit_rows(args)
     y_hand, y_whole, y_one, lam_hand, lam_rbx = yardstick_rows(args)
     out = ["", "## The tangent loop against the engine, and many short orbits", "",
-           f"*{machine()}. Load average at the start {load} (this run counts for 1: above it, other work shared the "
-           f"machine). Interleaved, CPU time of this one thread, ratios in one process. {time.perf_counter() - t0:.0f} s.*",
+           f"*{machine()}; engine {engine_version()}. Load average at the start {load} (this run counts for 1: above "
+           f"it, other work shared the machine). Interleaved, CPU time of this one thread, ratios in one process. "
+           f"{time.perf_counter() - t0:.0f} s.*",
            "",
            "Per collision, one trajectory of each example config, the same orbit: the engine as `rbx simulate` runs "
            "it with nothing recorded, against `rbx lyapunov`'s loop with the whole spectrum (d tangent vectors) and "
