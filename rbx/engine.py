@@ -752,11 +752,10 @@ def run_advance_all(stop, table, rules, settings, state, out, tangent=NO_TANGENT
     nrec = np.zeros(M, np.int64)
     groups = (table, rules, settings, state, out, tangent)
     entry = _entry_point(stop, spec, groups, nrec)
-    threads = max(1, min(numba.get_num_threads(), M))
-    if threads == 1:
-        entry(0, M, stop, *groups, nrec)
-        return nrec
-    cuts = np.linspace(0, M, min(M, 8 * threads) + 1).astype(np.int64)
+    # on the pool even for one slice: the calling thread waits for it, and so a signal reaches that thread (run on
+    # it, a kernel of one trajectory kept SIGINT and SIGTERM off until its segment ended: minutes in rbx lyapunov)
+    threads = max(1, numba.get_num_threads())
+    cuts = np.linspace(0, M, max(1, min(M, 8 * threads)) + 1).astype(np.int64)
     run_slices(threads, entry, cuts, stop, *groups, nrec)
     return nrec
 
