@@ -8,6 +8,8 @@ import contextlib
 import os
 from dataclasses import dataclass, field
 
+import math
+
 import numpy as np
 
 from . import engine
@@ -40,6 +42,32 @@ ORTHO_GROWTH = 256.0
 #: before its length could overflow (rough box, λ₁ alone: 120 → 110 ns per collision; λ₁ to 1e-12, tested)
 ORTHO_GROWTH_ONE = 1e100
 
+def initial_basis(d):
+    """The tangent vectors' start: a fixed orthonormal basis of R^d (rows) in general position, no row in a
+    coordinate block. The coordinate axes were the start before: where a block of the tangent map never feeds back
+    (the orientation and spin of a specular table, the orientation of a rough one), the axes inside it kept their
+    vectors to themselves, so Benettin's first K vectors were not the K most expanding (the 3D box's first 8
+    held its most contracting exponent) and the whole spectrum had to be sorted. From a basis in general position
+    the k-th vector follows the k-th exponent and Benettin's order is the decreasing one (to the run's error
+    among nearly equal exponents). Entries from an integer hash (splitmix64), orthonormalised by Gram–Schmidt twice in plain
+    Python arithmetic: the same bits on every machine; row k depends only on rows ≤ k."""
+    def entry(k):               # splitmix64's output of the counter k, in [−½, ½)
+        z = (k * 0x9E3779B97F4A7C15) & 0xFFFFFFFFFFFFFFFF
+        z = ((z ^ (z >> 30)) * 0xBF58476D1CE4E5B9) & 0xFFFFFFFFFFFFFFFF
+        z = ((z ^ (z >> 27)) * 0x94D049BB133111EB) & 0xFFFFFFFFFFFFFFFF
+        return ((z ^ (z >> 31)) >> 11) / 2.0 ** 53 - 0.5
+    rows = []
+    for i in range(d):
+        y = [entry(i * d + j + 1) for j in range(d)]
+        for _ in range(2):
+            for q in rows:
+                c = sum(a * b for a, b in zip(q, y))
+                y = [b - c * a for a, b in zip(q, y)]
+        norm = math.sqrt(sum(b * b for b in y))
+        rows.append([b / norm for b in y])
+    return np.array(rows)
+
+
 class NothingMeasured(ValueError):
     """:func:`lyapunov` found nothing to measure: every trajectory left the table during its warm-up, or too few
     segments were measured for an error. A study stores no value (NaN) at such a point and goes on."""
@@ -67,10 +95,10 @@ class _Tangent:
         self.groups = sim.kernel_groups()
         self.state = sim.state_group()
         K = self.d if vectors is None else int(vectors)
-        # the K tangent vectors are the rows of Y[j] (the first K coordinate axes at the start: the first K
-        # vectors of Benettin's method do not depend on the others, so K of them give the K leading exponents of
-        # the whole basis, bit for bit)
-        self.Y = np.repeat(np.eye(self.d)[None, :K], self.M, axis=0)
+        # the K tangent vectors are the rows of Y[j], at the start the first K rows of one fixed generic basis
+        # (initial_basis): the first K vectors of Benettin's method do not depend on the others, so K of them
+        # give the K leading exponents of the whole basis, bit for bit
+        self.Y = np.repeat(initial_basis(self.d)[None, :K], self.M, axis=0)
         self.sums = np.zeros((self.M, K))
 
     def kernel(self):
@@ -174,6 +202,7 @@ def flow_jacobian(experiment, t_end, *, collisions=None, trajectories=None, seed
     if state is not None:
         state = {k: np.array(v, copy=True) for k, v in state.items()}   # the kernels write into them
     tan = _Tangent(exp, state, orientation=True)
+    tan.Y[:] = np.eye(tan.d)                  # the Jacobian: from the identity
     tan.advance(exp.run.collisions, t_end, ortho=0)
     st = tan.state
     final = {"time": st.time.copy(), "position": st.pos.copy(), "velocity": st.vel.copy(), "W": st.W.copy(),
@@ -194,11 +223,11 @@ REGULAR_THRESHOLD = 0.02
 
 @dataclass
 class Lyapunov:
-    """The Lyapunov spectrum of the flow (per unit time, largest first) and its standard error.
+    """The Lyapunov spectrum of the flow (per unit time, largest first: Benettin's order) and its standard error.
 
     ``exponents`` (d,): Σ log-stretches / Σ time over the measured segments of every trajectory (copies of one orbit
-    counted once: :func:`rbx.ensembles.start_groups`), sorted
-    decreasingly (the other arrays follow the same order);
+    counted once: :func:`rbx.ensembles.start_groups`), in Benettin's order (from a start in general position:
+    decreasing where the run resolves the gaps, nearly equal exponents possibly out of order within their errors);
     ``stderr`` (d,): the standard error from the spread of the segment estimates (batch means: ``segments``
     per trajectory × ``trajectories``, each weighted by its duration), or from the spread of the trajectories'
     own estimates if that is larger (a table that is not ergodic); ``per_trajectory`` (M, d);
@@ -289,7 +318,8 @@ MEAN_OVER = ("every trajectory, regular and chaotic alike, weighted by its measu
 
 def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segments=10, warmup=None,
              scheduler=None, slices=None, exponents=None):
-    """The Lyapunov spectrum of the flow, per unit time, largest first -> :class:`Lyapunov` (docs/reference.md §10).
+    """The Lyapunov spectrum of the flow, per unit time, largest first (Benettin's order) -> :class:`Lyapunov`
+    (docs/reference.md §10).
 
     Benettin's method: d = 2(n + n(n−1)/2) tangent vectors (6 in 2D, 12 in 3D: position, orientation and their
     velocities) follow each trajectory of the experiment (its initial states, ``run.trajectories`` of them, its
@@ -379,10 +409,6 @@ def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segme
         # trajectories of a table that is not ergodic (rough tables trap: docs/dynamics.md) can have different
         # exponents; their spread is then larger than the segments' and is the honest error
         stderr = np.fmax(stderr, _batch_stderr(total_time[rows], per_traj[rows], exponents))
-    # Benettin's order is the decreasing one only where the tangent vectors mix: a block that never feeds back
-    # (the spin and orientation of a specular table) keeps its vectors to itself, so the order is made explicit
-    order = np.argsort(-exponents, kind="stable")
-    exponents, stderr, per_traj, seg_exp = exponents[order], stderr[order], per_traj[:, order], seg_exp[..., order]
     return Lyapunov(exponents=exponents, stderr=stderr, per_trajectory=per_traj, segment_exponents=seg_exp,
                     segment_times=seg_time, time=total_time, collisions=m["collisions"], warmup=warmup,
                     coordinates=coordinate_names(tan.n), title=scene_title(exp), ended=m["ended"],
