@@ -21,7 +21,7 @@ import sys
 import threading
 import time
 
-from .paths import NO_ROOM, DiskFull, FileError, create_new, display_path, format_size, lock_path, open_regular
+from .paths import NO_ROOM, NOT_WRITABLE, DiskFull, FileError, create_new, display_path, format_size, lock_path, open_regular
 
 __all__ = ["lock_path", "acquire_lock", "release_lock", "lock_holder", "release_held_locks", "busy",
            "LockNotWritable", "taken_fresh"]
@@ -203,7 +203,7 @@ def _cannot(lock, exc, what):
     if exc.errno in NO_ROOM:
         return DiskFull(f"{display_path(lock)}: cannot {what}: {exc.strerror}: no room on the disk (or a size "
                         "limit, ulimit -f?)")
-    if exc.errno in (errno.EROFS, errno.EACCES, errno.EPERM):
+    if exc.errno in NOT_WRITABLE:
         return LockNotWritable(lock, None, f"cannot {what}: {exc.strerror}")
     return FileError(lock, None, f"cannot {what}: {exc.strerror or exc}")
 

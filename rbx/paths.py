@@ -21,6 +21,8 @@ MAX_CONFIG_BYTES = 64 << 20
 
 #: errno values that mean "no room": the disk full, a quota, a file size limit
 NO_ROOM = (errno.ENOSPC, errno.EDQUOT, errno.EFBIG)
+#: errno values that mean "not writable here": a mode, a read-only file system
+NOT_WRITABLE = (errno.EACCES, errno.EPERM, errno.EROFS)
 
 
 class FileError(Exception):

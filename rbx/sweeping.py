@@ -31,7 +31,7 @@ from .dynamics import NothingMeasured, lyapunov
 from .histogram import return_experiment
 from .locks import LockNotWritable, acquire_lock, release_lock
 from .model import ConfigError
-from .paths import (ANY, DiskFull, FileError, check_own_file, check_own_kind, check_own_names, check_own_objects,
+from .paths import (ANY, NOT_WRITABLE, DiskFull, FileError, check_own_file, check_own_kind, check_own_names, check_own_objects,
                     check_replaceable, create_own, display_path, file_id, other_commands_file, place, shortened_pair,
                     check_path_text, own_item, stop_signals, stored_text, what_it_is)
 from .runfile import provenance
@@ -268,7 +268,7 @@ def _write(ds, path):
                 os.remove(tmp)
         size = _bytes_text(len(image.getbuffer()))
         folder = os.path.dirname(os.path.abspath(path))
-        denied = exc.errno in (errno.EACCES, errno.EPERM, errno.EROFS)
+        denied = exc.errno in NOT_WRITABLE
         if not os.path.isdir(folder):
             kept = (f"its folder {display_path(folder)} is gone (removed while the study ran?): nothing of the "
                     "study is kept")

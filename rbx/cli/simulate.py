@@ -9,7 +9,6 @@ checkpointed and closed cleanly. Either way the run ends by renaming ``OUT.h5.pa
 143). An existing ``OUT.h5`` is replaced only with ``--force``. ``--resume`` continues such a file to its
 requested length and writes the same records as an uninterrupted run.
 """
-import errno
 import os
 import signal
 import time
@@ -170,7 +169,7 @@ def _execute(sim, path, stop, quiet, done, start, began):
     unexpected error), so ``path`` always holds every record computed so far, and ``complete`` says whether that
     is all of them (docs/reference.md §4)."""
     from ..cluster import ClusterError
-    from ..paths import DiskFull, temporary_path
+    from ..paths import NOT_WRITABLE, DiskFull, temporary_path
     from ..simulation import NonFiniteState
 
     progress = Progress("simulate", quiet=quiet, start=done, trajectories=sim.M)
@@ -212,7 +211,7 @@ def _execute(sim, path, stop, quiet, done, start, began):
             click.echo(f"rbx: {display_path(where)}: writing failed: {failure.strerror or failure}; nothing was "
                        "saved (the run stopped before its file was made)", err=True)
         else:
-            denied = getattr(failure, "errno", None) in (errno.EACCES, errno.EPERM, errno.EROFS)
+            denied = getattr(failure, "errno", None) in NOT_WRITABLE
             click.echo(f"rbx: {display_path(where)}: writing failed: {failure.strerror or failure}"
                        + (" (its folder can no longer be written?)" if denied else "")
                        + "; the file holds every record up to its last checkpoint (complete = false). "
