@@ -440,7 +440,7 @@ def _make_kernel(spec):
         if TANGENT or (GENERAL and (on & S_TANGENT) != 0):
             # what the tangent step reads besides the state
             Ts = stack_array(45, STATE_SHAPE)  # the state around the collision, as the step reads it (tangent._step)
-            Jn = Ts[2]                         # the normal's derivative along the wall
+            Jn = Ts[2, 0]                      # the normal's derivative along the wall
             period = tangent.ortho             # re-orthonormalise every so many collisions (0: never)
         alive = state.alive
         for j in range(j0, j1):

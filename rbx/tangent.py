@@ -21,6 +21,7 @@ products ``prod``, :func:`fold`): their growth per unit time is the Lyapunov spe
 import numpy as np
 
 from ._jit import jit_call, jit_hot, stack_array
+from .physics import project_roughness
 from .trig import sincos
 
 
@@ -113,23 +114,23 @@ def _step(Y, tau, collide_too, T, curved, R, kappa, rank, n):
         δx⁺ = DM·z − f(x⁺) δt,   DM = ∂M/∂(v, W) + ∂M/∂ν · ∂ν/∂a
 
     ``T`` (:data:`STATE_SHAPE`, filled by the caller, :func:`state_before` and :func:`state_after`): the state
-    before the map (and during the flight) ``T[3, 0]`` = v⁻, ``T[0]`` = W⁻; after it ``T[3, 1]``, ``T[1]``; the
-    normal ``T[3, 2]`` and its derivative ∂ν_i/∂a_j at the contact ``T[2]`` (``curved`` False: a flat wall, J = 0
-    and not read); the roughness direction ``T[4, 0]`` of a rank-1 rule in 3D (the rank below n − 1 whose map
-    projects: as :func:`rbx.physics.project_roughness` with that one row). One array, not seven: on an Intel Xeon
-    the call with the seven (about ninety words of arguments, most on the stack) cost 23 ns, half of a 3D Sinai
-    collision. ``rank``: the rule applied there (as in :func:`rbx.physics.collide`). ``n`` a literal
+    before the map (and during the flight) ``T[3, 0, 0]`` = v⁻, ``T[0, 0]`` = W⁻; after it ``T[3, 0, 1]``,
+    ``T[1, 0]``; the normal ``T[3, 0, 2]`` and its derivative ∂ν_i/∂a_j at the contact ``T[2, 0]`` (``curved``
+    False: a flat wall, J = 0 and not read); the rule's roughness basis ``T[4, 0]`` where its rank is below
+    n − 1 (the map projects onto it: :func:`rbx.physics.project_roughness` reads ``T`` as it reads
+    ``rules.basis``, at node 4 and wall 0). One array, not seven: on an Intel Xeon the call with the seven (about
+    ninety words of arguments, most on the stack) cost 23 ns a collision of the 3D box, half of the engine's own
+    time there. ``rank``: the rule applied there (as in :func:`rbx.physics.collide`). ``n`` a literal
     (the 2D and 3D steps are compiled apart): every index into the step's own arrays is then a constant and they
     live in registers, each vector is loaded once, taken through the flight and the collision, and stored once.
     The arithmetic is the one of the per-coordinate formulas in docs/tangent-map.md, in the same order; what a
     flat wall's J = 0 multiplies is left out (adding ±0 changes no bit but the sign of a zero)."""
-    vm = T[3, 0]
-    vp = T[3, 1]
-    nu = T[3, 2]
-    Wm = T[0]
-    Wp = T[1]
-    J = T[2]
-    b = T[4, 0]
+    vm = T[3, 0, 0]
+    vp = T[3, 0, 1]
+    nu = T[3, 0, 2]
+    Wm = T[0, 0]
+    Wp = T[1, 0]
+    J = T[2, 0]
     m = n * (n - 1) // 2
     d = 2 * (n + m)
     K = Y.shape[0]
@@ -169,7 +170,7 @@ def _step(Y, tau, collide_too, T, curved, R, kappa, rank, n):
                     s += Wm[i, q] * nu[q]
                 work[1, i] = (vm[i] - vn * nu[i]) - R * s
             if rank < n - 1:
-                project_one(work, b, n)
+                project_roughness(work, rank, T, 4, 0, n)
             for i in range(n):
                 p[i] = work[1, i]
     for k in range(K):
@@ -235,7 +236,7 @@ def _step(Y, tau, collide_too, T, curved, R, kappa, rank, n):
                             s += dW[i, q] * nu[q]
                         work[1, i] = y[n + m + i] - dvn * nu[i] - R * s
                 if rank < n - 1:
-                    project_one(work, b, n)
+                    project_roughness(work, rank, T, 4, 0, n)
                 for i in range(n):
                     dvp[i] -= alpha2 * work[1, i]
                 # δW' = δW + s(δp νᵀ + p δνᵀ − δν pᵀ − ν δpᵀ)
@@ -377,44 +378,35 @@ def last_flight(Y, sums, prod, j, since, tau, T, W, R, kappa, n):
         orthonormalise(Y, sums, prod, j, n)
     for i in range(n):
         for q in range(n):
-            T[0, i, q] = W[i, q]
+            T[0, 0, i, q] = W[i, q]
     step(Y, tau, False, T, False, R, kappa, 0, n)
     return 0
 
 
-#: the shape of the array ``T`` that hands the step the state around a collision (:func:`_step`)
-STATE_SHAPE = (5, 3, 3)
+#: the shape of the array ``T`` that hands the step the state around a collision (:func:`_step`): five 3 × 3
+#: blocks, each shaped as one (node, wall) of ``rules.basis``
+STATE_SHAPE = (5, 1, 3, 3)
 
 
 @jit_hot
 def state_before(T, v, W, n):
     """T ← the state before the collision map: v⁻ and W⁻ (the spin during the flight)."""
     for i in range(n):
-        T[3, 0, i] = v[i]
+        T[3, 0, 0, i] = v[i]
         for q in range(n):
-            T[0, i, q] = W[i, q]
+            T[0, 0, i, q] = W[i, q]
 
 
 @jit_hot
 def state_after(T, v, W, nu, rank, basis, node, wall, n):
-    """T ← the state after the map, the normal, and where the rule is rank 1 in 3D its roughness direction
-    (the normal's derivative is written into ``T[2]`` by the caller, on a curved wall)."""
+    """T ← the state after the map, the normal, and where the rule's rank is below n − 1 its roughness basis
+    (the normal's derivative is written into ``T[2, 0]`` by the caller, on a curved wall)."""
     for i in range(n):
-        T[3, 1, i] = v[i]
-        T[3, 2, i] = nu[i]
+        T[3, 0, 1, i] = v[i]
+        T[3, 0, 2, i] = nu[i]
         for q in range(n):
-            T[1, i, q] = W[i, q]
+            T[1, 0, i, q] = W[i, q]
     if rank != 0 and rank < n - 1:
-        for i in range(n):
-            T[4, 0, i] = basis[node, wall, 0, i]
-
-
-@jit_hot
-def project_one(work, b, n):
-    """work[1] ← (work[1]·b) b: :func:`rbx.physics.project_roughness` onto one direction b, in its order of
-    operations (the same bits)."""
-    c = 0.0
-    for i in range(n):
-        c += work[1, i] * b[i]
-    for i in range(n):
-        work[1, i] = 0.0 + c * b[i]
+        for q in range(rank):
+            for i in range(n):
+                T[4, 0, q, i] = basis[node, wall, q, i]
