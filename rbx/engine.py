@@ -442,10 +442,26 @@ def _make_kernel(spec):
             Ts = stack_array(45, STATE_SHAPE)  # the state around the collision, as the step reads it (tangent._step)
             Jn = Ts[2, 0]                      # the normal's derivative along the wall
             period = tangent.ortho             # re-orthonormalise every so many collisions (0: never)
+        # every wall the same random choice between two constant rules (the walls share the node): its leaves, their
+        # ranks and the threshold held in locals, so that the pick reads no array (tests/test_rules.py, the same orbit)
+        shared = pairs
+        pair_c0, pair_c1 = np.int64(0), np.int64(0)
+        pair_r0, pair_r1 = np.int64(0), np.int64(0)
+        pair_thr = np.uint64(0)
+        if pairs:
+            pc, pt = rules.pair_child, rules.pair_threshold
+            for ww in range(1, pt.shape[0]):
+                if pc[ww, 0] != pc[0, 0] or pc[ww, 1] != pc[0, 1] or pt[ww] != pt[0]:
+                    shared = False
+            pair_c0, pair_c1, pair_thr = pc[0, 0], pc[0, 1], pt[0]
+            pair_r0, pair_r1 = rules.rank[pair_c0], rules.rank[pair_c1]
+        # the stop wall as a number no wall has when there is none: one comparison per collision
+        stop_at = np.int64(settings.stop_wall) if on & S_STOP_WALL else np.int64(-2)
         alive = state.alive
         for j in range(j0, j1):
             if not alive[j]:
                 continue
+            c_stop = stop[j]
             count = 0
             for i in range(n):
                 a[i] = state.pos[j, i]
@@ -474,7 +490,7 @@ def _make_kernel(spec):
                 since = 0                       # collisions since the vectors were last re-orthonormalised
                 for k in range(Yj.shape[0]):
                     prod[k] = 1.0
-            while c < stop[j]:
+            while c < c_stop:
                 # 1. next collision: the flight time and the primitive hit
                 if SLAB or (GENERAL and (on & S_SLAB) != 0):
                     tau, p = slab_collision(params, a, v, n)
@@ -540,17 +556,23 @@ def _make_kernel(spec):
                         snap(codes[p], params, p, a, nu, n)
                 # 4. rule
                 w = prim_wall[p]
-                if TREE or (GENERAL and (on & S_TREE) != 0):
-                    if pairs:       # every wall a random choice between two constant rules: one draw, one comparison
-                        node = rules.pair_child[w, np.int64(draw53(key, d) >= rules.pair_threshold[w])]
-                        d += 1
-                    else:
-                        node, d = choose(w, nu, Aj, th, key, d, rules.root, rules.kind, rules.first, rules.nchild,
-                                         rules.children, rules.threshold, rules.axis, rules.phase, n,
-                                         ROUND_HEMI or (GENERAL and (on & S_ROUND_HEMI) != 0))
+                if (TREE or (GENERAL and (on & S_TREE) != 0)) and shared:
+                    coin = draw53(key, d) >= pair_thr
+                    d += 1
+                    node = pair_c1 if coin else pair_c0
+                    rk = pair_r1 if coin else pair_r0
                 else:
-                    node = rules.root[w]
-                rk = rules.rank[node]
+                    if TREE or (GENERAL and (on & S_TREE) != 0):
+                        if pairs:   # every wall a random choice between two constant rules: one draw, one comparison
+                            node = rules.pair_child[w, np.int64(draw53(key, d) >= rules.pair_threshold[w])]
+                            d += 1
+                        else:
+                            node, d = choose(w, nu, Aj, th, key, d, rules.root, rules.kind, rules.first, rules.nchild,
+                                             rules.children, rules.threshold, rules.axis, rules.phase, n,
+                                             ROUND_HEMI or (GENERAL and (on & S_ROUND_HEMI) != 0))
+                    else:
+                        node = rules.root[w]
+                    rk = rules.rank[node]
                 if EXIT_ or (GENERAL and (on & S_EXIT) != 0):
                     if rules.kind[node] == EXIT:          # a hole: the contact is the trajectory's last record
                         if TANGENT or (GENERAL and (on & S_TANGENT) != 0):
@@ -638,10 +660,9 @@ def _make_kernel(spec):
                         until_record = every
                         write_record(j, count, settings.mask, t, a, v, Wj, th, Aj, w, rk, out, n)
                         count += 1
-                if on & S_STOP_WALL:
-                    if w == settings.stop_wall:
-                        state.alive[j] = False
-                        break
+                if w == stop_at:
+                    state.alive[j] = False
+                    break
             if TANGENT or (GENERAL and (on & S_TANGENT) != 0):
                 if since > 0:                  # the stretches up to the last collision, before the next call
                     orthonormalise(Yj, tangent.sums, prod, j, n)

@@ -169,18 +169,24 @@ def test_a_random_rule_runs_the_map_without_a_branch_on_the_rank_and_the_same_or
          "ball": {"radius": 0.1, "inertia": "uniform"}, "initial": {"sample": "billiard"},
          "run": {"collisions": 4000, "trajectories": 2, "seed": 3},
          "output": {"record": ["time", "position", "velocity", "angular_velocity", "orientation", "rank"]}}
-    runs = []
-    for drop in (0, engine.S_BLEND, engine.S_PAIRS):      # and the same with the walk instead of the short pick
-        sim = Simulation(rbx.load(d), drop_bits=drop)
-        both = engine.S_BLEND | engine.S_PAIRS
-        assert sim.spec() & both == both & ~drop
-        sink = MemorySink()
-        sim.run(sink)
-        runs.append(sink.records)
-    assert set(np.unique(runs[0]["rank"])) == {0, 1}
-    for f in runs[0]:
-        for other in runs[1:]:
-            np.testing.assert_array_equal(runs[0][f], other[f], err_msg=f)
+    # every wall the same pair (the kernel holds it in locals), and one wall a pair of its own (looked up per wall)
+    own = {"rule": "random", "choices": [ROUGH, SMOOTH], "probabilities": [0.6, 0.4]}
+    for walls in ({}, {"left": own}):
+        d["boundary"]["walls"] = walls
+        runs = []
+        for drop in (0, engine.S_BLEND, engine.S_PAIRS):      # and the same with the walk instead of the short pick
+            sim = Simulation(rbx.load(d), drop_bits=drop)
+            both = engine.S_BLEND | engine.S_PAIRS
+            assert sim.spec() & both == both & ~drop
+            pc = sim.rules.kernel_arrays().pair_child
+            assert np.all(pc == pc[0]) == (not walls)
+            sink = MemorySink()
+            sim.run(sink)
+            runs.append(sink.records)
+        assert set(np.unique(runs[0]["rank"])) == {0, 1}
+        for f in runs[0]:
+            for other in runs[1:]:
+                np.testing.assert_array_equal(runs[0][f], other[f], err_msg=f)
     assert not _sim({"kind": "strip", "width": 1.0}, _hemisphere([0, 1])).spec() & engine.S_BLEND
 
 
