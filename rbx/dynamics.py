@@ -41,6 +41,14 @@ ORTHO_GROWTH = 256.0
 #: … with one vector there is nothing to keep apart: it is normalised every ORTHO_EVERY collisions, or sooner only
 #: before its length could overflow (rough box, λ₁ alone: 120 → 110 ns per collision; λ₁ to 1e-12, tested)
 ORTHO_GROWTH_ONE = 1e100
+#: the tangent vectors' velocity-like coordinates are stored in a time unit of the orbit (:func:`time_unit`) only
+#: when its flights last longer than 2^TIME_UNIT_BITS or shorter than its inverse; else in the config's own unit
+TIME_UNIT_BITS = 10
+#: … judged by the median flight of the first PROBE_TRAJECTORIES trajectories' first PROBE_COLLISIONS collisions
+PROBE_TRAJECTORIES = 8
+PROBE_COLLISIONS = 64
+#: the whole spectrum of a volume-preserving flow sums to 0: a sum above this fraction of Σ|λ| is refused
+SUM_TOLERANCE = 1e-6
 
 def initial_basis(d):
     """The tangent vectors' start: a fixed orthonormal basis of R^d (rows) in general position, no row in a
@@ -101,6 +109,10 @@ class _Tangent:
         self.Y = np.repeat(initial_basis(self.d)[None, :K], self.M, axis=0)
         self.sums = np.zeros((self.M, K))
 
+    def probe(self):
+        """Copies of the first initial states, from which :func:`time_unit` judges the orbit's time scale."""
+        return State(*(np.array(x[:PROBE_TRAJECTORIES]) for x in self.state))
+
     def kernel(self):
         """What the kernel needs besides the trajectories' rows: the groups (Table, Rules, Settings) — the same for
         every trajectory, so a worker of a cluster gets them with each slice (:func:`_measure_slice`)."""
@@ -112,7 +124,41 @@ class _Tangent:
         _advance(self.kernel(), self.state, self.Y, self.sums, stop, t_end, ortho, grow)
 
 
-def _advance(kernel, state, Y, sums, stop, t_end=np.inf, ortho=None, grow=None):
+def time_unit(kernel, probe):
+    """The time unit u of the tangent vectors' velocity-like coordinates (:class:`rbx.engine.Tangent`): the power
+    of two nearest the median flight time of the trajectories ``probe`` (copies of the first
+    :data:`PROBE_TRAJECTORIES` initial states) over their first :data:`PROBE_COLLISIONS` collisions, or 1 when
+    that lies within 2^±:data:`TIME_UNIT_BITS` (every table and speed of order one: the config's own units).
+
+    Why: Benettin's Gram–Schmidt measures a tangent vector's length as √(|δa|² + |δv|²), a length and a velocity
+    added as numbers. In a table of size 1e20, or at speeds of 1e-30, a flight turns δv into a δa 1e20 or 1e30
+    times larger, the velocity part of every re-orthonormalised vector falls below the rounding of the position
+    part, and the contracting exponents came out large and positive (the sum of the spectrum, 0 for these maps,
+    was 20 times λ₁). Measured as √(|δa|² + u²|δv|²) with u a flight time, both parts are of one size. A power of
+    two changes no bit of the arithmetic but the scale; the exponents do not depend on the metric. The median,
+    not the mean: one flight of 1e149 before flights of 1 (a slow start that a spin turns into a fast orbit)
+    would set the unit by the one."""
+    M, d = probe.pos.shape[0], tangent_dimension(probe.pos.shape[1])
+    if M == 0:
+        return 1.0
+    state = State(*(np.array(x) for x in probe))
+    Y, sums = np.zeros((M, 0, d)), np.zeros((M, 0))
+    times = [state.time.copy()]
+    for _ in range(PROBE_COLLISIONS):
+        _advance(kernel, state, Y, sums, state.ncoll + 1, ortho=0, grow=np.inf)
+        times.append(state.time.copy())
+    with np.errstate(invalid="ignore"):
+        flights = np.diff(np.array(times), axis=0).ravel()
+    flights = flights[np.isfinite(flights) & (flights > 0)]
+    if len(flights) == 0:
+        return 1.0
+    bits = int(np.round(np.log2(np.median(flights))))
+    if abs(bits) <= TIME_UNIT_BITS:
+        return 1.0
+    return math.ldexp(1.0, max(-900, min(900, bits)))
+
+
+def _advance(kernel, state, Y, sums, stop, t_end=np.inf, ortho=None, grow=None, unit=1.0):
     """Advance the live trajectories of ``state`` (and their tangent vectors ``Y``, log-stretch sums ``sums``) to
     ``stop`` collisions in all or to time ``t_end``, on the engine's pool of threads
     (:func:`rbx.engine.run_advance_all`). Each trajectory's numbers depend only on its own rows (its random
@@ -126,26 +172,28 @@ def _advance(kernel, state, Y, sums, stop, t_end=np.inf, ortho=None, grow=None):
     if grow is None:
         grow = ORTHO_GROWTH if Y.shape[1] > 1 else ORTHO_GROWTH_ONE
     grow = float(grow)
-    tangent = engine.Tangent(Y=Y, sums=sums, t_end=t_end, ortho=ortho, grow=grow)
+    tangent = engine.Tangent(Y=Y, sums=sums, t_end=t_end, ortho=ortho, grow=grow, unit=float(unit))
     out = engine.Records(**record_buffers((), n, M, 0))
     engine.run_advance_all(stop, table, rules, settings, state, out, tangent)
 
 
-def _measure(kernel, state, Y, sums, cuts):
+def _measure(kernel, state, Y, sums, cuts, probe):
     """Benettin's method on the trajectories of ``state``: a warm-up to ``cuts[0]`` collisions, then one segment
     to each of ``cuts[1:]`` -> dict of per-trajectory arrays (``seg_sums`` (M, S, d), ``seg_time`` (M, S),
     ``total_sums`` (M, d), ``total_time``, ``collisions``, ``ended`` (M,)). Row by row, so that a slice of the
-    trajectories gives the same rows as the whole ensemble (how :func:`lyapunov` runs on a cluster)."""
+    trajectories gives the same rows as the whole ensemble (how :func:`lyapunov` runs on a cluster); ``probe``, the
+    ensemble's first initial states (:func:`time_unit`), is the same for every slice."""
     M, d = Y.shape[:2]
     segments = len(cuts) - 1
+    unit = time_unit(kernel, probe)
     if cuts[0] > 0:
-        _advance(kernel, state, Y, sums, cuts[0])
+        _advance(kernel, state, Y, sums, cuts[0], unit=unit)
     sums0, t0, c0, alive0 = sums.copy(), state.time.copy(), state.ncoll.copy(), state.alive.copy()
     seg_sums = np.zeros((M, segments, d))
     seg_time = np.zeros((M, segments))
     for s in range(segments):
         before, tb = sums.copy(), state.time.copy()
-        _advance(kernel, state, Y, sums, cuts[s + 1])
+        _advance(kernel, state, Y, sums, cuts[s + 1], unit=unit)
         seg_sums[:, s] = sums - before
         seg_time[:, s] = state.time - tb
     return {"seg_sums": seg_sums, "seg_time": seg_time, "total_sums": sums - sums0, "total_time": state.time - t0,
@@ -159,8 +207,8 @@ class _SliceTask:
     (state, stream keys of the global trajectory indices included; tangent vectors; sums), and the collision
     cuts. A plain object, so that Dask sends it as it is."""
 
-    def __init__(self, kernel, state, Y, sums, cuts):
-        self.kernel, self.state, self.Y, self.sums, self.cuts = kernel, state, Y, sums, cuts
+    def __init__(self, kernel, state, Y, sums, cuts, probe):
+        self.kernel, self.state, self.Y, self.sums, self.cuts, self.probe = kernel, state, Y, sums, cuts, probe
 
 
 def _measure_slice(task):
@@ -173,7 +221,7 @@ def _measure_slice(task):
     table, rules, settings = task.kernel
     kernel = (type(table)(*map(own, table)), type(rules)(*map(own, rules)), settings)
     state = State(*map(own, task.state))
-    return _measure(kernel, state, own(task.Y), own(task.sums), own(task.cuts))
+    return _measure(kernel, state, own(task.Y), own(task.sums), own(task.cuts), State(*map(own, task.probe)))
 
 
 #: bytes per trajectory, generously, beyond its state (rbx.simulation.STATE_BYTES): its tangent vectors (at most
@@ -328,9 +376,10 @@ def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segme
     the rest are cut into ``segments`` segments per trajectory whose spread gives ``stderr``. A trajectory that
     leaves by an exit wall or escapes to infinity contributes the time it had.
 
-    ``exponents``: K, follow K tangent vectors instead of d (1 ≤ K ≤ d): the K leading exponents, the same bits as
+    ``exponents``: K, follow K tangent vectors instead of d (1 ≤ K ≤ d): the K leading exponents; for K ≥ 2 the same bits as
     the first K of the whole spectrum (Benettin's k-th vector depends only on the ones before it); λ₁ alone
-    (K = 1) costs a fraction of the whole spectrum.
+    (K = 1), normalised less often, within 1e-12 of it, at a fraction of the cost. The whole spectrum sums to 0
+    (the flow keeps volume): a sum far from it is refused (:class:`NothingMeasured`), not reported.
 
     ``experiment``: an :class:`~rbx.model.Experiment`, a config path or a dict; ``collisions``, ``trajectories``,
     ``seed`` override ``run.*``.
@@ -384,7 +433,7 @@ def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segme
     d = tan.Y.shape[1]          # the vectors followed
     with _cluster(scheduler, slices) as cluster:
         if cluster is None:
-            m = _measure(tan.kernel(), tan.state, tan.Y, tan.sums, cuts)
+            m = _measure(tan.kernel(), tan.state, tan.Y, tan.sums, cuts, tan.probe())
         else:
             m = _on_cluster(cluster, tan, cuts)
     total_time, total_sums, seg_time = m["total_time"], m["total_sums"], m["seg_time"]
@@ -394,13 +443,28 @@ def lyapunov(experiment, *, collisions=None, trajectories=None, seed=None, segme
     # copies of one orbit count once (``rows``, above), in the value as in its error: a study runs each distinct
     # orbit once, and the two gave different values for the starts [A, A, A, B]
     T = float(np.sum(total_time[rows]))
-    if not T > 0 or int(np.sum(m["collisions"]) - np.sum(m["exits"])) == 0:
+    moved = int(np.sum(m["collisions"][rows]) - np.sum(m["exits"][rows]))
+    if T == 0 and moved > 0:
+        # the collisions happened, but their flights vanished in the sum: a velocity of 1e-150 with a spin of 3
+        # takes ~1e149 for the first flight, and the spin then turns into a speed of order one
+        raise NothingMeasured(f"the time did not advance over the {moved} collisions after the warm-up: each flight "
+                              "is below the rounding of the time already reached (a start far slower than the "
+                              "orbit it leads to, such as a tiny velocity with spin)")
+    if not T > 0 or moved == 0:
         # with no collision measured, the exponents were reported as 0 ± 0 (free flight alone stretches nothing)
         raise NothingMeasured("no trajectory moved after the warm-up: each ended during it (through an exit, or in "
                               "a flight with no wall ahead, such as along a free corridor)" if not T > 0 else
                               "no collision after the warm-up: every trajectory left the table at its first "
                               "contact")
     exponents = np.sum(total_sums[rows], axis=0) / T
+    total = float(np.sum(exponents))
+    if d == tangent_dimension(tan.n) and not abs(total) <= SUM_TOLERANCE * float(np.sum(np.abs(exponents))):
+        # the flow keeps phase-space volume: the whole spectrum sums to 0 (to 1e-11 of Σ|λ| on every example, with
+        # rounding). Far from 0, the vectors have lost the directions they stand for (a metric or an orbit the
+        # double precision cannot resolve): no value is better than a wrong one said with exit 0
+        raise NothingMeasured(f"the spectrum sums to {total:.3g}, not 0 (λ₁ = {exponents[0]:.3g}): the flow keeps "
+                              "volume, so the exponents were not resolved in double precision (speeds, lengths or "
+                              "times of very different sizes?)")
     stderr = _batch_stderr(seg_time[rows].reshape(-1), seg_exp[rows].reshape(-1, d), exponents)
     if not np.all(np.isfinite(stderr)):
         raise NothingMeasured("fewer than two segments were measured (the others' trajectories left the table): "
@@ -431,7 +495,9 @@ def _on_cluster(cluster, tan, cuts):
     state_bytes = sum(a.nbytes for a in tan.state) + tan.Y.nbytes + tan.sums.nbytes
     bounds = cluster.slice_cuts(tan.M, state_bytes)
     kernel = tan.kernel()
-    tasks = [_SliceTask(kernel, type(tan.state)(*(x[a:b] for x in tan.state)), tan.Y[a:b], tan.sums[a:b], cuts)
+    probe = tan.probe()
+    tasks = [_SliceTask(kernel, type(tan.state)(*(x[a:b] for x in tan.state)), tan.Y[a:b], tan.sums[a:b], cuts,
+                        probe)
              for a, b in zip(bounds[:-1].tolist(), bounds[1:].tolist())]
     parts = cluster.map(_measure_slice, tasks, what="lyapunov")
     return {k: np.concatenate([p[k] for p in parts]) for k in parts[0]}

@@ -53,7 +53,7 @@ from .primitives import P_NORMAL, P_POINT
 from .physics import collide, collide_axis
 from .rng import draw53
 from .rules import EXIT, Rules, choose  # noqa: F401 - Rules: a group of the kernels, defined with the rules
-from .tangent import (STATE_SHAPE, fold, last_flight, orthonormalise, state_after, state_before, step,
+from .tangent import (STATE_SHAPE, fold, last_flight, orthonormalise, set_unit, state_after, state_before, step,
                       step_inline)
 from .trig import sincos
 
@@ -162,6 +162,9 @@ class Tangent(NamedTuple):
     ortho: int              # re-orthonormalise the rows every ``ortho`` collisions and when the trajectory stops
                             # (Benettin); 0: never, Y is then the transposed Jacobian
     grow: float             # … and as soon as the first vector's squared length exceeds this
+    #: the time unit u (a power of two) of the rows' velocity-like coordinates: they hold u·δv and u·δω̂, so that
+    #: re-orthonormalising weighs a length and a velocity times u alike (rbx.dynamics.time_unit); 1 converts nothing
+    unit: float = 1.0
 
 
 #: what the kernels get in every run without tangent vectors (the loop's tangent steps are compiled out)
@@ -439,7 +442,8 @@ def _make_kernel(spec):
         ahead = stack_array(3, (n,))           # … and where the flight is looked at from
         if TANGENT or (GENERAL and (on & S_TANGENT) != 0):
             # what the tangent step reads besides the state
-            Ts = stack_array(45, STATE_SHAPE)  # the state around the collision, as the step reads it (tangent._step)
+            Ts = stack_array(54, STATE_SHAPE)  # the state around the collision, as the step reads it (tangent._step)
+            set_unit(Ts, tangent.unit)
             Jn = Ts[2, 0]                      # the normal's derivative along the wall
             period = tangent.ortho             # re-orthonormalise every so many collisions (0: never)
         # every wall the same random choice between two constant rules (the walls share the node): its leaves, their

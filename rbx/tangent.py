@@ -117,7 +117,8 @@ def _step(Y, tau, collide_too, T, curved, R, kappa, rank, n):
     before the map (and during the flight) ``T[3, 0, 0]`` = v⁻, ``T[0, 0]`` = W⁻; after it ``T[3, 0, 1]``,
     ``T[1, 0]``; the normal ``T[3, 0, 2]`` and its derivative ∂ν_i/∂a_j at the contact ``T[2, 0]`` (``curved``
     False: a flat wall, J = 0 and not read); the rule's roughness basis ``T[4, 0]`` where its rank is below
-    n − 1 (the map projects onto it: :func:`rbx.physics.project_roughness` reads ``T`` as it reads
+    n − 1; the time unit u of the stored vectors and 1/u in ``T[5, 0, 0, :2]`` (:func:`set_unit`: the rows of Y
+    hold u·δv and u·δω̂, converted on the way in and out; u = 1, a number no other unit takes, converts nothing) (the map projects onto it: :func:`rbx.physics.project_roughness` reads ``T`` as it reads
     ``rules.basis``, at node 4 and wall 0). One array, not seven: on an Intel Xeon the call with the seven (about
     ninety words of arguments, most on the stack) cost 23 ns a collision of the 3D box, half of the engine's own
     time there. ``rank``: the rule applied there (as in :func:`rbx.physics.collide`). ``n`` a literal
@@ -173,9 +174,14 @@ def _step(Y, tau, collide_too, T, curved, R, kappa, rank, n):
                 project_roughness(work, rank, T, 4, 0, n)
             for i in range(n):
                 p[i] = work[1, i]
+    unit = T[5, 0, 0, 0]
+    inv = T[5, 0, 0, 1]
     for k in range(K):
         for i in range(d):
             y[i] = Y[k, i]
+        if unit != 1.0:                 # stored in units of the time unit: exact (a power of two)
+            for i in range(n + m, d):
+                y[i] *= inv
         # the flight
         for i in range(n):
             y[i] += tau * y[n + m + i]
@@ -256,6 +262,9 @@ def _step(Y, tau, collide_too, T, curved, R, kappa, rank, n):
             for i in range(m):
                 y[n + i] -= w4[i] * dt
                 y[2 * n + m + i] = c * dw[i]
+        if unit != 1.0:
+            for i in range(n + m, d):
+                y[i] *= unit
         for i in range(d):
             Y[k, i] = y[i]
         if k == 0:
@@ -383,9 +392,17 @@ def last_flight(Y, sums, prod, j, since, tau, T, W, R, kappa, n):
     return 0
 
 
-#: the shape of the array ``T`` that hands the step the state around a collision (:func:`_step`): five 3 × 3
-#: blocks, each shaped as one (node, wall) of ``rules.basis``
-STATE_SHAPE = (5, 1, 3, 3)
+#: the shape of the array ``T`` that hands the step the state around a collision (:func:`_step`): six 3 × 3
+#: blocks, each shaped as one (node, wall) of ``rules.basis``; the last holds the time unit of the stored
+#: velocity-like coordinates and its inverse (:func:`set_unit`)
+STATE_SHAPE = (6, 1, 3, 3)
+
+
+@jit_hot
+def set_unit(T, unit):
+    """T ← the time unit of the stored tangent vectors' velocity-like coordinates (:class:`rbx.engine.Tangent`)."""
+    T[5, 0, 0, 0] = unit
+    T[5, 0, 0, 1] = 1.0 / unit
 
 
 @jit_hot

@@ -663,3 +663,60 @@ def test_the_leading_exponents_of_a_table_with_a_block_that_never_feeds_back_are
     assert lead.exponents.min() > whole.exponents[-1] / 2           # the contracting exponent is the last
     # the order is the decreasing one to within the errors
     assert np.all(np.diff(whole.exponents) < 3 * (whole.stderr[1:] + whole.stderr[:-1]))
+
+
+# ---- units: the spectrum does not depend on them, and a spectrum that does not sum to 0 is refused --------------
+
+def _scaled_sinai(time, size=1.0, collisions=2000):
+    """The lyapunov example's table and a fixed start, in units where its times are ``time`` times and its lengths
+    ``size`` times the example's: the same orbit, up to the scale (one trajectory)."""
+    with open(os.path.join(EXAMPLES, "lyapunov-sinai.yaml")) as f:
+        d = yaml.safe_load(f)
+    speed = size / time
+    d["initial"] = {"position": [0.3 * size, 0.2 * size], "velocity": [0.6 * speed, 0.8 * speed],
+                    "angular_velocity": 3.0 / time}
+    d["table"] = {k: (np.multiply(v, size).tolist() if k in ("size", "radius") else v) for k, v in d["table"].items()}
+    d["ball"] = {**d["ball"], "radius": d["ball"]["radius"] * size}
+    d["run"] = {"collisions": collisions, "trajectories": 1, "seed": 1}
+    d.pop("output", None)
+    return d
+
+
+def _per_collision(r):
+    return r.exponents * float(np.sum(r.time)) / float(np.sum(r.collisions))
+
+
+def test_the_exponents_per_collision_do_not_depend_on_the_units():
+    """Times 2^±100 (speeds and spins 2^∓100 times) and lengths with times 2^60 change no exponent per collision:
+    the tangent vectors are re-orthonormalised in a time unit of the orbit (rbx.dynamics.time_unit), a power of
+    two, so the two runs of scaled time are the same arithmetic, bit for bit. In the config's own units the Gram–Schmidt had added a
+    velocity to a length 1e30 times larger: at speeds times 2^-100 the two contracting exponents came out at
+    +2.9 and +5.9 per collision, with the spectrum summing to 43 λ₁. Each sums to 0."""
+    plain = lyapunov(_scaled_sinai(1.0))
+    slow, fast = lyapunov(_scaled_sinai(2.0 ** 100)), lyapunov(_scaled_sinai(2.0 ** -100))
+    large = lyapunov(_scaled_sinai(2.0 ** 60, size=2.0 ** 60))
+    np.testing.assert_array_equal(_per_collision(slow), _per_collision(fast))
+    for r in (plain, slow, fast, large):
+        pc = _per_collision(r)
+        assert abs(np.sum(r.exponents)) < 1e-10 * np.sum(np.abs(r.exponents))
+        # the same orbit: the expanding and contracting exponents agree, the near-neutral ones within the finite
+        # time's log T / T (the metric moves them: only the limit is independent of it)
+        np.testing.assert_allclose(pc[[0, -1]], _per_collision(plain)[[0, -1]], rtol=2e-3)
+        assert np.all(np.abs(pc[1:-1]) < 0.01)
+        assert pc[0] > 0.15 and pc[-1] < -0.15
+
+
+def test_a_spectrum_that_does_not_sum_to_zero_is_refused_and_a_frozen_time_is_said(monkeypatch):
+    """Without the time unit (its threshold set out of reach) the slow orbit's spectrum no longer sums to 0, and
+    lyapunov refuses it in words, where it returned it. A start whose flights vanish against the time reached (a
+    velocity of 1e-150 with a spin of 3: the first flight lasts ~1e149) said 'no trajectory moved' before,
+    blaming an exit the closed table does not have."""
+    from rbx import dynamics
+    monkeypatch.setattr(dynamics, "TIME_UNIT_BITS", 10 ** 6)
+    with pytest.raises(dynamics.NothingMeasured, match="the spectrum sums to .*, not 0"):
+        lyapunov(_scaled_sinai(2.0 ** 100))
+    monkeypatch.undo()
+    frozen = _scaled_sinai(1.0)
+    frozen["initial"]["velocity"] = [1e-150, 1e-150]
+    with pytest.raises(dynamics.NothingMeasured, match="the time did not advance over the 1800 collisions"):
+        lyapunov(frozen)
