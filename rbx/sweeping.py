@@ -32,11 +32,15 @@ from .histogram import return_experiment
 from .locks import LockNotWritable, acquire_lock, release_lock
 from .model import ConfigError
 from .paths import (ANY, NOT_WRITABLE, DiskFull, FileError, check_own_file, check_own_kind, check_own_names, check_own_objects,
-                    check_replaceable, create_own, display_path, file_id, other_commands_file, place, shortened_pair,
+                    check_replaceable, create_own, display_path, file_id, other_commands_file, place, shortened,
+                    shortened_pair,
                     check_path_text, own_item, stop_signals, stored_text, what_it_is)
 from .runfile import provenance
 from .simulation import STATE_BYTES, memory_problem, memory_refusal, records_bytes
 from .study import MAX_POINTS, Study, _representatives, load_study, needs
+
+#: the layout of a study's results file, in its root attribute ``rbx_study``: a file of another is refused, not read
+RESULTS_FORMAT = 1
 
 __all__ = ["sweep", "run_point", "StudyInterrupted", "kept_points", "partial_path", "study_title"]
 
@@ -192,7 +196,7 @@ def _attrs(study, exp0):
     p = provenance()
     groups = start_groups(exp0)
     orbits = study.ensemble["trajectories"] if groups is None else int(len(np.unique(groups)))
-    values = {"rbx_study": 1, "study": study.source, "study_canonical": study.text, "study_digest": study.digest,
+    values = {"rbx_study": RESULTS_FORMAT, "study": study.source, "study_canonical": study.text, "study_digest": study.digest,
             "study_file": study.file or "", "title": study_title(study, exp0), "varied": json.dumps(study.keys),
             "zip": int(study.zip), "measure": json.dumps([n for n, _ in study.measure]),
             "ensemble_trajectories": study.ensemble["trajectories"], "ensemble_orbits": orbits,
@@ -276,6 +280,11 @@ def _write(ds, path):
             kept = (f"its folder {display_path(folder)} cannot be written; "
                     + (f"{display_path(path)} is as it was: once the folder can be written, continue with --resume"
                        if os.path.exists(path) else "nothing of the study was on disk yet, so no point is kept"))
+        elif exc.errno == errno.EFBIG:          # a file-size limit, not the disk
+            kept = ((f"{display_path(path)} is as it was (a write makes a whole new copy, {size}, beside it): "
+                     "raise the limit and continue with --resume") if os.path.exists(path) else
+                    f"nothing of the study was on disk yet, so no point is kept (its results need {size}): raise "
+                    "the limit and run the study again")
         elif os.path.exists(path):
             kept = (f"{display_path(path)} is as it was (a write makes a whole new copy, {size}, beside it before "
                     "replacing it, so it needs that much free): free some room and continue with --resume")
@@ -327,6 +336,11 @@ def read_results(path):
         raise FileError(path, None, f"is {what_it_is(path)}, not a regular file: not a study's results")
     import h5py
     with h5py.File(path, "r", locking=False) as f:
+        version = f.attrs.get("rbx_study")
+        if version is not None and not _is_format(version):
+            shown = shortened(repr(np.asarray(version).tolist()))
+            raise FileError(path, "rbx_study", f"is {shown}: this rbx reads the results format {RESULTS_FORMAT} (a "
+                                               "file of another version of rbx, or edited)")
         check_own_objects(path, f, "a study's results hold their own (the file was changed after rbx wrote it)")
         _check_sizes(path, f)
     # phony_dims: a variable without dimension scales is named in a refusal, not warned about by the reader
@@ -340,6 +354,13 @@ def read_results(path):
                 raise FileError(path, str(name), "is a variable rbx sweep does not write: the file was changed "
                                                  "after rbx wrote it")
         return ds.load()
+
+
+def _is_format(value):
+    """The root attribute ``rbx_study`` names the results format this rbx writes and reads (:data:`RESULTS_FORMAT`;
+    NetCDF stores the number as an array of one)."""
+    a = np.asarray(value)
+    return a.ndim <= 1 and a.size == 1 and a.dtype.kind in "iu" and int(a.reshape(())) == RESULTS_FORMAT
 
 
 def _check_sizes(path, f):
@@ -494,6 +515,8 @@ def _sweep(study, output, scheduler, resume, force, progress, base, changes):
             problem = other_commands_file(p, "study")
             if problem is not None:
                 raise problem
+        for p in (output, partial):      # a link or a device is said as what it is before a resume reads through it
+            check_replaceable(p, "-o", None)
         if resume:
             source = partial if os.path.exists(partial) else output if os.path.exists(output) else None
             if source is not None:

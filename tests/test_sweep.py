@@ -901,9 +901,21 @@ def test_a_failed_write_over_kept_points_says_how_much_room_a_write_needs(tmp_pa
         signal.signal(signal.SIGXFSZ, xfsz)
     said = str(info.value)
     assert "r.nc.partial is as it was (a write makes a whole new copy, " in said, said
+    # a size limit is not a full disk: no 'free some room'
+    assert " kB, beside it): raise the limit and continue with --resume" in said and "room" not in said, said
+    assert "(File too large: a file-size limit (ulimit -f?))" in said, said
+    assert path.read_bytes() == before and not (tmp_path / "r.nc.partial.tmp").exists()
+    # a full disk (ENOSPC, from the flush of the new copy)
+    import errno
+    from unittest import mock
+
+    def full(fd):
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+    with mock.patch("rbx.sweeping.os.fsync", full), pytest.raises(DiskFull) as info:
+        _write(ds, str(path))
+    said = str(info.value)
     assert " kB, beside it before replacing it, so it needs that much free): free some room and continue with " \
            "--resume" in said, said
-    assert "(File too large: a file-size limit (ulimit -f?))" in said, said     # not only 'free some room'
     assert path.read_bytes() == before and not (tmp_path / "r.nc.partial.tmp").exists()
     # a folder where the new copy goes is not a full disk (it said 'free some room' with 16 GB free)
     from rbx.paths import FileError

@@ -1,0 +1,68 @@
+"""A thirty-first round: `rbx sweep --resume -o` naming a link to another command's file was refused as "the study
+changed … --force, which discards its 0 finished points" (a link to a text file: in HDF5's words); a results file
+of another format (``rbx_study = 2``) was drawn and resumed; a file-size limit met by `rbx sweep` was advised away
+with "free some room". Each test was seen to fail on the code before it."""
+import os
+import subprocess
+import sys
+
+import h5py
+import pytest
+import yaml
+
+import rbx
+from tests.test_reliability8 import cli
+from tests.test_reliability13 import RECTANGLE
+
+RBX = os.path.join(os.path.dirname(sys.executable), "rbx")
+
+
+def _study(folder):
+    (folder / "table.yaml").write_text(yaml.safe_dump(RECTANGLE, sort_keys=False))
+    (folder / "study.yaml").write_text(yaml.safe_dump(
+        {"base": "table.yaml", "vary": {"ball.inertia": [0.2, 0.5, 1.0]}, "measure": ["energy_drift"],
+         "ensemble": {"trajectories": 4, "collisions": 100, "seed": 3}}, sort_keys=False))
+
+
+@pytest.mark.parametrize("target", ["run", "text"])
+def test_a_link_as_the_studys_output_is_said_to_be_a_link_before_a_resume_reads_through_it(tmp_path, target):
+    _study(tmp_path)
+    if target == "run":
+        rbx.simulate(str(tmp_path / "table.yaml"), output=str(tmp_path / "victim.h5"))
+    else:
+        (tmp_path / "victim.h5").write_text("my notes\n")
+    before = (tmp_path / "victim.h5").read_bytes()
+    os.symlink("victim.h5", tmp_path / "s.nc")
+    for extra in (("--resume",), ("--force",), ()):
+        res = cli("", "sweep", "study.yaml", "-o", "s.nc", "--quiet", *extra, cwd=tmp_path)
+        lines = res.stderr.strip().splitlines()
+        assert res.returncode == 2 and len(lines) == 1, res.stderr
+        assert lines[0].startswith("rbx: -o: s.nc is a symbolic link to victim.h5; rbx writes only regular files"), \
+            (extra, lines[0])
+    assert (tmp_path / "victim.h5").read_bytes() == before and (tmp_path / "s.nc").is_symlink()
+
+
+@pytest.mark.parametrize("version", [2, 0, "1", 1.5])
+def test_a_results_file_of_another_format_is_refused_by_the_figure_and_the_resume(tmp_path, version):
+    _study(tmp_path)
+    rbx.sweep(str(tmp_path / "study.yaml"), str(tmp_path / "r.nc"))
+    with h5py.File(tmp_path / "r.nc", "r+") as f:
+        f.attrs["rbx_study"] = version
+    for args in (("plot", "r.nc", "--kind", "sweep", "-o", "f.png"),
+                 ("sweep", "study.yaml", "-o", "r.nc", "--resume")):
+        res = cli("", *args, "--quiet", cwd=tmp_path)
+        lines = res.stderr.strip().splitlines()
+        assert res.returncode == 2 and len(lines) == 1, res.stderr
+        assert lines[0].startswith(f"rbx: r.nc: rbx_study: is {version!r}: this rbx reads the results format 1"), \
+            lines[0]
+    assert not (tmp_path / "f.png").exists()
+
+
+def test_a_file_size_limit_met_by_a_study_is_not_called_a_full_disk(tmp_path):
+    _study(tmp_path)
+    res = subprocess.run(["bash", "-c", f"trap '' XFSZ; ulimit -f 4; exec {RBX} sweep study.yaml -o r.nc --quiet"],
+                         cwd=tmp_path, capture_output=True, text=True, timeout=900)
+    lines = res.stderr.strip().splitlines()
+    assert res.returncode == 1 and len(lines) == 1, res.stderr
+    assert "a file-size limit (ulimit -f?)" in lines[0] and "raise the limit" in lines[0], lines[0]
+    assert "room" not in lines[0], lines[0]
