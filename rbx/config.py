@@ -549,6 +549,25 @@ MAX_ORIENTATION = 1e8
 MAX_POSITION = 1e14
 
 
+#: the largest speed times the table's size (and the smallest, its inverse): the collision test with a round wall
+#: squares v·(a − c), of that size, so (speed × size)² must stay a normal double (1e±302). Lengths and speeds each
+#: within their own limits but scaled together (a Sinai table of size 2e-100 at speeds of 1e-100) missed every
+#: round wall, flew through the scatterer and out of a closed circle, in runs that ended complete with exit 0
+MAX_SPEED_SIZE = 1e151
+
+
+def _check_speed_size(speed, geom, c, key):
+    """Refuse a speed (|v|² + κR²|ω|²)^½ whose product with the table's size over- or underflows when squared
+    (:data:`MAX_SPEED_SIZE`)."""
+    with np.errstate(all="ignore"):
+        product = speed * geom.size
+    if not 1.0 / MAX_SPEED_SIZE <= product <= MAX_SPEED_SIZE:
+        c.fail(key, f"the speed {speed:.3g} times the table's size {geom.size:.3g} is {product:.3g}: the collision "
+                    f"test squares it, and beyond 1e±{round(math.log10(MAX_SPEED_SIZE))} that leaves double "
+                    "precision (round walls are missed); take units of length and time nearer the table's and the "
+                    "orbit's")
+
+
 def _check_spin_range(speed, spin, R, c, key):
     """The kernels square spin components (the energy): a collision gives the ball spins of order |v|/R, so
     (|v|/R)² and the initial ω² must stay finite — else the state becomes NaN, not just inexact. A radius so
@@ -579,6 +598,7 @@ def _initial(init, n, c, geom, kind, R, kappa, names):
                    "'initial={position: […], velocity: […]}')")
         c.mapping(init, "initial", ("sample", "wall"))
         sampler = c.choice(init["sample"], "initial.sample", SAMPLERS, "sampler")
+        _check_speed_size(1.0, geom, c, "table")          # sampled states have unit speed
         wall = init.get("wall")
         if sampler == "point_particle":
             if wall is not None:
@@ -615,6 +635,13 @@ def _initial(init, n, c, geom, kind, R, kappa, names):
     for i in range(len(out), len(states)):
         key = "initial" if not isinstance(init, list) else f"initial[{i}]"
         out.append(_one_state(states[i], init, key, n, c, geom, R, kappa))
+    speeds = np.sqrt([float(np.sum(np.square(s["velocity"])) + kappa * R * R * np.sum(np.square(s["angular_velocity"])))
+                      for s in out])
+    with np.errstate(all="ignore"):
+        bad = np.flatnonzero(~((speeds * geom.size >= 1.0 / MAX_SPEED_SIZE) & (speeds * geom.size <= MAX_SPEED_SIZE)))
+    if len(bad):
+        key = "initial" if not isinstance(init, list) else f"initial[{int(bad[0])}]"
+        _check_speed_size(float(speeds[bad[0]]), geom, c, _join(key, "velocity"))
     # read-only mappings of read-only arrays: an edit of a loaded experiment's start (exp.initial[0][...] = …) was
     # kept and shown, and the run used the start it was loaded with
     return tuple(types.MappingProxyType(state) for state in out), len(out)
