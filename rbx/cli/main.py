@@ -1,4 +1,5 @@
 """``rbx``: the command-line entry point (docs/reference.md §4)."""
+import contextlib
 import errno
 import io
 import os
@@ -40,6 +41,25 @@ def main():
         if signal.getsignal(s) is not signal.SIG_IGN:
             signal.signal(s, note_interrupt)
     try:
+        _main()
+    except (KeyboardInterrupt, Interrupted):   # Ctrl-C before a command installed its own handler (importing)
+        # nothing is written before a command's own handlers are in: the same line as a command's set-up phase
+        sys.stderr.write(f"rbx: interrupted by {signal.Signals(pending_signal() or signal.SIGINT).name}; "
+                         "nothing written\n")
+        sys.exit(128 + int(pending_signal() or signal.SIGINT))
+    finally:
+        # the command has ended and said how: a signal while the interpreter shuts down (up to half a second of
+        # Numba's and HDF5's clean-up) found Python's handlers already gone and killed the process by the signal,
+        # after 'rbx: wrote …' and with the work in place; from here on it changes nothing
+        for s in stop_signals():
+            with contextlib.suppress(ValueError, OSError):
+                signal.signal(s, signal.SIG_IGN)
+
+
+def _main():
+    """The command line's run after the signal handlers are in: everything that can take time, Numba's import
+    for the environment's check included, is inside :func:`main`'s handling of an interrupt."""
+    try:
         os.getcwd()
     except OSError:   # deleted under us: relative paths mean nothing, and Numba's compiler needs it too
         sys.stderr.write("rbx: the working directory no longer exists; change to an existing folder\n")
@@ -67,11 +87,6 @@ def main():
         sys.stderr.write(f"rbx: stdout: cannot write: {exc.strerror or exc}\n")
         _silence_stdout()
         sys.exit(1)
-    except (KeyboardInterrupt, Interrupted):   # Ctrl-C before a command installed its own handler (importing)
-        # nothing is written before a command's own handlers are in: the same line as a command's set-up phase
-        sys.stderr.write(f"rbx: interrupted by {signal.Signals(pending_signal() or signal.SIGINT).name}; "
-                         "nothing written\n")
-        sys.exit(128 + int(pending_signal() or signal.SIGINT))
 
 
 class StdoutError(OSError):
