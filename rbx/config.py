@@ -29,6 +29,7 @@ from collections.abc import Mapping
 import numpy as np
 
 from . import rules, tables
+from .analysis import table_measure
 from .model import (COMPRESSIONS, DEFAULT_MAX_SIZE, RECORD_FIELDS, SERVICES, VALIDATED, Ball, ConfigError, Experiment,
                     INERTIA_NAMES, Numerics, Output, RunSettings, kappa_of, unknown_inertia)
 from .paths import path_text_problem
@@ -277,6 +278,7 @@ def _from_dict(data, source, overrides, base, cwd_hint=False, includes=()):
                 tc.fail(tkey or None, "the table's numbers overflow once it is built (coordinates too large, or "
                                       "walls too nearly parallel)")
             _check_fits(kind, tparams, radius, geom, c, tc, tkey)
+        _check_span(geom, n, tc, tkey)
     except ConfigError:
         raise
     except Exception as exc:   # a degenerate table the checks above let through: still the user's input
@@ -554,6 +556,32 @@ MAX_POSITION = 1e14
 #: within their own limits but scaled together (a Sinai table of size 2e-100 at speeds of 1e-100) missed every
 #: round wall, flew through the scatterer and out of a closed circle, in runs that ended complete with exit 0
 MAX_SPEED_SIZE = 1e151
+
+
+#: the farthest a bounded table's walls may reach from the origin, in units of its mean width (volume over boundary
+#: measure, of the table the ball's centre moves in): the last digit of a coordinate is then at most 1/45 of a mean
+#: width, as MAX_POSITION allows in sizes (the stress suite's corridor 2R(1 + 1e-12) high and 2 long is 2e13 mean
+#: widths). A Sinai table 1e16 long and 1 wide (or a 100 × 1 table placed at x = 1e16) moved its ball by whole
+#: units: a centre inside the scatterer, an x that never changed, a chaotic table measured as regular, exit 0
+MAX_SPAN = 1e14
+
+
+def _check_span(geom, n, c, key):
+    """Refuse a bounded table whose walls reach further from the origin than :data:`MAX_SPAN` mean widths (an
+    unbounded one has no mean width: its starts are bounded by :data:`MAX_POSITION` instead)."""
+    from .primitives import P_POINT
+    try:
+        volume, surface = table_measure(geom)
+    except ValueError:                  # unbounded
+        return
+    with np.errstate(all="ignore"):
+        width = volume / surface
+        far = float(np.max(np.abs(geom.params[:, P_POINT:P_POINT + n])))
+    if np.isfinite(width) and width > 0 and far > MAX_SPAN * width:
+        c.fail(key or None, f"its walls reach {far:.3g} from the origin, {far / width:.2g} times its mean width "
+                            f"{width:.3g} (its volume over its boundary): a coordinate's last digit is then more than "
+                            f"2 % of a mean flight, and the orbit is lost; place the table near the origin, or make it "
+                            f"less elongated (at most {MAX_SPAN:g} mean widths)")
 
 
 def _check_speed_size(speed, geom, c, key):
