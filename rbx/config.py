@@ -584,12 +584,18 @@ def _check_span(geom, n, c, key):
                             f"less elongated (at most {MAX_SPAN:g} mean widths)")
 
 
-def _check_speed_size(speed, geom, c, key):
-    """Refuse a speed (|v|² + κR²|ω|²)^½ whose product with the table's size over- or underflows when squared
-    (:data:`MAX_SPEED_SIZE`)."""
+def _speed_size_ok(speed, size):
+    """Whether speeds (|v|² + κR²|ω|²)^½ (a number or an array) times the table's size stay within
+    :data:`MAX_SPEED_SIZE` and its inverse (NaN does not)."""
     with np.errstate(all="ignore"):
+        product = np.asarray(speed) * size
+    return (product >= 1.0 / MAX_SPEED_SIZE) & (product <= MAX_SPEED_SIZE)
+
+
+def _check_speed_size(speed, geom, c, key):
+    """Refuse a speed whose product with the table's size over- or underflows when squared (:func:`_speed_size_ok`)."""
+    if not _speed_size_ok(speed, geom.size):
         product = speed * geom.size
-    if not 1.0 / MAX_SPEED_SIZE <= product <= MAX_SPEED_SIZE:
         c.fail(key, f"the speed {speed:.3g} times the table's size {geom.size:.3g} is {product:.3g}: the collision "
                     f"test squares it, and beyond 1e±{round(math.log10(MAX_SPEED_SIZE))} that leaves double "
                     "precision (round walls are missed); take units of length and time nearer the table's and the "
@@ -665,8 +671,7 @@ def _initial(init, n, c, geom, kind, R, kappa, names):
         out.append(_one_state(states[i], init, key, n, c, geom, R, kappa))
     speeds = np.sqrt([float(np.sum(np.square(s["velocity"])) + kappa * R * R * np.sum(np.square(s["angular_velocity"])))
                       for s in out])
-    with np.errstate(all="ignore"):
-        bad = np.flatnonzero(~((speeds * geom.size >= 1.0 / MAX_SPEED_SIZE) & (speeds * geom.size <= MAX_SPEED_SIZE)))
+    bad = np.flatnonzero(~_speed_size_ok(speeds, geom.size))
     if len(bad):
         key = "initial" if not isinstance(init, list) else f"initial[{int(bad[0])}]"
         _check_speed_size(float(speeds[bad[0]]), geom, c, _join(key, "velocity"))
