@@ -52,7 +52,7 @@ from .model import FIELD, FIELDS
 from .primitives import P_NORMAL, P_POINT
 from .physics import collide, collide_axis
 from .rng import draw53
-from .rules import EXIT, Rules, choose  # noqa: F401 - Rules: a group of the kernels, defined with the rules
+from .rules import EXIT, HEMISPHERE, Rules, choose, hemisphere_step  # noqa: F401 - Rules: a group of the kernels, defined with the rules
 from .tangent import (STATE_SHAPE, fold, last_flight, orthonormalise, set_unit, state_after, state_before, step,
                       step_inline)
 from .trig import sincos
@@ -300,7 +300,7 @@ S_AXES = 4096       # bounded by an axis-aligned box (Table.box): a division per
 S_ROUND_HEMI = 8192  # 2D: a hemisphere rule on a wall without one normal: cos θ, sin θ (rbx.rules.choose)
 S_TANGENT = 16384   # carry tangent vectors (Tangent) along the orbit: the Lyapunov spectrum, the flow's Jacobian
 S_BLEND = 32768     # the rank is drawn at random: the map computed without a branch on it (rbx.physics.rough_factor)
-S_PAIRS = 65536     # every wall's rule is a random choice between two constant rules: picked without the walk
+S_SHARED = 65536    # every wall's rule is one node picking among constant rules by one test: picked without the walk
 S_GENERAL = 131072  # the general loop (compiled_spec): every bit but the dimension read at run time
 #: the bits compiled into the kernel; the others are tested at run time (a predictable branch). Each compiled
 #: combination in use costs a compile of 5–15 s the first time (then it is on disk), so the bits compiled are the
@@ -351,13 +351,13 @@ def compiled_spec(flags):
 
 def make_spec(n, orient=False, spin=True, tree=False, record=False, compensated=False, snap=False,
               slab=False, stop_wall=False, periodic=False, exit=False, axes=False, round_hemisphere=False,
-              tangent=False, blend=False, pairs=False):
+              tangent=False, blend=False, shared=False):
     """The ``spec`` bits from flags (:class:`rbx.simulation.Simulation` derives them from the config)."""
     flags = ((n == 3, S_DIM3), (orient, S_ORIENT), (spin, S_SPIN), (tree, S_TREE), (record, S_RECORD),
              (compensated, S_COMPENSATED), (snap, S_SNAP), (slab, S_SLAB),
              (stop_wall, S_STOP_WALL), (periodic, S_PERIODIC), (exit, S_EXIT), (axes, S_AXES),
              (round_hemisphere, S_ROUND_HEMI), (tangent, S_TANGENT), (blend, S_BLEND),
-             (pairs, S_PAIRS))
+             (shared, S_SHARED))
     return sum(bit for on, bit in flags if on)
 
 
@@ -373,6 +373,9 @@ def kahan_add(s, comp, j, i, x):
         comp[j, i] = (y - t) + s
     return t
 
+
+#: a random node's threshold that no draw reaches (a draw has 53 bits): the third leaf of a choice of two
+NEVER = np.uint64(2**64 - 1)
 
 #: the compiled loops, one per combination of compiled bits in use (:func:`kernel`)
 _KERNELS = {}
@@ -423,7 +426,6 @@ def _make_kernel(spec):
         n = N
         on = settings.flags                        # the run-time bits are read from here (the compiled ones: constants)
         blend = (BLEND or (GENERAL and (on & S_SPIN) != 0 and (on & S_TREE) != 0)) and (on & S_BLEND) != 0
-        pairs = (TREE or GENERAL) and (on & S_PAIRS) != 0
         codes, prim_wall, params, tol = table.codes, table.prim_wall, table.params, table.tol
         first_hit = table.first_hit
         R, kappa, every, renorm_every = settings.R, settings.kappa, settings.every, settings.renorm_every
@@ -446,19 +448,28 @@ def _make_kernel(spec):
             set_unit(Ts, tangent.unit)
             Jn = Ts[2, 0]                      # the normal's derivative along the wall
             period = tangent.ortho             # re-orthonormalise every so many collisions (0: never)
-        # every wall the same random choice between two constant rules (the walls share the node): its leaves, their
-        # ranks and the threshold held in locals, so that the pick reads no array (tests/test_rules.py, the same orbit)
-        shared = pairs
-        pair_c0, pair_c1 = np.int64(0), np.int64(0)
-        pair_r0, pair_r1 = np.int64(0), np.int64(0)
-        pair_thr = np.uint64(0)
-        if pairs:
-            pc, pt = rules.pair_child, rules.pair_threshold
-            for ww in range(1, pt.shape[0]):
-                if pc[ww, 0] != pc[0, 0] or pc[ww, 1] != pc[0, 1] or pt[ww] != pt[0]:
-                    shared = False
-            pair_c0, pair_c1, pair_thr = pc[0, 0], pc[0, 1], pt[0]
-            pair_r0, pair_r1 = rules.rank[pair_c0], rules.rank[pair_c1]
+        # every wall the same choice among constant rules (rules.CompiledRules.shared_pick): a random one of two or
+        # three, or in 3D the side of a hemisphere rule. Its leaves, their ranks and its thresholds or axis are held
+        # in locals, so that the pick walks no tree (tests/test_rules.py: the same orbit as the walk)
+        shared = (TREE or GENERAL) and (on & S_SHARED) != 0
+        r0 = np.int64(0)
+        hemi = False
+        pick_c0, pick_c1, pick_c2 = np.int64(0), np.int64(0), np.int64(0)
+        pick_r0, pick_r1, pick_r2 = np.int64(0), np.int64(0), np.int64(0)
+        pick_t0, pick_t1 = np.uint64(0), NEVER
+        hx, hy, hz = 0.0, 0.0, 0.0
+        if shared:
+            r0 = rules.root[0]
+            f0, k0 = rules.first[r0], rules.nchild[r0]
+            hemi = N == 3 and rules.kind[r0] == HEMISPHERE
+            pick_c0, pick_c1 = rules.children[f0], rules.children[f0 + 1]
+            pick_c2 = rules.children[f0 + 2] if k0 == 3 else pick_c1
+            pick_r0, pick_r1, pick_r2 = rules.rank[pick_c0], rules.rank[pick_c1], rules.rank[pick_c2]
+            pick_t0 = rules.threshold[f0]
+            if k0 == 3:
+                pick_t1 = rules.threshold[f0 + 1]
+            if N == 3:
+                hx, hy, hz = rules.axis[r0, 0], rules.axis[r0, 1], rules.axis[r0, 2]
         # the stop wall as a number no wall has when there is none: one comparison per collision
         stop_at = np.int64(settings.stop_wall) if on & S_STOP_WALL else np.int64(-2)
         alive = state.alive
@@ -561,19 +572,25 @@ def _make_kernel(spec):
                 # 4. rule
                 w = prim_wall[p]
                 if (TREE or (GENERAL and (on & S_TREE) != 0)) and shared:
-                    coin = draw53(key, d) >= pair_thr
-                    d += 1
-                    node = pair_c1 if coin else pair_c0
-                    rk = pair_r1 if coin else pair_r0
+                    second, third = False, False    # two selects each, not a branch on a coin
+                    if N == 3 and hemi:         # smooth (the second) iff ν·(A·axis) ≥ 0: rules.hemisphere_step's test
+                        if SLAB or (GENERAL and (on & S_SLAB) != 0):    # ν = ±e_z: one row of A
+                            second = nu[2] * (Aj[2, 0] * hx + Aj[2, 1] * hy + Aj[2, 2] * hz) >= 0.0
+                        else:
+                            second = hemisphere_step(r0, w, nu, Aj, th, rules.axis, rules.phase, n, False) == 1
+                    else:                       # rules.random_step: the thresholds the draw reaches
+                        m53 = draw53(key, d)
+                        second, third = m53 >= pick_t0, m53 >= pick_t1
+                        d += 1
+                    node = pick_c1 if second else pick_c0
+                    rk = pick_r1 if second else pick_r0
+                    node = pick_c2 if third else node
+                    rk = pick_r2 if third else rk
                 else:
                     if TREE or (GENERAL and (on & S_TREE) != 0):
-                        if pairs:   # every wall a random choice between two constant rules: one draw, one comparison
-                            node = rules.pair_child[w, np.int64(draw53(key, d) >= rules.pair_threshold[w])]
-                            d += 1
-                        else:
-                            node, d = choose(w, nu, Aj, th, key, d, rules.root, rules.kind, rules.first, rules.nchild,
-                                             rules.children, rules.threshold, rules.axis, rules.phase, n,
-                                             ROUND_HEMI or (GENERAL and (on & S_ROUND_HEMI) != 0))
+                        node, d = choose(w, nu, Aj, th, key, d, rules.root, rules.kind, rules.first, rules.nchild,
+                                         rules.children, rules.threshold, rules.axis, rules.phase, n,
+                                         ROUND_HEMI or (GENERAL and (on & S_ROUND_HEMI) != 0))
                     else:
                         node = rules.root[w]
                     rk = rules.rank[node]

@@ -47,12 +47,6 @@ class Rules(NamedTuple):
     axis: np.ndarray        # (nodes, n) body-frame axis (hemisphere nodes)
     phase: np.ndarray       # (nodes, walls) 2D hemisphere nodes on flat walls, else NaN (rbx.rules.phases)
     basis: np.ndarray       # (nodes, walls, n-1, n) roughness basis (constant nodes)
-    #: (walls, 2) the two leaves of a wall whose root is a random choice between two constant rules (the common
-    #: shape, as in the paper's random strip), else −1; the root's threshold in ``pair_threshold`` (walls,). Read
-    #: when every wall has that shape (engine.S_PAIRS, :attr:`CompiledRules.all_pairs`)
-    pair_child: np.ndarray
-    pair_threshold: np.ndarray
-
 
 @dataclass
 class CompiledRules:
@@ -73,32 +67,26 @@ class CompiledRules:
     uses_exit: bool = False  # some wall can be an exit
     round_hemisphere: bool = False  # 2D: a hemisphere rule on a wall without one normal (no ``phase``)
 
-    def pairs(self):
-        """(pair_child, pair_threshold) of :class:`Rules`: each wall whose root is a random choice between two
-        constant rules -> its two leaves and the root's threshold; other walls -1 and 0."""
-        pair_child = np.full((len(self.root), 2), -1, np.int64)
-        pair_threshold = np.zeros(len(self.root), np.uint64)
-        for w, r in enumerate(self.root):
-            k = self.first[r]
-            if self.kind[r] == RANDOM and self.nchild[r] == 2 and \
-                    all(self.kind[self.children[k + c]] == CONSTANT for c in (0, 1)):
-                pair_child[w] = self.children[k:k + 2]
-                pair_threshold[w] = self.threshold[k]
-        return pair_child, pair_threshold
-
     @property
-    def all_pairs(self):
-        """Every wall's rule is a random choice between two constant rules: the kernel picks each leaf with one
-        draw and one comparison, without the walk (engine.S_PAIRS). Only then: a test per wall in front of the
-        walk cost the other tree shapes about 0.7 ns per collision (strip hemisphere 6.9 -> 7.6 ns)."""
-        return bool(np.all(self.pairs()[0][:, 0] >= 0))
+    def shared_pick(self):
+        """Every wall's rule is one node that picks among constant rules by one test: a random choice of two or
+        three (one draw, two comparisons), or in 3D a hemisphere rule (the sign of ν·(A·axis)). The kernel holds
+        its leaves, their ranks and its thresholds or axis in locals and picks without the walk (engine.S_SHARED):
+        the plates' hemisphere rule 411 -> 331 instructions a collision, their random rule over three directions
+        255 -> 154 (docs/speed-gaps.md)."""
+        r0 = self.root[0]
+        if np.any(self.root != r0):
+            return False
+        kind, k, count = self.kind[r0], self.first[r0], self.nchild[r0]
+        if not ((kind == RANDOM and count in (2, 3)) or (kind == HEMISPHERE and self.axis.shape[1] == 3)):
+            return False
+        return all(self.kind[self.children[k + c]] == CONSTANT for c in range(count))
 
     def kernel_arrays(self):
         """The arrays the kernels read, as the group :class:`Rules`."""
-        pair_child, pair_threshold = self.pairs()
         return Rules(root=self.root, kind=self.kind, rank=self.rank, first=self.first, nchild=self.nchild,
                      children=self.children, threshold=self.threshold, axis=self.axis, phase=self.phase,
-                     basis=self.basis, pair_child=pair_child, pair_threshold=pair_threshold)
+                     basis=self.basis)
 
 
 def compile_rules(wall_rules, geom):

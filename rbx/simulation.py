@@ -223,7 +223,7 @@ class Simulation:
             snap=self.numerics.snap, slab=self.geom.slab, stop_wall=self.stop_wall >= 0,
             periodic=self.geom.lattice is not None, exit=bool(np.any(r.kind == rules.EXIT)),
             axes=self.geom.axis_box is not None, round_hemisphere=r.round_hemisphere, blend=r.uses_random,
-            pairs=r.all_pairs)
+            shared=r.shared_pick)
         return (bits | self.force_bits) & ~self.drop_bits
 
     def kernel_groups(self):

@@ -88,7 +88,7 @@ def test_the_groups():
     assert engine.Table._fields == ("codes", "prim_wall", "params", "tol", "lattice_lo", "period", "box", "others",
                                     "first_hit", "axis", "images", "image_shift")
     assert engine.Rules._fields == ("root", "kind", "rank", "first", "nchild", "children", "threshold", "axis",
-                                    "phase", "basis", "pair_child", "pair_threshold")
+                                    "phase", "basis")
     assert set(engine.Settings._fields) == {"flags", "stop_wall", "every", "mask", "renorm_every", "R", "kappa"}
     assert "pos" in engine.State._fields and len(engine.State._fields) == 14
     for group in (engine.Table, engine.Settings, engine.State, engine.Records, engine.Tangent):

@@ -22,10 +22,11 @@ ROUGH, SMOOTH = {"rule": "constant", "rank": 1}, {"rule": "constant", "rank": 0}
 
 
 def _sim(table, rule, position=(0.5, 0.5)):
+    n = len(position)
     return Simulation(rbx.load({
         "table": table, "boundary": {"default": rule}, "ball": {"radius": 0.1, "inertia": "uniform"},
-        "initial": {"position": list(position), "velocity": [0.6, 0.8],
-                    "angular_velocity": 1.0},
+        "initial": {"position": list(position), "velocity": [0.6, 0.8] if n == 2 else [0.6, 0.8, 0.3],
+                    "angular_velocity": 1.0 if n == 2 else [1.0, 0.0, 0.5]},
         "run": {"collisions": 10, "trajectories": 1, "seed": 3}, "output": {"record": ["time"]}}))
 
 
@@ -130,32 +131,65 @@ def test_integer_thresholds_pick_the_child_the_float_draw_picks(probs):
         assert node == r.children[r.first[r.root[0]] + by_int(int(draw_bits(key, d)) >> 11)]
 
 
-def test_a_wall_whose_rule_is_a_random_choice_of_two_constants_takes_the_kernels_short_pick():
-    # engine: such a wall's leaf is picked with one draw and one comparison (Rules.pair_child, pair_threshold),
-    # without the walk; any other shape takes the walk. The same child as the walk (rules.choose) on real draws
+def test_one_rule_on_every_wall_that_picks_among_constants_by_one_test_takes_the_kernels_short_pick():
+    # engine.S_SHARED (rules.CompiledRules.shared_pick): every wall shares one node that picks among constant rules by
+    # one test (a random choice of two or three, a 3D hemisphere rule): the kernel holds it in locals, no walk. Any
+    # other shape, or one wall with a rule of its own, takes the walk
     two = {"rule": "random", "choices": [SMOOTH, ROUGH], "probabilities": [0.3, 0.7]}
     three = {"rule": "random", "choices": [SMOOTH, ROUGH, SMOOTH], "probabilities": [0.2, 0.3, 0.5]}
+    four = {"rule": "random", "choices": [SMOOTH, ROUGH, SMOOTH, ROUGH], "probabilities": [0.25] * 4}
     nested = {"rule": "random", "choices": [SMOOTH, _hemisphere([0, 1])], "probabilities": [0.5, 0.5]}
     rect = {"kind": "rectangle", "width": 2.0, "height": 1.0}
-    r = _sim(rect, two).rules.kernel_arrays()
-    assert np.all(r.pair_child >= 0) and np.all(r.pair_threshold == rules.thresholds([0.3])[0])
-    assert _sim(rect, two).spec() & engine.S_PAIRS
-    for rule in (three, nested, ROUGH, _hemisphere([0, 1])):
-        assert np.all(_sim(rect, rule).rules.kernel_arrays().pair_child == -1), rule
-        assert not _sim(rect, rule).spec() & engine.S_PAIRS
-    # one wall of another rule: the pick is not used at all (a constant wall must draw nothing)
+    box = {"kind": "box", "size": [2.0, 1.0, 1.5]}
+    for rule in (two, three):
+        assert _sim(rect, rule).spec() & engine.S_SHARED, rule
+    for rule in (four, nested, ROUGH, _hemisphere([0, 1])):      # a 2D hemisphere reads each wall's phase: the walk
+        assert not _sim(rect, rule).spec() & engine.S_SHARED, rule
+    rough3 = {"rule": "constant", "rank": 2}
+    hemi3 = {"rule": "hemisphere", "axis": [0, 0, 1], "rough": rough3, "smooth": SMOOTH}
+    assert _sim(box, hemi3, position=(0.5, 0.5, 0.5)).spec() & engine.S_SHARED
+    random3 = {"rule": "random", "choices": [SMOOTH, rough3], "probabilities": [0.5, 0.5]}
+    assert not _sim(box, {**hemi3, "rough": random3}, position=(0.5, 0.5, 0.5)).spec() & engine.S_SHARED
+    # one wall of another rule: no shared pick (a constant wall must draw nothing)
     mixed = rbx.load({"table": rect, "boundary": {"default": two, "walls": {"left": ROUGH}},
                       "ball": {"radius": 0.1}, "initial": {"position": [1.0, 0.5], "velocity": [0.6, 0.8],
                                                           "angular_velocity": 1.0},
                       "run": {"collisions": 10, "trajectories": 1, "seed": 3}})
-    assert not Simulation(mixed).spec() & engine.S_PAIRS
-    sim = _sim(rect, two)
-    k = sim.rules.kernel_arrays()
-    key = np.uint64(777)
-    for d in range(500):
-        m = int(draw_bits(key, d)) >> 11
-        short = k.pair_child[0, int(m >= int(k.pair_threshold[0]))]
-        assert short == _choose(sim.rules, 0, [0.0, 1.0], 0.0, False, key, d)[0]
+    assert not Simulation(mixed).spec() & engine.S_SHARED
+
+
+FIELDS_3D = ["time", "position", "velocity", "angular_velocity", "orientation", "wall", "rank"]
+
+
+@pytest.mark.parametrize("table, rule", [
+    ({"kind": "plates", "gap": 1.0}, "hemisphere"),             # a slab: the test reads one row of A
+    ({"kind": "box", "size": [2.0, 1.0, 1.5]}, "hemisphere"),  # rules.hemisphere_step on the box's sides
+    ({"kind": "sphere", "radius": 1.0}, "hemisphere"),           # and on a curved wall
+    ({"kind": "plates", "gap": 1.0}, "random3"),
+    ({"kind": "box", "size": [2.0, 1.0, 1.5]}, "random2")])
+def test_the_shared_pick_follows_the_orbit_of_the_walk_bit_for_bit(table, rule):
+    # the same records (every field, 3000 collisions, 2 trajectories from the billiard measure) with the short pick
+    # and with the walk (S_SHARED taken away), and both leaves taken
+    from rbx.simulation import MemorySink
+    three = [SMOOTH, {"rule": "constant", "rank": 1, "direction_deg": 60}, {"rule": "constant", "rank": 2}]
+    boundary = {"hemisphere": {"rule": "hemisphere", "axis": [0.3, -0.5, 0.8], "rough": {"rule": "constant", "rank": 2},
+                               "smooth": SMOOTH},
+                "random3": {"rule": "random", "choices": three, "probabilities": [0.2, 0.5, 0.3]},
+                "random2": {"rule": "random", "choices": [SMOOTH, {"rule": "constant", "rank": 2}],
+                            "probabilities": [0.4, 0.6]}}[rule]
+    d = {"table": table, "boundary": {"default": boundary}, "ball": {"radius": 0.1, "inertia": "uniform"},
+         "initial": {"sample": "billiard"}, "run": {"collisions": 3000, "trajectories": 2, "seed": 5},
+         "output": {"record": FIELDS_3D}}
+    runs = []
+    for drop in (0, engine.S_SHARED):
+        sim = Simulation(rbx.load(d), drop_bits=drop)
+        assert bool(sim.spec() & engine.S_SHARED) == (drop == 0)
+        sink = MemorySink()
+        sim.run(sink)
+        runs.append(sink.records)
+    assert set(np.unique(runs[0]["rank"])) == ({0, 1, 2} if rule == "random3" else {0, 2})
+    for f in runs[0]:
+        np.testing.assert_array_equal(runs[0][f], runs[1][f], err_msg=f)
 
 
 def test_a_random_rule_runs_the_map_without_a_branch_on_the_rank_and_the_same_orbit():
@@ -169,17 +203,15 @@ def test_a_random_rule_runs_the_map_without_a_branch_on_the_rank_and_the_same_or
          "ball": {"radius": 0.1, "inertia": "uniform"}, "initial": {"sample": "billiard"},
          "run": {"collisions": 4000, "trajectories": 2, "seed": 3},
          "output": {"record": ["time", "position", "velocity", "angular_velocity", "orientation", "rank"]}}
-    # every wall the same pair (the kernel holds it in locals), and one wall a pair of its own (looked up per wall)
+    # every wall the same pair (the kernel holds it in locals), and one wall a pair of its own (the walk)
     own = {"rule": "random", "choices": [ROUGH, SMOOTH], "probabilities": [0.6, 0.4]}
     for walls in ({}, {"left": own}):
         d["boundary"]["walls"] = walls
         runs = []
-        for drop in (0, engine.S_BLEND, engine.S_PAIRS):      # and the same with the walk instead of the short pick
+        for drop in (0, engine.S_BLEND, engine.S_SHARED):     # and the same with the walk instead of the short pick
             sim = Simulation(rbx.load(d), drop_bits=drop)
-            both = engine.S_BLEND | engine.S_PAIRS
-            assert sim.spec() & both == both & ~drop
-            pc = sim.rules.kernel_arrays().pair_child
-            assert np.all(pc == pc[0]) == (not walls)
+            both = engine.S_BLEND | (0 if walls else engine.S_SHARED)
+            assert sim.spec() & (engine.S_BLEND | engine.S_SHARED) == both & ~drop
             sink = MemorySink()
             sim.run(sink)
             runs.append(sink.records)
