@@ -580,7 +580,9 @@ def _make_kernel(spec):
                             second = hemisphere_step(r0, w, nu, Aj, th, rules.axis, rules.phase, n, False) == 1
                     else:                       # rules.random_step: the thresholds the draw reaches
                         m53 = draw53(key, d)
-                        second, third = m53 >= pick_t0, m53 >= pick_t1
+                        second = m53 >= pick_t0
+                        if pick_t1 != NEVER:    # a choice of three
+                            third = m53 >= pick_t1
                         d += 1
                     node = pick_c1 if second else pick_c0
                     rk = pick_r1 if second else pick_r0
