@@ -52,7 +52,8 @@ from .model import FIELD, FIELDS
 from .primitives import P_NORMAL, P_POINT
 from .physics import collide, collide_axis
 from .rng import draw53
-from .rules import EXIT, HEMISPHERE, Rules, choose, hemisphere_step  # noqa: F401 - Rules: a group of the kernels, defined with the rules
+# Rules: a group of the kernels, defined with the rules
+from .rules import EXIT, HEMISPHERE, Rules, choose, hemisphere_step  # noqa: F401
 from .tangent import (STATE_SHAPE, fold, last_flight, orthonormalise, set_unit, state_after, state_before, step,
                       step_inline)
 from .trig import sincos
@@ -449,8 +450,9 @@ def _make_kernel(spec):
             Jn = Ts[2, 0]                      # the normal's derivative along the wall
             period = tangent.ortho             # re-orthonormalise every so many collisions (0: never)
         # every wall the same choice among constant rules (rules.CompiledRules.shared_pick): a random one of two or
-        # three, or in 3D the side of a hemisphere rule. Its leaves, their ranks and its thresholds or axis are held
-        # in locals, so that the pick walks no tree (tests/test_rules.py: the same orbit as the walk)
+        # three, or in 3D the side of a hemisphere rule. Its leaves, their ranks and its thresholds are held in
+        # locals, and on a slab the hemisphere's axis too (elsewhere its test reads the rule's arrays), so that the
+        # pick walks no tree (tests/test_rules.py: the same orbit as the walk)
         shared = (TREE or GENERAL) and (on & S_SHARED) != 0
         r0 = np.int64(0)
         hemi = False
@@ -575,7 +577,8 @@ def _make_kernel(spec):
                     second, third = False, False    # two selects each, not a branch on a coin
                     if N == 3 and hemi:         # smooth (the second) iff ν·(A·axis) ≥ 0: rules.hemisphere_step's test
                         if SLAB or (GENERAL and (on & S_SLAB) != 0):    # ν = ±e_z: one row of A
-                            second = nu[2] * (Aj[2, 0] * hx + Aj[2, 1] * hy + Aj[2, 2] * hz) >= 0.0
+                            # not (… < 0), as the walk: a NaN (an orientation gone non-finite) is smooth there too
+                            second = not nu[2] * (Aj[2, 0] * hx + Aj[2, 1] * hy + Aj[2, 2] * hz) < 0.0
                         else:
                             second = hemisphere_step(r0, w, nu, Aj, th, rules.axis, rules.phase, n, False) == 1
                     else:                       # rules.random_step: the thresholds the draw reaches

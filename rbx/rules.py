@@ -48,6 +48,7 @@ class Rules(NamedTuple):
     phase: np.ndarray       # (nodes, walls) 2D hemisphere nodes on flat walls, else NaN (rbx.rules.phases)
     basis: np.ndarray       # (nodes, walls, n-1, n) roughness basis (constant nodes)
 
+
 @dataclass
 class CompiledRules:
     root: np.ndarray        # (walls,) root node of each wall
@@ -70,8 +71,8 @@ class CompiledRules:
     @property
     def shared_pick(self):
         """Every wall's rule is one node that picks among constant rules by one test: a random choice of two or
-        three (one draw, two comparisons), or in 3D a hemisphere rule (the sign of ν·(A·axis)). The kernel holds
-        its leaves, their ranks and its thresholds or axis in locals and picks without the walk (engine.S_SHARED):
+        three (one draw, compared with each threshold), or in 3D a hemisphere rule (the sign of ν·(A·axis)). The
+        kernel holds its leaves, their ranks and its thresholds in locals and picks without the walk (engine.S_SHARED):
         the plates' hemisphere rule 411 -> 331 instructions a collision, their random rule over three directions
         255 -> 154 (docs/speed-gaps.md)."""
         r0 = self.root[0]
