@@ -450,7 +450,7 @@ def _make_kernel(spec):
             Jn = Ts[2, 0]                      # the normal's derivative along the wall
             period = tangent.ortho             # re-orthonormalise every so many collisions (0: never)
         # every wall the same choice among constant rules (rules.CompiledRules.shared_pick): a random one of two or
-        # three, or in 3D the side of a hemisphere rule. Its leaves, their ranks and its thresholds are held in
+        # three, or the side of a hemisphere rule. Its leaves, their ranks and its thresholds are held in
         # locals, and on a slab the hemisphere's axis too (elsewhere its test reads the rule's arrays), so that the
         # pick walks no tree (tests/test_rules.py: the same orbit as the walk)
         shared = (TREE or GENERAL) and (on & S_SHARED) != 0
@@ -463,7 +463,7 @@ def _make_kernel(spec):
         if shared:
             r0 = rules.root[0]
             f0, k0 = rules.first[r0], rules.nchild[r0]
-            hemi = N == 3 and rules.kind[r0] == HEMISPHERE
+            hemi = rules.kind[r0] == HEMISPHERE
             pick_c0, pick_c1 = rules.children[f0], rules.children[f0 + 1]
             pick_c2 = rules.children[f0 + 2] if k0 == 3 else pick_c1
             pick_r0, pick_r1, pick_r2 = rules.rank[pick_c0], rules.rank[pick_c1], rules.rank[pick_c2]
@@ -575,12 +575,13 @@ def _make_kernel(spec):
                 w = prim_wall[p]
                 if (TREE or (GENERAL and (on & S_TREE) != 0)) and shared:
                     second, third = False, False    # two selects each, not a branch on a coin
-                    if N == 3 and hemi:         # smooth (the second) iff ν·(A·axis) ≥ 0: rules.hemisphere_step's test
-                        if SLAB or (GENERAL and (on & S_SLAB) != 0):    # ν = ±e_z: one row of A
+                    if hemi:                    # smooth (the second) iff ν·(A·axis) ≥ 0: rules.hemisphere_step's test
+                        if N == 3 and (SLAB or (GENERAL and (on & S_SLAB) != 0)):    # ν = ±e_z: one row of A
                             # not (… < 0), as the walk: a NaN (an orientation gone non-finite) is smooth there too
                             second = not nu[2] * (Aj[2, 0] * hx + Aj[2, 1] * hy + Aj[2, 2] * hz) < 0.0
                         else:
-                            second = hemisphere_step(r0, w, nu, Aj, th, rules.axis, rules.phase, n, False) == 1
+                            second = hemisphere_step(r0, w, nu, Aj, th, rules.axis, rules.phase, n,
+                                                     ROUND_HEMI or (GENERAL and (on & S_ROUND_HEMI) != 0)) == 1
                     else:                       # rules.random_step: the thresholds the draw reaches
                         m53 = draw53(key, d)
                         second = m53 >= pick_t0

@@ -71,15 +71,15 @@ class CompiledRules:
     @property
     def shared_pick(self):
         """Every wall's rule is one node that picks among constant rules by one test: a random choice of two or
-        three (one draw, compared with each threshold), or in 3D a hemisphere rule (the sign of ν·(A·axis)). The
+        three (one draw, compared with each threshold), or a hemisphere rule (:func:`hemisphere_step`'s test). The
         kernel holds its leaves, their ranks and its thresholds in locals and picks without the walk (engine.S_SHARED):
-        the plates' hemisphere rule 411 -> 331 instructions a collision, their random rule over three directions
-        255 -> 154 (docs/speed-gaps.md)."""
+        instructions a collision, the plates' hemisphere rule 411 -> 341, their random rule over three directions
+        255 -> 166, the strip's hemisphere rule 145 -> 93 (docs/speed-gaps.md)."""
         r0 = self.root[0]
         if np.any(self.root != r0):
             return False
         kind, k, count = self.kind[r0], self.first[r0], self.nchild[r0]
-        if not ((kind == RANDOM and count in (2, 3)) or (kind == HEMISPHERE and self.axis.shape[1] == 3)):
+        if not ((kind == RANDOM and count in (2, 3)) or kind == HEMISPHERE):
             return False
         return all(self.kind[self.children[k + c]] == CONSTANT for c in range(count))
 

@@ -141,9 +141,9 @@ def test_one_rule_on_every_wall_that_picks_among_constants_by_one_test_takes_the
     nested = {"rule": "random", "choices": [SMOOTH, _hemisphere([0, 1])], "probabilities": [0.5, 0.5]}
     rect = {"kind": "rectangle", "width": 2.0, "height": 1.0}
     box = {"kind": "box", "size": [2.0, 1.0, 1.5]}
-    for rule in (two, three):
+    for rule in (two, three, _hemisphere([0, 1])):
         assert _sim(rect, rule).spec() & engine.S_SHARED, rule
-    for rule in (four, nested, ROUGH, _hemisphere([0, 1])):      # a 2D hemisphere reads each wall's phase: the walk
+    for rule in (four, nested, ROUGH):
         assert not _sim(rect, rule).spec() & engine.S_SHARED, rule
     rough3 = {"rule": "constant", "rank": 2}
     hemi3 = {"rule": "hemisphere", "axis": [0, 0, 1], "rough": rough3, "smooth": SMOOTH}
@@ -162,6 +162,10 @@ FIELDS_3D = ["time", "position", "velocity", "angular_velocity", "orientation", 
 
 
 SHARED_CASES = [
+    ({"kind": "strip", "width": 1.0}, "hemisphere"),             # 2D: each flat wall's phase (rules.phases)
+    ({"kind": "rectangle", "width": 2.0, "height": 1.0}, "hemisphere"),
+    ({"kind": "circle", "radius": 1.0}, "hemisphere"),          # 2D on a curved wall: cos θ, sin θ (S_ROUND_HEMI)
+    ({"kind": "rectangle", "width": 2.0, "height": 1.0}, "random3"),
     ({"kind": "plates", "gap": 1.0}, "hemisphere"),             # a slab: the test reads one row of A
     ({"kind": "box", "size": [2.0, 1.0, 1.5]}, "hemisphere"),  # rules.hemisphere_step on the box's sides
     ({"kind": "sphere", "radius": 1.0}, "hemisphere"),           # and on a curved wall
@@ -178,12 +182,15 @@ def test_the_shared_pick_follows_the_orbit_of_the_walk_bit_for_bit(table, rule, 
     # and with the walk (S_SHARED taken away), and every leaf taken
     from rbx.simulation import MemorySink
     monkeypatch.setattr(engine, "KERNELS", mode)
-    three = [SMOOTH, {"rule": "constant", "rank": 1, "direction_deg": 60}, {"rule": "constant", "rank": 2}]
-    boundary = {"hemisphere": {"rule": "hemisphere", "axis": [0.3, -0.5, 0.8], "rough": {"rule": "constant", "rank": 2},
-                               "smooth": SMOOTH},
+    dim3 = table["kind"] in ("plates", "box", "sphere")
+    top = {"rule": "constant", "rank": 2 if dim3 else 1}      # completely rough
+    # 2D has ranks 0 and 1 only: the middle leaf repeats the rough one (the third threshold is still read)
+    middle = {"rule": "constant", "rank": 1, "direction_deg": 60} if dim3 else ROUGH
+    three = [SMOOTH, middle, top]
+    boundary = {"hemisphere": {"rule": "hemisphere", "axis": [0.3, -0.5, 0.8] if dim3 else [0.6, -0.8],
+                               "rough": top, "smooth": SMOOTH},
                 "random3": {"rule": "random", "choices": three, "probabilities": [0.2, 0.5, 0.3]},
-                "random2": {"rule": "random", "choices": [SMOOTH, {"rule": "constant", "rank": 2}],
-                            "probabilities": [0.4, 0.6]}}[rule]
+                "random2": {"rule": "random", "choices": [SMOOTH, top], "probabilities": [0.4, 0.6]}}[rule]
     d = {"table": table, "boundary": {"default": boundary}, "ball": {"radius": 0.1, "inertia": "uniform"},
          "initial": {"sample": "billiard"}, "run": {"collisions": 3000, "trajectories": 2, "seed": 5},
          "output": {"record": FIELDS_3D}}
@@ -195,7 +202,8 @@ def test_the_shared_pick_follows_the_orbit_of_the_walk_bit_for_bit(table, rule, 
         sim.run(sink)
         runs.append(sink.records)
     # the first record is the start's (rank 0 whatever the rule): the leaves taken are the later ones
-    assert set(np.unique(runs[0]["rank"][:, 1:])) == ({0, 1, 2} if rule == "random3" else {0, 2})
+    ranks = {0, 1, top["rank"]} if rule == "random3" else {0, top["rank"]}
+    assert set(np.unique(runs[0]["rank"][:, 1:])) == ranks
     for f in runs[0]:
         np.testing.assert_array_equal(runs[0][f], runs[1][f], err_msg=f)
 
