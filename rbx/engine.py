@@ -450,16 +450,14 @@ def _make_kernel(spec):
             Jn = Ts[2, 0]                      # the normal's derivative along the wall
             period = tangent.ortho             # re-orthonormalise every so many collisions (0: never)
         # every wall the same choice among constant rules (rules.CompiledRules.shared_pick): a random one of two or
-        # three, or the side of a hemisphere rule. Its leaves, their ranks and its thresholds are held in
-        # locals, and on a slab the hemisphere's axis too (elsewhere its test reads the rule's arrays), so that the
-        # pick walks no tree (tests/test_rules.py: the same orbit as the walk)
+        # three, or the side of a hemisphere rule. Its leaves, their ranks and its thresholds are held in locals, so
+        # that the pick walks no tree (tests/test_rules.py: the same orbit as the walk)
         shared = (TREE or GENERAL) and (on & S_SHARED) != 0
         r0 = np.int64(0)
         hemi = False
         pick_c0, pick_c1, pick_c2 = np.int64(0), np.int64(0), np.int64(0)
         pick_r0, pick_r1, pick_r2 = np.int64(0), np.int64(0), np.int64(0)
         pick_t0, pick_t1 = np.uint64(0), NEVER
-        hx, hy, hz = 0.0, 0.0, 0.0
         if shared:
             r0 = rules.root[0]
             f0, k0 = rules.first[r0], rules.nchild[r0]
@@ -470,8 +468,6 @@ def _make_kernel(spec):
             pick_t0 = rules.threshold[f0]
             if k0 == 3:
                 pick_t1 = rules.threshold[f0 + 1]
-            if N == 3:
-                hx, hy, hz = rules.axis[r0, 0], rules.axis[r0, 1], rules.axis[r0, 2]
         # the stop wall as a number no wall has when there is none: one comparison per collision
         stop_at = np.int64(settings.stop_wall) if on & S_STOP_WALL else np.int64(-2)
         alive = state.alive
@@ -575,13 +571,10 @@ def _make_kernel(spec):
                 w = prim_wall[p]
                 if (TREE or (GENERAL and (on & S_TREE) != 0)) and shared:
                     second, third = False, False    # two selects each, not a branch on a coin
-                    if hemi:                    # smooth (the second) iff ν·(A·axis) ≥ 0: rules.hemisphere_step's test
-                        if N == 3 and (SLAB or (GENERAL and (on & S_SLAB) != 0)):    # ν = ±e_z: one row of A
-                            # not (… < 0), as the walk: a NaN (an orientation gone non-finite) is smooth there too
-                            second = not nu[2] * (Aj[2, 0] * hx + Aj[2, 1] * hy + Aj[2, 2] * hz) < 0.0
-                        else:
-                            second = hemisphere_step(r0, w, nu, Aj, th, rules.axis, rules.phase, n,
-                                                     ROUND_HEMI or (GENERAL and (on & S_ROUND_HEMI) != 0)) == 1
+                    if hemi:                    # the second leaf: smooth (on a 3D slab, ν = ±e_z: one row of A)
+                        second = hemisphere_step(r0, w, nu, Aj, th, rules.axis, rules.phase, n,
+                                                 ROUND_HEMI or (GENERAL and (on & S_ROUND_HEMI) != 0),
+                                                 2 if N == 3 and (SLAB or (GENERAL and (on & S_SLAB) != 0)) else -1) == 1
                     else:                       # rules.random_step: the thresholds the draw reaches
                         m53 = draw53(key, d)
                         second = m53 >= pick_t0

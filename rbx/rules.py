@@ -73,7 +73,7 @@ class CompiledRules:
         """Every wall's rule is one node that picks among constant rules by one test: a random choice of two or
         three (one draw, compared with each threshold), or a hemisphere rule (:func:`hemisphere_step`'s test). The
         kernel holds its leaves, their ranks and its thresholds in locals and picks without the walk (engine.S_SHARED):
-        instructions a collision, the plates' hemisphere rule 411 -> 341, their random rule over three directions
+        instructions a collision, the plates' hemisphere rule 411 -> 348, their random rule over three directions
         255 -> 166, the strip's hemisphere rule 145 -> 93 (docs/speed-gaps.md)."""
         r0 = self.root[0]
         if np.any(self.root != r0):
@@ -218,7 +218,7 @@ def choose(wall, nu, A, theta, key, draws, root, kind, first, nchild, children, 
     node = root[wall]
     while kind[node] == HEMISPHERE or kind[node] == RANDOM:
         if kind[node] == HEMISPHERE:
-            node = children[first[node] + hemisphere_step(node, wall, nu, A, theta, axis, phase, n, rounded)]
+            node = children[first[node] + hemisphere_step(node, wall, nu, A, theta, axis, phase, n, rounded, -1)]
         else:
             node = children[random_step(first[node], nchild[node], key, draws, threshold)]
             draws += 1
@@ -399,10 +399,14 @@ def _hemisphere_parse(r, key, n, c, geom, wall_ids):
 
 
 @jit_hot
-def hemisphere_step(node, wall, nu, A, theta, axis, phase, n, rounded):
+def hemisphere_step(node, wall, nu, A, theta, axis, phase, n, rounded, m):
     """The child a hemisphere node takes -> 0 (rough) or 1 (smooth). The contact point in the body frame is
     b = Aᵀ(−ν) (2D: −ν rotated by −θ); rough iff b·axis > 0, i.e. iff ν·(A·axis) < 0 (2D on a flat wall: read
-    off θ and the node's ``phase``, :func:`phases`; ``rounded``: see :func:`choose`)."""
+    off θ and the node's ``phase``, :func:`phases`; ``rounded``: see :func:`choose`).
+
+    ``m`` ≥ 0 (3D; a constant where the kernel passes it: a slab's walls): ν is ±e_m, and the sum reads row m of A
+    alone, ν_m·(A_m·axis). Its sign is the full sum's: the terms with ν's zeros add zeros of either sign, and ν_m = ±1
+    is exact; NaN (an orientation gone non-finite) is smooth either way."""
     s = 0.0
     if n == 2:
         ph = phase[node, wall]
@@ -413,6 +417,10 @@ def hemisphere_step(node, wall, nu, A, theta, axis, phase, n, rounded):
             c, sn = np.cos(theta), np.sin(theta)   # libm: rbx.trig.sincos inline was slower here (circle 46 -> 50 ns)
             s = (nu[0] * (c * axis[node, 0] - sn * axis[node, 1])
                  + nu[1] * (sn * axis[node, 0] + c * axis[node, 1]))
+    elif m >= 0:
+        for j in range(n):
+            s += A[m, j] * axis[node, j]
+        s *= nu[m]
     else:
         for i in range(n):
             for j in range(n):
