@@ -33,6 +33,7 @@ from .analysis import table_measure
 from .model import (COMPRESSIONS, DEFAULT_MAX_SIZE, RECORD_FIELDS, SERVICES, VALIDATED, Ball, ConfigError, Experiment,
                     INERTIA_NAMES, Numerics, Output, RunSettings, kappa_of, unknown_inertia)
 from .paths import path_text_problem
+from .primitives import P_POINT
 from .yamlfile import check_size, copied, gc_paused, parse_yaml, read_yaml
 from .rules import PROBABILITY_SUM_TOLERANCE, parse_rule  # noqa: F401 - the tolerance: read by the rules' checks
 
@@ -569,7 +570,6 @@ MAX_SPAN = 1e14
 def _check_span(geom, n, c, key):
     """Refuse a bounded table whose walls reach further from the origin than :data:`MAX_SPAN` mean widths (an
     unbounded one has no mean width: its starts are bounded by :data:`MAX_POSITION` instead)."""
-    from .primitives import P_POINT
     try:
         volume, surface = table_measure(geom)
     except ValueError:                  # unbounded
